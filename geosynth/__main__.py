@@ -1,0 +1,5 @@
+import sys
+
+from geosynth.cli import main
+
+sys.exit(main())

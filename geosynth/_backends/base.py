@@ -1,0 +1,123 @@
+"""What both backends share: the host-side steps around their kernels.
+
+A backend subclasses :class:`Backend` and implements the primitives, one per kernel
+(same names and argument order as ``kernels/ssd.py`` / ``kernels/ssd.cl``) plus
+memory transfer. The multi-pass operations built on them (argmin from partials,
+selection by count + prefix + compact) are written once, here.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from geosynth.backend import DeviceArray
+
+# Selection modes, shared with the kernels (SELECT_LEQ, SELECT_LT, SELECT_EQ).
+SELECT_LEQ, SELECT_LT, SELECT_EQ = 0, 1, 2
+
+
+class Backend(ABC):
+    """One device. Methods take and return DeviceArrays of this backend.
+
+    Attributes:
+        name: canonical device string ("cpu", "cuda:0", "opencl:0:0").
+        kind: "cpu", "cuda" or "opencl".
+        partial_threads: how many threads the reductions use (argmin, selection).
+    """
+
+    name: str
+    kind: str
+    partial_threads: int = 1024
+
+    # -- memory -------------------------------------------------------------------
+    @abstractmethod
+    def to_device(self, array: np.ndarray) -> DeviceArray:
+        """Copy a contiguous host array to the device."""
+
+    @abstractmethod
+    def empty(self, shape: tuple[int, ...], dtype) -> DeviceArray:
+        """Allocate an uninitialised device array."""
+
+    @abstractmethod
+    def to_host(self, array: DeviceArray) -> np.ndarray:
+        """Copy a device array to the host (a synchronization point)."""
+
+    @abstractmethod
+    def synchronize(self) -> None:
+        """Wait until every launched kernel has finished."""
+
+    # -- kernels (one method per kernel; no validation below the public API) -------
+    @abstractmethod
+    def ssd_dense(self, candidates, queries, weights, n, d, b, out) -> None:
+        """out (b*n,) <- weighted SSD of every query row against every candidate row."""
+
+    @abstractmethod
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, out) -> None:
+        """out <- SSD of the query entries at base(c) + offsets for every candidate c.
+
+        ``bases`` is a DeviceArray of explicit base indices or None for the lattice
+        (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.
+        """
+
+    @abstractmethod
+    def argmin_partials(self, scores, n, part_val, part_idx) -> None:
+        """Per-thread minimum and its lowest index, over a strided share of scores."""
+
+    @abstractmethod
+    def count_selected(self, scores, n, chunk, thr, mode, counts) -> None:
+        """counts[t] <- how many scores in chunk t the threshold selects."""
+
+    @abstractmethod
+    def compact_selected(self, scores, n, chunk, thr, mode, starts, out_idx) -> None:
+        """out_idx <- the selected indices, ascending, chunk t written from starts[t]."""
+
+    # -- host-side steps shared by both backends ------------------------------------
+    def argmin(self, scores: DeviceArray) -> tuple[int, np.generic]:
+        """Index of the smallest score (the lowest index on ties) and that score."""
+        n = scores.size
+        g = max(1, min(n, self.partial_threads))
+        part_val = self.empty((g,), scores.dtype)
+        part_idx = self.empty((g,), np.int32)
+        self.argmin_partials(scores, n, part_val, part_idx)
+        # sync: the orchestrator needs the index now; g values come back, not n.
+        vals, idx = self.to_host(part_val), self.to_host(part_idx)
+        valid = idx >= 0
+        vals, idx = vals[valid], idx[valid]
+        best = vals.min()
+        return int(idx[vals == best].min()), best
+
+    def select(self, scores: DeviceArray, threshold, mode: int) -> np.ndarray:
+        """Indices (int64, ascending) of the scores that ``threshold`` selects under ``mode``."""
+        n = scores.size
+        g = max(1, min(n, self.partial_threads))
+        chunk = -(-n // g)
+        thr = self.to_device(np.array([threshold], dtype=scores.dtype))
+        counts = self.empty((g,), np.int32)
+        self.count_selected(scores, n, chunk, thr, mode, counts)
+        # sync: the prefix sum of g counts is done on the host.
+        host_counts = self.to_host(counts).astype(np.int64)
+        total = int(host_counts.sum())
+        if total == 0:
+            return np.zeros(0, np.int64)
+        starts = np.zeros(g, np.int32)
+        starts[1:] = np.cumsum(host_counts[:-1])
+        out_idx = self.empty((total,), np.int32)
+        self.compact_selected(scores, n, chunk, thr, mode, self.to_device(starts), out_idx)
+        # sync: the selected indices are the answer.
+        return self.to_host(out_idx).astype(np.int64)
+
+    def count(self, scores: DeviceArray, threshold, mode: int) -> int:
+        """How many scores ``threshold`` selects under ``mode``."""
+        n = scores.size
+        g = max(1, min(n, self.partial_threads))
+        chunk = -(-n // g)
+        counts = self.empty((g,), np.int32)
+        thr = self.to_device(np.array([threshold], dtype=scores.dtype))
+        self.count_selected(scores, n, chunk, thr, mode, counts)
+        # sync: a single count decides the next bisection step.
+        return int(self.to_host(counts).astype(np.int64).sum())
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r})"

@@ -1,0 +1,127 @@
+"""Input checks shared by the public operations: each error names the argument,
+what was expected and what was given."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from geosynth.backend import DeviceArray, get_backend
+
+# uint8 data is scored in uint32: the largest possible score must fit.
+UINT32_MAX = np.iinfo(np.uint32).max
+
+
+def resolve_backend(device: str | None, *arrays):
+    """The backend to run on: the one that holds any DeviceArray input, else ``device``.
+
+    Raises:
+        RuntimeError: inputs on different devices, or ``device`` names another one.
+    """
+    held = [a.backend for a in arrays if isinstance(a, DeviceArray)]
+    if held:
+        backend = held[0]
+        for other in held[1:]:
+            if other is not backend:
+                raise RuntimeError(f"inputs live on different devices ({backend.name} vs {other.name}).")
+        if device is not None and device != "auto" and get_backend(device) is not backend:
+            raise RuntimeError(
+                f"inputs live on {backend.name} but device={device!r} was asked for; "
+                "pass device=None or move the inputs with geosynth.to_device."
+            )
+        return backend
+    return get_backend("auto" if device is None else device)
+
+
+def as_data(name: str, array, ndims: tuple[int, ...]):
+    """Check a data array (float32 or uint8); other float dtypes become float32.
+
+    Returns the array (contiguous NumPy, or the DeviceArray as given).
+
+    Raises:
+        TypeError: not an array, or an unsupported dtype.
+        ValueError: wrong number of dimensions.
+    """
+    if not isinstance(array, DeviceArray):
+        if not isinstance(array, np.ndarray):
+            array = np.asarray(array)
+        if array.dtype == np.uint8 or array.dtype == np.float32:
+            array = np.ascontiguousarray(array)
+        elif np.issubdtype(array.dtype, np.floating):
+            array = np.ascontiguousarray(array, dtype=np.float32)
+        else:
+            raise TypeError(
+                f"{name} has unsupported dtype {array.dtype}: expected float32 (other floats are "
+                "converted) or uint8 (scored exactly in integers)."
+            )
+    elif array.dtype not in (np.dtype(np.float32), np.dtype(np.uint8)):
+        raise TypeError(f"{name} has unsupported dtype {array.dtype}: expected float32 or uint8.")
+    if array.ndim not in ndims:
+        want = " or ".join(str(n) for n in ndims)
+        raise ValueError(f"{name} must have {want} dimensions, got shape {array.shape}.")
+    return array
+
+
+def check_finite(name: str, array) -> None:
+    """Refuse NaN or inf in a float host array (DeviceArrays are not read back)."""
+    if isinstance(array, np.ndarray) and array.dtype.kind == "f" and not np.isfinite(array).all():
+        bad = int(np.count_nonzero(~np.isfinite(array)))
+        raise ValueError(f"{name} contains {bad} NaN or inf value(s); every value must be finite.")
+
+
+def same_kind(name: str, array, reference_name: str, reference) -> np.ndarray | DeviceArray:
+    """Make ``array`` the dtype of ``reference`` (float32 or uint8), or refuse."""
+    want = reference.dtype
+    if isinstance(array, DeviceArray):
+        if array.dtype != want:
+            raise TypeError(f"{name} has dtype {array.dtype} but {reference_name} has {want}; they must match.")
+        return array
+    array = np.asarray(array)
+    if want == np.uint8:
+        if array.dtype != np.uint8:
+            raise TypeError(
+                f"{name} has dtype {array.dtype} but {reference_name} is uint8; pass uint8 {name} "
+                f"(or convert {reference_name} to float32)."
+            )
+        return np.ascontiguousarray(array)
+    if not np.issubdtype(array.dtype, np.floating) and not np.issubdtype(array.dtype, np.integer):
+        raise TypeError(f"{name} has unsupported dtype {array.dtype}: expected a float array.")
+    return np.ascontiguousarray(array, dtype=np.float32)
+
+
+def as_weights(name: str, weights, length: int, data_dtype: np.dtype) -> np.ndarray:
+    """Check weights: shape (length,), finite, >= 0; integers for uint8 data.
+
+    Returns float32 weights for float data, uint32 weights for uint8 data.
+    """
+    w = np.asarray(weights)
+    if w.shape != (length,):
+        raise ValueError(f"{name} must have shape ({length},), got {w.shape}.")
+    if data_dtype == np.uint8:
+        if w.dtype.kind not in "iu":
+            raise TypeError(
+                f"{name} has dtype {w.dtype}: uint8 data is scored exactly, so weights must be integers "
+                "(or convert the data to float32 to use float weights)."
+            )
+        if (w < 0).any():
+            raise ValueError(f"{name} must be non-negative, got a minimum of {w.min()}.")
+        if w.size and int(w.max()) > UINT32_MAX:
+            raise ValueError(f"{name} exceeds the uint32 range.")
+        return w.astype(np.uint32)
+    if w.dtype.kind not in "iuf":
+        raise TypeError(f"{name} has unsupported dtype {w.dtype}: expected a float array.")
+    w = w.astype(np.float32)
+    if not np.isfinite(w).all():
+        raise ValueError(f"{name} contains NaN or inf; every weight must be finite.")
+    if (w < 0).any():
+        raise ValueError(f"{name} must be non-negative, got a minimum of {w.min()}.")
+    return w
+
+
+def check_uint32_range(total_weight: int, what: str) -> None:
+    """For uint8 data the largest score, total_weight * 255^2, must fit in uint32."""
+    worst = int(total_weight) * 255 * 255
+    if worst > UINT32_MAX:
+        raise ValueError(
+            f"uint8 scores of {what} could reach {worst}, beyond uint32 ({UINT32_MAX}): use fewer entries, "
+            "smaller weights, or float32 data."
+        )

@@ -1,0 +1,292 @@
+"""The device switch: device strings -> backend objects.
+
+Every public operation of geosynth takes ``device=``. This module resolves that
+string once and returns a backend; the two backends (Warp, OpenCL) expose the same
+methods with the same arguments and results, so nothing above them branches on
+the device.
+
+Device strings:
+
+- ``"cpu"``: Warp on the CPU (one thread).
+- ``"cuda"`` / ``"cuda:N"``: Warp on an NVIDIA GPU.
+- ``"opencl"`` / ``"opencl:P:D"``: PyOpenCL, platform P, device D (``"opencl"`` is
+  ``"opencl:0:0"``; on a machine with no GPU that is PoCL from PyPI).
+- ``"auto"``: the first CUDA GPU if present, else the fastest CPU backend as
+  measured by ``bench/bm_scoring.py`` (OpenCL on PoCL, which uses every core),
+  else Warp's ``cpu``.
+
+A malformed string raises ValueError; a well-formed string naming a device that is
+not present raises RuntimeError listing what is present. There is never a silent
+fallback from one device to another.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["DeviceArray", "devices", "get_backend", "parse_device"]
+
+_DEVICE_RE = re.compile(r"^(auto|cpu|cuda(?::(\d+))?|opencl(?::(\d+):(\d+))?)$")
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    """A parsed device string: ``kind`` is auto, cpu, cuda or opencl."""
+
+    kind: str
+    index: int | None = None  # cuda ordinal
+    platform: int | None = None  # opencl platform index
+    device: int | None = None  # opencl device index within the platform
+
+
+def parse_device(device: str) -> DeviceSpec:
+    """Parse a device string without touching any runtime.
+
+    Args:
+        device: one of ``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``,
+            ``"opencl"``, ``"opencl:P:D"``.
+
+    Returns:
+        The parsed DeviceSpec.
+
+    Raises:
+        ValueError: if ``device`` is not a string of that form.
+    """
+    if not isinstance(device, str):
+        raise ValueError(f"device must be a string such as 'cpu', 'cuda:0', 'opencl:0:0' or 'auto', got {device!r}.")
+    m = _DEVICE_RE.match(device.strip().lower())
+    if m is None:
+        raise ValueError(
+            f"Malformed device {device!r}: expected 'auto', 'cpu', 'cuda', 'cuda:N', 'opencl' or 'opencl:P:D'."
+        )
+    text = m.group(1)
+    if text.startswith("cuda"):
+        return DeviceSpec("cuda", index=int(m.group(2)) if m.group(2) is not None else 0)
+    if text.startswith("opencl"):
+        if m.group(3) is None:
+            return DeviceSpec("opencl", platform=0, device=0)
+        return DeviceSpec("opencl", platform=int(m.group(3)), device=int(m.group(4)))
+    return DeviceSpec(text)
+
+
+# ----------------------------------------------------------------------------------
+# Optional runtimes, imported lazily; their import errors surface only when asked for.
+
+
+@functools.lru_cache(maxsize=1)
+def _warp_status() -> tuple[Any, Exception | None]:
+    try:
+        import warp as wp
+
+        # Warp 1.19 replaced `config.quiet` with `config.log_level`; keep both quiet.
+        if hasattr(wp, "LOG_WARNING"):
+            wp.config.log_level = wp.LOG_WARNING
+        else:
+            wp.config.quiet = True
+        wp.init()
+        return wp, None
+    except Exception as exc:  # ImportError, or a broken install
+        return None, exc
+
+
+@functools.lru_cache(maxsize=1)
+def _opencl_status() -> tuple[Any, Exception | None]:
+    try:
+        import pyopencl as cl
+
+        cl.get_platforms()
+        return cl, None
+    except Exception as exc:  # ImportError, or no ICD loader / no platform
+        return None, exc
+
+
+def _warp_device_names() -> list[str]:
+    wp, _ = _warp_status()
+    if wp is None:
+        return []
+    return [str(d) for d in wp.get_devices()]
+
+
+def _opencl_device_names() -> list[str]:
+    cl, _ = _opencl_status()
+    if cl is None:
+        return []
+    names = []
+    for p, platform in enumerate(cl.get_platforms()):
+        try:
+            devs = platform.get_devices()
+        except Exception:  # a platform with no devices raises on some ICDs
+            continue
+        names.extend(f"opencl:{p}:{d}" for d in range(len(devs)))
+    return names
+
+
+def devices() -> list[str]:
+    """List every device present, as the strings ``device=`` accepts.
+
+    Returns:
+        Warp's ``"cpu"``, then every ``"cuda:N"``, then every ``"opencl:P:D"``.
+    """
+    return _warp_device_names() + _opencl_device_names()
+
+
+def describe_devices() -> list[tuple[str, str]]:
+    """``(device string, human description)`` for every present device."""
+    out = []
+    wp, _ = _warp_status()
+    if wp is not None:
+        for d in wp.get_devices():
+            desc = "Warp on the CPU (one thread)" if d.is_cpu else f"Warp on {d.name}"
+            out.append((str(d), desc))
+    cl, _ = _opencl_status()
+    if cl is not None:
+        for p, platform in enumerate(cl.get_platforms()):
+            try:
+                devs = platform.get_devices()
+            except Exception:
+                continue
+            for i, dev in enumerate(devs):
+                out.append((f"opencl:{p}:{i}", f"OpenCL {platform.name.strip()}: {dev.name.strip()}, {dev.max_compute_units} compute units"))
+    return out
+
+
+def _absent(device: str, why: str = "") -> RuntimeError:
+    present = ", ".join(devices()) or "none"
+    extra = f" ({why})" if why else ""
+    return RuntimeError(f"Device {device!r} is not present{extra}. Present devices: {present}.")
+
+
+def resolve_device(device: str) -> str:
+    """Turn a device string into the canonical name of a present device.
+
+    ``"auto"`` becomes ``"cuda:0"`` when a GPU is present, else ``"opencl:P:D"``
+    for the first OpenCL CPU device, else ``"cpu"``.
+
+    Raises:
+        ValueError: malformed string.
+        RuntimeError: the device is not present (the message lists what is).
+    """
+    spec = parse_device(device)
+    if spec.kind == "auto":
+        names = _warp_device_names()
+        if "cuda:0" in names:
+            return "cuda:0"
+        cl_names = _opencl_device_names()
+        if cl_names:
+            return cl_names[0]
+        if "cpu" in names:
+            return "cpu"
+        raise _absent(device, "no backend could be loaded")
+    if spec.kind in ("cpu", "cuda"):
+        wp, err = _warp_status()
+        if wp is None:
+            raise _absent(device, f"Warp failed to load: {err}; install it with `pip install warp-lang`")
+        name = "cpu" if spec.kind == "cpu" else f"cuda:{spec.index}"
+        if name not in _warp_device_names():
+            raise _absent(device)
+        return name
+    cl, err = _opencl_status()
+    if cl is None:
+        raise _absent(
+            device,
+            f"OpenCL failed to load: {err}; install it with `pip install pyopencl pocl-binary-distribution`",
+        )
+    name = f"opencl:{spec.platform}:{spec.device}"
+    if name not in _opencl_device_names():
+        raise _absent(device)
+    return name
+
+
+@functools.lru_cache(maxsize=None)
+def _backend_for(name: str):
+    if name.startswith("opencl:"):
+        from geosynth._backends.opencl_backend import OpenCLBackend
+
+        _, p, d = name.split(":")
+        return OpenCLBackend(int(p), int(d))
+    from geosynth._backends.warp_backend import WarpBackend
+
+    return WarpBackend(name)
+
+
+def get_backend(device: str = "auto"):
+    """Return the backend object for a device string (cached per device).
+
+    Args:
+        device: a device string, see the module docstring.
+
+    Returns:
+        A ``WarpBackend`` or ``OpenCLBackend``; both expose the same methods.
+
+    Raises:
+        ValueError: malformed device string.
+        RuntimeError: the device is not present.
+    """
+    return _backend_for(resolve_device(device))
+
+
+class DeviceArray:
+    """An array that lives on one device, with the backend that owns it.
+
+    Made by :func:`geosynth.to_device` or returned by an operation called with
+    ``keep_on_device=True``. Pass it back to operations on the same device to avoid
+    copies; ``.numpy()`` copies it to the host.
+
+    Attributes:
+        data: the backend's own array (``warp.array`` or ``pyopencl.array.Array``).
+        backend: the backend that owns it.
+        shape: the logical shape.
+        dtype: the NumPy dtype.
+    """
+
+    def __init__(self, data: Any, backend: Any, shape: tuple[int, ...], dtype: np.dtype):
+        self.data = data
+        self.backend = backend
+        self.shape = tuple(int(s) for s in shape)
+        self.dtype = np.dtype(dtype)
+
+    @property
+    def device(self) -> str:
+        return self.backend.name
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    def numpy(self) -> np.ndarray:
+        """Copy to a host NumPy array (a synchronization point)."""
+        return self.backend.to_host(self)
+
+    def __repr__(self) -> str:
+        return f"DeviceArray(shape={self.shape}, dtype={self.dtype}, device={self.device!r})"
+
+
+def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceArray:
+    """Upload a NumPy array to a device once, to reuse across operations.
+
+    Args:
+        array: any NumPy array of a dtype geosynth uses (float32, uint8, int32,
+            uint32); a DeviceArray already on ``device`` is returned as is.
+        device: a device string.
+
+    Returns:
+        A DeviceArray on the resolved device.
+
+    Raises:
+        RuntimeError: ``array`` is a DeviceArray on another device.
+    """
+    backend = get_backend(device)
+    if isinstance(array, DeviceArray):
+        if array.backend is not backend:
+            raise RuntimeError(f"inputs live on different devices ({array.device} vs {backend.name}).")
+        return array
+    return backend.to_device(np.ascontiguousarray(array))

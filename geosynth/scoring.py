@@ -1,0 +1,310 @@
+"""Candidate SSD scoring: every candidate against a query, on any device.
+
+Two forms:
+
+- :func:`score_dense`: candidates and queries as rows of equal length (D).
+- :func:`score_gather`: candidates are windows of a 2D or 3D grid, gathered in the
+  kernel (never unpacked into memory); the query is K integer offsets with their
+  values. A full block (M1), a masked overlap window (M2) and an irregular
+  neighbourhood on a supersampled texture (M3, eq. 5) are all of this form.
+
+Scores are float32 for float data and uint32 for uint8 data. uint8 data is scored in
+integer arithmetic, exact and identical on every device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from geosynth import _checks
+from geosynth.backend import DeviceArray
+
+__all__ = ["candidate_origins", "lattice_shape", "score_dense", "score_gather"]
+
+_INT32_LIMIT = 2**31 - 1024  # flat indices stay int32 in the kernels
+
+
+def _upload(backend, array):
+    return array if isinstance(array, DeviceArray) else backend.to_device(array)
+
+
+def _score_dtype(data_dtype) -> np.dtype:
+    return np.dtype(np.uint32) if np.dtype(data_dtype) == np.uint8 else np.dtype(np.float32)
+
+
+def score_dense(
+    candidates: np.ndarray | DeviceArray,
+    queries: np.ndarray | DeviceArray,
+    weights: np.ndarray | None = None,
+    *,
+    device: str | None = None,
+    keep_on_device: bool = False,
+) -> np.ndarray | DeviceArray:
+    """Weighted sum of squared differences of every query against every candidate.
+
+    ``scores[q, i] = sum_k weights[k] * (candidates[i, k] - queries[q, k]) ** 2``
+
+    Args:
+        candidates: (N, D) float32 or uint8 array (other floats are converted), or a
+            DeviceArray made by :func:`geosynth.to_device` to reuse across calls.
+        queries: (B, D) or (D,) array of the same dtype as ``candidates``.
+        weights: optional (D,) non-negative weights; float for float data, integers
+            for uint8 data.
+        device: a device string (see :mod:`geosynth.backend`); None means the device
+            of a DeviceArray input, else ``"auto"``.
+        keep_on_device: return a DeviceArray instead of a NumPy array, for
+            selection on the device.
+
+    Returns:
+        (B, N) scores, or (N,) when ``queries`` is 1-D: float32 for float data,
+        uint32 for uint8 data (exact).
+
+    Raises:
+        TypeError: unsupported dtype, or dtypes that do not match.
+        ValueError: wrong shapes, empty inputs, NaN/inf, negative weights, a uint8
+            score range beyond uint32.
+        RuntimeError: the device is absent, or inputs on different devices.
+    """
+    candidates = _checks.as_data("candidates", candidates, (2,))
+    n, d = candidates.shape
+    if n == 0:
+        raise ValueError("candidates is empty: the candidate set must hold at least one row.")
+    if d == 0:
+        raise ValueError("candidates has rows of length 0: D must be at least 1.")
+    queries = _checks.same_kind("queries", queries, "candidates", candidates)
+    single = queries.ndim == 1
+    if single and not isinstance(queries, DeviceArray):
+        queries = queries.reshape(1, -1)
+    if queries.ndim != 2 or queries.shape[1] != d:
+        raise ValueError(f"queries must have shape (B, {d}) or ({d},) to match candidates (N, {d}), got {queries.shape}.")
+    b = queries.shape[0]
+    if b == 0:
+        raise ValueError("queries is empty: pass at least one query row.")
+    _checks.check_finite("queries", queries)
+    _checks.check_finite("candidates", candidates)
+    w = None if weights is None else _checks.as_weights("weights", weights, d, candidates.dtype)
+    if candidates.dtype == np.uint8:
+        _checks.check_uint32_range(d if w is None else int(w.astype(np.uint64).sum()), "this query")
+    if n * d > _INT32_LIMIT or n * b > _INT32_LIMIT:
+        raise ValueError(f"candidates ({n} x {d}) or scores ({b} x {n}) exceed 2^31 elements; split the call.")
+
+    backend = _checks.resolve_backend(device, candidates, queries)
+    out = backend.empty((b, n), _score_dtype(candidates.dtype))
+    backend.ssd_dense(
+        _upload(backend, candidates), _upload(backend, queries),
+        None if w is None else backend.to_device(w), n, d, b, out,
+    )
+    if single:
+        out.shape = (n,)
+    return out if keep_on_device else out.numpy()
+
+
+def _as_offsets(offsets) -> np.ndarray:
+    off = np.asarray(offsets)
+    if off.ndim != 2 or off.shape[1] not in (2, 3):
+        raise ValueError(f"offsets must have shape (K, 2) or (K, 3) (integer grid offsets), got {off.shape}.")
+    if off.shape[0] == 0:
+        raise ValueError("offsets is empty: the query needs at least one offset.")
+    if off.dtype.kind not in "iu":
+        if off.dtype.kind == "f" and np.all(np.isfinite(off)) and np.all(off == np.round(off)):
+            off = off.astype(np.int64)
+        else:
+            raise TypeError(f"offsets must be integers, got dtype {off.dtype}.")
+    return off.astype(np.int64)
+
+
+def _as_stride(stride, nd: int) -> np.ndarray:
+    s = np.broadcast_to(np.asarray(stride), (nd,)) if np.ndim(stride) == 0 else np.asarray(stride)
+    if s.shape != (nd,) or s.dtype.kind not in "iu" or (s < 1).any():
+        raise ValueError(f"stride must be a positive integer or {nd} positive integers, got {stride!r}.")
+    return s.astype(np.int64)
+
+
+def _spatial_shape(name: str, shape: tuple[int, ...], nd: int) -> tuple[tuple[int, ...], int]:
+    """Split a grid shape into its nd spatial sizes and its channel count."""
+    if len(shape) == nd:
+        return tuple(shape), 1
+    if len(shape) == nd + 1:
+        return tuple(shape[:nd]), int(shape[nd])
+    raise ValueError(
+        f"{name} must have {nd} dimensions (or {nd + 1} with channels last) to match {nd}-D offsets, got shape {shape}."
+    )
+
+
+def lattice_shape(
+    grid_shape: Sequence[int], offsets: np.ndarray, stride: int | Sequence[int] = 1, wrap: bool = False
+) -> tuple[int, ...]:
+    """Shape of the lattice of candidate origins that :func:`score_gather` scores.
+
+    Args:
+        grid_shape: the grid's spatial shape ((Y, X) or (Z, Y, X)).
+        offsets: (K, nd) integer offsets of the query.
+        stride: step between candidate origins, one int or one per axis.
+        wrap: periodic grid; every position (on the stride) is then a candidate.
+
+    Returns:
+        One count per axis; the candidates are its raster (C-order) enumeration.
+    """
+    off = _as_offsets(offsets)
+    nd = off.shape[1]
+    dims = np.asarray(grid_shape[:nd], np.int64)
+    step = _as_stride(stride, nd)
+    if wrap:
+        return tuple(int(v) for v in -(-dims // step))
+    lo, hi = -off.min(axis=0), dims - 1 - off.max(axis=0)
+    return tuple(int(v) for v in np.where(hi >= lo, (hi - lo) // step + 1, 0))
+
+
+def candidate_origins(
+    grid_shape: Sequence[int], offsets: np.ndarray, stride: int | Sequence[int] = 1, wrap: bool = False
+) -> np.ndarray:
+    """The (N, nd) int64 origins of the lattice candidates, in score order.
+
+    Same arguments as :func:`lattice_shape`; ``origins[i]`` is the grid position
+    whose window ``scores[i]`` measures.
+    """
+    off = _as_offsets(offsets)
+    nd = off.shape[1]
+    step = _as_stride(stride, nd)
+    counts = lattice_shape(grid_shape, off, step, wrap)
+    lo = np.zeros(nd, np.int64) if wrap else -off.min(axis=0)
+    axes = [lo[a] + step[a] * np.arange(counts[a]) for a in range(nd)]
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.stack([m.reshape(-1) for m in mesh], axis=1)
+
+
+def score_gather(
+    grid: np.ndarray | DeviceArray,
+    offsets: np.ndarray,
+    values: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    origins: np.ndarray | None = None,
+    stride: int | Sequence[int] = 1,
+    wrap: bool = False,
+    device: str | None = None,
+    keep_on_device: bool = False,
+) -> np.ndarray | DeviceArray:
+    """SSD of one query, given as offsets and values, against windows of a grid.
+
+    ``scores[c] = sum_k weights[k] * sum_ch (grid[origin_c + offsets[k], ch] - values[k, ch]) ** 2``
+
+    The windows are read in the kernel; nothing is unpacked into memory.
+
+    Args:
+        grid: (Y, X[, C]) or (Z, Y, X[, C]) float32 or uint8 array (the number of
+            columns of ``offsets`` says whether it is 2D or 3D; one more axis is
+            channels), or a DeviceArray of it.
+        offsets: (K, 2) or (K, 3) integer offsets from a candidate's origin, in grid
+            axis order ((dy, dx) or (dz, dy, dx)); may be negative.
+        values: (K, C) or, for one channel, (K,) query values, same dtype as ``grid``.
+        weights: optional (K,) non-negative weights, one per offset (all channels).
+        origins: optional (N, nd) integer candidate origins. Default: every origin
+            whose window lies inside the grid (every origin when ``wrap``), on the
+            lattice with ``stride``, in raster order (see :func:`candidate_origins`).
+        stride: step between lattice origins; one int or one per axis.
+        wrap: treat the grid as periodic (tileable): windows wrap around its faces.
+            Needs a NumPy grid (it is padded on the host before upload).
+        device: a device string; None means the device of a DeviceArray input, else
+            ``"auto"``.
+        keep_on_device: return a DeviceArray for selection on the device.
+
+    Returns:
+        (N,) scores, float32 for float data, uint32 (exact) for uint8 data.
+
+    Raises:
+        TypeError: unsupported or mismatched dtypes, non-integer offsets or origins.
+        ValueError: wrong shapes, NaN/inf, no valid candidate, an origin whose
+            window reaches outside the grid, a uint8 score range beyond uint32.
+        RuntimeError: the device is absent, or inputs on different devices.
+    """
+    off = _as_offsets(offsets)
+    k, nd = off.shape
+    grid = _checks.as_data("grid", grid, (nd, nd + 1))
+    dims, channels = _spatial_shape("grid", grid.shape, nd)
+    if min(dims) < 1 or channels < 1:
+        raise ValueError(f"grid is empty (shape {grid.shape}).")
+    vals = _checks.same_kind("values", values, "grid", grid)
+    if isinstance(vals, DeviceArray):
+        raise TypeError("values must be a host array (it is small and uploaded per call).")
+    if vals.shape not in ((k, channels),) + (((k,),) if channels == 1 else ()):
+        want = f"({k}, {channels})" + (f" or ({k},)" if channels == 1 else "")
+        raise ValueError(f"values must have shape {want} to match {k} offsets and {channels} channel(s), got {vals.shape}.")
+    _checks.check_finite("values", vals)
+    _checks.check_finite("grid", grid)
+    w = None if weights is None else _checks.as_weights("weights", weights, k, grid.dtype)
+    if grid.dtype == np.uint8:
+        total = k * channels if w is None else int(w.astype(np.uint64).sum()) * channels
+        _checks.check_uint32_range(total, "this query")
+    step = _as_stride(stride, nd)
+
+    # Geometry in padded 3D: (Z, Y, X) with Z = 1 for 2D grids.
+    dims_arr = np.asarray(dims, np.int64)
+    pad_lo = np.maximum(0, -off.min(axis=0)) if wrap else np.zeros(nd, np.int64)
+    pad_hi = np.maximum(0, off.max(axis=0)) if wrap else np.zeros(nd, np.int64)
+    if wrap:
+        if isinstance(grid, DeviceArray):
+            raise ValueError("wrap=True needs grid as a NumPy array (it is padded periodically on the host).")
+        pad = [(int(a), int(b)) for a, b in zip(pad_lo, pad_hi)] + ([(0, 0)] if grid.ndim == nd + 1 else [])
+        grid = np.pad(grid, pad, mode="wrap")
+    padded = dims_arr + pad_lo + pad_hi
+    if int(np.prod(padded)) * channels > _INT32_LIMIT:
+        raise ValueError(f"grid of {int(np.prod(padded)) * channels} elements exceeds 2^31; split it.")
+    full = np.concatenate([np.ones(3 - nd, np.int64), padded])  # (Z, Y, X)
+    elem_strides = np.array([full[1] * full[2], full[2], 1], np.int64) * channels  # flat step per axis
+    strides_nd = elem_strides[3 - nd:]
+    flat_off = (off @ strides_nd)[:, None] + np.arange(channels)[None, :]  # (K, C)
+
+    bases = None
+    if origins is None:
+        counts = lattice_shape(dims, off, step, wrap)
+        if min(counts) == 0:
+            raise ValueError(
+                f"no valid candidate: the offsets span {tuple(int(v) for v in off.max(0) - off.min(0) + 1)} "
+                f"but the grid is only {tuple(dims)}; use a larger grid, smaller offsets or wrap=True."
+            )
+        lo = pad_lo if wrap else -off.min(axis=0)
+        lattice3 = np.concatenate([np.ones(3 - nd, np.int64), counts])  # (nz, ny, nx)
+        step3 = np.concatenate([np.ones(3 - nd, np.int64), step])
+        steps = tuple(int(v) for v in (step3 * elem_strides)[::-1])  # (x, y, z)
+        base0 = int(lo @ strides_nd)
+        n = int(np.prod(lattice3))
+        lattice = (int(lattice3[2]), int(lattice3[1]), int(lattice3[0]))
+    else:
+        org = np.asarray(origins)
+        if org.ndim != 2 or org.shape[1] != nd:
+            raise ValueError(f"origins must have shape (N, {nd}), got {org.shape}.")
+        if org.shape[0] == 0:
+            raise ValueError("origins is empty: the candidate set must hold at least one origin.")
+        if org.dtype.kind not in "iu":
+            raise TypeError(f"origins must be integers, got dtype {org.dtype}.")
+        org = org.astype(np.int64)
+        if wrap:
+            org = np.mod(org, dims_arr) + pad_lo
+        else:
+            reach_lo, reach_hi = org + off.min(axis=0), org + off.max(axis=0)
+            bad = np.flatnonzero((reach_lo < 0).any(axis=1) | (reach_hi >= dims_arr).any(axis=1))
+            if bad.size:
+                i = int(bad[0])
+                raise ValueError(
+                    f"offsets reach outside the grid {tuple(dims)} for {bad.size} candidate origin(s), "
+                    f"first origins[{i}] = {tuple(int(v) for v in org[i])}; drop them or use wrap=True."
+                )
+        n = org.shape[0]
+        bases = (org @ strides_nd).astype(np.int32)
+        lattice, steps, base0 = (n, 1, 1), (0, 0, 0), 0
+
+    backend = _checks.resolve_backend(device, grid)
+    out = backend.empty((n,), _score_dtype(grid.dtype))
+    backend.ssd_gather(
+        _upload(backend, grid),
+        None if bases is None else backend.to_device(bases),
+        lattice, steps, base0,
+        backend.to_device(flat_off.reshape(-1).astype(np.int32)),
+        backend.to_device(np.ascontiguousarray(vals.reshape(-1))),
+        None if w is None else backend.to_device(np.repeat(w, channels)),
+        k * channels, out,
+    )
+    return out if keep_on_device else out.numpy()

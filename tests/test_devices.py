@@ -1,0 +1,79 @@
+"""The device switch: parsing, listing, resolution, backends."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import geosynth
+from geosynth.backend import parse_device, resolve_device
+
+
+def test_devices_lists_warp_cpu_and_opencl():
+    present = geosynth.devices()
+    assert present[0] == "cpu"
+    # pocl-binary-distribution is a runtime dependency: OpenCL is always present.
+    assert any(d.startswith("opencl:") for d in present)
+
+
+@pytest.mark.parametrize(
+    "text, kind, fields",
+    [
+        ("cpu", "cpu", {}),
+        ("auto", "auto", {}),
+        ("cuda", "cuda", {"index": 0}),
+        ("cuda:3", "cuda", {"index": 3}),
+        ("opencl", "opencl", {"platform": 0, "device": 0}),
+        ("opencl:1:2", "opencl", {"platform": 1, "device": 2}),
+    ],
+)
+def test_parse_device(text, kind, fields):
+    spec = parse_device(text)
+    assert spec.kind == kind
+    for key, value in fields.items():
+        assert getattr(spec, key) == value
+
+
+def test_resolve_names_present_devices():
+    assert resolve_device("opencl") == "opencl:0:0"
+    assert resolve_device("cpu") == "cpu"
+    auto = resolve_device("auto")
+    assert auto in geosynth.devices()
+    if "cuda:0" in geosynth.devices():
+        assert auto == "cuda:0"
+    else:  # no GPU: the fastest CPU backend measured by bench/bm_scoring.py is PoCL
+        assert auto.startswith("opencl:")
+
+
+def test_backends_are_cached_and_named(device):
+    backend = geosynth.get_backend(device)
+    assert backend is geosynth.get_backend(device)
+    assert backend.name == resolve_device(device)
+
+
+def test_round_trip(device, rng):
+    for dtype in (np.float32, np.uint8, np.int32, np.uint32):
+        a = (rng.random((7, 5, 3)) * 100).astype(dtype)
+        d = geosynth.to_device(a, device)
+        assert d.shape == a.shape and d.dtype == a.dtype
+        np.testing.assert_array_equal(d.numpy(), a)
+
+
+def test_to_device_refuses_another_devices_array():
+    present = geosynth.devices()
+    if len(present) < 2:
+        pytest.skip("needs two devices")
+    d = geosynth.to_device(np.zeros(3, np.float32), present[0])
+    with pytest.raises(RuntimeError, match="different devices"):
+        geosynth.to_device(d, present[1])
+
+
+def test_no_top_level_kernels_package():
+    """kernels/ installs as geosynth.kernels, never as a top-level `kernels`."""
+    code = "import importlib.util, sys; sys.path = [p for p in sys.path if p not in ('', '.')]; " \
+           "print(importlib.util.find_spec('kernels') is None, importlib.util.find_spec('geosynth.kernels') is not None)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", check=True)
+    assert out.stdout.split() == ["True", "True"]
