@@ -249,6 +249,7 @@ class DeviceArray:
         self.backend = backend
         self.shape = tuple(int(s) for s in shape)
         self.dtype = np.dtype(dtype)
+        self._derived: dict[Any, DeviceArray] = {}
 
     @property
     def device(self) -> str:
@@ -265,6 +266,21 @@ class DeviceArray:
     def numpy(self) -> np.ndarray:
         """Copy to a host NumPy array (a synchronization point)."""
         return self.backend.to_host(self)
+
+    def derived(self, key: Any, make) -> "DeviceArray":
+        """A device array computed from this one on the host, made once and cached.
+
+        Used for views the kernels need in another layout (a periodically padded copy
+        for ``wrap=True``). The first call reads this array back once; DeviceArrays
+        are never modified in place, so the cache stays valid.
+
+        Args:
+            key: a hashable description of the derivation.
+            make: function from this array's host copy (NumPy) to the derived one.
+        """
+        if key not in self._derived:
+            self._derived[key] = self.backend.to_device(np.ascontiguousarray(make(self.numpy())))
+        return self._derived[key]
 
     def __repr__(self) -> str:
         return f"DeviceArray(shape={self.shape}, dtype={self.dtype}, device={self.device!r})"

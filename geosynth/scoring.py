@@ -206,7 +206,8 @@ def score_gather(
             lattice with ``stride``, in raster order (see :func:`candidate_origins`).
         stride: step between lattice origins; one int or one per axis.
         wrap: treat the grid as periodic (tileable): windows wrap around its faces.
-            Needs a NumPy grid (it is padded on the host before upload).
+            The grid is padded periodically by the reach of the offsets (for a
+            DeviceArray grid, once per padding, then cached with it).
         device: a device string; None means the device of a DeviceArray input, else
             ``"auto"``.
         keep_on_device: return a DeviceArray for selection on the device.
@@ -245,10 +246,11 @@ def score_gather(
     pad_lo = np.maximum(0, -off.min(axis=0)) if wrap else np.zeros(nd, np.int64)
     pad_hi = np.maximum(0, off.max(axis=0)) if wrap else np.zeros(nd, np.int64)
     if wrap:
-        if isinstance(grid, DeviceArray):
-            raise ValueError("wrap=True needs grid as a NumPy array (it is padded periodically on the host).")
-        pad = [(int(a), int(b)) for a, b in zip(pad_lo, pad_hi)] + ([(0, 0)] if grid.ndim == nd + 1 else [])
-        grid = np.pad(grid, pad, mode="wrap")
+        pad = tuple((int(a), int(b)) for a, b in zip(pad_lo, pad_hi)) + (((0, 0),) if grid.ndim == nd + 1 else ())
+        if isinstance(grid, DeviceArray):  # padded once per padding, then cached with the grid
+            grid = grid.derived(("wrap", pad), lambda host: np.pad(host, pad, mode="wrap"))
+        else:
+            grid = np.pad(grid, pad, mode="wrap")
     padded = dims_arr + pad_lo + pad_hi
     if int(np.prod(padded)) * channels > _INT32_LIMIT:
         raise ValueError(f"grid of {int(np.prod(padded)) * channels} elements exceeds 2^31; split it.")

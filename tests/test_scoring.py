@@ -145,6 +145,11 @@ def test_gather_wrap(device, rng, dtype):
     origins = np.array([[-1, -1], [12, 10], [25, 3]])
     got = geosynth.score_gather(grid, off, vals, origins=origins, wrap=True, device=device)
     assert_scores(got, reference.score_gather_naive(grid, off, vals, origins=origins, wrap=True), dtype)
+    # a grid on the device wraps too (its padded copy is made once and cached)
+    gd = geosynth.to_device(grid, device)
+    for _ in range(2):
+        assert_scores(geosynth.score_gather(gd, off, vals, wrap=True), reference.score_gather_naive(grid, off, vals, wrap=True), dtype)
+    assert len(gd._derived) == 1
 
 
 def test_gather_supersampled_texture_neighbourhood(device, rng):
