@@ -3,44 +3,70 @@
 // Data types are chosen at build time (one program per dtype, cached per context):
 //   GS_U8 defined: T = uchar data, S = uint scores, W = uint weights (exact integers)
 //   otherwise:     T = float data, S = float scores, W = float weights
+//
+// Performance note (PoCL 3 on the CPU, measured): OpenCL builtins such as vload16,
+// vstore16, convert_*, min, fma and abs_diff are not inlined there but called, which
+// made hot loops 3-20x slower. Hot code therefore uses plain operators, vector loads
+// through pointer types of reduced alignment (LOAD16) and __builtin_convertvector.
 #ifndef GEOSYNTH_COMMON_H
 #define GEOSYNTH_COMMON_H
 
+typedef float f32x16u __attribute__((ext_vector_type(16), aligned(4)));
+typedef uchar u8x16u __attribute__((ext_vector_type(16), aligned(1)));
+typedef uint u32x16u __attribute__((ext_vector_type(16), aligned(4)));
+
 #ifdef GS_U8
 typedef uchar T;
-typedef uchar16 T16;
 typedef uint S;
-typedef uint2 S2;
-typedef uint4 S4;
-typedef uint8 S8;
-typedef uint16 S16;
 typedef uint W;
-typedef uint16 W16;
-
-inline S sq_diff(T a, T b) { S d = (S)abs_diff(a, b); return d * d; }
-inline S16 sq_diff16(T16 a, T16 b) { S16 d = convert_uint16(abs_diff(a, b)); return d * d; }
+typedef int16 E16;   // signed differences, 16 lanes
+typedef uint16 S16;  // score accumulators, 16 lanes
+typedef u32x16u Sx16u;
+// 16 consecutive elements at p (any alignment), widened to int
+#define LOAD16(p) __builtin_convertvector(*(const __global u8x16u*)(p), int16)
+#define LOADW16(p) (*(const __global u32x16u*)(p))
+#define SQ16(e) __builtin_convertvector((e) * (e), uint16)
+#define SPLAT16(v) ((E16)((int)(v)))
+#define SQ1(a, b) ((uint)(((int)(a) - (int)(b)) * ((int)(a) - (int)(b))))
 #else
 typedef float T;
-typedef float16 T16;
 typedef float S;
-typedef float2 S2;
-typedef float4 S4;
-typedef float8 S8;
-typedef float16 S16;
 typedef float W;
-typedef float16 W16;
+typedef float16 E16;
+typedef float16 S16;
+typedef f32x16u Sx16u;
+#define LOAD16(p) (*(const __global f32x16u*)(p))
+#define LOADW16(p) (*(const __global f32x16u*)(p))
+#define SQ16(e) ((e) * (e))
+#define SPLAT16(v) ((E16)(v))
+#define SQ1(a, b) (((a) - (b)) * ((a) - (b)))
+#endif
 
-inline S sq_diff(T a, T b) { S d = a - b; return d * d; }
-inline S16 sq_diff16(T16 a, T16 b) { S16 d = a - b; return d * d; }
+#ifdef GS_U8
+typedef uint8 S8;
+typedef uint4 S4;
+typedef uint2 S2;
+#else
+typedef float8 S8;
+typedef float4 S4;
+typedef float2 S2;
 #endif
 
 inline S hsum16(S16 v)
 {
-    S8 a = v.lo + v.hi;
-    S4 b = a.lo + a.hi;
-    S2 c = b.lo + b.hi;
+    const S8 a = v.lo + v.hi;
+    const S4 b = a.lo + a.hi;
+    const S2 c = b.lo + b.hi;
     return c.x + c.y;
 }
+
+// Unrolling helpers: REPn(M) expands M(0) ... M(n-1); REP6_R(M, r) expands M(r, 0) ... M(r, 5).
+#define REP4(M) M(0) M(1) M(2) M(3)
+#define REP8(M) M(0) M(1) M(2) M(3) M(4) M(5) M(6) M(7)
+#define REP6(M) M(0) M(1) M(2) M(3) M(4) M(5)
+#define REP6_R(M, r) M(r, 0) M(r, 1) M(r, 2) M(r, 3) M(r, 4) M(r, 5)
+
+#define MIN_INT(a, b) ((a) < (b) ? (a) : (b))
 
 // Selection modes, shared with kernels/ssd.py.
 #define SELECT_LEQ 0

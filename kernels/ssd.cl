@@ -1,60 +1,125 @@
 // Candidate SSD scoring and score selection: OpenCL kernels.
 //
-// The twin of ssd.py: every kernel here has a namesake there (ssd_dense <->
-// ssd_dense_kernel) with the same arguments in the same order and the same meaning.
-// Arrays are flat; sizes are explicit. Types come from common.h (GS_U8 or float).
-// Build options: GS_TB = queries per work-item in ssd_dense (a register tile).
+// The twin of ssd.py. Each kernel there has its meaning here, with the same arguments
+// in the same order; where several OpenCL kernels compute one Warp kernel's result
+// (ssd_dense_rows and ssd_dense_tile <-> ssd_dense_kernel; ssd_gather and
+// ssd_gather_x16 <-> ssd_gather_kernel), they differ only in how work is split, which
+// the backend picks by shape. Arrays are flat; sizes are explicit. Types come from
+// common.h (GS_U8 or float). Register tiles are unrolled with the REP macros: PoCL keeps
+// scalar-named accumulators in registers but spills loop-indexed private arrays.
 #include "common.h"
 
-#ifndef GS_TB
-#define GS_TB 1
-#endif
+// ---------------------------------------------------------------------------------
+// Dense: out[q, i] = sum_k w[k] * (candidates[i, k] - queries[q, k])^2
 
-// out[q, i] = sum_k w[k] * (candidates[i, k] - queries[q, k])^2.
-// One work-item per candidate row; it scores GS_TB queries at a time so that each
-// candidate chunk is loaded once per tile, 16 lanes wide.
-__kernel void ssd_dense(__global const T* candidates, __global const T* queries,
-                        __global const W* weights, const int use_weights,
-                        const int n, const int d, const int b, __global S* out)
+// 8 candidate rows per work-item, rows g, g+m, ..., g+7m (m = ceil(n/8)): eight memory
+// streams per work-item keep the prefetchers busy; one query at a time.
+// Range: round_up(ceil(n/8), 16), local 16.
+__kernel void ssd_dense_rows(__global const T* candidates, __global const T* queries,
+                             __global const W* weights, const int use_weights,
+                             const int n, const int d, const int b, __global S* out)
 {
-    const int i = get_global_id(0);
-    if (i >= n) return;
-    const __global T* row = candidates + (size_t)i * d;
+    const int g = get_global_id(0);
+    const int m = (n + 7) / 8;
+    if (g >= m) return;
+#define ROW_PTR(r) const int row##r = g + r * m; \
+    const __global T* x##r = candidates + (size_t)(row##r < n ? row##r : n - 1) * d;
+    REP8(ROW_PTR)
     const int d16 = d & ~15;
-    for (int q0 = 0; q0 < b; q0 += GS_TB) {
-        S16 acc[GS_TB];
-        S tail[GS_TB];
-        const __global T* qrow[GS_TB];
-        for (int t = 0; t < GS_TB; ++t) {
-            acc[t] = (S16)(0);
-            tail[t] = 0;
-            // Past the last query the tile repeats it; those results are not stored.
-            qrow[t] = queries + (size_t)min(q0 + t, b - 1) * d;
-        }
+    for (int qi = 0; qi < b; ++qi) {
+        const __global T* q = queries + (size_t)qi * d;
+#define ROW_INIT(r) S16 acc##r = (S16)(0); S tail##r = 0;
+        REP8(ROW_INIT)
         if (use_weights) {
             for (int k = 0; k < d16; k += 16) {
-                const T16 x = vload16(0, row + k);
-                const W16 w = vload16(0, weights + k);
-                for (int t = 0; t < GS_TB; ++t) acc[t] += w * sq_diff16(x, vload16(0, qrow[t] + k));
+                const S16 w = LOADW16(weights + k);
+                const E16 qv = LOAD16(q + k);
+#define ROW_STEP_W(r) { const E16 e = LOAD16(x##r + k) - qv; acc##r += w * SQ16(e); }
+                REP8(ROW_STEP_W)
             }
-            for (int k = d16; k < d; ++k)
-                for (int t = 0; t < GS_TB; ++t) tail[t] += weights[k] * sq_diff(row[k], qrow[t][k]);
+            for (int k = d16; k < d; ++k) {
+                const W wk = weights[k];
+#define ROW_TAIL_W(r) tail##r += wk * SQ1(x##r[k], q[k]);
+                REP8(ROW_TAIL_W)
+            }
         } else {
             for (int k = 0; k < d16; k += 16) {
-                const T16 x = vload16(0, row + k);
-                for (int t = 0; t < GS_TB; ++t) acc[t] += sq_diff16(x, vload16(0, qrow[t] + k));
+                const E16 qv = LOAD16(q + k);
+#define ROW_STEP(r) { const E16 e = LOAD16(x##r + k) - qv; acc##r += SQ16(e); }
+                REP8(ROW_STEP)
             }
-            for (int k = d16; k < d; ++k)
-                for (int t = 0; t < GS_TB; ++t) tail[t] += sq_diff(row[k], qrow[t][k]);
+            for (int k = d16; k < d; ++k) {
+#define ROW_TAIL(r) tail##r += SQ1(x##r[k], q[k]);
+                REP8(ROW_TAIL)
+            }
         }
-        for (int t = 0; t < GS_TB; ++t)
-            if (q0 + t < b) out[(size_t)(q0 + t) * n + i] = hsum16(acc[t]) + tail[t];
+#define ROW_STORE(r) if (row##r < n) out[(size_t)qi * n + row##r] = hsum16(acc##r) + tail##r;
+        REP8(ROW_STORE)
     }
 }
 
-// out[c] = sum_j w[j] * (grid[base(c) + offsets[j]] - values[j])^2.
-// Lattice mode (use_bases == 0): work-item (x, y, z) is candidate (z, y, x) with base
+// A register tile of 4 consecutive candidate rows x 6 queries per work-item: each
+// 16-wide chunk of a row is loaded once for 6 queries (24 accumulators), which makes
+// float batches compute-bound instead of load-bound. Past the last row or query the
+// tile repeats it and does not store. Range: round_up(ceil(n/4), 16), local 16.
+__kernel void ssd_dense_tile(__global const T* candidates, __global const T* queries,
+                             __global const W* weights, const int use_weights,
+                             const int n, const int d, const int b, __global S* out)
+{
+    const int g = get_global_id(0);
+    if (g * 4 >= n) return;
+#define TILE_ROW_PTR(r) const int row##r = g * 4 + r; \
+    const __global T* x##r = candidates + (size_t)(row##r < n ? row##r : n - 1) * d;
+    REP4(TILE_ROW_PTR)
+    const int d16 = d & ~15;
+    for (int qb = 0; qb < b; qb += 6) {
+#define TILE_Q_PTR(t) const __global T* q##t = queries + (size_t)(qb + t < b ? qb + t : b - 1) * d;
+        REP6(TILE_Q_PTR)
+#define TILE_INIT1(r, t) S16 acc##r##_##t = (S16)(0); S tail##r##_##t = 0;
+#define TILE_INIT(r) REP6_R(TILE_INIT1, r)
+        REP4(TILE_INIT)
+        if (use_weights) {
+            for (int k = 0; k < d16; k += 16) {
+                const S16 w = LOADW16(weights + k);
+#define TILE_QLOAD(t) const E16 qv##t = LOAD16(q##t + k);
+                REP6(TILE_QLOAD)
+#define TILE_STEP_W1(r, t) { const E16 e = xv - qv##t; acc##r##_##t += w * SQ16(e); }
+#define TILE_STEP_W(r) { const E16 xv = LOAD16(x##r + k); REP6_R(TILE_STEP_W1, r) }
+                REP4(TILE_STEP_W)
+            }
+            for (int k = d16; k < d; ++k) {
+                const W wk = weights[k];
+#define TILE_TAIL_W1(r, t) tail##r##_##t += wk * SQ1(x##r[k], q##t[k]);
+#define TILE_TAIL_W(r) REP6_R(TILE_TAIL_W1, r)
+                REP4(TILE_TAIL_W)
+            }
+        } else {
+            for (int k = 0; k < d16; k += 16) {
+                REP6(TILE_QLOAD)
+#define TILE_STEP1(r, t) { const E16 e = xv - qv##t; acc##r##_##t += SQ16(e); }
+#define TILE_STEP(r) { const E16 xv = LOAD16(x##r + k); REP6_R(TILE_STEP1, r) }
+                REP4(TILE_STEP)
+            }
+            for (int k = d16; k < d; ++k) {
+#define TILE_TAIL1(r, t) tail##r##_##t += SQ1(x##r[k], q##t[k]);
+#define TILE_TAIL(r) REP6_R(TILE_TAIL1, r)
+                REP4(TILE_TAIL)
+            }
+        }
+#define TILE_STORE1(r, t) \
+    if (row##r < n && qb + t < b) out[(size_t)(qb + t) * n + row##r] = hsum16(acc##r##_##t) + tail##r##_##t;
+#define TILE_STORE(r) REP6_R(TILE_STORE1, r)
+        REP4(TILE_STORE)
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Gather: out[c] = sum_j w[j] * (grid[base(c) + offsets[j]] - values[j])^2.
+// Lattice mode (use_bases == 0): candidate (z, y, x) has base
 // base0 + z*step_z + y*step_y + x*step_x. Explicit mode: range (n, 1, 1), base = bases[c].
+
+// One candidate per work-item; any lattice or explicit bases.
+// Range: (round_up(nx, 16), ny, nz), local (16, 1, 1).
 __kernel void ssd_gather(__global const T* grid, __global const int* bases, const int use_bases,
                          const int nx, const int ny, const int nz,
                          const int step_x, const int step_y, const int step_z, const int base0,
@@ -68,16 +133,21 @@ __kernel void ssd_gather(__global const T* grid, __global const int* bases, cons
     const int base = use_bases ? bases[cand] : base0 + z * step_z + y * step_y + x * step_x;
     S acc = 0;
     if (use_weights) {
-        for (int j = 0; j < kc; ++j) acc += weights[j] * sq_diff(grid[base + offsets[j]], values[j]);
+        for (int j = 0; j < kc; ++j) acc += weights[j] * SQ1(grid[base + offsets[j]], values[j]);
     } else {
-        for (int j = 0; j < kc; ++j) acc += sq_diff(grid[base + offsets[j]], values[j]);
+        for (int j = 0; j < kc; ++j) acc += SQ1(grid[base + offsets[j]], values[j]);
     }
     out[cand] = acc;
 }
 
-// ssd_gather for lattices with step_x == 1 and use_bases == 0: each work-item scores
-// 16 neighbouring candidates along x with one unaligned 16-wide load per query entry.
-// The grid buffer must have 16 spare elements past its end (the backend allocates them).
+// Lattices with step_x == 1 (one channel, unit x stride): each work-item scores 64
+// neighbouring candidates along x as 4 vectors of 16, so one offset/value fetch serves
+// 4 vector loads. A vector that would run past nx is moved back to start at nx - 16
+// (overlapping its neighbour; it stores only its own lanes), so with nx >= 16 nothing
+// is read past the last window; with nx < 16 the grid needs 15 spare elements (the
+// backend allocates 64 bytes more than every buffer).
+// Range: (ceil(nx/64), round_up(ny, 7), nz), local (1, 7, 1).
+#define GATHER_NV 4
 __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, const int use_bases,
                              const int nx, const int ny, const int nz,
                              const int step_x, const int step_y, const int step_z, const int base0,
@@ -85,31 +155,59 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
                              __global const W* weights, const int use_weights, const int kc,
                              __global S* out)
 {
-    const int x0 = get_global_id(0) * 16, y = get_global_id(1), z = get_global_id(2);
+    const int x0 = get_global_id(0) * (16 * GATHER_NV), y = get_global_id(1), z = get_global_id(2);
     if (x0 >= nx || y >= ny || z >= nz) return;
-    const __global T* origin = grid + base0 + z * step_z + y * step_y + x0;
-    S16 acc = (S16)(0);
-    if (use_weights) {
-        for (int j = 0; j < kc; ++j)
-            acc += (S16)(weights[j]) * sq_diff16(vload16(0, origin + offsets[j]), (T16)(values[j]));
-    } else {
-        for (int j = 0; j < kc; ++j) acc += sq_diff16(vload16(0, origin + offsets[j]), (T16)(values[j]));
+    const int last = nx - 16 > 0 ? nx - 16 : 0;
+    int xs[GATHER_NV];
+    S16 acc[GATHER_NV];
+#pragma unroll
+    for (int v = 0; v < GATHER_NV; ++v) {
+        const int a = x0 + 16 * v;
+        xs[v] = a < last ? a : last;
+        acc[v] = (S16)(0);
     }
-    const int cand0 = (z * ny + y) * nx + x0;
-    if (x0 + 16 <= nx) {
-        vstore16(acc, 0, out + cand0);
+    const __global T* row = grid + base0 + z * step_z + y * step_y;
+    if (use_weights) {
+        for (int j = 0; j < kc; ++j) {
+            const __global T* p = row + offsets[j];
+            const E16 val = SPLAT16(values[j]);
+            const S16 w = (S16)(weights[j]);
+#pragma unroll
+            for (int v = 0; v < GATHER_NV; ++v) { const E16 e = LOAD16(p + xs[v]) - val; acc[v] += w * SQ16(e); }
+        }
     } else {
-        S lanes[16];
-        vstore16(acc, 0, lanes);
-        for (int l = 0; l < nx - x0; ++l) out[cand0 + l] = lanes[l];
+        for (int j = 0; j < kc; ++j) {
+            const __global T* p = row + offsets[j];
+            const E16 val = SPLAT16(values[j]);
+#pragma unroll
+            for (int v = 0; v < GATHER_NV; ++v) { const E16 e = LOAD16(p + xs[v]) - val; acc[v] += SQ16(e); }
+        }
+    }
+    __global S* orow = out + (z * ny + y) * nx;
+#pragma unroll
+    for (int v = 0; v < GATHER_NV; ++v) {
+        const int a = x0 + 16 * v;  // the first candidate this vector owns
+        if (a >= nx) break;
+        if (a == xs[v] && a + 16 <= nx) {
+            *(__global Sx16u*)(orow + a) = acc[v];
+        } else {
+            S lanes[16];
+            *(Sx16u*)lanes = acc[v];
+            const int hi = a + 16 < nx ? a + 16 : nx;
+            for (int c = a; c < hi; ++c) orow[c] = lanes[c - xs[v]];
+        }
     }
 }
 
+// ---------------------------------------------------------------------------------
+// Selection. Ranges: round_up(g, 64), local 64; work-items t >= g do nothing.
+
 // Work-item t scans t, t+g, t+2g, ... ascending, so a strict < keeps the lowest index.
 __kernel void argmin_partials(__global const S* scores, const int n,
-                              __global S* part_val, __global int* part_idx)
+                              __global S* part_val, __global int* part_idx, const int g)
 {
-    const int t = get_global_id(0), g = get_global_size(0);
+    const int t = get_global_id(0);
+    if (t >= g) return;
     int best_idx = -1;
     S best = 0;
     for (int i = t; i < n; i += g) {
@@ -122,10 +220,11 @@ __kernel void argmin_partials(__global const S* scores, const int n,
 
 // Work-item t owns [t*chunk, (t+1)*chunk) and counts the scores the threshold selects.
 __kernel void count_selected(__global const S* scores, const int n, const int chunk,
-                             __global const S* thr, const int mode, __global int* counts)
+                             __global const S* thr, const int mode, __global int* counts, const int g)
 {
     const int t = get_global_id(0);
-    const int lo = t * chunk, hi = min(lo + chunk, n);
+    if (t >= g) return;
+    const int lo = t * chunk, hi = MIN_INT(lo + chunk, n);
     const S th = thr[0];
     int c = 0;
     for (int i = lo; i < hi; ++i) c += is_selected(scores[i], th, mode);
@@ -136,10 +235,11 @@ __kernel void count_selected(__global const S* scores, const int n, const int ch
 // so the output is in ascending index order.
 __kernel void compact_selected(__global const S* scores, const int n, const int chunk,
                                __global const S* thr, const int mode,
-                               __global const int* starts, __global int* out_idx)
+                               __global const int* starts, __global int* out_idx, const int g)
 {
     const int t = get_global_id(0);
-    const int lo = t * chunk, hi = min(lo + chunk, n);
+    if (t >= g) return;
+    const int lo = t * chunk, hi = MIN_INT(lo + chunk, n);
     const S th = thr[0];
     int w = starts[t];
     for (int i = lo; i < hi; ++i)

@@ -1,7 +1,10 @@
 """Candidate SSD scoring and score selection: Warp kernels.
 
-The twin of ``ssd.cl``: every kernel here has a namesake there (``ssd_dense_kernel``
-<-> ``ssd_dense``) with the same arguments in the same order and the same meaning.
+The twin of ``ssd.cl``: every kernel here has its meaning there, with the same
+arguments in the same order (``argmin_partials_kernel`` <-> ``argmin_partials``). Where
+ssd.cl splits one kernel's work in several ways for PoCL (``ssd_dense_kernel`` <->
+``ssd_dense_rows`` / ``ssd_dense_tile``; ``ssd_gather_kernel`` <-> ``ssd_gather`` /
+``ssd_gather_x16``), each variant computes the same result.
 All arrays are flat (1D); sizes are passed explicitly. Kernels are generic over the
 data type:
 
@@ -105,10 +108,10 @@ def argmin_partials_kernel(
     n: int,
     part_val: wp.array(dtype=Any),  # (g,) per-thread minimum
     part_idx: wp.array(dtype=wp.int32),  # (g,) lowest index reaching it, -1 if none
+    g: int,  # threads launched
 ):
     """Thread t scans t, t+g, t+2g, ... ascending, so a strict < keeps the lowest index."""
     t = wp.tid()
-    g = part_idx.shape[0]
     best_idx = int(-1)
     best = part_val.dtype(0)
     i = t
@@ -139,6 +142,7 @@ def count_selected_kernel(
     thr: wp.array(dtype=Any),  # (1,) threshold, same dtype as scores
     mode: int,  # SELECT_LEQ, SELECT_LT or SELECT_EQ
     counts: wp.array(dtype=wp.int32),  # (g,)
+    g: int,
 ):
     t = wp.tid()
     lo = t * chunk
@@ -160,6 +164,7 @@ def compact_selected_kernel(
     mode: int,
     starts: wp.array(dtype=wp.int32),  # (g,) exclusive prefix sum of counts
     out_idx: wp.array(dtype=wp.int32),  # (total,) selected indices, ascending
+    g: int,
 ):
     t = wp.tid()
     lo = t * chunk

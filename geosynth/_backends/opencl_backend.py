@@ -15,7 +15,13 @@ from geosynth._backends.base import Backend
 from geosynth.backend import DeviceArray
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
-_DENSE_LOCAL = 64  # work-items per group in ssd_dense; the range is padded to it
+# Work-group sizes are always given: with none, PoCL picks the largest divisor of the
+# range up to 4096, which can put a whole launch in one group, on one core.
+_LOCAL_1D = 64
+
+
+def _round_up(value: int, multiple: int) -> int:
+    return -(-value // multiple) * multiple
 
 
 def _kernel_dir() -> str:
@@ -43,16 +49,17 @@ class OpenCLBackend(Backend):
         self._dummies: dict[np.dtype, DeviceArray] = {}
 
     # -- programs -------------------------------------------------------------------
-    def _kernel(self, family: str, name: str, data_dtype, tb: int = 1) -> cl.Kernel:
-        """The kernel ``name`` of ``kernels/{family}.cl`` built for one data dtype."""
+    def _kernel(self, family: str, name: str, data_dtype) -> cl.Kernel:
+        """The kernel ``name`` of ``kernels/{family}.cl`` built for one data dtype
+        (uint8 data and its uint32 scores share the GS_U8 build)."""
         u8 = np.dtype(data_dtype) in (np.dtype(np.uint8), np.dtype(np.uint32))
-        key = (family, name, u8, tb)
+        key = (family, name, u8)
         kernel = self._kernels.get(key)
         if kernel is None:
-            pkey = (family, u8, tb)
+            pkey = (family, u8)
             program = self._programs.get(pkey)
             if program is None:
-                options = ["-I", _kernel_dir(), f"-DGS_TB={tb}"] + (["-DGS_U8"] if u8 else [])
+                options = ["-I", _kernel_dir()] + (["-DGS_U8"] if u8 else [])
                 program = cl.Program(self.context, _read_source(f"{family}.cl")).build(options=options)
                 self._programs[pkey] = program
             kernel = self._kernels[key] = getattr(program, name)
@@ -92,43 +99,49 @@ class OpenCLBackend(Backend):
 
     # -- kernels --------------------------------------------------------------------
     def ssd_dense(self, candidates, queries, weights, n, d, b, out) -> None:
-        tb = 1 if b == 1 else (4 if b <= 4 else 8)
-        kernel = self._kernel("ssd", "ssd_dense", candidates.dtype, tb)
+        # Float batches: 4 rows x 6 queries per work-item; else 8 rows, one query at a time.
+        tile = b > 1 and candidates.dtype == np.float32
+        name, rows = ("ssd_dense_tile", 4) if tile else ("ssd_dense_rows", 8)
+        kernel = self._kernel("ssd", name, candidates.dtype)
         w = weights.data if weights is not None else self._dummy(out.dtype)
-        gsize = -(-n // _DENSE_LOCAL) * _DENSE_LOCAL
         kernel(
-            self.queue, (gsize,), (_DENSE_LOCAL,),
+            self.queue, (_round_up(-(-n // rows), 16),), (16,),
             candidates.data, queries.data, w, np.int32(weights is not None),
             np.int32(n), np.int32(d), np.int32(b), out.data,
         )
 
     def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, out) -> None:
         nx, ny, nz = lattice
-        vector_x = bases is None and steps[0] == 1
-        name = "ssd_gather_x16" if vector_x else "ssd_gather"
+        if bases is None and steps[0] == 1:
+            name, gsize, lsize = "ssd_gather_x16", (-(-nx // 64), _round_up(ny, 7), nz), (1, 7, 1)
+        else:
+            name, gsize, lsize = "ssd_gather", (_round_up(nx, 16), ny, nz), (16, 1, 1)
         kernel = self._kernel("ssd", name, grid.dtype)
-        gsize = (-(-nx // 16) if vector_x else nx, ny, nz)
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
         kernel(
-            self.queue, gsize, None,
+            self.queue, gsize, lsize,
             grid.data, b, np.int32(bases is not None),
             np.int32(nx), np.int32(ny), np.int32(nz),
             *(np.int32(s) for s in steps), np.int32(base0),
             offsets.data, values.data, w, np.int32(weights is not None), np.int32(kc), out.data,
         )
 
+    def _launch_1d(self, name: str, dtype, g: int, *args) -> None:
+        kernel = self._kernel("ssd", name, dtype)
+        kernel(self.queue, (_round_up(g, _LOCAL_1D),), (_LOCAL_1D,), *args, np.int32(g))
+
     def argmin_partials(self, scores, n, part_val, part_idx) -> None:
-        kernel = self._kernel("ssd", "argmin_partials", scores.dtype)
-        kernel(self.queue, (part_idx.size,), None, scores.data, np.int32(n), part_val.data, part_idx.data)
+        self._launch_1d("argmin_partials", scores.dtype, part_idx.size, scores.data, np.int32(n), part_val.data, part_idx.data)
 
     def count_selected(self, scores, n, chunk, thr, mode, counts) -> None:
-        kernel = self._kernel("ssd", "count_selected", scores.dtype)
-        kernel(self.queue, (counts.size,), None, scores.data, np.int32(n), np.int32(chunk), thr.data, np.int32(mode), counts.data)
+        self._launch_1d(
+            "count_selected", scores.dtype, counts.size,
+            scores.data, np.int32(n), np.int32(chunk), thr.data, np.int32(mode), counts.data,
+        )
 
     def compact_selected(self, scores, n, chunk, thr, mode, starts, out_idx) -> None:
-        kernel = self._kernel("ssd", "compact_selected", scores.dtype)
-        kernel(
-            self.queue, (starts.size,), None,
+        self._launch_1d(
+            "compact_selected", scores.dtype, starts.size,
             scores.data, np.int32(n), np.int32(chunk), thr.data, np.int32(mode), starts.data, out_idx.data,
         )

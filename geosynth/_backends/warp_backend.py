@@ -82,14 +82,14 @@ class WarpBackend(Backend):
         )
 
     def argmin_partials(self, scores, n, part_val, part_idx) -> None:
-        self._launch(ssd_kernels.argmin_partials_kernel, part_idx.size, [scores.data, n, part_val.data, part_idx.data])
+        self._launch(ssd_kernels.argmin_partials_kernel, part_idx.size, [scores.data, n, part_val.data, part_idx.data, part_idx.size])
 
     def count_selected(self, scores, n, chunk, thr, mode, counts) -> None:
-        self._launch(ssd_kernels.count_selected_kernel, counts.size, [scores.data, n, chunk, thr.data, mode, counts.data])
+        self._launch(ssd_kernels.count_selected_kernel, counts.size, [scores.data, n, chunk, thr.data, mode, counts.data, counts.size])
 
     def compact_selected(self, scores, n, chunk, thr, mode, starts, out_idx) -> None:
         self._launch(
             ssd_kernels.compact_selected_kernel,
             starts.size,
-            [scores.data, n, chunk, thr.data, mode, starts.data, out_idx.data],
+            [scores.data, n, chunk, thr.data, mode, starts.data, out_idx.data, starts.size],
         )

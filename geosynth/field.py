@@ -1,0 +1,141 @@
+"""The Field type: values sampled on a regular grid, with the grid's place in the world."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Field", "grid_points"]
+
+
+def _as_xyz(name: str, value, *, positive: bool = False) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64)
+    if v.ndim == 0:
+        v = np.full(3, float(v))
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise ValueError(f"{name} must be a finite number or 3 finite numbers (x, y, z), got {value!r}.")
+    if positive and (v <= 0).any():
+        raise ValueError(f"{name} must be > 0 on every axis, got {tuple(v)}.")
+    return v
+
+
+@dataclass
+class Field:
+    """Samples on a regular grid.
+
+    Attributes:
+        values: (Z, Y, X) or (Z, Y, X, C) float32 or uint8 array; index order z, y, x.
+        origin: (3,) float64 world position (x, y, z) of sample [0, 0, 0].
+        spacing: (3,) float64 distance between neighbouring samples along x, y, z.
+
+    The sample at index (k, j, i) sits at ``origin + spacing * (i, j, k)``.
+    """
+
+    values: np.ndarray
+    origin: np.ndarray
+    spacing: np.ndarray
+
+    def __post_init__(self):
+        v = np.asarray(self.values)
+        if v.ndim not in (3, 4):
+            raise ValueError(f"Field values must be (Z, Y, X) or (Z, Y, X, C), got shape {v.shape}.")
+        if v.dtype not in (np.dtype(np.float32), np.dtype(np.uint8)):
+            if np.issubdtype(v.dtype, np.floating):
+                v = v.astype(np.float32)
+            else:
+                raise TypeError(f"Field values must be float32 or uint8, got {v.dtype}.")
+        self.values = v
+        self.origin = _as_xyz("origin", self.origin)
+        self.spacing = _as_xyz("spacing", self.spacing, positive=True)
+
+    @classmethod
+    def from_bounds(cls, bounds, resolution, channels: int | None = None, dtype=np.float32) -> "Field":
+        """An all-zero field covering ``bounds`` with ``resolution`` samples per axis.
+
+        Args:
+            bounds: (2, 3) array, the (x, y, z) minimum and maximum corner; samples lie
+                on both corners.
+            resolution: samples per axis, one int >= 2 for all or (x, y, z).
+            channels: None for scalar values, else the channel count.
+            dtype: float32 or uint8.
+
+        Returns:
+            The Field; its spacing is extent / (resolution - 1).
+        """
+        shape_xyz = grid_resolution(resolution)
+        b = np.asarray(bounds, np.float64)
+        if b.shape != (2, 3) or not np.isfinite(b).all():
+            raise ValueError(f"bounds must be a finite (2, 3) array [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {b.shape}.")
+        extent = b[1] - b[0]
+        if (extent <= 0).any():
+            raise ValueError(f"bounds have zero or negative extent {tuple(extent)}: every axis needs max > min.")
+        shape = tuple(int(s) for s in shape_xyz[::-1]) + (() if channels is None else (int(channels),))
+        return cls(np.zeros(shape, dtype), b[0], extent / (shape_xyz - 1))
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(Z, Y, X) sample counts."""
+        return tuple(self.values.shape[:3])
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) world corners (x, y, z) of the first and last samples."""
+        last = np.array(self.shape[::-1], np.float64) - 1
+        return np.stack([self.origin, self.origin + self.spacing * last])
+
+    def world_position(self, index) -> np.ndarray:
+        """World (x, y, z) of samples given by (..., 3) integer or fractional (k, j, i) indices."""
+        idx = np.asarray(index, np.float64)
+        return self.origin + self.spacing * idx[..., ::-1]
+
+    def points(self) -> np.ndarray:
+        """(Z*Y*X, 3) float32 world positions of every sample, in the values' raster order."""
+        return grid_points(self.origin, self.spacing, self.shape)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the field as .npz (values, origin, spacing), atomically; returns the path."""
+        out = Path(path)
+        if out.suffix != ".npz":
+            raise ValueError(f"Field files are .npz; got {str(out)!r} (add the .npz suffix).")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp.npz")
+        os.close(fd)
+        try:
+            np.savez_compressed(tmp, values=self.values, origin=self.origin, spacing=self.spacing)
+            os.replace(tmp, out)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return out
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Field":
+        """Read a field written by :meth:`save`."""
+        with np.load(path) as data:
+            missing = {"values", "origin", "spacing"} - set(data.files)
+            if missing:
+                raise ValueError(f"{path} is not a geosynth field: it lacks {sorted(missing)}.")
+            return cls(data["values"], data["origin"], data["spacing"])
+
+
+def grid_resolution(resolution) -> np.ndarray:
+    """Per-axis (x, y, z) sample counts from one int or three; each must be >= 2."""
+    r = np.asarray(resolution)
+    if r.ndim == 0:
+        r = np.full(3, r)
+    if r.shape != (3,) or r.dtype.kind not in "iu" or (r < 2).any():
+        raise ValueError(f"resolution must be an integer >= 2 or three of them (x, y, z), got {resolution!r}.")
+    return r.astype(np.int64)
+
+
+def grid_points(origin, spacing, shape) -> np.ndarray:
+    """(Z*Y*X, 3) float32 world (x, y, z) positions of a grid's samples in raster order."""
+    z, y, x = (np.arange(n, dtype=np.float64) for n in shape)
+    zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
+    idx = np.stack([xx, yy, zz], -1).reshape(-1, 3)
+    return (np.asarray(origin) + np.asarray(spacing) * idx).astype(np.float32)
