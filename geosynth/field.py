@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Field", "grid_points"]
+__all__ = ["Field", "cubic_grid", "grid_points", "grid_resolution"]
 
 
 def _as_xyz(name: str, value, *, positive: bool = False) -> np.ndarray:
@@ -139,3 +139,39 @@ def grid_points(origin, spacing, shape) -> np.ndarray:
     zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
     idx = np.stack([xx, yy, zz], -1).reshape(-1, 3)
     return (np.asarray(origin) + np.asarray(spacing) * idx).astype(np.float32)
+
+
+def cubic_grid(bounds, resolution: int, padding: float = 0.1, channels: int | None = None) -> Field:
+    """An all-zero float32 Field with cubic cells around ``bounds``.
+
+    The box is grown by ``padding`` times its largest extent on every side; its
+    longest axis gets ``resolution`` samples and the others as many as the same
+    spacing needs (at least 2), centred on the box.
+
+    Args:
+        bounds: (2, 3) (x, y, z) minimum and maximum corner, e.g. ``mesh.bounds``.
+        resolution: samples along the longest axis, >= 2.
+        padding: fraction of the largest extent added on each side, >= 0.
+        channels: None for scalar values, else the channel count.
+
+    Returns:
+        The Field (values zero); fill ``values`` from ``points()``.
+    """
+    res = int(grid_resolution(resolution)[0]) if np.ndim(resolution) == 0 else None
+    if res is None:
+        raise ValueError(f"resolution must be one integer >= 2 for a cubic grid, got {resolution!r}.")
+    b = np.asarray(bounds, np.float64)
+    if b.shape != (2, 3) or not np.isfinite(b).all():
+        raise ValueError(f"bounds must be a finite (2, 3) array [[xmin, ymin, zmin], [xmax, ymax, zmax]], got shape {b.shape}.")
+    if not (np.isfinite(padding) and padding >= 0):
+        raise ValueError(f"padding must be >= 0, got {padding!r}.")
+    extent = b[1] - b[0]
+    if (extent < 0).any() or extent.max() <= 0:
+        raise ValueError(f"bounds have zero extent {tuple(extent)}: the box needs max > min on some axis.")
+    size = extent + 2 * padding * extent.max()
+    spacing = size.max() / (res - 1)
+    counts = np.maximum(2, np.ceil(size / spacing - 1e-9).astype(np.int64) + 1)
+    centre = (b[0] + b[1]) / 2
+    origin = centre - spacing * (counts - 1) / 2
+    shape = tuple(int(c) for c in counts[::-1]) + (() if channels is None else (int(channels),))
+    return Field(np.zeros(shape, np.float32), origin, np.full(3, spacing))

@@ -78,3 +78,9 @@ def best_fraction_naive(scores: np.ndarray, fraction: float) -> np.ndarray:
     k = max(1, math.ceil(fraction * s.size))
     order = np.lexsort((np.arange(s.size), s))
     return np.sort(order[:k]).astype(np.int64)
+
+
+# ------------------------------------------------------------------ mesh distance oracles
+
+
+# ------------------------------------------------------------- point-set (MLS) oracles

@@ -10,6 +10,8 @@ import numpy as np
 import warp as wp
 
 from geosynth._backends.base import Backend
+from geosynth._backends.warp_mesh import WarpMeshOps
+from geosynth._backends.warp_points import WarpPointsOps
 from geosynth.backend import DeviceArray
 from geosynth.kernels import ssd as ssd_kernels
 
@@ -21,7 +23,7 @@ _WARP_DTYPES = {
 }
 
 
-class WarpBackend(Backend):
+class WarpBackend(WarpMeshOps, WarpPointsOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

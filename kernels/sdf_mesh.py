@@ -1,0 +1,1 @@
+"""Distance-field kernels (mesh): Warp. The twin of sdf_mesh.cl."""

@@ -1,0 +1,1 @@
+"""Distance-field kernels (points): Warp. The twin of sdf_points.cl."""
