@@ -16,8 +16,9 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(PIP) install -e '.[test]'
 	touch $@
 
-$(BENCH_STAMP): pyproject.toml $(STAMP)
+$(BENCH_STAMP): pyproject.toml bench/install_peers.sh $(STAMP)
 	$(PIP) install -e '.[test,bench]'
+	bash bench/install_peers.sh $(VENV)
 	touch $@
 
 demo: $(STAMP)

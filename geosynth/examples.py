@@ -51,3 +51,56 @@ def spheres_field(size: int = 64, count: int = 40, radius: tuple[float, float] =
         dist = np.sqrt(d[0][:, None, None] ** 2 + d[1][None, :, None] ** 2 + d[2][None, None, :] ** 2) - r
         np.minimum(field, dist, out=field)
     return field
+
+
+def torus_mesh(major_radius: float = 1.0, minor_radius: float = 0.35, major_sections: int = 128,
+               minor_sections: int = 64):
+    """A torus around the z axis as a watertight trimesh.Trimesh.
+
+    Faces: 2 * major_sections * minor_sections (the defaults give 16,384).
+    """
+    import trimesh
+
+    return trimesh.creation.torus(major_radius=major_radius, minor_radius=minor_radius,
+                                  major_sections=major_sections, minor_sections=minor_sections)
+
+
+def chainmail_mesh(rings: int = 3, major_radius: float = 1.0, minor_radius: float = 0.15, spacing: float = 1.3,
+                   major_sections: int = 32, minor_sections: int = 16):
+    """Chainmail of linked tori (one watertight mesh, rings not intersecting).
+
+    Horizontal rings (in the xy plane) sit on a ``rings`` x ``rings`` lattice of step
+    2 * spacing; every pair of lattice neighbours is linked by a vertical ring (in the
+    xz plane between x-neighbours, in the yz plane between y-neighbours) centred half
+    way. With the defaults each vertical ring passes 0.3 inside the holes of the two
+    rings it links and rings stay 0.12 apart at their closest.
+
+    Args:
+        rings: horizontal rings per side, >= 1.
+        major_radius, minor_radius: ring radius and wire radius.
+        spacing: distance between a horizontal ring's centre and a linking ring's centre.
+        major_sections, minor_sections: tessellation of each torus.
+
+    Returns:
+        trimesh.Trimesh with 2 * major_sections * minor_sections faces per ring
+        (rings^2 + 2 * rings * (rings - 1) rings: 21 rings, 21,504 faces by default).
+    """
+    import trimesh
+
+    if rings < 1:
+        raise ValueError(f"rings must be >= 1, got {rings}.")
+    base = torus_mesh(major_radius, minor_radius, major_sections, minor_sections)
+    to_xz = trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])  # ring plane xy -> xz
+    to_yz = trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])  # ring plane xy -> yz
+    parts = []
+    step = 2 * spacing
+    for i in range(rings):
+        for j in range(rings):
+            parts.append(base.copy().apply_translation([i * step, j * step, 0]))
+            if i + 1 < rings:
+                ring = base.copy().apply_transform(to_xz)
+                parts.append(ring.apply_translation([i * step + spacing, j * step, 0]))
+            if j + 1 < rings:
+                ring = base.copy().apply_transform(to_yz)
+                parts.append(ring.apply_translation([i * step, j * step + spacing, 0]))
+    return trimesh.util.concatenate(parts)

@@ -8,3 +8,6 @@ from __future__ import annotations
 
 from geosynth.field import Field as Field
 from geosynth.field import cubic_grid as cubic_grid
+from geosynth.meshes import load_mesh as load_mesh
+from geosynth.meshes import mesh_distance as mesh_distance
+from geosynth.pointsets import pointset_distance as pointset_distance

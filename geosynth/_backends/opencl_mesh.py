@@ -8,6 +8,58 @@ self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 
 from __future__ import annotations
 
+import numpy as np
+
+# Work-group shapes: small groups, so that PoCL spreads the work over every core
+# (the cost per point varies a lot with its distance to the mesh).
+_LOCAL_POINTS = 8
+_LOCAL_GRID = (1, 4, 1)
+
+
+def _round_up(value: int, multiple: int) -> int:
+    return -(-value // multiple) * multiple
+
+
+class OpenCLMeshHandle:
+    """A mesh on an OpenCL device: the BVH arrays of geosynth.meshes.MeshBVH."""
+
+    def __init__(self, bvh, backend):
+        self.bbox = backend.to_device(bvh.bbox)
+        self.child = backend.to_device(bvh.child)
+        self.tris = backend.to_device(bvh.tris)
+        self.dipole = backend.to_device(bvh.dipole)
+
 
 class OpenCLMeshOps:
     """Mixin: the mesh distance-field kernels on an OpenCL device."""
+
+    def mesh_handle(self, bvh) -> OpenCLMeshHandle:
+        """The device structures of a prepared mesh, uploaded once per mesh and device."""
+        handle = bvh.device_cache.get(self.name)
+        if handle is None:
+            handle = bvh.device_cache[self.name] = OpenCLMeshHandle(bvh, self)
+        return handle
+
+    def mesh_distance_points(self, mesh, points, n, signed, band, out, run: int = 1) -> None:
+        """out (n,) <- distance at points (n, 3); see kernels/sdf_mesh.cl."""
+        kernel = self._kernel("sdf_mesh", "mesh_distance_points", np.float32)
+        g = -(-n // run)
+        kernel(
+            self.queue, (_round_up(g, _LOCAL_POINTS),), (_LOCAL_POINTS,),
+            points.data, np.int32(n), np.int32(run),
+            mesh.bbox.data, mesh.child.data, mesh.tris.data, mesh.dipole.data,
+            np.int32(bool(signed)), np.float32(band), out.data,
+        )
+
+    def mesh_distance_grid(self, mesh, origin, spacing, shape, signed, band, out, run: int = 8) -> None:
+        """out (nz * ny * nx,) <- distance at origin + spacing * (i, j, k) for shape (nx, ny, nz)."""
+        nx, ny, nz = shape
+        kernel = self._kernel("sdf_mesh", "mesh_distance_grid", np.float32)
+        gsize = (_round_up(-(-nx // run), _LOCAL_GRID[0]), _round_up(ny, _LOCAL_GRID[1]), _round_up(nz, _LOCAL_GRID[2]))
+        kernel(
+            self.queue, gsize, _LOCAL_GRID,
+            *(np.float32(v) for v in origin), *(np.float32(v) for v in spacing),
+            np.int32(nx), np.int32(ny), np.int32(nz), np.int32(run),
+            mesh.bbox.data, mesh.child.data, mesh.tris.data, mesh.dipole.data,
+            np.int32(bool(signed)), np.float32(band), out.data,
+        )

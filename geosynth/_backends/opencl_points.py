@@ -8,6 +8,31 @@ self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 
 from __future__ import annotations
 
+import numpy as np
+
+_LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
+
 
 class OpenCLPointsOps:
     """Mixin: the points distance-field kernels on an OpenCL device."""
+
+    def mls_project(
+        self, pn, cell_start, grid_origin, inv_cell, grid_dims, inv_h2, reach, tol, max_iter,
+        queries, lattice, m, dist, grad, proj,
+    ) -> None:
+        """Same arguments as WarpPointsOps.mls_project."""
+        if queries is None:
+            (qo, qs, qn) = lattice
+        else:
+            qo, qs, qn = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1, 1)
+        kernel = self._kernel("sdf_points", "mls_project", np.float32)
+        f32, i32 = np.float32, np.int32
+        kernel(
+            self.queue, (-(-m // _LOCAL) * _LOCAL,), (_LOCAL,),
+            pn.data, cell_start.data, *(f32(v) for v in grid_origin), f32(inv_cell),
+            *(i32(v) for v in grid_dims), f32(inv_h2), f32(reach), f32(tol), i32(max_iter),
+            queries.data if queries is not None else self._dummy(np.float32), i32(queries is not None),
+            *(f32(v) for v in qo), *(f32(v) for v in qs), *(i32(v) for v in qn),
+            i32(m), dist.data, grad.data,
+            proj.data if proj is not None else self._dummy(np.float32), i32(proj is not None),
+        )

@@ -7,6 +7,50 @@ self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 
 from __future__ import annotations
 
+import numpy as np
+import warp as wp
+
+from geosynth.kernels import sdf_mesh as sdf_kernels
+
+
+class WarpMeshHandle:
+    """A mesh on a Warp device: the wp.Mesh (closest points) and the BVH arrays
+    of geosynth.meshes.MeshBVH (winding number)."""
+
+    def __init__(self, bvh, device):
+        # the wp.Mesh gets the triangles in leaf order, so its face indices are rows of bvh.tris
+        self.points = wp.array(bvh.vertices, dtype=wp.vec3, device=device)
+        self.indices = wp.array(bvh.faces.reshape(-1), dtype=wp.int32, device=device)
+        self.mesh = wp.Mesh(points=self.points, indices=self.indices)
+        self.child = wp.array(bvh.child.reshape(-1), dtype=wp.int32, device=device)
+        self.tris = wp.array(bvh.tris.reshape(-1), dtype=wp.float32, device=device)
+        self.dipole = wp.array(bvh.dipole.reshape(-1), dtype=wp.float32, device=device)
+
 
 class WarpMeshOps:
     """Mixin: the mesh distance-field kernels on a Warp device."""
+
+    def mesh_handle(self, bvh) -> WarpMeshHandle:
+        """The device structures of a prepared mesh, made once per mesh and device."""
+        handle = bvh.device_cache.get(self.name)
+        if handle is None:
+            handle = bvh.device_cache[self.name] = WarpMeshHandle(bvh, self.device)
+        return handle
+
+    def mesh_distance_points(self, mesh, points, n, signed, band, out, run: int = 1) -> None:
+        """out (n,) <- distance at points (n, 3); see kernels/sdf_mesh.py."""
+        self._launch(
+            sdf_kernels.mesh_distance_points_kernel,
+            -(-n // run),
+            [points.data, n, run, mesh.mesh.id, mesh.child, mesh.tris, mesh.dipole, int(signed), float(band), out.data],
+        )
+
+    def mesh_distance_grid(self, mesh, origin, spacing, shape, signed, band, out, run: int = 8) -> None:
+        """out (nz * ny * nx,) <- distance at origin + spacing * (i, j, k) for shape (nx, ny, nz)."""
+        nx, ny, nz = shape
+        self._launch(
+            sdf_kernels.mesh_distance_grid_kernel,
+            (nz, ny, -(-nx // run)),
+            [*(float(v) for v in origin), *(float(v) for v in spacing), nx, ny, nz, run,
+             mesh.mesh.id, mesh.child, mesh.tris, mesh.dipole, int(signed), float(band), out.data],
+        )

@@ -1,0 +1,566 @@
+"""Meshes: loading, checking, orienting, and the signed distance of a mesh.
+
+The host half of the mesh distance-field family (kernels/sdf_mesh.*): the input
+checks, a consistent face orientation, and the bounding volume hierarchy (BVH) that
+both backends traverse, built once per mesh in NumPy and cached. The public function
+is :func:`mesh_distance` (re-exported by :mod:`geosynth.fields`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections import OrderedDict
+from dataclasses import dataclass, field as dc_field
+
+import numpy as np
+
+from geosynth import _checks
+from geosynth.field import Field, cubic_grid
+
+__all__ = ["MeshBVH", "build_bvh", "check_mesh", "load_mesh", "mesh_distance", "orient_faces"]
+
+# Far-field criterion of the fast winding number: a node whose dipole centre is more
+# than BETA times its radius away is summed as one dipole (Barill et al. use 2).
+BETA = 2.0
+LEAF_SIZE = 4  # triangles per BVH leaf, at most
+STACK_SIZE = 64  # traversal stack of the kernels (kernels/sdf_mesh.*); the build keeps depth below it
+# Grid points processed in a row by one work-item; each seeds its search with the
+# previous point's closest triangle (an upper bound: the result stays exact).
+GRID_RUN = 8
+# A face is degenerate when twice its area is below this fraction of the squared
+# bounding-box diagonal (zero-area faces, collinear or repeated corners).
+_DEGENERATE_REL = 1e-12
+
+
+# ------------------------------------------------------------------ input
+
+
+def load_mesh(path: str | os.PathLike):
+    """Read a mesh file with trimesh (OBJ, PLY, STL, OFF, GLB, ... anything it reads).
+
+    Scenes with several geometries are concatenated into one mesh.
+
+    Args:
+        path: the file.
+
+    Returns:
+        A ``trimesh.Trimesh``.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: trimesh cannot read a triangle mesh from it.
+    """
+    import trimesh
+
+    p = os.fspath(path)
+    if not os.path.exists(p):
+        raise FileNotFoundError(f"mesh file {p!r} does not exist.")
+    try:
+        mesh = trimesh.load(p, force="mesh")
+    except Exception as exc:  # trimesh raises many kinds for unreadable files
+        raise ValueError(f"could not read a mesh from {p!r}: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise ValueError(f"{p!r} holds no triangle mesh (trimesh read a {type(mesh).__name__}).")
+    return mesh
+
+
+def _as_trimesh(mesh, name: str):
+    import trimesh
+
+    if isinstance(mesh, (str, os.PathLike)):
+        return load_mesh(mesh)
+    if isinstance(mesh, trimesh.Trimesh):
+        return mesh
+    raise TypeError(f"{name} must be a trimesh.Trimesh or a path to a mesh file, got {type(mesh).__name__}.")
+
+
+def check_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Check a triangle mesh and return its arrays.
+
+    Args:
+        mesh: a ``trimesh.Trimesh`` (or a path, read with :func:`load_mesh`).
+        name: the argument name used in error messages.
+        drop_degenerate: remove zero-area faces instead of refusing them.
+
+    Returns:
+        ``(vertices, faces)``: (V, 3) float32 and (F, 3) int32.
+
+    Raises:
+        TypeError: not a mesh.
+        ValueError: no faces, NaN/inf vertices, face indices out of range, or
+            degenerate (zero-area) faces when ``drop_degenerate`` is False.
+    """
+    m = _as_trimesh(mesh, name)
+    v = np.asarray(m.vertices, dtype=np.float64)
+    f = np.asarray(m.faces)
+    if f.ndim != 2 or f.shape[0] == 0 or f.shape[1] != 3:
+        raise ValueError(f"{name} is empty: it has no triangle faces (faces shape {f.shape}).")
+    if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
+        raise ValueError(f"{name} vertices must have shape (V, 3), got {v.shape}.")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{name} has {int(bad.sum())} vertices with NaN or inf coordinates; every vertex must be finite.")
+    if f.dtype.kind not in "iu":
+        raise TypeError(f"{name} faces must be integer indices, got dtype {f.dtype}.")
+    if f.min() < 0 or f.max() >= v.shape[0]:
+        raise ValueError(
+            f"{name} has face indices out of range [0, {v.shape[0]}): min {int(f.min())}, max {int(f.max())}."
+        )
+    if v.shape[0] >= 2**31 or f.shape[0] >= 2**27:
+        raise ValueError(f"{name} is too large ({v.shape[0]} vertices, {f.shape[0]} faces); split it.")
+    tri = v[f]
+    twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    diag2 = float(((v.max(0) - v.min(0)) ** 2).sum())
+    degenerate = twice_area <= _DEGENERATE_REL * diag2
+    if degenerate.any():
+        if not drop_degenerate:
+            raise ValueError(
+                f"{name} has {int(degenerate.sum())} degenerate (zero-area) face(s) of {f.shape[0]}; "
+                "remove them (e.g. mesh.update_faces(mesh.nondegenerate_faces())) or pass drop_degenerate=True."
+            )
+        f = f[~degenerate]
+        if f.shape[0] == 0:
+            raise ValueError(f"{name} is empty: every one of its faces is degenerate (zero area).")
+    return v.astype(np.float32), np.ascontiguousarray(f, dtype=np.int32)
+
+
+# ------------------------------------------------------------------ orientation
+
+
+def orient_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces with a consistent orientation, outward on closed parts.
+
+    Faces that share an edge (vertices merged by exact position) must traverse it in
+    opposite directions. Within each edge-connected patch the orientation held by
+    the majority of its faces (by area) wins, so a patch with a few flipped faces is
+    repaired and an open sheet keeps the orientation it was given. A patch whose
+    signed volume is clearly negative (an inside-out closed part) is then flipped.
+    Non-manifold edges (shared by more than two faces) do not propagate orientation.
+
+    Args:
+        vertices: (V, 3) float array.
+        faces: (F, 3) int array.
+
+    Returns:
+        (F, 3) int32 faces, some with their winding reversed.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    n_f = f.shape[0]
+    # merge vertices by exact position so that split seams still connect
+    _, vid = np.unique(v, axis=0, return_inverse=True)
+    fv = vid.reshape(-1)[f]
+    a = fv.reshape(-1)
+    b = fv[:, [1, 2, 0]].reshape(-1)
+    fid = np.repeat(np.arange(n_f), 3)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    same_dir = a < b  # direction of the face's edge relative to (lo, hi)
+    key = lo * (int(vid.max()) + 1) + hi
+    order = np.argsort(key, kind="stable")
+    key_s = key[order]
+    starts = np.flatnonzero(np.r_[True, key_s[1:] != key_s[:-1]])
+    counts = np.diff(np.r_[starts, key_s.size])
+    pair = starts[counts == 2]  # manifold interior edges
+    e0, e1 = order[pair], order[pair + 1]
+    f0, f1 = fid[e0], fid[e1]
+    # consistent neighbours traverse the shared edge in opposite directions
+    must_flip_rel = same_dir[e0] == same_dir[e1]  # True: one of the two is flipped relative to the other
+    flip = np.zeros(n_f, bool)
+    if not must_flip_rel.any():
+        comp = _components(n_f, f0, f1)
+    else:
+        comp, flip = _propagate(n_f, f0, f1, must_flip_rel)
+        tri = v[f]
+        area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        # majority by area within each patch: flip the propagated labels if most area disagrees
+        flipped_area = np.bincount(comp, weights=area * flip)
+        total_area = np.bincount(comp, weights=area)
+        invert = flipped_area > 0.5 * total_area
+        flip ^= invert[comp]
+    out = f.copy()
+    out[flip] = out[flip][:, ::-1]
+    # inside-out closed parts: signed volume about the patch centroid
+    tri = v[out]
+    n_c = int(comp.max()) + 1
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    wsum = np.maximum(np.bincount(comp, weights=area2, minlength=n_c), 1e-300)
+    centre = np.stack([np.bincount(comp, weights=area2 * tri[:, :, k].mean(1), minlength=n_c) for k in range(3)], 1) / wsum[:, None]
+    rel = tri - centre[comp][:, None, :]
+    vol = np.bincount(comp, weights=np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2])) / 6.0, minlength=n_c)
+    # open sheets have a volume near zero about their centroid: compare with area^1.5
+    inside_out = vol < -1e-3 * wsum**1.5
+    if inside_out.any():
+        sel = inside_out[comp]
+        out[sel] = out[sel][:, ::-1]
+    return out.astype(np.int32)
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected-component labels of n nodes joined by edges (a, b) (label propagation)."""
+    label = np.arange(n)
+    while True:
+        m = np.minimum(label[a], label[b])
+        new = label.copy()
+        np.minimum.at(new, a, m)
+        np.minimum.at(new, b, m)
+        new = new[new]  # pointer jumping
+        if np.array_equal(new, label):
+            return np.unique(label, return_inverse=True)[1]
+        label = new
+
+
+def _propagate(n: int, a: np.ndarray, b: np.ndarray, rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Breadth-first 2-colouring: flip[j] = flip[i] ^ rel for each edge (i, j).
+
+    Returns (component labels, flip flags relative to each component's first face).
+    Conflicting cycles (non-orientable parts) keep the first label that reached them.
+    """
+    from collections import deque
+
+    adj_src = np.concatenate([a, b])
+    adj_dst = np.concatenate([b, a])
+    adj_rel = np.concatenate([rel, rel])
+    order = np.argsort(adj_src, kind="stable")
+    adj_dst, adj_rel = adj_dst[order].tolist(), adj_rel[order].tolist()
+    ptr = np.searchsorted(adj_src[order], np.arange(n + 1)).tolist()
+    comp = [-1] * n
+    flip = [False] * n
+    c = 0
+    for s in range(n):
+        if comp[s] >= 0:
+            continue
+        comp[s] = c
+        queue = deque([s])
+        while queue:
+            i = queue.popleft()
+            fi = flip[i]
+            for k in range(ptr[i], ptr[i + 1]):
+                j = adj_dst[k]
+                if comp[j] < 0:
+                    comp[j] = c
+                    flip[j] = fi ^ adj_rel[k]
+                    queue.append(j)
+        c += 1
+    return np.array(comp, np.int64), np.array(flip, bool)
+
+
+# ------------------------------------------------------------------ BVH
+
+
+@dataclass
+class MeshBVH:
+    """A mesh prepared for the distance kernels: checked, oriented, and a BVH.
+
+    Node 0 is unused; the root is node 1; the two children of an internal node are
+    adjacent (``first``, ``first + 1``, ``first`` even) so that one fetch reads both
+    boxes. Triangles are stored in leaf order.
+
+    Attributes:
+        vertices: (V, 3) float32, as checked.
+        faces: (F, 3) int32, oriented (:func:`orient_faces`) and in leaf order.
+        bbox: (N, 8) float32 per node: min x, y, z, 0, max x, y, z, 0.
+        child: (N, 2) int32 per node: (first child, 0) for an internal node,
+            (first triangle, count) for a leaf.
+        dipole: (N, 8) float32 per node for the fast winding number: area-weighted
+            centroid c (3), (BETA * r)^2 with r the radius of the node about c, then
+            the area-weighted normal sum (3), 0.
+        tris: (F, 12) float32 per triangle: a (3), b - a (3), c - a (3),
+            |b - a|^2, |c - a|^2, (b - a).(c - a).
+        depth: the deepest node's depth (the root is depth 1).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    bbox: np.ndarray
+    child: np.ndarray
+    dipole: np.ndarray
+    tris: np.ndarray
+    depth: int
+    device_cache: dict = dc_field(default_factory=dict, repr=False)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return self.bbox[1].reshape(2, 4)[:, :3].astype(np.float64)
+
+
+def _morton63(q: np.ndarray) -> np.ndarray:
+    """Interleave three 21-bit integer coordinates (n, 3) into 63-bit Morton codes."""
+
+    def spread(x):
+        x = x.astype(np.uint64) & np.uint64(0x1FFFFF)
+        x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+        x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+        x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+        x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+        x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
+        return x
+
+    return spread(q[:, 0]) | (spread(q[:, 1]) << np.uint64(1)) | (spread(q[:, 2]) << np.uint64(2))
+
+
+def _highest_bit(x: np.ndarray) -> np.ndarray:
+    """Index of the highest set bit of each nonzero uint64 (vectorized binary search)."""
+    x = x.copy()
+    pos = np.zeros(x.shape, np.uint64)
+    for shift in (32, 16, 8, 4, 2, 1):
+        s = np.uint64(shift)
+        big = (x >> s) != 0
+        pos[big] += s
+        x[big] >>= s
+    return pos
+
+
+def _range_reduce(ufunc, values: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """ufunc-reduce of values[s_i:e_i] for disjoint, non-empty ranges."""
+    order = np.argsort(s, kind="stable")
+    idx = np.stack([s[order], e[order]], 1).reshape(-1)
+    padded = np.concatenate([values, values[:1]])
+    red = ufunc.reduceat(padded, idx, axis=0)[::2]
+    out = np.empty_like(red)
+    out[order] = red
+    return out
+
+
+def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZE, beta: float = BETA) -> MeshBVH:
+    """A linear BVH (Morton-sorted triangle centroids, split at the highest differing bit).
+
+    Built top-down, one level at a time in NumPy: every node covers a contiguous
+    range of the Morton-sorted triangles, split where the highest bit that differs
+    across the range changes (a spatial median on alternating axes); ranges of equal
+    codes, and every range below depth 32, split at their middle, which keeps the depth
+    under STACK_SIZE. Boxes are exact over each node's triangles; the dipole terms of
+    the fast winding number come from prefix sums over the sorted triangles.
+
+    Args:
+        vertices: (V, 3) float array.
+        faces: (F, 3) int array (already checked and oriented).
+        leaf_size: most triangles per leaf.
+        beta: far-field ratio of the fast winding number.
+
+    Returns:
+        The :class:`MeshBVH`.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    n_f = f.shape[0]
+    tri = v[f]  # (F, 3, 3)
+    cent = tri.mean(axis=1)
+    lo_c, hi_c = cent.min(0), cent.max(0)
+    scale = np.where(hi_c > lo_c, hi_c - lo_c, 1.0)
+    q = np.clip(((cent - lo_c) / scale * (2**21 - 1)).astype(np.int64), 0, 2**21 - 1)
+    codes = _morton63(q)
+    order = np.argsort(codes, kind="stable")
+    codes = codes[order]
+    tri = tri[order]
+    f = f[order]
+
+    max_nodes = 2 * n_f + 2
+    child = np.zeros((max_nodes, 2), np.int64)
+    node_s = np.zeros(max_nodes, np.int64)
+    node_e = np.zeros(max_nodes, np.int64)
+    idx, s, e = np.array([1]), np.array([0]), np.array([n_f])
+    next_free = 2
+    depth = 0
+    while idx.size:
+        depth += 1
+        node_s[idx], node_e[idx] = s, e
+        n = e - s
+        leaf = n <= leaf_size
+        child[idx[leaf], 0] = s[leaf]
+        child[idx[leaf], 1] = n[leaf]
+        inner = ~leaf
+        idx, s, e = idx[inner], s[inner], e[inner]
+        if not idx.size:
+            break
+        cs, ce = codes[s], codes[e - 1]
+        diff = cs ^ ce
+        mid = (s + e) // 2
+        use_bits = (diff != 0) & (depth < 32)
+        if use_bits.any():
+            hb = _highest_bit(diff[use_bits])
+            split_val = ((cs[use_bits] >> hb) | np.uint64(1)) << hb
+            m = np.searchsorted(codes, split_val, side="left")
+            mid[use_bits] = np.clip(m, s[use_bits] + 1, e[use_bits] - 1)
+        first = next_free + 2 * np.arange(idx.size)
+        next_free += 2 * idx.size
+        child[idx, 0] = first
+        child[idx, 1] = 0
+        idx = np.concatenate([first, first + 1])
+        s, e = np.concatenate([s, mid]), np.concatenate([mid, e])
+    n_nodes = next_free
+    if depth > STACK_SIZE - 2:
+        raise RuntimeError(f"BVH depth {depth} exceeds the kernels' stack ({STACK_SIZE}).")
+    ns, ne = node_s[1:n_nodes], node_e[1:n_nodes]
+
+    # boxes: exact over each node's triangle range
+    tlo, thi = tri.min(axis=1), tri.max(axis=1)
+    bbox = np.zeros((n_nodes, 8), np.float64)
+    bbox[1:, 0:3] = _range_reduce(np.minimum, tlo, ns, ne)
+    bbox[1:, 4:7] = _range_reduce(np.maximum, thi, ns, ne)
+
+    # dipoles: area-weighted centroid and normal sums through prefix sums
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # 2 * area * unit normal
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    pre_a = np.concatenate([[0.0], np.cumsum(area)])
+    pre_ac = np.concatenate([np.zeros((1, 3)), np.cumsum(area[:, None] * tri.mean(axis=1), axis=0)])
+    pre_n = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * cross, axis=0)])
+    a_node = np.maximum(pre_a[ne] - pre_a[ns], 1e-300)
+    c_node = (pre_ac[ne] - pre_ac[ns]) / a_node[:, None]
+    n_node = pre_n[ne] - pre_n[ns]
+    far = np.maximum(np.abs(bbox[1:, 0:3] - c_node), np.abs(bbox[1:, 4:7] - c_node))
+    r2 = (far**2).sum(axis=1)
+    dipole = np.zeros((n_nodes, 8), np.float64)
+    dipole[1:, 0:3] = c_node
+    dipole[1:, 3] = beta * beta * r2
+    dipole[1:, 4:7] = n_node
+
+    ab, ac = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    tris = np.concatenate(
+        [tri[:, 0], ab, ac, (ab * ab).sum(1, keepdims=True), (ac * ac).sum(1, keepdims=True), (ab * ac).sum(1, keepdims=True)],
+        axis=1,
+    )
+    return MeshBVH(
+        vertices=v.astype(np.float32),
+        faces=np.ascontiguousarray(f, dtype=np.int32),
+        bbox=np.ascontiguousarray(bbox, dtype=np.float32),
+        child=np.ascontiguousarray(child[:n_nodes], dtype=np.int32),
+        dipole=np.ascontiguousarray(dipole, dtype=np.float32),
+        tris=np.ascontiguousarray(tris, dtype=np.float32),
+        depth=depth,
+    )
+
+
+_BVH_CACHE: OrderedDict[tuple, MeshBVH] = OrderedDict()
+_BVH_CACHE_SIZE = 8
+
+
+def prepare_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False) -> MeshBVH:
+    """Check, orient and build the BVH of a mesh, cached by content (8 most recent meshes)."""
+    vertices, faces = check_mesh(mesh, name, drop_degenerate=drop_degenerate)
+    h = hashlib.blake2b(vertices.tobytes(), digest_size=16)
+    h.update(faces.tobytes())
+    key = (h.hexdigest(), vertices.shape, faces.shape)
+    bvh = _BVH_CACHE.get(key)
+    if bvh is None:
+        bvh = build_bvh(vertices, orient_faces(vertices, faces))
+        _BVH_CACHE[key] = bvh
+        while len(_BVH_CACHE) > _BVH_CACHE_SIZE:
+            _BVH_CACHE.popitem(last=False)
+    else:
+        _BVH_CACHE.move_to_end(key)
+    return bvh
+
+
+# ------------------------------------------------------------------ public API
+
+
+def mesh_distance(
+    mesh,
+    points=None,
+    *,
+    field: Field | None = None,
+    bounds=None,
+    resolution=None,
+    padding: float = 0.1,
+    signed: bool = True,
+    band: float | None = None,
+    drop_degenerate: bool = False,
+    device: str | None = None,
+):
+    """Distance from points, or from every sample of a grid, to a triangle mesh.
+
+    The distance is exact: the closest point over all triangles, found by a bounding
+    volume hierarchy traversal with the exact point-triangle distance (Warp:
+    ``wp.Mesh`` closest-point queries; OpenCL: a Morton-ordered BVH built once on the
+    host, cached, and traversed nearest-child-first with a stack in the kernel). Grid
+    rows are processed a few points at a time, each search starting from the previous
+    point's closest triangle as an upper bound (exact, only faster).
+
+    The sign is negative inside. Inside means a generalized winding number above 1/2
+    (Jacobson et al. 2013), computed with the fast approximation of Barill et al. 2018
+    on the same BVH on every backend: nodes farther than 2 radii are summed as dipoles
+    (area-weighted normal sums), nearer leaves exactly (van Oosterom-Strackee solid
+    angles). Unlike ray parity or closest-normal tests, the winding number degrades
+    gracefully on meshes that are not watertight: holes, gaps and self-intersections
+    only change it near the defect, so the sign stays right away from them. Before the
+    build, face orientation is made consistent across shared edges (majority per
+    connected patch, closed patches turned outward; :func:`orient_faces`), so a few
+    flipped faces do not disturb the sign either. Both backends run the same winding
+    traversal on the same BVH, so they agree on the sign.
+
+    Degenerate (zero-area) faces are refused, or removed with ``drop_degenerate``:
+    they carry no area, and Warp's ``wp.Mesh`` skips them in its closest-point search.
+
+    Args:
+        mesh: a ``trimesh.Trimesh`` or a path to a mesh file (any format trimesh reads).
+        points: (M, 3) query positions; if given, the result is an (M,) array.
+        field: a :class:`~geosynth.field.Field` whose geometry (origin, spacing, shape)
+            gives the grid; its values are not used or changed.
+        bounds: (2, 3) (x, y, z) min and max corners of the grid box (default
+            ``mesh.bounds``), used with ``resolution`` through
+            :func:`~geosynth.field.cubic_grid`.
+        resolution: samples along the longest axis (>= 2), when ``field`` is None.
+        padding: fraction of the largest extent added around ``bounds``.
+        signed: negative inside (True) or the unsigned distance (False).
+        band: if given (> 0), distances are clamped to [-band, band] (faster too:
+            nothing beyond the band is searched).
+        drop_degenerate: remove zero-area faces instead of raising.
+        device: a device string (see :mod:`geosynth.backend`); None means "auto".
+
+    Returns:
+        (M,) float32 distances when ``points`` is given, else a new float32
+        :class:`~geosynth.field.Field` on the requested grid.
+
+    Raises:
+        TypeError: ``mesh`` is not a mesh or path; ``field`` is not a Field.
+        ValueError: an empty mesh, NaN/inf vertices, out-of-range or degenerate
+            faces, points not (M, 3) or not finite, resolution < 2, bounds of zero
+            extent, a band that is not > 0, or points together with a grid.
+        RuntimeError: the device is not present.
+    """
+    bvh = prepare_mesh(mesh, "mesh", drop_degenerate=drop_degenerate)
+    if band is not None:
+        band = float(band)
+        if not (np.isfinite(band) and band > 0):
+            raise ValueError(f"band must be a finite number > 0 (or None), got {band!r}.")
+    band_arg = -1.0 if band is None else band
+
+    if points is not None:
+        if field is not None or bounds is not None or resolution is not None:
+            raise ValueError("pass either points or a grid (field=, or bounds=/resolution=), not both.")
+        pts = np.asarray(points)
+        if pts.dtype.kind not in "iuf":
+            raise TypeError(f"points must be a float array, got dtype {pts.dtype}.")
+        pts = np.ascontiguousarray(pts, dtype=np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must have shape (M, 3), got {pts.shape}.")
+        _checks.check_finite("points", pts)
+        backend = _checks.resolve_backend(device)
+        m = pts.shape[0]
+        if m == 0:
+            return np.zeros(0, np.float32)
+        out = backend.empty((m,), np.float32)
+        backend.mesh_distance_points(backend.mesh_handle(bvh), backend.to_device(pts), m, bool(signed), band_arg, out)
+        return backend.to_host(out)  # sync: the distances are the answer
+
+    if field is not None:
+        if not isinstance(field, Field):
+            raise TypeError(f"field must be a geosynth.field.Field, got {type(field).__name__}.")
+        if bounds is not None or resolution is not None:
+            raise ValueError("pass either field= or bounds=/resolution=, not both.")
+        grid = Field(np.zeros(field.shape, np.float32), field.origin.copy(), field.spacing.copy())
+    else:
+        if resolution is None:
+            raise ValueError("resolution is required for a grid (or pass field= or points).")
+        b = bvh.bounds if bounds is None else bounds
+        grid = cubic_grid(b, resolution, padding)
+    backend = _checks.resolve_backend(device)
+    nz, ny, nx = grid.shape
+    out = backend.empty((nz * ny * nx,), np.float32)
+    backend.mesh_distance_grid(
+        backend.mesh_handle(bvh), grid.origin.astype(np.float32), grid.spacing.astype(np.float32),
+        (nx, ny, nz), bool(signed), band_arg, out,
+    )
+    grid.values = backend.to_host(out).reshape(nz, ny, nx)  # sync: the field comes back
+    return grid

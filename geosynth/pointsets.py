@@ -1,0 +1,587 @@
+"""Oriented point sets: PLY input/output, normal estimation, and the MLS distance field.
+
+The distance field of a point set is the one of method M2 (METHODS.md, "Metric";
+seed 000, Sec. 5.1): grid points are projected onto the MLS point-set surface of
+Adamson and Alexa with their quasi-orthogonal projection, and the field holds the
+signed distance to the projection plus a gradient field.
+
+Definitions (the kernels are ``kernels/sdf_points.py`` and ``kernels/sdf_points.cl``):
+
+- Weights: a Gaussian ``w_i(x) = exp(-|x - p_i|^2 / h^2)`` of kernel width ``h``
+  (``radius=``), cut off to 0 beyond ``reach = MLS_REACH * h`` (3h: the weight there
+  is exp(-9) ~ 1.2e-4 of the peak).
+- ``a(x) = sum w_i p_i / sum w_i`` and ``n(x) = normalize(sum w_i n_i)``, with the
+  input normals normalized first; the implicit function ``f(x) = n(x) . (x - a(x))``
+  (Adamson and Alexa), positive on the side the normals point to.
+- Projection: ``y <- y - f(y) n(y)`` from ``y = x``, until ``|f(y)| <= MLS_TOL * h``
+  or ``MLS_MAX_ITER`` steps.
+- Field value: the *signed distance* ``sign(f(x)) * |x - proj(x)|``, not ``f(x)``:
+  the M2 paper (Sec. 5.1) computes D(S) "by projecting points of a regular grid on the
+  surface(s) of S using the quasi-orthogonal projection operator of Adamson and Alexa"
+  and asks for "signed distance fields together with a gradient field"; the sign comes
+  from the explicit normals ("to determine the distance sign, the operator should always
+  yield consistent normals, and therefore we require explicit normals"). ``f(x)`` alone
+  is only a distance near the surface. Values are clamped to ``[-reach, reach]``.
+- Gradient: the MLS normal ``n(proj(x))`` at the projection, a unit vector: the
+  gradient of an exact signed distance field is the surface normal at the closest point,
+  and unlike ``(x - proj(x)) / |x - proj(x)|`` it stays defined on the surface.
+- Far value (``far="nearest"``, the default): a query with no input point within reach
+  gets the signed distance to the projection of its nearest input point,
+  ``sign(n . (x - y)) |x - y|`` with ``y = proj(p_nearest)`` and ``n`` the MLS normal
+  there, and that normal as its gradient: a signed distance everywhere, exact in the
+  limit of dense sampling (the nearest sample's projection lies within about one
+  sample spacing of the true closest point) and with the sign of the closest surface
+  side. ``far="reach"`` skips that pass (faster) and gives such queries ``+reach``
+  and gradient ``(0, 0, 0)`` instead. No NaN is ever returned.
+- Default width: ``h = MLS_WIDTH_FACTOR * mean nearest-neighbour distance`` (2x), so
+  that about a dozen points of a uniformly sampled surface lie within h of a surface
+  point; see :func:`default_radius`.
+
+Neighbours come from a cell-sorted grid (cell size reach/2) built here on the host
+(points sorted by cell with NumPy) and read by both backends; its rows of cells are
+contiguous ranges of points. The Warp path reads the same grid instead of wp.HashGrid,
+so both backends visit the same points in the same order and agree to a few ulps.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from geosynth import _checks
+from geosynth.field import Field, cubic_grid
+
+__all__ = [
+    "MLS_MAX_ITER",
+    "MLS_REACH",
+    "MLS_TOL",
+    "MLS_WIDTH_FACTOR",
+    "PointSet",
+    "default_radius",
+    "estimate_normals",
+    "pointset_distance",
+    "project_points",
+    "read_point_set",
+    "write_point_set",
+]
+
+MLS_REACH = 3.0  # support radius in units of h: weights beyond 3h (< 1.2e-4 of the peak) are 0
+MLS_WIDTH_FACTOR = 2.0  # default h = 2 x the mean nearest-neighbour distance
+MLS_TOL = 1e-4  # projection stops when |f| <= MLS_TOL * h (float32 keeps ~1e-6 relative)
+MLS_MAX_ITER = 20  # projection steps at most; near the surface 2-5 suffice
+_MAX_CELLS_PER_POINT = 8  # the cell grid is coarsened beyond max(8 n, 2^20) cells
+_MIN_CELL_CAP = 1 << 20
+
+
+# ------------------------------------------------------------------------- the data
+
+
+@dataclass
+class PointSet:
+    """An oriented point set.
+
+    Attributes:
+        positions: (N, 3) float32 positions.
+        normals: (N, 3) float32 normals, or None.
+        colors: (N, 3) uint8 RGB colours, or None.
+        source: the file it was read from (set by :func:`read_point_set`), which
+            :func:`write_point_set` refuses to overwrite; None otherwise.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    source: Path | None = dc_field(default=None, compare=False)
+
+    def __post_init__(self):
+        self.positions = _as_points("positions", self.positions)
+        n = len(self.positions)
+        if self.normals is not None:
+            self.normals = _as_points("normals", self.normals)
+            if self.normals.shape != (n, 3):
+                raise ValueError(f"normals must have shape ({n}, 3) to match positions, got {self.normals.shape}.")
+        if self.colors is not None:
+            c = np.asarray(self.colors)
+            if c.shape != (n, 3):
+                raise ValueError(f"colors must have shape ({n}, 3) (RGB) to match positions, got {c.shape}.")
+            if c.dtype != np.uint8:
+                if c.dtype.kind not in "iu" or c.min(initial=0) < 0 or c.max(initial=0) > 255:
+                    raise TypeError(f"colors must be uint8 (0..255), got dtype {c.dtype}.")
+                c = c.astype(np.uint8)
+            self.colors = np.ascontiguousarray(c)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+
+def _as_points(name: str, array) -> np.ndarray:
+    a = np.asarray(array)
+    if a.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a float array, got dtype {a.dtype}.")
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {a.shape}.")
+    return a
+
+
+def read_point_set(path: str | os.PathLike) -> PointSet:
+    """Read a point set from a PLY file (through trimesh).
+
+    Reads the vertex element: x, y, z; nx, ny, nz when present; red, green, blue when
+    present. Faces, if any, are ignored.
+
+    Args:
+        path: the .ply file.
+
+    Returns:
+        The PointSet, with ``source`` set to the path.
+
+    Raises:
+        ValueError: the file holds no vertices.
+    """
+    import trimesh
+
+    p = Path(path)
+    geom = trimesh.load(str(p), process=False)
+    raw = getattr(geom, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+    names = set(raw.dtype.names or ()) if raw is not None else set()
+    positions = np.asarray(geom.vertices, np.float32)
+    if len(positions) == 0:
+        raise ValueError(f"{p} holds no vertices: not a point set.")
+    normals = colors = None
+    if {"nx", "ny", "nz"} <= names:
+        normals = np.stack([raw["nx"], raw["ny"], raw["nz"]], 1).astype(np.float32)
+    if {"red", "green", "blue"} <= names:
+        colors = np.stack([raw["red"], raw["green"], raw["blue"]], 1).astype(np.uint8)
+    return PointSet(positions, normals, colors, source=p)
+
+
+def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
+    """Write a point set as binary PLY (through trimesh), atomically.
+
+    The file is written to a temporary name beside ``path`` and then renamed over it,
+    so a reader never sees a partial file.
+
+    Args:
+        path: the .ply file to write.
+        ps: the PointSet (or anything with positions / normals / colors).
+
+    Returns:
+        The path written.
+
+    Raises:
+        ValueError: ``path`` is not .ply, or is the file ``ps`` was read from (inputs are
+            never overwritten).
+    """
+    import trimesh
+    from trimesh.exchange.ply import export_ply
+
+    out = Path(path)
+    if out.suffix.lower() != ".ply":
+        raise ValueError(f"point sets are written as .ply; got {str(out)!r}.")
+    if not isinstance(ps, PointSet):
+        ps = PointSet(ps.positions, getattr(ps, "normals", None), getattr(ps, "colors", None))
+    src = ps.source
+    if src is not None and out.exists() and Path(src).exists() and os.path.samefile(out, src):
+        raise ValueError(f"refusing to overwrite the input {str(src)!r}; write the point set to another path.")
+    kwargs = {}
+    if ps.normals is not None:
+        kwargs["vertex_normals"] = ps.normals
+    if ps.colors is not None:
+        kwargs["vertex_colors"] = ps.colors
+    mesh = trimesh.Trimesh(vertices=ps.positions, faces=np.zeros((0, 3), np.int64), process=False, **kwargs)
+    data = export_ply(mesh, encoding="binary", vertex_normal=ps.normals is not None)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp.ply")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, out)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return out
+
+
+# ------------------------------------------------------------------------- normals
+
+
+def _kdtree(points: np.ndarray, balanced: bool = True):
+    try:
+        from scipy.spatial import cKDTree
+    except ImportError as exc:  # pragma: no cover - scipy is a dependency
+        raise ImportError("geosynth.pointsets needs scipy (pip install scipy) for neighbour search.") from exc
+    # An unbalanced tree builds about 2x faster; fine for one nearest-neighbour query.
+    return cKDTree(points) if balanced else cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
+def estimate_normals(points, k: int = 16) -> np.ndarray:
+    """Unit normals of a point set: PCA over k nearest neighbours, oriented consistently.
+
+    1. For each point, the covariance of its k nearest neighbours (itself included);
+       the normal is the eigenvector of the smallest eigenvalue.
+    2. Orientation (Hoppe et al. 1992): on the symmetric k-nearest-neighbour graph with
+       edge cost ``1 - |n_i . n_j|``, take a minimum spanning tree of each connected
+       component and propagate the sign from a root along it, flipping a child whose
+       normal points against its parent's.
+    3. Root of each component: for the directions +z, +y, +x, -z, -y, -x in that order,
+       the component's extreme point along d; the first direction whose extreme point's
+       normal is most nearly parallel to d (within 0.05 of the best) wins, and that
+       normal is oriented along d. On a closed surface the extreme point along d has
+       outward normal d, so normals point outward; an open sheet such as a height field
+       gets normals towards +z (else +y, +x).
+
+    Args:
+        points: (N, 3) float positions (N >= 3), or a PointSet.
+        k: neighbours per point (itself included), >= 3; clipped to N.
+
+    Returns:
+        (N, 3) float32 unit normals.
+
+    Raises:
+        ValueError: wrong shape, fewer than 3 points, NaN/inf, k < 3.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+
+    if isinstance(points, PointSet):
+        points = points.positions
+    p = _as_points("points", points).astype(np.float64)
+    n = len(p)
+    if n < 3:
+        raise ValueError(f"points must hold at least 3 points to estimate normals, got {n}.")
+    _checks.check_finite("points", p)
+    if not isinstance(k, (int, np.integer)) or k < 3:
+        raise ValueError(f"k must be an integer >= 3, got {k!r}.")
+    k = int(min(k, n))
+
+    # 1. PCA over the k nearest neighbours.
+    _, idx = _kdtree(p).query(p, k=k)
+    nb = p[idx]  # (N, k, 3)
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", centred, centred)
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]  # smallest eigenvalue first
+
+    # 2. Minimum spanning tree of the Riemannian graph.
+    rows = np.repeat(np.arange(n), k - 1)
+    cols = idx[:, 1:].reshape(-1)
+    keep = rows != cols
+    rows, cols = rows[keep], cols[keep]
+    cost = 1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-6  # > 0: zeros are dropped
+    graph = coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
+    graph = graph.maximum(graph.T)
+    tree = minimum_spanning_tree(graph)
+    tree = tree + tree.T
+    n_comp, labels = connected_components(tree, directed=False)
+
+    # 3. Per component: choose the root, propagate signs in breadth-first order.
+    dirs = np.array([[0, 0, 1], [0, 1, 0], [1, 0, 0], [0, 0, -1], [0, -1, 0], [-1, 0, 0]], np.float64)
+    sign = np.zeros(n, np.float64)
+    order_all = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order_all], np.arange(n_comp + 1))
+    for c in range(n_comp):
+        members = order_all[bounds[c]:bounds[c + 1]]
+        proj = p[members] @ dirs.T  # (m, 6)
+        ext = members[np.argmax(proj, axis=0)]  # extreme point per direction
+        score = np.abs(np.einsum("ij,ij->i", normals[ext], dirs))
+        d = int(np.flatnonzero(score >= score.max() - 0.05)[0])
+        root = int(ext[d])
+        sign[root] = 1.0 if normals[root] @ dirs[d] >= 0 else -1.0
+        if len(members) == 1:
+            continue
+        order, pred = breadth_first_order(tree, root, directed=False, return_predecessors=True)
+        child = order[1:]
+        parent = pred[child]
+        agree = np.where(np.einsum("ij,ij->i", normals[child], normals[parent]) >= 0, 1.0, -1.0)
+        s = sign.tolist()
+        for v, u, a in zip(child.tolist(), parent.tolist(), agree.tolist()):
+            s[v] = s[u] * a
+        sign = np.asarray(s)
+    return (normals * sign[:, None]).astype(np.float32)
+
+
+def default_radius(points) -> float:
+    """The default MLS kernel width h: MLS_WIDTH_FACTOR (2) x the mean distance from
+    each point to its nearest neighbour (over an even subsample of at most ~20k points).
+
+    Args:
+        points: (N, 3) positions (N >= 2) or a PointSet.
+
+    Raises:
+        ValueError: fewer than 2 distinct points (pass ``radius=`` instead).
+    """
+    if isinstance(points, PointSet):
+        points = points.positions
+    p = _as_points("points", points)
+    if len(p) < 2:
+        raise ValueError("the default radius needs at least 2 points; pass radius= (the kernel width h).")
+    # The mean over an even subsample of at most ~20k points: the same estimate, cheaper.
+    sample = p[:: max(1, len(p) // 20_000)]
+    dist, _ = _kdtree(p, balanced=False).query(sample, k=2, workers=-1)
+    h = MLS_WIDTH_FACTOR * float(np.mean(dist[:, 1]))
+    if not h > 0:
+        raise ValueError("all points coincide, so the point spacing is 0; pass radius= (the kernel width h).")
+    return h
+
+
+# ------------------------------------------------------------------------- MLS distance
+
+
+def _prepare(points, normals) -> tuple[np.ndarray, np.ndarray]:
+    """Validate and convert positions and normals; normals come back unit length."""
+    if isinstance(points, PointSet):
+        if normals is None:
+            normals = points.normals
+        points = points.positions
+    p = _as_points("points", points)
+    if len(p) == 0:
+        raise ValueError("points is empty: the point set must hold at least one point.")
+    _checks.check_finite("points", p)
+    if normals is None:
+        raise ValueError(
+            "normals are required: the MLS distance takes its sign from the normals; estimate them "
+            "with geosynth.pointsets.estimate_normals(points)."
+        )
+    nrm = _as_points("normals", normals)
+    if nrm.shape != p.shape:
+        raise ValueError(f"normals must have shape {p.shape} to match points, got {nrm.shape}.")
+    _checks.check_finite("normals", nrm)
+    length = np.linalg.norm(nrm.astype(np.float64), axis=1)
+    zero = np.flatnonzero(length < 1e-12)
+    if zero.size:
+        raise ValueError(
+            f"normals has {zero.size} zero-length normal(s), first at index {int(zero[0])}; every normal must "
+            "have a direction (drop those points or re-estimate with estimate_normals)."
+        )
+    return p, (nrm / length[:, None]).astype(np.float32)
+
+
+def _as_radius(radius, points: np.ndarray) -> float:
+    if radius is None:
+        return default_radius(points)
+    if isinstance(radius, bool) or not isinstance(radius, (int, float, np.integer, np.floating)):
+        raise TypeError(f"radius must be a number (the kernel width h), got {type(radius).__name__}.")
+    h = float(radius)
+    if not (np.isfinite(h) and h > 0):
+        raise ValueError(f"radius must be a finite number > 0 (the kernel width h), got {radius!r}.")
+    return h
+
+
+class _CellGrid:
+    """Points sorted by cell of a regular grid, with each cell's first point.
+
+    Coordinates are relative to ``shift`` (the centre of the points' box), which keeps
+    float32 precise for data far from the origin.
+    """
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray, reach: float):
+        p64 = points.astype(np.float64)
+        lo, hi = p64.min(axis=0), p64.max(axis=0)
+        self.shift = (lo + hi) / 2
+        rel = p64 - self.shift
+        lo = lo - self.shift - 1e-6 * max(reach, float((hi - lo).max()))
+        cell = reach / 2  # a query's box spans 5 cells per axis: 25 contiguous rows
+        cap = max(_MAX_CELLS_PER_POINT * len(points), _MIN_CELL_CAP)
+        while True:
+            dims = np.floor((hi - self.shift - lo) / cell).astype(np.int64) + 1
+            if int(np.prod(dims)) <= cap:
+                break
+            cell *= 1.25
+        keys3 = np.minimum(np.floor((rel - lo) / cell).astype(np.int64), dims - 1)
+        keys = (keys3[:, 2] * dims[1] + keys3[:, 1]) * dims[0] + keys3[:, 0]
+        order = np.argsort(keys, kind="stable")
+        pn = np.zeros((len(points), 8), np.float32)
+        pn[:, 0:3] = rel[order]
+        pn[:, 4:7] = normals[order]
+        self.pn = pn.reshape(-1)
+        start = np.zeros(int(np.prod(dims)) + 1, np.int32)
+        np.cumsum(np.bincount(keys, minlength=len(start) - 1), out=start[1:])
+        self.cell_start = start
+        self.origin = lo
+        self.cell = cell
+        self.dims = dims
+
+
+def _run_mls(p, nrm, h, device, queries=None, lattice=None, want_proj=False):
+    """Project the queries ((M, 3) float32) or the lattice ((origin, spacing, shape ZYX))."""
+    reach = MLS_REACH * h
+    grid = _CellGrid(p, nrm, reach)
+    backend = _checks.resolve_backend(device)
+    if queries is not None:
+        m = len(queries)
+        q_dev = backend.to_device(np.ascontiguousarray((queries.astype(np.float64) - grid.shift).astype(np.float32)).reshape(-1))
+        lat = None
+    else:
+        origin, spacing, shape = lattice
+        m = int(np.prod(shape))
+        q_dev = None
+        lat = (tuple(np.asarray(origin, np.float64) - grid.shift), tuple(spacing), (int(shape[2]), int(shape[1])))
+    if m > 2**31 // 3 - 1024:
+        raise ValueError(f"{m} query points exceed the int32 indexing of the kernels; split the call.")
+    dist = backend.empty((m,), np.float32)
+    grad = backend.empty((m * 3,), np.float32)
+    proj = backend.empty((m * 3,), np.float32) if want_proj else None
+    backend.mls_project(
+        backend.to_device(grid.pn), backend.to_device(grid.cell_start),
+        tuple(grid.origin), 1.0 / grid.cell, tuple(int(d) for d in grid.dims),
+        1.0 / (h * h), reach, MLS_TOL * h, MLS_MAX_ITER,
+        q_dev, lat, m, dist, grad, proj,
+    )
+    # sync: the results are returned to the caller as host arrays.
+    out_d, out_g = dist.numpy(), grad.numpy().reshape(m, 3)
+    out_p = None
+    if want_proj:
+        out_p = (proj.numpy().reshape(m, 3).astype(np.float64) + grid.shift).astype(np.float32)
+    return out_d, out_g, out_p
+
+
+def _fill_far(p, nrm, h, device, x, d, g) -> None:
+    """Give the queries that had no input point within reach (gradient 0) the signed
+    distance to the projection of their nearest input point, in place."""
+    far = np.flatnonzero(~g.any(axis=1))
+    if far.size == 0:
+        return
+    _, nearest = _kdtree(p, balanced=False).query(x[far], k=1, workers=-1)
+    used, inverse = np.unique(nearest, return_inverse=True)  # many queries share a point
+    _, normal, proj = _run_mls(p, nrm, h, device, queries=p[used], want_proj=True)
+    y, n = proj[inverse].astype(np.float64), normal[inverse].astype(np.float64)
+    v = x[far].astype(np.float64) - y
+    side = np.where(np.einsum("ij,ij->i", v, n) < 0, -1.0, 1.0)
+    d[far] = side * np.linalg.norm(v, axis=1)
+    g[far] = n
+
+
+def _as_query(query) -> np.ndarray:
+    q = _as_points("query", query)
+    if len(q) == 0:
+        raise ValueError("query is empty: pass at least one query point.")
+    _checks.check_finite("query", q)
+    return q
+
+
+def pointset_distance(
+    points,
+    normals=None,
+    query=None,
+    *,
+    field: Field | None = None,
+    bounds=None,
+    resolution=None,
+    padding: float = 0.1,
+    radius: float | None = None,
+    far: str = "nearest",
+    device: str | None = None,
+):
+    """Signed distance and gradient of the MLS surface of an oriented point set.
+
+    The definitions (Gaussian width h, reach 3h, quasi-orthogonal projection, signed
+    distance ``sign(f(x)) |x - proj(x)|``, gradient = MLS normal at the projection, far
+    value) are in the module docstring.
+
+    Where to sample, one of:
+
+    - ``query``: (M, 3) points -> returns two arrays;
+    - ``field``: a :class:`Field` whose geometry (origin, spacing, shape) is used;
+    - ``resolution`` (and optionally ``bounds``, default the points' bounding box):
+      the cubic grid of :func:`geosynth.field.cubic_grid` (``padding`` around it).
+
+    Args:
+        points: (N, 3) float positions, or a PointSet (its normals are used unless
+            ``normals`` is given).
+        normals: (N, 3) float normals, oriented (outward for closed shapes); they are
+            normalized. Required: see :func:`estimate_normals` for inputs without.
+        query: (M, 3) float query points.
+        field: a Field giving the sample grid (its values are ignored).
+        bounds: (2, 3) box for the cubic grid, default the points' bounds.
+        resolution: samples along the box's longest axis, >= 2.
+        padding: fraction of the largest extent added around ``bounds``.
+        radius: the Gaussian kernel width h (> 0); default :func:`default_radius`.
+        far: what queries beyond reach (3h) of every input point get: ``"nearest"``
+            (the signed distance to the nearest input point's projection) or
+            ``"reach"`` (``+reach``, gradient 0); see the module docstring.
+        device: a device string (see :mod:`geosynth.backend`); None means ``"auto"``.
+
+    Returns:
+        With ``query``: ``(distance, gradient)``, (M,) and (M, 3) float32 arrays.
+        Otherwise: ``(distance, gradient)`` Fields on the same grid, values (Z, Y, X)
+        and (Z, Y, X, 3) float32, the gradient's components in (x, y, z) order.
+
+    Raises:
+        TypeError: non-numeric arrays, a radius that is not a number, a field that is not a Field.
+        ValueError: no normals, zero-length normals, NaN/inf, mismatched shapes, an empty
+            point set or query, no sampling given (or more than one), resolution < 2,
+            bounds with zero extent, radius <= 0.
+        RuntimeError: the device is absent.
+
+    Example:
+        >>> import numpy as np
+        >>> from geosynth.pointsets import pointset_distance
+        >>> g = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1, 1, 21)), -1).reshape(-1, 2)
+        >>> pts = np.c_[g, np.zeros(len(g))]
+        >>> d, grad = pointset_distance(pts, np.tile([0, 0, 1.0], (len(g), 1)), [[0.0, 0.0, 0.05]], device="cpu")
+        >>> bool(np.isclose(d[0], 0.05, atol=1e-4)), bool(np.allclose(grad[0], [0, 0, 1], atol=1e-4))
+        (True, True)
+    """
+    p, nrm = _prepare(points, normals)
+    modes = [name for name, v in (("query", query), ("field", field), ("resolution", resolution)) if v is not None]
+    if len(modes) != 1:
+        raise ValueError(
+            "give exactly one of query=, field= or resolution= (with optional bounds=) to say where to sample"
+            + (f"; got {', '.join(modes)}." if modes else ".")
+        )
+    if bounds is not None and resolution is None:
+        raise ValueError("bounds= needs resolution= (the cubic grid's samples along its longest axis).")
+    h = _as_radius(radius, p)
+    if far not in ("nearest", "reach"):
+        raise ValueError(f"far must be 'nearest' or 'reach', got {far!r}.")
+    if query is not None:
+        q = _as_query(query)
+        d, g, _ = _run_mls(p, nrm, h, device, queries=q)
+        if far == "nearest":
+            _fill_far(p, nrm, h, device, q, d, g)
+        return d, g
+    if field is not None:
+        if not isinstance(field, Field):
+            raise TypeError(f"field must be a geosynth.field.Field, got {type(field).__name__}.")
+        grid = Field(np.zeros(field.shape, np.float32), field.origin, field.spacing)
+    else:
+        box = np.stack([p.min(axis=0), p.max(axis=0)]).astype(np.float64) if bounds is None else bounds
+        grid = cubic_grid(box, resolution, padding)
+    d, g, _ = _run_mls(p, nrm, h, device, lattice=(grid.origin, grid.spacing, grid.shape))
+    if far == "nearest":
+        _fill_far(p, nrm, h, device, grid.points(), d, g)
+    shape = grid.shape
+    return (
+        Field(d.reshape(shape), grid.origin, grid.spacing),
+        Field(g.reshape(shape + (3,)), grid.origin, grid.spacing),
+    )
+
+
+def project_points(points, normals=None, query=None, *, radius: float | None = None, device: str | None = None):
+    """Project query points onto the MLS surface (Adamson and Alexa's quasi-orthogonal
+    projection, as in :func:`pointset_distance`).
+
+    Args:
+        points, normals, radius, device: as in :func:`pointset_distance`.
+        query: (M, 3) float points to project.
+
+    Returns:
+        (M, 3) float32 projections; a query with no input point within reach (3h) is
+        returned unchanged.
+
+    Raises:
+        As :func:`pointset_distance`; a missing ``query`` is a ValueError.
+    """
+    p, nrm = _prepare(points, normals)
+    if query is None:
+        raise ValueError("query is required: the (M, 3) points to project.")
+    q = _as_query(query)
+    h = _as_radius(radius, p)
+    _, _, proj = _run_mls(p, nrm, h, device, queries=q, want_proj=True)
+    return proj

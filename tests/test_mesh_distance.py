@@ -1,0 +1,253 @@
+"""Mesh distance fields on every present device, against the brute-force oracles of
+geosynth.reference and analytic cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import geosynth
+from geosynth import reference
+from geosynth.field import Field, cubic_grid
+from geosynth.fields import mesh_distance
+from geosynth.meshes import check_mesh, load_mesh, orient_faces
+
+# float32 kernels against a float64 oracle: relative to the mesh size
+ATOL = 2e-6
+
+
+def _points(mesh, rng, n_box=300, n_near=200, n_far=50):
+    """Uniform points around the mesh, points within 1e-3 of its surface, far points."""
+    lo, hi = mesh.bounds
+    ext = (hi - lo).max()
+    box = rng.uniform(lo - 0.3 * ext, hi + 0.3 * ext, (n_box, 3))
+    near = mesh.sample(n_near, seed=int(rng.integers(1 << 30))) + rng.normal(0, 1e-3 * ext, (n_near, 3))
+    far = rng.normal(0, 1, (n_far, 3))
+    far = far / np.linalg.norm(far, axis=1, keepdims=True) * rng.uniform(3, 20, (n_far, 1)) * ext
+    return np.concatenate([box, near, far]).astype(np.float32)
+
+
+def _torus():
+    return trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=12)
+
+
+SMALL_MESHES = {
+    "icosphere": lambda: trimesh.creation.icosphere(2),
+    "box": lambda: trimesh.creation.box((1.0, 2.0, 0.5)),
+    "torus": _torus,
+}
+
+
+@pytest.mark.parametrize("name", sorted(SMALL_MESHES))
+def test_against_bruteforce_oracle(device, rng, name):
+    mesh = SMALL_MESHES[name]()
+    p = _points(mesh, rng)
+    want = reference.mesh_distance_naive(mesh, p)
+    got = mesh_distance(mesh, p, device=device)
+    assert got.dtype == np.float32 and got.shape == (len(p),)
+    scale = np.abs(mesh.bounds).max()
+    np.testing.assert_allclose(np.abs(got), np.abs(want), atol=ATOL * scale * 10, rtol=2e-6)
+    far_enough = np.abs(want) > 1e-5 * scale
+    np.testing.assert_array_equal(np.sign(got)[far_enough], np.sign(want)[far_enough])
+    unsigned = mesh_distance(mesh, p, signed=False, device=device)
+    np.testing.assert_allclose(unsigned, np.abs(want), atol=ATOL * scale * 10, rtol=2e-6)
+    band = 0.1 * scale
+    banded = mesh_distance(mesh, p, band=band, device=device)
+    np.testing.assert_allclose(banded, np.clip(got, -band, band), atol=ATOL * scale * 10, rtol=2e-6)
+    assert np.abs(banded).max() <= np.float32(band)
+
+
+def test_sign_against_trimesh_contains(device, rng):
+    pytest.importorskip("rtree")  # trimesh's containment test needs it
+    for mesh in (trimesh.creation.icosphere(2), _torus(), trimesh.creation.box((1.0, 2.0, 0.5))):
+        p = _points(mesh, rng, n_near=0)
+        inside = mesh.contains(p.astype(np.float64))
+        got = mesh_distance(mesh, p, device=device)
+        np.testing.assert_array_equal(got < 0, inside)
+
+
+def test_sphere_analytic(device, rng):
+    mesh = trimesh.creation.icosphere(4, radius=1.0)
+    # the icosphere's faces lie inside the unit sphere by at most this sagitta
+    sag = 1.0 - np.abs(np.einsum("ij,ij->i", mesh.face_normals, mesh.triangles_center)).min()
+    p = rng.normal(0, 1, (2000, 3))
+    p = (p / np.linalg.norm(p, axis=1, keepdims=True) * rng.uniform(0.05, 3.0, (2000, 1))).astype(np.float32)
+    r = np.linalg.norm(p.astype(np.float64), axis=1)
+    got = mesh_distance(mesh, p, device=device)
+    np.testing.assert_allclose(got, r - 1.0, atol=sag * 1.01 + 1e-6)
+    clear = np.abs(r - 1.0) > sag
+    np.testing.assert_array_equal(got[clear] < 0, r[clear] < 1.0)
+
+
+def test_plane_analytic(device, rng):
+    # a big flat square at z = 0, normal +z. Its distance above the interior is |z|. An
+    # open sheet encloses nothing: its winding number is -1/2 < w < 1/2 on both sides
+    # (w -> +-1/2 only as the sheet grows infinite), so it is outside (+) for either
+    # orientation; the winding number itself follows the orientation.
+    vertices = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], np.float64)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    xy = rng.uniform(-2, 2, (500, 2))
+    z = rng.uniform(-1, 1, 500)
+    z[np.abs(z) < 1e-3] = 0.5
+    p = np.column_stack([xy, z]).astype(np.float32)
+    got = mesh_distance(mesh, p, device=device)
+    np.testing.assert_allclose(got, np.abs(p[:, 2]), atol=1e-6)
+    flipped = trimesh.Trimesh(vertices=vertices, faces=faces[:, ::-1], process=False)
+    np.testing.assert_allclose(mesh_distance(flipped, p, device=device), np.abs(p[:, 2]), atol=1e-6)
+    w = reference.winding_number_naive(vertices, faces, p)
+    assert (np.sign(w) == np.sign(p[:, 2]) * -1).all() and (np.abs(w) < 0.5).all()
+    # closed by a second, reversed sheet just below, the slab between them is inside
+    slab = trimesh.Trimesh(
+        vertices=np.vstack([vertices, vertices - [0, 0, 0.5]]), faces=np.vstack([faces, faces[:, ::-1] + 4]), process=False
+    )
+    q = np.column_stack([xy, rng.uniform(-0.45, -0.05, 500)]).astype(np.float32)
+    np.testing.assert_allclose(mesh_distance(slab, q, device=device), -np.minimum(-q[:, 2], q[:, 2] + 0.5), atol=1e-6)
+
+
+def test_box_corners_analytic(device, rng):
+    half = np.array([0.5, 1.0, 0.25])
+    mesh = trimesh.creation.box(2 * half)
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+    offs = rng.uniform(0.01, 1.0, (8, 40, 3))  # strictly beyond the corner on every axis
+    p = (signs[:, None, :] * (half + offs)).reshape(-1, 3)
+    corner = np.repeat(signs * half, 40, axis=0)
+    got = mesh_distance(mesh, p.astype(np.float32), device=device)
+    np.testing.assert_allclose(got, np.linalg.norm(p.astype(np.float32) - corner, axis=1), rtol=1e-5, atol=1e-6)
+
+
+def test_torus_analytic(device, rng):
+    big, small = 1.0, 0.3
+    mesh = trimesh.creation.torus(big, small, major_sections=128, minor_sections=64)
+    p = rng.uniform([-1.6, -1.6, -0.6], [1.6, 1.6, 0.6], (2000, 3)).astype(np.float32)
+    q = p.astype(np.float64)
+    exact = np.hypot(np.hypot(q[:, 0], q[:, 1]) - big, q[:, 2]) - small
+    # polygonal tessellation error: sagitta of both the major and the minor polygon
+    tol = (big + small) * (1 - np.cos(np.pi / 128)) + small * (1 - np.cos(np.pi / 64)) + 1e-5
+    got = mesh_distance(mesh, p, device=device)
+    np.testing.assert_allclose(got, exact, atol=tol)
+
+
+def _hole_mesh():
+    mesh = trimesh.creation.icosphere(3)
+    keep = mesh.triangles_center[:, 2] < 0.9  # a hole around the north pole
+    return trimesh.Trimesh(mesh.vertices, mesh.faces[keep], process=False)
+
+
+def _flipped_mesh(rng):
+    mesh = trimesh.creation.icosphere(3)
+    faces = mesh.faces.copy()
+    flip = rng.choice(len(faces), len(faces) // 10, replace=False)
+    faces[flip] = faces[flip][:, ::-1]
+    return trimesh.Trimesh(mesh.vertices, faces, process=False)
+
+
+def test_hole_and_flipped_faces_sign(device, rng):
+    p = rng.uniform(-1.5, 1.5, (3000, 3)).astype(np.float32)
+    r = np.linalg.norm(p.astype(np.float64), axis=1)
+    sphere_sag = 0.01  # icosphere(3) vs the unit sphere
+    hole = _hole_mesh()
+    got = mesh_distance(hole, p, device=device)
+    away = (np.abs(r - 1) > sphere_sag) & (np.linalg.norm(p - [0, 0, 1], axis=1) > 0.8)
+    np.testing.assert_array_equal(got[away] < 0, r[away] < 1)
+    np.testing.assert_allclose(np.abs(got), reference.mesh_unsigned_distance_naive(hole.vertices, hole.faces, p), atol=1e-5)
+    flipped = _flipped_mesh(rng)
+    got = mesh_distance(flipped, p, device=device)
+    clear = np.abs(r - 1) > sphere_sag
+    np.testing.assert_array_equal(got[clear] < 0, r[clear] < 1)
+
+
+def test_orient_faces_repairs_flips_and_inside_out(rng):
+    sphere = trimesh.creation.icosphere(3)
+    flipped = _flipped_mesh(rng)
+    np.testing.assert_array_equal(np.sort(orient_faces(flipped.vertices, flipped.faces), 1), np.sort(sphere.faces, 1))
+    fixed = orient_faces(flipped.vertices, flipped.faces)
+    assert trimesh.Trimesh(flipped.vertices, fixed, process=False).volume > 0
+    inside_out = orient_faces(sphere.vertices, sphere.faces[:, ::-1])
+    assert trimesh.Trimesh(sphere.vertices, inside_out, process=False).volume > 0
+
+
+def test_backends_agree_on_sign():
+    present = geosynth.devices()
+    if len(present) < 2:
+        pytest.skip("needs two devices")
+    rng = np.random.default_rng(7)
+    for mesh in (_hole_mesh(), _flipped_mesh(rng)):
+        results = [mesh_distance(mesh, resolution=32, device=d).values for d in present]
+        for other in results[1:]:
+            np.testing.assert_array_equal(np.sign(other), np.sign(results[0]))
+            np.testing.assert_allclose(other, results[0], atol=1e-5)
+
+
+def test_grid_output(device, rng):
+    mesh = _torus()
+    f = mesh_distance(mesh, resolution=20, device=device)
+    want = cubic_grid(mesh.bounds, 20, 0.1)
+    assert isinstance(f, Field) and f.values.dtype == np.float32
+    assert f.shape == want.shape
+    np.testing.assert_allclose(f.origin, want.origin)
+    np.testing.assert_allclose(f.spacing, want.spacing)
+    np.testing.assert_allclose(f.values.reshape(-1), mesh_distance(mesh, f.points(), device=device), atol=1e-5)
+    bounds = np.array([[-2.0, -1.0, -0.5], [2.0, 1.0, 0.5]])
+    g = mesh_distance(mesh, bounds=bounds, resolution=9, padding=0.0, device=device)
+    np.testing.assert_allclose(g.bounds[:, 0], bounds[:, 0])
+    template = Field(np.ones((5, 6, 7), np.float32), origin=[-1.0, -1.0, -0.5], spacing=0.25)
+    h = mesh_distance(mesh, field=template, device=device)
+    assert h.shape == (5, 6, 7) and h is not template and (template.values == 1).all()
+    np.testing.assert_allclose(h.origin, template.origin)
+    np.testing.assert_allclose(h.values.reshape(-1), mesh_distance(mesh, template.points(), device=device), atol=1e-5)
+
+
+def test_load_mesh_and_path_input(tmp_path, device):
+    mesh = _torus()
+    path = tmp_path / "torus.ply"
+    mesh.export(path)
+    assert len(load_mesh(path).faces) == len(mesh.faces)
+    p = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], np.float32)
+    np.testing.assert_allclose(mesh_distance(str(path), p, device=device), mesh_distance(mesh, p, device=device))
+
+
+def test_drop_degenerate(device):
+    mesh = trimesh.creation.icosphere(2)
+    faces = np.vstack([mesh.faces, [[0, 0, 1], [3, 4, 3]]])
+    bad = trimesh.Trimesh(mesh.vertices, faces, process=False)
+    p = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]], np.float32)
+    np.testing.assert_allclose(
+        mesh_distance(bad, p, drop_degenerate=True, device=device), mesh_distance(mesh, p, device=device), atol=1e-6
+    )
+    v, f = check_mesh(bad, drop_degenerate=True)
+    assert f.shape == mesh.faces.shape and v.dtype == np.float32 and f.dtype == np.int32
+
+
+def test_invalid_input():
+    mesh = trimesh.creation.icosphere(1)
+    p = np.zeros((4, 3), np.float32)
+    empty = trimesh.Trimesh(vertices=np.zeros((3, 3)), faces=np.zeros((0, 3), np.int64), process=False)
+    with pytest.raises(ValueError, match="mesh is empty"):
+        mesh_distance(empty, p)
+    nan_v = np.array(mesh.vertices)
+    nan_v[0, 1] = np.nan
+    with pytest.raises(ValueError, match="mesh has 1 vertices with NaN"):
+        mesh_distance(trimesh.Trimesh(nan_v, mesh.faces, process=False), p)
+    degenerate = trimesh.Trimesh(mesh.vertices, np.vstack([mesh.faces, [[0, 0, 1]]]), process=False)
+    with pytest.raises(ValueError, match="1 degenerate .*drop_degenerate=True"):
+        mesh_distance(degenerate, p)
+    with pytest.raises(ValueError, match="face indices out of range"):
+        mesh_distance(trimesh.Trimesh(mesh.vertices, np.vstack([mesh.faces, [[0, 1, 999]]]), process=False), p)
+    with pytest.raises(ValueError, match="resolution must be an integer >= 2"):
+        mesh_distance(mesh, resolution=1)
+    with pytest.raises(ValueError, match="bounds have zero extent"):
+        mesh_distance(mesh, bounds=[[0, 0, 0], [0, 0, 0]], resolution=8)
+    with pytest.raises(ValueError, match=r"points must have shape \(M, 3\)"):
+        mesh_distance(mesh, np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="points contains 1 NaN"):
+        mesh_distance(mesh, np.array([[0.0, np.nan, 0.0]]))
+    with pytest.raises(ValueError, match="band must be"):
+        mesh_distance(mesh, p, band=0.0)
+    with pytest.raises(TypeError, match="mesh must be a trimesh.Trimesh or a path"):
+        mesh_distance(np.zeros((3, 3)), p)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        mesh_distance("/nonexistent/mesh.obj", p)
+    with pytest.raises(ValueError, match="resolution is required"):
+        mesh_distance(mesh)
