@@ -28,6 +28,9 @@ typedef u32x16u Sx16u;
 #define SQ16(e) __builtin_convertvector((e) * (e), uint16)
 #define SPLAT16(v) ((E16)((int)(v)))
 #define SQ1(a, b) ((uint)(((int)(a) - (int)(b)) * ((int)(a) - (int)(b))))
+// Float lanes holding integers: exact while a lane's sum stays below 2^24.
+#define LOADF16(p) __builtin_convertvector(*(const __global u8x16u*)(p), float16)
+#define F16_TO_S16(a) __builtin_convertvector((a), uint16)
 #else
 typedef float T;
 typedef float S;
@@ -40,6 +43,8 @@ typedef f32x16u Sx16u;
 #define SQ16(e) ((e) * (e))
 #define SPLAT16(v) ((E16)(v))
 #define SQ1(a, b) (((a) - (b)) * ((a) - (b)))
+#define LOADF16(p) LOAD16(p)
+#define F16_TO_S16(a) (a)
 #endif
 
 #ifdef GS_U8

@@ -60,8 +60,10 @@ __kernel void ssd_dense_rows(__global const T* candidates, __global const T* que
 
 // A register tile of 4 consecutive candidate rows x 6 queries per work-item: each
 // 16-wide chunk of a row is loaded once for 6 queries (24 accumulators), which makes
-// float batches compute-bound instead of load-bound. Past the last row or query the
-// tile repeats it and does not store. Range: round_up(ceil(n/4), 16), local 16.
+// batches compute-bound instead of load-bound. Past the last row or query the tile
+// repeats it and does not store. Unweighted sums run in float lanes (exact for uchar,
+// see below); weighted uchar sums stay in integers. Range: round_up(ceil(n/4), 16),
+// local 16.
 __kernel void ssd_dense_tile(__global const T* candidates, __global const T* queries,
                              __global const W* weights, const int use_weights,
                              const int n, const int d, const int b, __global S* out)
@@ -94,11 +96,25 @@ __kernel void ssd_dense_tile(__global const T* candidates, __global const T* que
                 REP4(TILE_TAIL_W)
             }
         } else {
-            for (int k = 0; k < d16; k += 16) {
-                REP6(TILE_QLOAD)
-#define TILE_STEP1(r, t) { const E16 e = xv - qv##t; acc##r##_##t += SQ16(e); }
-#define TILE_STEP(r) { const E16 xv = LOAD16(x##r + k); REP6_R(TILE_STEP1, r) }
-                REP4(TILE_STEP)
+            // Float lanes, flushed into the scalar sums every 256 chunks: for uchar data a
+            // lane then sums at most 256 squares (256 * 255^2 < 2^24), so float is exact
+            // (and lanes are summed as integers), and its multiply-add is much faster here
+            // than 32-bit integer multiplies. Scalar sums keep the registers for the tile.
+            for (int k0 = 0; k0 < d16; k0 += 16 * 256) {
+                const int k1 = MIN_INT(k0 + 16 * 256, d16);
+#define TILE_F_INIT1(r, t) float16 facc##r##_##t = (float16)(0);
+#define TILE_F_INIT(r) REP6_R(TILE_F_INIT1, r)
+                REP4(TILE_F_INIT)
+                for (int k = k0; k < k1; k += 16) {
+#define TILE_FQLOAD(t) const float16 qv##t = LOADF16(q##t + k);
+                    REP6(TILE_FQLOAD)
+#define TILE_FSTEP1(r, t) { const float16 e = xv - qv##t; facc##r##_##t += e * e; }
+#define TILE_FSTEP(r) { const float16 xv = LOADF16(x##r + k); REP6_R(TILE_FSTEP1, r) }
+                    REP4(TILE_FSTEP)
+                }
+#define TILE_FLUSH1(r, t) tail##r##_##t += hsum16(F16_TO_S16(facc##r##_##t));
+#define TILE_FLUSH(r) REP6_R(TILE_FLUSH1, r)
+                REP4(TILE_FLUSH)
             }
             for (int k = d16; k < d; ++k) {
 #define TILE_TAIL1(r, t) tail##r##_##t += SQ1(x##r[k], q##t[k]);

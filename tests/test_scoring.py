@@ -41,6 +41,18 @@ def test_dense_matches_oracle(device, rng, dtype, n, d, b):
     assert_scores(got, reference.score_dense_naive(x, q), dtype)
 
 
+@pytest.mark.parametrize("b", [1, 7])
+def test_dense_uint8_extremes_exact(device, rng, b):
+    """Largest differences over long rows: exact even where float lanes would lose
+    integers (a lane sum past 2^24), for single queries and batches."""
+    d = 9000
+    x = np.where(rng.random((37, d)) < 0.9, 255, 0).astype(np.uint8)
+    q = np.where(rng.random((b, d)) < 0.1, 255, 0).astype(np.uint8)
+    got = geosynth.score_dense(x, q, device=device)
+    assert_scores(got, reference.score_dense_naive(x, q), np.uint8)
+    assert got.max() > 2**24
+
+
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_dense_weights(device, rng, dtype):
     x, q = random_data(rng, (300, 45), dtype), random_data(rng, (4, 45), dtype)

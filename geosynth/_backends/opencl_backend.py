@@ -101,8 +101,9 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, Backend):
 
     # -- kernels --------------------------------------------------------------------
     def ssd_dense(self, candidates, queries, weights, n, d, b, out) -> None:
-        # Float batches: 4 rows x 6 queries per work-item; else 8 rows, one query at a time.
-        tile = b > 1 and candidates.dtype == np.float32
+        # Batches: 4 rows x 6 queries per work-item (float lanes, exact for unweighted
+        # uint8); else 8 rows, one query at a time. Both give the same results.
+        tile = b > 1 and (candidates.dtype == np.float32 or weights is None)
         name, rows = ("ssd_dense_tile", 4) if tile else ("ssd_dense_rows", 8)
         kernel = self._kernel("ssd", name, candidates.dtype)
         w = weights.data if weights is not None else self._dummy(out.dtype)
