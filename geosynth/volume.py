@@ -1,0 +1,370 @@
+"""M1: volumetric geometry synthesis (Bhat-style block matching on distance fields).
+
+From an exemplar's signed distance field (the *source*, quantized to uint8), grow a
+larger field (the *target*) block by block, coarse to fine, then extract its surface.
+The method and its parameters are METHODS.md's M1 (seed 004, Sec. 5):
+
+- Single resolution (Sec. 5.1): the target starts as random source samples; blocks
+  of N^3 samples are visited in scan order (z slowest) with a step of N/2, so that in
+  the interior 7 octants of each block are already synthesized and 1 is new; each
+  block's best match in the source (whole blocks are matched) is copied into the
+  target, overwriting only samples not yet synthesized.
+- Multiresolution (Sec. 5.2): the source is subsampled by 2x2x2 averaging; the first
+  level runs on the coarsest source from random samples with a relatively large
+  block; each next level starts from the upsampled previous result (trilinear) and
+  resynthesizes it with its own block size.
+- Tileable targets wrap: a block that crosses a face continues on the opposite face,
+  so copies of the output tile without seams.
+
+Matching is exact (the lowest source index on ties) and integer-scored, so a seed
+gives the same field bit for bit on every device.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field as dc_field
+
+import numpy as np
+
+from geosynth import _checks
+from geosynth.field import Field
+
+__all__ = [
+    "LevelReport",
+    "VolumeResult",
+    "block_offsets",
+    "downsample",
+    "quantize_field",
+    "scan_positions",
+    "synthesize_volume",
+]
+
+
+def block_offsets(block: int) -> np.ndarray:
+    """(block^3, 3) int64 (dz, dy, dx) offsets of a cubic block in raster order."""
+    r = np.arange(block)
+    return np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+
+
+def downsample(values: np.ndarray) -> np.ndarray:
+    """2x2x2 box average of a uint8 (Z, Y, X) volume, rounded half up; odd sizes drop
+    their last sample. The same averaging the block pyramids use."""
+    z, y, x = (s // 2 * 2 for s in values.shape)
+    v = values[:z, :y, :x].astype(np.uint16)
+    s = v.reshape(z // 2, 2, y // 2, 2, x // 2, 2).sum(axis=(1, 3, 5))
+    return ((s + 4) // 8).astype(np.uint8)
+
+
+def upsample(values: np.ndarray, shape: Sequence[int], wrap: bool) -> np.ndarray:
+    """Trilinear x2 upsampling of a uint8 (Z, Y, X) volume to ``shape`` (cell centres
+    aligned; clamped at the faces, or periodic when ``wrap``), rounded to uint8."""
+    out = values.astype(np.float32)
+    for axis, n in enumerate(shape):
+        m = out.shape[axis]
+        pos = (np.arange(n) + 0.5) * m / n - 0.5
+        lo = np.floor(pos).astype(np.int64)
+        t = (pos - lo).astype(np.float32)
+        hi = lo + 1
+        if wrap:
+            lo, hi = lo % m, hi % m
+        else:
+            lo, hi = np.clip(lo, 0, m - 1), np.clip(hi, 0, m - 1)
+        shape_t = [1] * out.ndim
+        shape_t[axis] = n
+        t = t.reshape(shape_t)
+        out = np.take(out, lo, axis=axis) * (1 - t) + np.take(out, hi, axis=axis) * t
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def quantize_field(distance: np.ndarray, band: float) -> np.ndarray:
+    """Signed distances -> uint8: -band -> 0, +band -> 255, linear between (clamped)."""
+    t = (np.clip(distance, -band, band) + band) / (2 * band)
+    return np.round(t * 255).astype(np.uint8)
+
+
+def dequantize_field(values: np.ndarray, band: float) -> np.ndarray:
+    """Inverse of :func:`quantize_field` (float32 distances, within the band)."""
+    return (values.astype(np.float32) / 255.0 * 2.0 - 1.0) * np.float32(band)
+
+
+def scan_positions(size: int, block: int, wrap: bool) -> list[int]:
+    """Block origins along one axis: steps of block/2 from 0; without wrap the last
+    block is aligned to the end, with wrap blocks run up to the end and cross it."""
+    step = max(1, block // 2)
+    if wrap:
+        return list(range(0, size, step))
+    pos = list(range(0, size - block + 1, step))
+    if pos[-1] != size - block:
+        pos.append(size - block)
+    return pos
+
+
+def _box(origin, block: int, shape, wrap: bool):
+    """Index arrays (np.ix_) for the block at ``origin`` (wrapping when asked)."""
+    axes = [np.arange(o, o + block) % n if wrap else np.arange(o, o + block) for o, n in zip(origin, shape)]
+    return np.ix_(*axes)
+
+
+@dataclass
+class LevelReport:
+    """What one resolution level did.
+
+    Attributes:
+        source_shape, target_shape: (Z, Y, X) sizes at this level.
+        block: block size N.
+        matches: blocks matched.
+        mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units).
+        seconds: wall time of the level.
+    """
+
+    source_shape: tuple[int, int, int]
+    target_shape: tuple[int, int, int]
+    block: int
+    matches: int
+    mean_match_distance: float
+    seconds: float
+
+
+@dataclass
+class VolumeResult:
+    """The synthesized field and how it was made.
+
+    Attributes:
+        quantized: (Z, Y, X) uint8 target at the finest level.
+        field: the same as float32 signed distances (a Field; spacing of the source).
+        source: the uint8 source the finest level matched against.
+        levels: one LevelReport per level, coarsest first.
+        band: the distance band of the quantization.
+        timings: seconds per stage.
+    """
+
+    quantized: np.ndarray
+    field: Field
+    source: np.ndarray
+    levels: list[LevelReport]
+    band: float
+    timings: dict = dc_field(default_factory=dict)
+
+
+def available_memory() -> int:
+    """Bytes of memory available now (MemAvailable, else physical pages)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def _as_shape(name: str, size) -> tuple[int, int, int]:
+    s = np.asarray(size)
+    if s.ndim == 0:
+        s = np.full(3, s)
+    if s.shape != (3,) or s.dtype.kind not in "iu" or (s < 1).any():
+        raise ValueError(f"{name} must be a positive integer or three of them (z, y, x), got {size!r}.")
+    return tuple(int(v) for v in s)
+
+
+def _level_blocks(levels: int, block) -> list[int]:
+    if np.ndim(block) == 0:
+        finest = int(block)
+        # Coarser levels: the same block in samples covers twice the space per level;
+        # halve it (not below 4) so the coarsest keeps enough candidates.
+        blocks = [max(4, finest // 2)] * (levels - 1) + [finest]
+    else:
+        blocks = [int(b) for b in block]
+        if len(blocks) != levels:
+            raise ValueError(f"block must be one size or one per level ({levels}), got {list(block)}.")
+    for b in blocks:
+        if b < 2 or b & (b - 1):
+            raise ValueError(f"block sizes must be powers of two >= 2, got {b}.")
+    return blocks
+
+
+class _Matcher:
+    """Exact nearest block of a uint8 source: the search tree when available, else the
+    linear search (every block scored by the gather kernel, argmin on the device)."""
+
+    def __init__(self, source: np.ndarray, block: int, device, search: str):
+        from geosynth.scoring import candidate_origins
+
+        self.block = block
+        self.offsets = block_offsets(block)
+        self.search = search
+        self.tree = None
+        if search == "tree":
+            from geosynth.search import BlockSearch
+
+            self.tree = BlockSearch(source, block, device=device)
+        else:
+            from geosynth.backend import to_device
+
+            self.grid = to_device(source, "auto" if device is None else device)
+            self.origins = candidate_origins(source.shape, self.offsets)
+
+    def nearest(self, query: np.ndarray) -> tuple[np.ndarray, int]:
+        if self.tree is not None:
+            origin, ssd = self.tree.nearest(query)
+            return np.asarray(origin), int(ssd)
+        from geosynth.scoring import score_gather
+        from geosynth.selection import argmin
+
+        scores = score_gather(self.grid, self.offsets, query.reshape(-1), keep_on_device=True)
+        best = argmin(scores)
+        # sync: one score comes back with the index.
+        return self.origins[best], int(scores.numpy()[best])
+
+
+def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles):
+    shape = target.shape
+    done = np.zeros(shape, bool)
+    positions = [(z, y, x) for z in scan_positions(shape[0], block, wrap)
+                 for y in scan_positions(shape[1], block, wrap) for x in scan_positions(shape[2], block, wrap)]
+    ssd_sum = 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(positions), desc=label, unit="block", leave=True, dynamic_ncols=True)
+    src_counts = tuple(s - block + 1 for s in source.shape)
+    for pos in positions:
+        box = _box(pos, block, shape, wrap)
+        query = target[box]
+        if random_tiles:  # the baseline: a random source block, no matching
+            origin = np.array([rng.integers(c) for c in src_counts])
+            piece = source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
+            ssd = int(((piece.astype(np.int64) - query) ** 2).sum())
+        else:
+            origin, ssd = matcher.nearest(query)
+            piece = source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
+        fresh = ~done[box]
+        query[fresh] = piece[fresh]
+        target[box] = query
+        done[box] = True
+        ssd_sum += ssd
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return len(positions), ssd_sum / max(1, len(positions)) / block**3
+
+
+def synthesize_volume(
+    source: np.ndarray,
+    size=128,
+    *,
+    levels: int = 3,
+    block=16,
+    tileable: bool = False,
+    seed: int | None = 0,
+    device: str | None = None,
+    search: str = "tree",
+    band: float | None = None,
+    spacing: float = 1.0,
+    progress: bool = True,
+    baseline: bool = False,
+) -> VolumeResult:
+    """Synthesize a larger distance field from an exemplar's (multiresolution M1).
+
+    Args:
+        source: (Z, Y, X) exemplar field: uint8 (already quantized) or float signed
+            distances in units of samples (quantized here with ``band``).
+        size: target size at the finest level, one int or (z, y, x); each must be a
+            multiple of 2^(levels-1) and at least the finest block.
+        levels: resolution levels, >= 1 (3 in the paper).
+        block: the finest level's block size (a power of two; coarser levels use half
+            of it, at least 4), or one size per level, coarsest first.
+        tileable: make the target periodic (blocks wrap around its faces).
+        seed: seed of the numpy Generator drawing the random initial samples.
+        device: a device string for the matching kernels (None: "auto").
+        search: "tree" (exact best-first search) or "linear" (every block scored).
+        band: for float sources, the distance mapped to the uint8 range ends
+            (default: half the finest block, in samples).
+        spacing: world size of one finest-level sample, for the returned Field.
+        progress: show a progress bar per level.
+        baseline: tile randomly chosen source blocks instead of matching (the naive
+            baseline of the quality numbers; same scan and overwrite rule).
+
+    Returns:
+        VolumeResult (uint8 and float fields, per-level reports, timings).
+
+    Raises:
+        ValueError: bad sizes, block not a power of two, block larger than the source
+            at some level, target smaller than a block, NaN in the source, a memory
+            estimate beyond what is available.
+    """
+    t_start = time.perf_counter()
+    src = np.asarray(source)
+    if src.ndim != 3:
+        raise ValueError(f"source must be a (Z, Y, X) volume, got shape {src.shape}.")
+    if levels < 1:
+        raise ValueError(f"levels must be >= 1, got {levels}.")
+    if search not in ("tree", "linear"):
+        raise ValueError(f"search must be 'tree' or 'linear', got {search!r}.")
+    blocks = _level_blocks(levels, block)
+    if band is None:
+        band = blocks[-1] / 2
+    if src.dtype != np.uint8:
+        if not np.issubdtype(src.dtype, np.floating):
+            raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
+        _checks.check_finite("source", src)
+        src = quantize_field(src, band)
+    target_shape = _as_shape("size", size)
+    factor = 2 ** (levels - 1)
+    if any(s % factor for s in target_shape):
+        raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
+
+    sources = [src]
+    for _ in range(levels - 1):
+        sources.insert(0, downsample(sources[0]))
+    for lvl, (s, b) in enumerate(zip(sources, blocks)):
+        t = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
+        if b > min(s.shape):
+            raise ValueError(
+                f"block {b} at level {lvl + 1} is larger than the source there {s.shape}; "
+                "use a smaller block, fewer levels or a larger source."
+            )
+        if b > min(t):
+            raise ValueError(f"the target at level {lvl + 1} {t} is smaller than its block {b}; use a larger size.")
+    # Memory: the target, its mask and the search structures (about 24 bytes per
+    # source sample per pyramid level for the tree; the linear search holds the source).
+    estimate = 3 * int(np.prod(target_shape)) + sum(
+        int(np.prod(s.shape)) * (24 * (int(math.log2(b)) + 1) if search == "tree" else 8)
+        for s, b in zip(sources, blocks)
+    )
+    avail = available_memory()
+    if estimate > avail:
+        raise ValueError(
+            f"synthesis needs about {estimate / 2**30:.1f} GiB but {avail / 2**30:.1f} GiB are available; "
+            "use a smaller source, target or block."
+        )
+
+    rng = np.random.default_rng(seed)
+    reports: list[LevelReport] = []
+    target = None
+    timings = {"prepare": time.perf_counter() - t_start}
+    for lvl, (s, b) in enumerate(zip(sources, blocks)):
+        t0 = time.perf_counter()
+        shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
+        if target is None:  # random samples of the source
+            target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
+        else:
+            target = upsample(target, shape, wrap=tileable)
+        matcher = None if baseline else _Matcher(s, b, device, search)
+        t_build = time.perf_counter() - t0
+        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
+        count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline)
+        seconds = time.perf_counter() - t0
+        timings[f"level {lvl + 1} search build"] = t_build
+        timings[f"level {lvl + 1}"] = seconds
+        reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds))
+    timings["total"] = time.perf_counter() - t_start
+    distance = dequantize_field(target, band) * np.float32(spacing)
+    result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
+    return VolumeResult(target, result_field, src, reports, float(band), timings)
