@@ -159,6 +159,57 @@ def _cmd_field(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_volume(args: argparse.Namespace) -> int:
+    from geosynth.examples import EXEMPLARS
+    from geosynth.render import render_mesh, side_by_side, write_png
+    from geosynth.surface import save_mesh
+    from geosynth.volume import synthesize_geometry
+
+    say = (lambda *a, **k: None) if args.quiet else print
+    if (args.exemplar is None) == (args.example is None):
+        raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), not both or neither.")
+    out = Path(args.output)
+    inputs = [args.exemplar] if args.exemplar else []
+    if args.exemplar and out.resolve() == Path(args.exemplar).resolve():
+        raise ValueError(f"-o/--output {str(out)!r} is the exemplar file; choose another name (inputs are never overwritten).")
+    if len(args.size) not in (1, 3) or len(args.block) not in (1, args.levels):
+        raise ValueError("--size takes one or three numbers (x y z); --block one or one per level.")
+    size = args.size if len(args.size) == 3 else args.size * 3
+    block = args.block if len(args.block) > 1 else args.block[0]
+    label = args.example or args.exemplar
+    say(f"geosynth volume: {label} -> {size[2]} x {size[1]} x {size[0]} samples, {args.levels} levels, "
+        f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
+    result = synthesize_geometry(
+        args.example or args.exemplar, tuple(size[::-1]) if len(set(size)) > 1 else size[0],
+        source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
+        seed=args.seed, device=args.device, search=args.search, smooth=args.smooth,
+        quality_samples=args.quality_samples, progress=not args.quiet,
+    )
+    save_mesh(result.mesh, out, inputs=inputs)
+    say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
+    say("\nper level:")
+    for i, lv in enumerate(result.volume.levels):
+        say(f"  level {i + 1}: source {lv.source_shape[0]}^3-ish {lv.source_shape}, target {lv.target_shape}, block {lv.block}: "
+            f"{lv.matches:,} matches, mean best-match distance {lv.mean_match_distance:.1f} per sample, {lv.seconds:.1f} s "
+            f"({lv.seconds / max(1, lv.matches) * 1e3:.2f} ms per match)")
+    say("timings:")
+    for k, v in result.timings.items():
+        say(f"  {k:<34} {v:8.2f} s")
+    if result.quality:
+        say("quality (bidirectional block distance, squared uint8 units per sample; lower is better):")
+        for k, q in result.quality.items():
+            say(f"  {k:<14} output->exemplar {q['output_to_exemplar']:9.1f}   exemplar->output {q['exemplar_to_output']:9.1f}"
+                f"   mean {q['mean']:9.1f}")
+    png = Path(args.png) if args.png else out.with_suffix(".png")
+    from geosynth.volume import _exemplar_mesh
+
+    exemplar_mesh = _exemplar_mesh(args.example or args.exemplar, args.seed)
+    picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)], labels=["exemplar", "synthesized"])
+    write_png(png, picture)
+    say(f"picture: {png} (exemplar left, result right)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="geosynth", description="Example-based geometry synthesis.")
     parser.add_argument("--version", action="version", version=f"geosynth {geosynth.__version__}")
@@ -166,6 +217,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("devices", help="list the devices present")
     p.set_defaults(func=_cmd_devices)
+
+    p = sub.add_parser("volume", help="M1: synthesize a larger piece of geometry from an exemplar mesh")
+    p.add_argument("exemplar", nargs="?", help="an exemplar mesh file (any format trimesh reads)")
+    p.add_argument("--example", help="a built-in exemplar instead: chainmail, balls, grid, fibers, terrain")
+    p.add_argument("-o", "--output", required=True, help="the output mesh (.ply, .obj or .stl)")
+    p.add_argument("--size", type=int, nargs="+", default=[128], help="target samples per side, or x y z (default 128)")
+    p.add_argument("--levels", type=int, default=3, help="resolution levels (default 3)")
+    p.add_argument("--block", type=int, nargs="+", default=[16], help="finest block size, or one per level (default 16)")
+    p.add_argument("--source-resolution", type=int, default=64, help="exemplar samples along its longest side (default 64)")
+    p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
+    p.add_argument("--search", choices=["tree", "linear"], default="tree", help="exact tree search (default) or linear")
+    p.add_argument("--smooth", type=int, default=10, help="Taubin smoothing iterations (default 10)")
+    p.add_argument("--quality-samples", type=int, default=100, help="blocks per direction for the quality numbers (0: skip)")
+    p.add_argument("--device", default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--png", default=None, help="picture of exemplar and result (default: OUTPUT with .png)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_volume)
 
     p = sub.add_parser("field", help="sample the signed distance of a mesh or an oriented point set on a grid")
     p.add_argument("input", nargs="?", help="a mesh (any format trimesh reads) or a PLY point set with normals")
