@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from geosynth._atomic import atomic_write
 
 __all__ = ["Field", "cubic_grid", "grid_points", "grid_resolution"]
 
@@ -101,17 +102,9 @@ class Field:
         out = Path(path)
         if out.suffix != ".npz":
             raise ValueError(f"Field files are .npz; got {str(out)!r} (add the .npz suffix).")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp.npz")
-        os.close(fd)
-        try:
-            np.savez_compressed(tmp, values=self.values, origin=self.origin, spacing=self.spacing)
-            os.replace(tmp, out)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return out
+        return atomic_write(
+            out, lambda tmp: np.savez_compressed(tmp, values=self.values, origin=self.origin, spacing=self.spacing)
+        )
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Field":
