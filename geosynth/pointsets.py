@@ -46,13 +46,13 @@ so both backends visit the same points in the same order and agree to a few ulps
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
 
 import numpy as np
 
 from geosynth import _checks
+from geosynth._atomic import atomic_write
 from geosynth.field import Field, cubic_grid
 
 __all__ = [
@@ -195,17 +195,12 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
         kwargs["vertex_colors"] = ps.colors
     mesh = trimesh.Trimesh(vertices=ps.positions, faces=np.zeros((0, 3), np.int64), process=False, **kwargs)
     data = export_ply(mesh, encoding="binary", vertex_normal=ps.normals is not None)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp.ply")
-    try:
-        with os.fdopen(fd, "wb") as fh:
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as fh:
             fh.write(data)
-        os.replace(tmp, out)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return out
+
+    return atomic_write(out, write)
 
 
 # ------------------------------------------------------------------------- normals
