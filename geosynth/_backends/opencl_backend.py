@@ -14,6 +14,7 @@ import pyopencl as cl
 from geosynth._backends.base import Backend
 from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
+from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
 from geosynth.backend import DeviceArray
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
@@ -34,7 +35,7 @@ def _read_source(name: str) -> str:
     return (resources.files("geosynth.kernels") / name).read_text()
 
 
-class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, Backend):
+class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, Backend):
     """PyOpenCL on ``"opencl:P:D"`` (platform P, device D)."""
 
     def __init__(self, platform_index: int, device_index: int):

@@ -12,6 +12,7 @@ import warp as wp
 from geosynth._backends.base import Backend
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
+from geosynth._backends.warp_pyramid import WarpPyramidOps
 from geosynth.backend import DeviceArray
 from geosynth.kernels import ssd as ssd_kernels
 
@@ -23,7 +24,7 @@ _WARP_DTYPES = {
 }
 
 
-class WarpBackend(WarpMeshOps, WarpPointsOps, Backend):
+class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

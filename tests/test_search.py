@@ -1,0 +1,173 @@
+"""The M1 search tree and its exact best-first search, on every present device:
+always the linear search's answer (smallest SSD, lowest block index on ties)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import geosynth
+from geosynth import reference
+from geosynth import search as search_mod
+from geosynth.examples import quantize_distance, spheres_field
+from geosynth.search import BlockSearch, block_offsets, block_origins
+
+# (block size, source side): small enough for CI, every block size of the issue.
+CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
+
+
+def _field(kind: str, side: int, rng) -> np.ndarray:
+    if kind == "random":
+        return rng.integers(0, 256, (side, side + 1, side - 1), dtype=np.uint8)
+    return quantize_distance(spheres_field(side, count=max(3, side // 4), radius=(2.0, side / 5), seed=side), 4.0)
+
+
+def _queries(field, block, rng, count=6):
+    """Cuts from the source, cuts with random samples (an octant, or scattered), pure noise."""
+    out = []
+    for t in range(count):
+        o = rng.integers(0, np.array(field.shape) - block + 1)
+        q = field[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block].copy()
+        h = block // 2
+        if t % 3 == 1:
+            q[h:, h:, h:] = rng.integers(0, 256, (h, h, h))
+        elif t % 3 == 2:
+            mask = rng.random(q.shape) < 0.2
+            q[mask] = rng.integers(0, 256, int(mask.sum()))
+        out.append(q)
+    out.append(rng.integers(0, 256, (block,) * 3, dtype=np.uint8))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["random", "real"])
+@pytest.mark.parametrize("block, side", CASES)
+def test_tree_search_equals_linear(device, rng, kind, block, side):
+    field = _field(kind, side, rng)
+    s = BlockSearch(field, block, device=device)
+    for q in _queries(field, block, rng):
+        want = reference.nearest_block_naive(field, q)
+        assert s.nearest(q) == want
+        assert s.nearest_linear(q) == want
+
+
+@pytest.mark.parametrize("block", [2, 4, 8])
+def test_cut_query_finds_lowest_identical_block(device, block):
+    # a field with many identical blocks (clamped regions): distance 0, lowest index
+    field = np.zeros((14, 13, 12), np.uint8)
+    field[7:, :, :] = 200
+    field[3, 4, 5] = 17
+    s = BlockSearch(field, block, device=device)
+    hi = np.array(field.shape) - block
+    for o in [np.minimum((6, 6, 6), hi), (0, 0, 0), (2, 3, 4), hi]:
+        q = field[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block]
+        got = s.nearest(q)
+        assert got[1] == 0
+        assert got == reference.nearest_block_naive(field, q)
+        assert s.index_of(got[0]) <= s.index_of(o)
+
+
+def _check_tree_holds_every_block_once(s: BlockSearch, field: np.ndarray) -> None:
+    b = s.block
+    origins = s.block_origins()
+    # every leaf is reached exactly once from the root
+    visits = np.zeros(s.n_nodes, np.int64)
+    stack = [None]
+    while stack:
+        for c in s.children(stack.pop()):
+            visits[c] += 1
+            stack.append(int(c))
+    assert (visits == 1).all()
+    leaves = np.flatnonzero(s._is_leaf)
+    # every block sits at exactly one leaf, whose representative is the lowest index of identical blocks
+    leaf = s.leaf_of_block
+    assert leaf.shape == (s.n_blocks,) and s._is_leaf[leaf].all()
+    assert np.array_equal(np.unique(leaf), leaves)
+    assert np.bincount(leaf, minlength=s.n_nodes)[leaves].sum() == s.n_blocks
+    rep = s._node_rep[leaf]
+    assert (rep <= np.arange(s.n_blocks)).all()
+    for i in range(0, s.n_blocks, max(1, s.n_blocks // 200)):
+        (z, y, x), (rz, ry, rx) = origins[i], origins[rep[i]]
+        assert np.array_equal(field[z:z + b, y:y + b, x:x + b], field[rz:rz + b, ry:ry + b, rx:rx + b])
+    # distinct blocks sit at distinct leaves
+    flat = np.lib.stride_tricks.sliding_window_view(field, (b,) * 3).reshape(s.n_blocks, -1)
+    assert np.unique(flat, axis=0).shape[0] == leaves.size
+    stats = s.stats()
+    assert stats.leaves == leaves.size and stats.blocks == s.n_blocks and stats.nodes == s.n_nodes
+    assert "mean branching" in str(stats)
+
+
+@pytest.mark.parametrize("kind", ["random", "real", "plateaus"])
+def test_merged_tree_holds_every_block_once(device, rng, kind):
+    if kind == "plateaus":
+        field = (rng.integers(0, 3, (16, 16, 16)) * 100).astype(np.uint8)
+        field[:8] = 0
+    else:
+        field = _field(kind, 16, rng)
+    _check_tree_holds_every_block_once(BlockSearch(field, 4, device=device), field)
+
+
+def test_hash_collisions_never_merge(device, rng, monkeypatch):
+    # 2-bit hashes: nearly every group is a collision that the exact check must split
+    monkeypatch.setattr(search_mod, "_HASH_MASK", 0x3)
+    field = (rng.integers(0, 4, (12, 12, 12)) * 60).astype(np.uint8)
+    s = BlockSearch(field, 4, device=device)
+    _check_tree_holds_every_block_once(s, field)
+    for q in _queries(field, 4, rng, 3):
+        assert s.nearest(q) == reference.nearest_block_naive(field, q)
+
+
+def test_same_tree_and_answers_on_every_device(rng):
+    field = _field("real", 24, rng)
+    queries = _queries(field, 8, rng)
+    runs = []
+    for d in geosynth.devices():
+        s = BlockSearch(field, 8, device=d)
+        runs.append((s.stats().as_dict() | {"build_seconds": 0}, [s.nearest(q) for q in queries]))
+    assert all(r == runs[0] for r in runs)
+
+
+def test_block_origins_match_candidate_origins():
+    shape = (10, 9, 11)
+    o = block_origins(shape, 4)
+    np.testing.assert_array_equal(o, geosynth.candidate_origins(shape, block_offsets(4)))
+    s = BlockSearch(np.zeros(shape, np.uint8), 4, device="cpu")
+    assert s.n_blocks == len(o)
+    for i in (0, 5, len(o) - 1):
+        assert s.origin_of(i) == tuple(o[i]) and s.index_of(o[i]) == i
+
+
+def test_pruned_mode_reports_disagreement(device, rng):
+    field = _field("real", 24, rng)
+    s = BlockSearch(field, 8, device=device)
+    queries = _queries(field, 8, rng)
+    exact = s.pruned_disagreement(queries, prune_eps=1e9)  # a huge eps never prunes
+    assert exact["disagreement"] == 0 and exact["max_excess"] == 0 and exact["queries"] == len(queries)
+    rep = s.pruned_disagreement(queries, prune_eps=0.0)
+    assert 0.0 <= rep["disagreement"] <= 1.0 and rep["mean_excess"] >= 0
+    for q in queries:  # pruned answers are real blocks with their true SSD
+        (z, y, x), ssd = s.nearest(q, prune_eps=0.0)
+        assert ssd == int(((field[z:z + 8, y:y + 8, x:x + 8].astype(np.int64) - q) ** 2).sum())
+
+
+def test_search_invalid_input(monkeypatch):
+    field = np.zeros((8, 8, 8), np.uint8)
+    with pytest.raises(ValueError, match="power of two"):
+        BlockSearch(field, 3, device="cpu")
+    with pytest.raises(ValueError, match="larger than the source"):
+        BlockSearch(field, 16, device="cpu")
+    with pytest.raises(TypeError, match="uint8"):
+        BlockSearch(field.astype(np.int16), 4, device="cpu")
+    with pytest.raises(ValueError, match="3-D"):
+        BlockSearch(np.zeros((8, 8, 8, 1), np.uint8), 4, device="cpu")
+    s = BlockSearch(field, 4, device="cpu")
+    with pytest.raises(ValueError, match=r"shape \(4, 4, 4\)"):
+        s.nearest(np.zeros((8, 8, 8), np.uint8))
+    with pytest.raises(TypeError, match="uint8"):
+        s.nearest(np.zeros((4, 4, 4), np.float32))
+    with pytest.raises(ValueError, match="prune_eps"):
+        s.nearest(np.zeros((4, 4, 4), np.uint8), prune_eps=-1.0)
+    import geosynth.pyramid as pyramid
+
+    monkeypatch.setattr(pyramid, "available_memory", lambda: 10_000)
+    with pytest.raises(MemoryError, match=r"estimated [0-9.]+ MiB"):
+        BlockSearch(np.zeros((32, 32, 32), np.uint8), 8, device="cpu")
