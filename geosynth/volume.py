@@ -264,7 +264,7 @@ def synthesize_volume(
     tileable: bool = False,
     seed: int | None = 0,
     device: str | None = None,
-    search: str = "tree",
+    search: str = "linear",
     band: float | None = None,
     spacing: float = 1.0,
     progress: bool = True,
@@ -283,7 +283,11 @@ def synthesize_volume(
         tileable: make the target periodic (blocks wrap around its faces).
         seed: seed of the numpy Generator drawing the random initial samples.
         device: a device string for the matching kernels (None: "auto").
-        search: "tree" (exact best-first search) or "linear" (every block scored).
+        search: "linear" (every block scored by the gather kernel, argmin on the device;
+            the default: fastest on PoCL for synthesis queries, whose random or
+            upsampled samples make the tree's lower bounds weak) or "tree" (the exact
+            best-first search of :mod:`geosynth.search`, fast for clean queries). Both
+            return the same block.
         band: for float sources, the distance mapped to the uint8 range ends
             (default: half the finest block, in samples).
         spacing: world size of one finest-level sample, for the returned Field.
@@ -400,7 +404,7 @@ def synthesize_geometry(
     tileable: bool = False,
     seed: int | None = 0,
     device: str | None = None,
-    search: str = "tree",
+    search: str = "linear",
     smooth: int = 10,
     quality_samples: int = 100,
     progress: bool = True,
