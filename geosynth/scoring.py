@@ -184,6 +184,7 @@ def score_gather(
     origins: np.ndarray | None = None,
     stride: int | Sequence[int] = 1,
     wrap: bool = False,
+    threshold: float | None = None,
     device: str | None = None,
     keep_on_device: bool = False,
 ) -> np.ndarray | DeviceArray:
@@ -205,6 +206,12 @@ def score_gather(
             whose window lies inside the grid (every origin when ``wrap``), on the
             lattice with ``stride``, in raster order (see :func:`candidate_origins`).
         stride: step between lattice origins; one int or one per axis.
+        threshold: optional early exit for nearest-window searches: a candidate whose
+            partial sum passes ``threshold`` may stop there, so every score above it
+            means only "above the threshold"; scores at or below it are exact. With a
+            threshold at or above the minimum (e.g. the score of any one candidate),
+            :func:`geosynth.argmin` of the result is the exact argmin. Put the most
+            telling offsets first: the sums are checked every 256 entries.
         wrap: treat the grid as periodic (tileable): windows wrap around its faces.
             The grid is padded periodically by the reach of the offsets (for a
             DeviceArray grid, once per padding, then cached with it).
@@ -240,6 +247,16 @@ def score_gather(
         total = k * channels if w is None else int(w.astype(np.uint64).sum()) * channels
         _checks.check_uint32_range(total, "this query")
     step = _as_stride(stride, nd)
+    thr = None
+    if threshold is not None:
+        if not (np.isscalar(threshold) and np.isfinite(threshold) and threshold >= 0):
+            raise ValueError(f"threshold must be a finite number >= 0, got {threshold!r}.")
+        if grid.dtype == np.uint8:
+            thr = np.array([min(int(np.floor(threshold)), _checks.UINT32_MAX)], np.uint32)
+        else:
+            thr = np.array([threshold], np.float32)
+            if float(thr[0]) < float(threshold):  # never below the caller's bound
+                thr[0] = np.nextafter(thr[0], np.float32(np.inf))
 
     # Geometry in padded 3D: (Z, Y, X) with Z = 1 for 2D grids.
     dims_arr = np.asarray(dims, np.int64)
@@ -307,6 +324,6 @@ def score_gather(
         backend.to_device(flat_off.reshape(-1).astype(np.int32)),
         backend.to_device(np.ascontiguousarray(vals.reshape(-1))),
         None if w is None else backend.to_device(np.repeat(w, channels)),
-        k * channels, out,
+        k * channels, None if thr is None else backend.to_device(thr), out,
     )
     return out if keep_on_device else out.numpy()

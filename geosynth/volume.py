@@ -208,14 +208,24 @@ class _Matcher:
             self.grid = to_device(source, "auto" if device is None else device)
             self.origins = candidate_origins(source.shape, self.offsets)
 
-    def nearest(self, query: np.ndarray) -> tuple[np.ndarray, int]:
+    def nearest(self, query: np.ndarray, threshold: int | None = None,
+                order: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """Exact nearest block (lowest source index on ties) and its SSD.
+
+        ``threshold``: the SSD of any one source block (an upper bound on the best),
+        letting the linear search stop early on blocks that cannot win; ``order``: a
+        permutation of the block's samples putting the most telling first.
+        """
         if self.tree is not None:
             origin, ssd = self.tree.nearest(query)
             return np.asarray(origin), int(ssd)
         from geosynth.scoring import score_gather
         from geosynth.selection import argmin
 
-        scores = score_gather(self.grid, self.offsets, query.reshape(-1), keep_on_device=True)
+        offsets, values = self.offsets, query.reshape(-1)
+        if order is not None:
+            offsets, values = offsets[order], values[order]
+        scores = score_gather(self.grid, offsets, values, threshold=threshold, keep_on_device=True)
         best = argmin(scores)
         # sync: one score comes back with the index.
         return self.origins[best], int(scores.numpy()[best])
@@ -224,26 +234,48 @@ class _Matcher:
 def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles):
     shape = target.shape
     done = np.zeros(shape, bool)
-    positions = [(z, y, x) for z in scan_positions(shape[0], block, wrap)
-                 for y in scan_positions(shape[1], block, wrap) for x in scan_positions(shape[2], block, wrap)]
+    axes = [scan_positions(n, block, wrap) for n in shape]
+    positions = [(z, y, x) for z in axes[0] for y in axes[1] for x in axes[2]]
     ssd_sum = 0
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(positions), desc=label, unit="block", leave=True, dynamic_ncols=True)
-    src_counts = tuple(s - block + 1 for s in source.shape)
+    last_origin = np.array(source.shape) - block
+    matched: dict[tuple[int, int, int], np.ndarray] = {}
+
+    def piece_at(origin):
+        return source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
+
     for pos in positions:
         box = _box(pos, block, shape, wrap)
         query = target[box]
-        if random_tiles:  # the baseline: a random source block, no matching
-            origin = np.array([rng.integers(c) for c in src_counts])
-            piece = source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
-            ssd = int(((piece.astype(np.int64) - query) ** 2).sum())
-        else:
-            origin, ssd = matcher.nearest(query)
-            piece = source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
         fresh = ~done[box]
+        if random_tiles:  # the baseline: a random source block, no matching
+            origin = np.array([rng.integers(n + 1) for n in last_origin])
+            ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
+        else:
+            # Coherence guesses: the earlier neighbours' matches moved on by the same step.
+            # Their best SSD bounds the answer, so the search may drop hopeless blocks
+            # early; the result is the same exact match.
+            threshold = None
+            for axis in range(3):
+                prev = list(pos)
+                i = axes[axis].index(pos[axis])
+                if i == 0:
+                    continue
+                prev[axis] = axes[axis][i - 1]
+                if tuple(prev) in matched:
+                    guess = matched[tuple(prev)].copy()
+                    guess[axis] += pos[axis] - prev[axis] if pos[axis] > prev[axis] else 0
+                    guess = np.clip(guess, 0, last_origin)
+                    g = int(((piece_at(guess).astype(np.int64) - query) ** 2).sum())
+                    threshold = g if threshold is None else min(threshold, g)
+            order = np.argsort(fresh.reshape(-1), kind="stable")  # synthesized samples first
+            origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
+            matched[pos] = np.asarray(origin)
+        piece = piece_at(origin)
         query[fresh] = piece[fresh]
         target[box] = query
         done[box] = True

@@ -73,6 +73,15 @@ inline S hsum16(S16 v)
 
 #define MIN_INT(a, b) ((a) < (b) ? (a) : (b))
 
+// Whether any lane of a comparison mask is set (no builtin: see the note above).
+inline int any16(int16 m)
+{
+    const int8 a = m.lo | m.hi;
+    const int4 b = a.lo | a.hi;
+    const int2 c = b.lo | b.hi;
+    return (c.x | c.y) != 0;
+}
+
 // Selection modes, shared with kernels/ssd.py.
 #define SELECT_LEQ 0
 #define SELECT_LT 1

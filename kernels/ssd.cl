@@ -134,6 +134,12 @@ __kernel void ssd_dense_tile(__global const T* candidates, __global const T* que
 // Lattice mode (use_bases == 0): candidate (z, y, x) has base
 // base0 + z*step_z + y*step_y + x*step_x. Explicit mode: range (n, 1, 1), base = bases[c].
 
+// Early exit (use_threshold): a candidate whose partial sum passes threshold[0] stops
+// there and reports that partial sum, any value above the threshold being as good for
+// the caller (an argmin with a threshold at or above the minimum stays exact). Checked
+// every GATHER_CHUNK entries.
+#define GATHER_CHUNK 256
+
 // One candidate per work-item; any lattice or explicit bases.
 // Range: (round_up(nx, 16), ny, nz), local (16, 1, 1).
 __kernel void ssd_gather(__global const T* grid, __global const int* bases, const int use_bases,
@@ -141,17 +147,22 @@ __kernel void ssd_gather(__global const T* grid, __global const int* bases, cons
                          const int step_x, const int step_y, const int step_z, const int base0,
                          __global const int* offsets, __global const T* values,
                          __global const W* weights, const int use_weights, const int kc,
-                         __global S* out)
+                         __global const S* threshold, const int use_threshold, __global S* out)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
     if (x >= nx || y >= ny || z >= nz) return;
     const int cand = (z * ny + y) * nx + x;
     const int base = use_bases ? bases[cand] : base0 + z * step_z + y * step_y + x * step_x;
+    const S thr = threshold[0];
     S acc = 0;
-    if (use_weights) {
-        for (int j = 0; j < kc; ++j) acc += weights[j] * SQ1(grid[base + offsets[j]], values[j]);
-    } else {
-        for (int j = 0; j < kc; ++j) acc += SQ1(grid[base + offsets[j]], values[j]);
+    for (int j0 = 0; j0 < kc; j0 += GATHER_CHUNK) {
+        const int j1 = MIN_INT(j0 + GATHER_CHUNK, kc);
+        if (use_weights) {
+            for (int j = j0; j < j1; ++j) acc += weights[j] * SQ1(grid[base + offsets[j]], values[j]);
+        } else {
+            for (int j = j0; j < j1; ++j) acc += SQ1(grid[base + offsets[j]], values[j]);
+        }
+        if (use_threshold && acc > thr) break;  // only "above threshold" matters now
     }
     out[cand] = acc;
 }
@@ -169,7 +180,7 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
                              const int step_x, const int step_y, const int step_z, const int base0,
                              __global const int* offsets, __global const T* values,
                              __global const W* weights, const int use_weights, const int kc,
-                             __global S* out)
+                             __global const S* threshold, const int use_threshold, __global S* out)
 {
     const int x0 = get_global_id(0) * (16 * GATHER_NV), y = get_global_id(1), z = get_global_id(2);
     if (x0 >= nx || y >= ny || z >= nz) return;
@@ -183,20 +194,30 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
         acc[v] = (S16)(0);
     }
     const __global T* row = grid + base0 + z * step_z + y * step_y;
-    if (use_weights) {
-        for (int j = 0; j < kc; ++j) {
-            const __global T* p = row + offsets[j];
-            const E16 val = SPLAT16(values[j]);
-            const S16 w = (S16)(weights[j]);
+    const S16 thr = (S16)(threshold[0]);
+    for (int j0 = 0; j0 < kc; j0 += GATHER_CHUNK) {
+        const int j1 = MIN_INT(j0 + GATHER_CHUNK, kc);
+        if (use_weights) {
+            for (int j = j0; j < j1; ++j) {
+                const __global T* p = row + offsets[j];
+                const E16 val = SPLAT16(values[j]);
+                const S16 w = (S16)(weights[j]);
 #pragma unroll
-            for (int v = 0; v < GATHER_NV; ++v) { const E16 e = LOAD16(p + xs[v]) - val; acc[v] += w * SQ16(e); }
+                for (int v = 0; v < GATHER_NV; ++v) { const E16 e = LOAD16(p + xs[v]) - val; acc[v] += w * SQ16(e); }
+            }
+        } else {
+            for (int j = j0; j < j1; ++j) {
+                const __global T* p = row + offsets[j];
+                const E16 val = SPLAT16(values[j]);
+#pragma unroll
+                for (int v = 0; v < GATHER_NV; ++v) { const E16 e = LOAD16(p + xs[v]) - val; acc[v] += SQ16(e); }
+            }
         }
-    } else {
-        for (int j = 0; j < kc; ++j) {
-            const __global T* p = row + offsets[j];
-            const E16 val = SPLAT16(values[j]);
+        if (use_threshold) {  // stop once all 64 candidates are above the threshold
+            int16 alive = (int16)(0);
 #pragma unroll
-            for (int v = 0; v < GATHER_NV; ++v) { const E16 e = LOAD16(p + xs[v]) - val; acc[v] += SQ16(e); }
+            for (int v = 0; v < GATHER_NV; ++v) alive |= acc[v] <= thr;
+            if (!any16(alive)) break;
         }
     }
     __global S* orow = out + (z * ny + y) * nx;

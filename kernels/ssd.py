@@ -23,6 +23,7 @@ import warp as wp
 SELECT_LEQ = wp.constant(0)  # score <= thr
 SELECT_LT = wp.constant(1)  # score <  thr
 SELECT_EQ = wp.constant(2)  # score == thr
+GATHER_CHUNK = wp.constant(256)  # entries between early-exit checks in ssd_gather (as in ssd.cl)
 
 
 @wp.func
@@ -79,26 +80,36 @@ def ssd_gather_kernel(
     weights: wp.array(dtype=Any),  # (kc,) or a dummy when use_weights == 0
     use_weights: int,
     kc: int,
+    threshold: wp.array(dtype=Any),  # (1,) same dtype as out
+    use_threshold: int,
     out: wp.array(dtype=Any),  # (nz * ny * nx,) one score per candidate
 ):
     """out[c] = sum_j w[j] * (grid[base(c) + offsets[j]] - values[j])^2.
 
     Lattice mode (use_bases == 0): candidate (z, y, x) has base
     base0 + z*step_z + y*step_y + x*step_x. Explicit mode: launched as (1, 1, n)
-    and base(c) = bases[c].
+    and base(c) = bases[c]. With use_threshold, a candidate whose partial sum passes
+    threshold[0] (checked every GATHER_CHUNK entries) stops and reports it.
     """
     z, y, x = wp.tid()
     cand = (z * ny + y) * nx + x
     base = base0 + z * step_z + y * step_y + x * step_x
     if use_bases != 0:
         base = bases[cand]
+    thr = threshold[0]
     acc = out.dtype(0)
-    if use_weights != 0:
-        for j in range(kc):
-            acc += weights[j] * sq_diff(grid[base + offsets[j]], values[j])
-    else:
-        for j in range(kc):
-            acc += sq_diff(grid[base + offsets[j]], values[j])
+    j0 = int(0)
+    while j0 < kc:
+        j1 = wp.min(j0 + GATHER_CHUNK, kc)
+        if use_weights != 0:
+            for j in range(j0, j1):
+                acc += weights[j] * sq_diff(grid[base + offsets[j]], values[j])
+        else:
+            for j in range(j0, j1):
+                acc += sq_diff(grid[base + offsets[j]], values[j])
+        j0 = j1
+        if use_threshold != 0 and acc > thr:
+            j0 = kc
     out[cand] = acc
 
 

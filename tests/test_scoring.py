@@ -245,3 +245,32 @@ def test_uint8_scores_identical_on_every_device(rng):
     for dense, gather in results[1:]:
         np.testing.assert_array_equal(dense, results[0][0])
         np.testing.assert_array_equal(gather, results[0][1])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("weighted", [False, True])
+def test_gather_threshold_keeps_the_argmin_exact(device, rng, dtype, weighted):
+    """Early exit: scores at or below the threshold are exact, the rest stay above it,
+    so the argmin with any candidate's score as threshold is the true argmin."""
+    grid = random_data(rng, (26, 27, 40), dtype)
+    off = block_offsets(8, 3)  # 512 entries: two early-exit checks
+    origin = np.array([9, 4, 17])
+    vals = grid[tuple((origin + off).T)].astype(np.float64) + rng.normal(0, 3, len(off))
+    vals = np.clip(vals, 0, 255).astype(dtype) if dtype == np.uint8 else vals.astype(np.float32)
+    w = None
+    if weighted:
+        w = rng.integers(1, 3, len(off)) if dtype == np.uint8 else rng.random(len(off)).astype(np.float32) + 0.5
+    exact = reference.score_gather_naive(grid, off, vals, w)
+    for guess in (0, 123, int(np.argmin(exact))):
+        thr = float(exact[guess])
+        got = geosynth.score_gather(grid, off, vals, w, threshold=thr, device=device)
+        low = exact <= thr
+        assert_scores(got[low], exact[low], dtype)
+        assert np.all(got[~low] > np.float32(thr) * (1 - 1e-6))
+        assert geosynth.argmin(got, device=device) == int(np.argmin(exact))
+
+
+def test_gather_threshold_invalid(device):
+    grid = np.zeros((8, 8), np.uint8)
+    with pytest.raises(ValueError, match="threshold must be a finite number >= 0"):
+        geosynth.score_gather(grid, np.array([[0, 0]]), np.zeros(1, np.uint8), threshold=-1, device=device)

@@ -106,3 +106,10 @@ def test_invalid_input(source, monkeypatch):
     monkeypatch.setattr(volume, "available_memory", lambda: 1000)
     with pytest.raises(ValueError, match=r"needs about .* GiB but .* are available"):
         run(source, "cpu")
+
+
+def test_linear_and_tree_search_give_the_same_field(source):
+    """Both searches are exact (the linear one with its early exit), so the fields agree."""
+    linear = run(source, "opencl", search="linear")
+    tree = run(source, "opencl", search="tree")
+    np.testing.assert_array_equal(linear.quantized, tree.quantized)

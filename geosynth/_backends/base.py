@@ -54,11 +54,13 @@ class Backend(ABC):
         """out (b*n,) <- weighted SSD of every query row against every candidate row."""
 
     @abstractmethod
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
         """out <- SSD of the query entries at base(c) + offsets for every candidate c.
 
         ``bases`` is a DeviceArray of explicit base indices or None for the lattice
         (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.
+        ``threshold``: None, or a (1,) DeviceArray of the score dtype above which a
+        candidate may stop early and report any value above it.
         """
 
     @abstractmethod

@@ -114,7 +114,7 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, Backend):
             np.int32(n), np.int32(d), np.int32(b), out.data,
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
         nx, ny, nz = lattice
         if bases is None and steps[0] == 1:
             name, gsize, lsize = "ssd_gather_x16", (-(-nx // 64), _round_up(ny, 7), nz), (1, 7, 1)
@@ -128,7 +128,9 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, Backend):
             grid.data, b, np.int32(bases is not None),
             np.int32(nx), np.int32(ny), np.int32(nz),
             *(np.int32(s) for s in steps), np.int32(base0),
-            offsets.data, values.data, w, np.int32(weights is not None), np.int32(kc), out.data,
+            offsets.data, values.data, w, np.int32(weights is not None), np.int32(kc),
+            threshold.data if threshold is not None else self._dummy(out.dtype), np.int32(threshold is not None),
+            out.data,
         )
 
     def _launch_1d(self, name: str, dtype, g: int, *args) -> None:

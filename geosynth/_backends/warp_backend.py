@@ -73,7 +73,7 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, Backend):
             [candidates.data, queries.data, w, int(weights is not None), n, d, b, out.data],
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
         nx, ny, nz = lattice
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
@@ -81,7 +81,8 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, Backend):
             ssd_kernels.ssd_gather_kernel,
             (nz, ny, nx),
             [grid.data, b, int(bases is not None), nx, ny, nz, *steps, base0,
-             offsets.data, values.data, w, int(weights is not None), kc, out.data],
+             offsets.data, values.data, w, int(weights is not None), kc,
+             threshold.data if threshold is not None else self._dummy(out.dtype), int(threshold is not None), out.data],
         )
 
     def argmin_partials(self, scores, n, part_val, part_idx) -> None:
