@@ -174,7 +174,9 @@ __kernel void ssd_gather(__global const T* grid, __global const int* bases, cons
 // is read past the last window; with nx < 16 the grid needs 15 spare elements (the
 // backend allocates 64 bytes more than every buffer).
 // Range: (ceil(nx/64), round_up(ny, 7), nz), local (1, 7, 1).
-#define GATHER_NV 4
+#ifndef GATHER_NV
+#define GATHER_NV 4  // vectors of 16 candidates per work-item (build option)
+#endif
 __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, const int use_bases,
                              const int nx, const int ny, const int nz,
                              const int step_x, const int step_y, const int step_z, const int base0,
