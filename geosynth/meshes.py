@@ -267,6 +267,10 @@ class MeshBVH:
             the area-weighted normal sum (3), 0.
         tris: (F, 12) float32 per triangle: a (3), b - a (3), c - a (3),
             |b - a|^2, |c - a|^2, (b - a).(c - a).
+        tri_lanes: (F, 32) float32 per triangle, for the branch-free distance of the
+            OpenCL grid kernel (layout in kernels/sdf_mesh.cl): a, ab, ac, n = ab x ac,
+            bc, n x ab, n x bc, 1/|ab|^2, 1/|ac|^2, 1/|bc|^2, ac x n, 1/|n|^2, the
+            inside threshold (0, or +inf where the normal is too small), 0 padding.
         depth: the deepest node's depth (the root is depth 1).
     """
 
@@ -277,6 +281,7 @@ class MeshBVH:
     dipole: np.ndarray
     tris: np.ndarray
     depth: int
+    tri_lanes: np.ndarray
     device_cache: dict = dc_field(default_factory=dict, repr=False)
 
     @property
@@ -421,6 +426,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZ
         axis=1,
     )
     return MeshBVH(
+        tri_lanes=_tri_lanes(tri),
         vertices=v.astype(np.float32),
         faces=np.ascontiguousarray(f, dtype=np.int32),
         bbox=np.ascontiguousarray(bbox, dtype=np.float32),
@@ -429,6 +435,32 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZ
         tris=np.ascontiguousarray(tris, dtype=np.float32),
         depth=depth,
     )
+
+
+def _tri_lanes(tri: np.ndarray) -> np.ndarray:
+    """(F, 32) float32 lane layout of (F, 3, 3) float64 triangles (see MeshBVH.tri_lanes)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac, bc = b - a, c - a, c - b
+    n = np.cross(ab, ac)
+    out = np.zeros((tri.shape[0], 32), np.float64)
+    out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], out[:, 12:15] = a, ab, ac, n, bc
+    out[:, 15:18], out[:, 18:21], out[:, 24:27] = np.cross(n, ab), np.cross(n, bc), np.cross(ac, n)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        for col, e in ((21, ab), (22, ac), (23, bc)):
+            out[:, col] = 1.0 / np.einsum("ij,ij->i", e, e)
+        n2 = np.einsum("ij,ij->i", n, n)
+        out[:, 27] = 1.0 / n2
+        lanes = out.astype(np.float32)
+    # a needle whose normal or edge terms leave float32: never "inside", and its edges
+    # as segments of zero length at worst (a finite 1/|e|^2 of 0 clamps to the corner)
+    bad = ~np.isfinite(lanes[:, 27]) | (n2 == 0) | ~np.isfinite(lanes[:, 15:27]).all(axis=1)
+    lanes[bad, 27] = 0.0
+    lanes[bad, 28] = np.inf
+    for col in (21, 22, 23):
+        lanes[~np.isfinite(lanes[:, col]), col] = 0.0
+    lanes[:, 15:21][~np.isfinite(lanes[:, 15:21])] = 0.0
+    lanes[:, 24:27][~np.isfinite(lanes[:, 24:27])] = 0.0
+    return np.ascontiguousarray(lanes)
 
 
 _BVH_CACHE: OrderedDict[tuple, MeshBVH] = OrderedDict()
@@ -473,9 +505,13 @@ def mesh_distance(
     The distance is exact: the closest point over all triangles, found by a bounding
     volume hierarchy traversal with the exact point-triangle distance (Warp:
     ``wp.Mesh`` closest-point queries; OpenCL: a Morton-ordered BVH built once on the
-    host, cached, and traversed nearest-child-first with a stack in the kernel). Grid
-    rows are processed a few points at a time, each search starting from the previous
-    point's closest triangle as an upper bound (exact, only faster).
+    host, cached, and traversed nearest-child-first with a stack in the kernel). On
+    OpenCL, grids are processed in tiles of 4 x 2 x 2 samples that share one traversal
+    as the 16 lanes of SIMD vectors: a node is entered while it may hold a closer
+    triangle for any lane, and triangles are tested against all lanes at once
+    (branch-free); each lane still gets its own exact closest distance. Elsewhere grid
+    rows go a few points at a time, each search starting from the previous point's
+    closest triangle as an upper bound (exact, only faster).
 
     The sign is negative inside. Inside means a generalized winding number above 1/2
     (Jacobson et al. 2013), computed with the fast approximation of Barill et al. 2018
@@ -487,7 +523,9 @@ def mesh_distance(
     build, face orientation is made consistent across shared edges (majority per
     connected patch, closed patches turned outward; :func:`orient_faces`), so a few
     flipped faces do not disturb the sign either. Both backends run the same winding
-    traversal on the same BVH, so they agree on the sign.
+    traversal on the same BVH, so they agree on the sign (the OpenCL grid tiles run it
+    with a mask of the lanes still descending: per sample the same terms in the same
+    order).
 
     Degenerate (zero-area) faces are refused, or removed with ``drop_degenerate``:
     they carry no area, and Warp's ``wp.Mesh`` skips them in its closest-point search.

@@ -12,7 +12,10 @@ two backends agree on the sign. The wp.Mesh is built over the triangles in the s
 
 ``band`` > 0 clamps the result to [-band, band] and limits the search to it; <= 0
 means no band. Points are processed ``run`` at a time per thread, each search bounded
-by the distance to the previous point's closest triangle (exact, only faster).
+by the distance to the previous point's closest triangle (exact, only faster). The
+OpenCL grid kernel differs in its launch: it takes tiles of 16 samples as SIMD lanes
+(no ``run``; the lane triangles ``tri_lanes`` before ``tris``), with per lane the same
+closest distance and the same winding-number terms in the same order as here.
 Host wrappers live in ``geosynth._backends.warp_mesh``; nothing here validates.
 """
 

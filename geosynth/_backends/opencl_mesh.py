@@ -13,7 +13,9 @@ import numpy as np
 # Work-group shapes: small groups, so that PoCL spreads the work over every core
 # (the cost per point varies a lot with its distance to the mesh).
 _LOCAL_POINTS = 8
-_LOCAL_GRID = (1, 4, 1)
+# The grid kernel's tile of samples per work-item (TILE_X, TILE_Y, TILE_Z in sdf_mesh.cl).
+_TILE = (4, 2, 2)
+_LOCAL_TILES = (1, 4, 1)
 
 
 def _round_up(value: int, multiple: int) -> int:
@@ -28,6 +30,7 @@ class OpenCLMeshHandle:
         self.child = backend.to_device(bvh.child)
         self.tris = backend.to_device(bvh.tris)
         self.dipole = backend.to_device(bvh.dipole)
+        self.tri_lanes = backend.to_device(bvh.tri_lanes)
 
 
 class OpenCLMeshOps:
@@ -51,15 +54,16 @@ class OpenCLMeshOps:
             np.int32(bool(signed)), np.float32(band), out.data,
         )
 
-    def mesh_distance_grid(self, mesh, origin, spacing, shape, signed, band, out, run: int = 8) -> None:
+    def mesh_distance_grid(self, mesh, origin, spacing, shape, signed, band, out) -> None:
         """out (nz * ny * nx,) <- distance at origin + spacing * (i, j, k) for shape (nx, ny, nz)."""
         nx, ny, nz = shape
         kernel = self._kernel("sdf_mesh", "mesh_distance_grid", np.float32)
-        gsize = (_round_up(-(-nx // run), _LOCAL_GRID[0]), _round_up(ny, _LOCAL_GRID[1]), _round_up(nz, _LOCAL_GRID[2]))
+        tiles = [-(-n // t) for n, t in zip(shape, _TILE)]
+        gsize = tuple(_round_up(t, l) for t, l in zip(tiles, _LOCAL_TILES))
         kernel(
-            self.queue, gsize, _LOCAL_GRID,
+            self.queue, gsize, _LOCAL_TILES,
             *(np.float32(v) for v in origin), *(np.float32(v) for v in spacing),
-            np.int32(nx), np.int32(ny), np.int32(nz), np.int32(run),
-            mesh.bbox.data, mesh.child.data, mesh.tris.data, mesh.dipole.data,
+            np.int32(nx), np.int32(ny), np.int32(nz),
+            mesh.bbox.data, mesh.child.data, mesh.tri_lanes.data, mesh.tris.data, mesh.dipole.data,
             np.int32(bool(signed)), np.float32(band), out.data,
         )
