@@ -35,7 +35,7 @@ def bidirectional_block_distance(
     from geosynth.backend import to_device
     from geosynth.scoring import score_gather
     from geosynth.selection import argmin
-    from geosynth.volume import block_offsets
+    from geosynth.search import block_offsets
 
     for name, v in (("exemplar", exemplar), ("output", output)):
         if v.dtype != np.uint8 or v.ndim != 3 or min(v.shape) < block:

@@ -23,7 +23,6 @@ gives the same field bit for bit on every device.
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field as dc_field
@@ -32,6 +31,8 @@ import numpy as np
 
 from geosynth import _checks
 from geosynth.field import Field
+from geosynth.pyramid import check_memory
+from geosynth.search import block_offsets
 
 __all__ = [
     "LevelReport",
@@ -42,12 +43,6 @@ __all__ = [
     "scan_positions",
     "synthesize_volume",
 ]
-
-
-def block_offsets(block: int) -> np.ndarray:
-    """(block^3, 3) int64 (dz, dy, dx) offsets of a cubic block in raster order."""
-    r = np.arange(block)
-    return np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -148,18 +143,6 @@ class VolumeResult:
     levels: list[LevelReport]
     band: float
     timings: dict = dc_field(default_factory=dict)
-
-
-def available_memory() -> int:
-    """Bytes of memory available now (MemAvailable, else physical pages)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def _as_shape(name: str, size) -> tuple[int, int, int]:
@@ -374,12 +357,7 @@ def synthesize_volume(
         int(np.prod(s.shape)) * (24 * (int(math.log2(b)) + 1) if search == "tree" else 8)
         for s, b in zip(sources, blocks)
     )
-    avail = available_memory()
-    if estimate > avail:
-        raise ValueError(
-            f"synthesis needs about {estimate / 2**30:.1f} GiB but {avail / 2**30:.1f} GiB are available; "
-            "use a smaller source, target or block."
-        )
+    check_memory(estimate, f"synthesis of a {target_shape[2]} x {target_shape[1]} x {target_shape[0]} target")
 
     rng = np.random.default_rng(seed)
     reports: list[LevelReport] = []

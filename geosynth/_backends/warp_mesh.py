@@ -7,7 +7,6 @@ self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
 from geosynth.kernels import sdf_mesh as sdf_kernels
