@@ -227,7 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--block", type=int, nargs="+", default=[16], help="finest block size, or one per level (default 16)")
     p.add_argument("--source-resolution", type=int, default=64, help="exemplar samples along its longest side (default 64)")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
-    p.add_argument("--search", choices=["linear", "tree"], default="linear", help="exact linear search (default, fastest on PoCL for synthesis queries) or the exact tree search")
+    p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
+                   help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
     p.add_argument("--smooth", type=int, default=10, help="Taubin smoothing iterations (default 10)")
     p.add_argument("--quality-samples", type=int, default=100, help="blocks per direction for the quality numbers (0: skip)")
     p.add_argument("--device", default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")

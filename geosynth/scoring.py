@@ -21,7 +21,7 @@ import numpy as np
 from geosynth import _checks
 from geosynth.backend import DeviceArray
 
-__all__ = ["candidate_origins", "lattice_shape", "score_dense", "score_gather"]
+__all__ = ["GatherScorer", "candidate_origins", "lattice_shape", "score_dense", "score_gather"]
 
 _INT32_LIMIT = 2**31 - 1024  # flat indices stay int32 in the kernels
 
@@ -192,7 +192,9 @@ def score_gather(
 
     ``scores[c] = sum_k weights[k] * sum_ch (grid[origin_c + offsets[k], ch] - values[k, ch]) ** 2``
 
-    The windows are read in the kernel; nothing is unpacked into memory.
+    The windows are read in the kernel; nothing is unpacked into memory. For many
+    queries with the same offsets, :class:`GatherScorer` checks and uploads the
+    grid, offsets and weights once.
 
     Args:
         grid: (Y, X[, C]) or (Z, Y, X[, C]) float32 or uint8 array (the number of
@@ -228,102 +230,149 @@ def score_gather(
             window reaches outside the grid, a uint8 score range beyond uint32.
         RuntimeError: the device is absent, or inputs on different devices.
     """
-    off = _as_offsets(offsets)
-    k, nd = off.shape
-    grid = _checks.as_data("grid", grid, (nd, nd + 1))
-    dims, channels = _spatial_shape("grid", grid.shape, nd)
-    if min(dims) < 1 or channels < 1:
-        raise ValueError(f"grid is empty (shape {grid.shape}).")
-    vals = _checks.same_kind("values", values, "grid", grid)
-    if isinstance(vals, DeviceArray):
-        raise TypeError("values must be a host array (it is small and uploaded per call).")
-    if vals.shape not in ((k, channels),) + (((k,),) if channels == 1 else ()):
-        want = f"({k}, {channels})" + (f" or ({k},)" if channels == 1 else "")
-        raise ValueError(f"values must have shape {want} to match {k} offsets and {channels} channel(s), got {vals.shape}.")
-    _checks.check_finite("values", vals)
-    _checks.check_finite("grid", grid)
-    w = None if weights is None else _checks.as_weights("weights", weights, k, grid.dtype)
-    if grid.dtype == np.uint8:
-        total = k * channels if w is None else int(w.astype(np.uint64).sum()) * channels
-        _checks.check_uint32_range(total, "this query")
-    step = _as_stride(stride, nd)
-    thr = None
-    if threshold is not None:
-        if not (np.isscalar(threshold) and np.isfinite(threshold) and threshold >= 0):
-            raise ValueError(f"threshold must be a finite number >= 0, got {threshold!r}.")
+    scorer = GatherScorer(grid, offsets, weights, stride=stride, wrap=wrap, device=device)
+    return scorer(values, origins=origins, threshold=threshold, keep_on_device=keep_on_device)
+
+
+class GatherScorer:
+    """:func:`score_gather` with the grid, offsets and weights checked and uploaded once.
+
+    ``GatherScorer(grid, offsets, weights, stride=, wrap=, device=)(values, origins=,
+    threshold=, keep_on_device=)`` returns exactly what ``score_gather`` with the same
+    arguments returns; each call only checks and uploads the query values and the
+    origins. Searches that score many queries (M1 block matching, the M3 texel search)
+    keep one per source and offset set.
+
+    Args:
+        grid, offsets, weights, stride, wrap, device: as for :func:`score_gather`.
+
+    Attributes:
+        lattice: the candidate lattice's shape when no origins are given.
+        backend: the backend that runs the kernel.
+
+    Example:
+        >>> import numpy as np
+        >>> g = np.arange(16, dtype=np.float32).reshape(4, 4)
+        >>> scorer = GatherScorer(g, [[0, 0], [0, 1]], device="cpu")
+        >>> scorer(np.array([5, 6], np.float32), origins=np.array([[1, 1], [0, 0]]))
+        array([ 0., 50.], dtype=float32)
+    """
+
+    def __init__(self, grid: np.ndarray | DeviceArray, offsets: np.ndarray, weights: np.ndarray | None = None, *,
+                 stride: int | Sequence[int] = 1, wrap: bool = False, device: str | None = None):
+        off = _as_offsets(offsets)
+        k, nd = off.shape
+        grid = _checks.as_data("grid", grid, (nd, nd + 1))
+        dims, channels = _spatial_shape("grid", grid.shape, nd)
+        if min(dims) < 1 or channels < 1:
+            raise ValueError(f"grid is empty (shape {grid.shape}).")
+        self._grid_dtype = grid.dtype
+        self._k, self._nd, self._channels = k, nd, channels
+        _checks.check_finite("grid", grid)
+        w = None if weights is None else _checks.as_weights("weights", weights, k, grid.dtype)
         if grid.dtype == np.uint8:
-            thr = np.array([min(int(np.floor(threshold)), _checks.UINT32_MAX)], np.uint32)
-        else:
-            thr = np.array([threshold], np.float32)
-            if float(thr[0]) < float(threshold):  # never below the caller's bound
-                thr[0] = np.nextafter(thr[0], np.float32(np.inf))
+            total = k * channels if w is None else int(w.astype(np.uint64).sum()) * channels
+            _checks.check_uint32_range(total, "this query")
+        step = _as_stride(stride, nd)
 
-    # Geometry in padded 3D: (Z, Y, X) with Z = 1 for 2D grids.
-    dims_arr = np.asarray(dims, np.int64)
-    pad_lo = np.maximum(0, -off.min(axis=0)) if wrap else np.zeros(nd, np.int64)
-    pad_hi = np.maximum(0, off.max(axis=0)) if wrap else np.zeros(nd, np.int64)
-    if wrap:
-        pad = tuple((int(a), int(b)) for a, b in zip(pad_lo, pad_hi)) + (((0, 0),) if grid.ndim == nd + 1 else ())
-        if isinstance(grid, DeviceArray):  # padded once per padding, then cached with the grid
-            grid = grid.derived(("wrap", pad), lambda host: np.pad(host, pad, mode="wrap"))
-        else:
-            grid = np.pad(grid, pad, mode="wrap")
-    padded = dims_arr + pad_lo + pad_hi
-    if int(np.prod(padded)) * channels > _INT32_LIMIT:
-        raise ValueError(f"grid of {int(np.prod(padded)) * channels} elements exceeds 2^31; split it.")
-    full = np.concatenate([np.ones(3 - nd, np.int64), padded])  # (Z, Y, X)
-    elem_strides = np.array([full[1] * full[2], full[2], 1], np.int64) * channels  # flat step per axis
-    strides_nd = elem_strides[3 - nd:]
-    flat_off = (off @ strides_nd)[:, None] + np.arange(channels)[None, :]  # (K, C)
+        # Geometry in padded 3D: (Z, Y, X) with Z = 1 for 2D grids.
+        self._dims = np.asarray(dims, np.int64)
+        self._wrap = bool(wrap)
+        pad_lo = np.maximum(0, -off.min(axis=0)) if wrap else np.zeros(nd, np.int64)
+        pad_hi = np.maximum(0, off.max(axis=0)) if wrap else np.zeros(nd, np.int64)
+        if wrap:
+            pad = tuple((int(a), int(b)) for a, b in zip(pad_lo, pad_hi)) + (((0, 0),) if grid.ndim == nd + 1 else ())
+            if isinstance(grid, DeviceArray):  # padded once per padding, then cached with the grid
+                grid = grid.derived(("wrap", pad), lambda host: np.pad(host, pad, mode="wrap"))
+            else:
+                grid = np.pad(grid, pad, mode="wrap")
+        padded = self._dims + pad_lo + pad_hi
+        if int(np.prod(padded)) * channels > _INT32_LIMIT:
+            raise ValueError(f"grid of {int(np.prod(padded)) * channels} elements exceeds 2^31; split it.")
+        full = np.concatenate([np.ones(3 - nd, np.int64), padded])  # (Z, Y, X)
+        elem_strides = np.array([full[1] * full[2], full[2], 1], np.int64) * channels  # flat step per axis
+        self._strides = elem_strides[3 - nd:]
+        flat_off = (off @ self._strides)[:, None] + np.arange(channels)[None, :]  # (K, C)
+        self._pad_lo = pad_lo
+        self._reach = (off.min(axis=0), off.max(axis=0))
 
-    bases = None
-    if origins is None:
-        counts = lattice_shape(dims, off, step, wrap)
-        if min(counts) == 0:
-            raise ValueError(
+        self.lattice = lattice_shape(dims, off, step, wrap)
+        self._lattice_error = None
+        if min(self.lattice) == 0:
+            self._lattice_error = (
                 f"no valid candidate: the offsets span {tuple(int(v) for v in off.max(0) - off.min(0) + 1)} "
                 f"but the grid is only {tuple(dims)}; use a larger grid, smaller offsets or wrap=True."
             )
         lo = pad_lo if wrap else -off.min(axis=0)
-        lattice3 = np.concatenate([np.ones(3 - nd, np.int64), counts])  # (nz, ny, nx)
+        lattice3 = np.concatenate([np.ones(3 - nd, np.int64), np.asarray(self.lattice, np.int64)])  # (nz, ny, nx)
         step3 = np.concatenate([np.ones(3 - nd, np.int64), step])
-        steps = tuple(int(v) for v in (step3 * elem_strides)[::-1])  # (x, y, z)
-        base0 = int(lo @ strides_nd)
-        n = int(np.prod(lattice3))
-        lattice = (int(lattice3[2]), int(lattice3[1]), int(lattice3[0]))
-    else:
-        org = np.asarray(origins)
-        if org.ndim != 2 or org.shape[1] != nd:
-            raise ValueError(f"origins must have shape (N, {nd}), got {org.shape}.")
-        if org.shape[0] == 0:
-            raise ValueError("origins is empty: the candidate set must hold at least one origin.")
-        if org.dtype.kind not in "iu":
-            raise TypeError(f"origins must be integers, got dtype {org.dtype}.")
-        org = org.astype(np.int64)
-        if wrap:
-            org = np.mod(org, dims_arr) + pad_lo
-        else:
-            reach_lo, reach_hi = org + off.min(axis=0), org + off.max(axis=0)
-            bad = np.flatnonzero((reach_lo < 0).any(axis=1) | (reach_hi >= dims_arr).any(axis=1))
-            if bad.size:
-                i = int(bad[0])
-                raise ValueError(
-                    f"offsets reach outside the grid {tuple(dims)} for {bad.size} candidate origin(s), "
-                    f"first origins[{i}] = {tuple(int(v) for v in org[i])}; drop them or use wrap=True."
-                )
-        n = org.shape[0]
-        bases = (org @ strides_nd).astype(np.int32)
-        lattice, steps, base0 = (n, 1, 1), (0, 0, 0), 0
+        self._lattice_steps = tuple(int(v) for v in (step3 * elem_strides)[::-1])  # (x, y, z)
+        self._lattice_base0 = int(lo @ self._strides)
+        self._lattice_xyz = (int(lattice3[2]), int(lattice3[1]), int(lattice3[0]))
 
-    backend = _checks.resolve_backend(device, grid)
-    out = backend.empty((n,), _score_dtype(grid.dtype))
-    backend.ssd_gather(
-        _upload(backend, grid),
-        None if bases is None else backend.to_device(bases),
-        lattice, steps, base0,
-        backend.to_device(flat_off.reshape(-1).astype(np.int32)),
-        backend.to_device(np.ascontiguousarray(vals.reshape(-1))),
-        None if w is None else backend.to_device(np.repeat(w, channels)),
-        k * channels, None if thr is None else backend.to_device(thr), out,
-    )
-    return out if keep_on_device else out.numpy()
+        self.backend = _checks.resolve_backend(device, grid)
+        self._grid = _upload(self.backend, grid)
+        self._flat_off = self.backend.to_device(flat_off.reshape(-1).astype(np.int32))
+        self._weights = None if w is None else self.backend.to_device(np.repeat(w, channels))
+
+    def __call__(self, values: np.ndarray, *, origins: np.ndarray | None = None, threshold: float | None = None,
+                 keep_on_device: bool = False) -> np.ndarray | DeviceArray:
+        """Scores of one query (see :func:`score_gather` for the arguments and result)."""
+        k, nd, channels = self._k, self._nd, self._channels
+        vals = _checks.same_kind("values", values, "grid", self._grid)
+        if isinstance(vals, DeviceArray):
+            raise TypeError("values must be a host array (it is small and uploaded per call).")
+        if vals.shape not in ((k, channels),) + (((k,),) if channels == 1 else ()):
+            want = f"({k}, {channels})" + (f" or ({k},)" if channels == 1 else "")
+            raise ValueError(f"values must have shape {want} to match {k} offsets and {channels} channel(s), got {vals.shape}.")
+        _checks.check_finite("values", vals)
+        thr = None
+        if threshold is not None:
+            if not (np.isscalar(threshold) and np.isfinite(threshold) and threshold >= 0):
+                raise ValueError(f"threshold must be a finite number >= 0, got {threshold!r}.")
+            if self._grid_dtype == np.uint8:
+                thr = np.array([min(int(np.floor(threshold)), _checks.UINT32_MAX)], np.uint32)
+            else:
+                thr = np.array([threshold], np.float32)
+                if float(thr[0]) < float(threshold):  # never below the caller's bound
+                    thr[0] = np.nextafter(thr[0], np.float32(np.inf))
+
+        bases = None
+        if origins is None:
+            if self._lattice_error:
+                raise ValueError(self._lattice_error)
+            lattice, steps, base0 = self._lattice_xyz, self._lattice_steps, self._lattice_base0
+            n = int(np.prod(self.lattice))
+        else:
+            org = np.asarray(origins)
+            if org.ndim != 2 or org.shape[1] != nd:
+                raise ValueError(f"origins must have shape (N, {nd}), got {org.shape}.")
+            if org.shape[0] == 0:
+                raise ValueError("origins is empty: the candidate set must hold at least one origin.")
+            if org.dtype.kind not in "iu":
+                raise TypeError(f"origins must be integers, got dtype {org.dtype}.")
+            org = org.astype(np.int64)
+            if self._wrap:
+                org = np.mod(org, self._dims) + self._pad_lo
+            else:
+                reach_lo, reach_hi = org + self._reach[0], org + self._reach[1]
+                bad = np.flatnonzero((reach_lo < 0).any(axis=1) | (reach_hi >= self._dims).any(axis=1))
+                if bad.size:
+                    i = int(bad[0])
+                    raise ValueError(
+                        f"offsets reach outside the grid {tuple(int(v) for v in self._dims)} for {bad.size} candidate "
+                        f"origin(s), first origins[{i}] = {tuple(int(v) for v in org[i])}; drop them or use wrap=True."
+                    )
+            n = org.shape[0]
+            bases = (org @ self._strides).astype(np.int32)
+            lattice, steps, base0 = (n, 1, 1), (0, 0, 0), 0
+
+        backend = self.backend
+        out = backend.empty((n,), _score_dtype(self._grid_dtype))
+        backend.ssd_gather(
+            self._grid, None if bases is None else backend.to_device(bases),
+            lattice, steps, base0, self._flat_off,
+            backend.to_device(np.ascontiguousarray(vals.reshape(-1))), self._weights,
+            k * channels, None if thr is None else backend.to_device(thr), out,
+        )
+        return out if keep_on_device else out.numpy()

@@ -145,6 +145,9 @@ class VolumeResult:
     timings: dict = dc_field(default_factory=dict)
 
 
+SEARCHES = ("cascade", "tree", "linear")
+
+
 def _as_shape(name: str, size) -> tuple[int, int, int]:
     s = np.asarray(size)
     if s.ndim == 0:
@@ -171,22 +174,26 @@ def _level_blocks(levels: int, block) -> list[int]:
 
 
 class _Matcher:
-    """Exact nearest block of a uint8 source: the search tree when available, else the
-    linear search (every block scored by the gather kernel, argmin on the device)."""
+    """Exact nearest block of a uint8 source: the cascade of lower bounds (default),
+    the search tree, or the plain linear search (every block scored by the gather
+    kernel, argmin on the device). All three return the same block."""
 
     def __init__(self, source: np.ndarray, block: int, device, search: str):
-        from geosynth.scoring import candidate_origins
-
         self.block = block
         self.offsets = block_offsets(block)
         self.search = search
-        self.tree = None
+        self.engine = None
         if search == "tree":
             from geosynth.search import BlockSearch
 
-            self.tree = BlockSearch(source, block, device=device)
+            self.engine = BlockSearch(source, block, device=device)
+        elif search == "cascade":
+            from geosynth.search import CascadeSearch
+
+            self.engine = CascadeSearch(source, block, device=device)
         else:
             from geosynth.backend import to_device
+            from geosynth.scoring import candidate_origins
 
             self.grid = to_device(source, "auto" if device is None else device)
             self.origins = candidate_origins(source.shape, self.offsets)
@@ -196,11 +203,14 @@ class _Matcher:
         """Exact nearest block (lowest source index on ties) and its SSD.
 
         ``threshold``: the SSD of any one source block (an upper bound on the best),
-        letting the linear search stop early on blocks that cannot win; ``order``: a
-        permutation of the block's samples putting the most telling first.
+        letting the searches drop blocks that cannot win early; ``order``: a
+        permutation of the block's samples putting the most telling first (linear).
         """
-        if self.tree is not None:
-            origin, ssd = self.tree.nearest(query)
+        if self.search == "tree":
+            origin, ssd = self.engine.nearest(query)
+            return np.asarray(origin), int(ssd)
+        if self.search == "cascade":
+            origin, ssd = self.engine.nearest(query, threshold=threshold)
             return np.asarray(origin), int(ssd)
         from geosynth.scoring import score_gather
         from geosynth.selection import argmin
@@ -279,7 +289,7 @@ def synthesize_volume(
     tileable: bool = False,
     seed: int | None = 0,
     device: str | None = None,
-    search: str = "linear",
+    search: str = "cascade",
     band: float | None = None,
     spacing: float = 1.0,
     progress: bool = True,
@@ -298,11 +308,13 @@ def synthesize_volume(
         tileable: make the target periodic (blocks wrap around its faces).
         seed: seed of the numpy Generator drawing the random initial samples.
         device: a device string for the matching kernels (None: "auto").
-        search: "linear" (every block scored by the gather kernel, argmin on the device;
-            the default: fastest on PoCL for synthesis queries, whose random or
-            upsampled samples make the tree's lower bounds weak) or "tree" (the exact
-            best-first search of :mod:`geosynth.search`, fast for clean queries). Both
-            return the same block.
+        search: "cascade" (the default: eq. 2 lower bounds of every block, coarse to
+            fine, on the device, then exact SSDs of the few survivors; see
+            :class:`geosynth.search.CascadeSearch`), "tree" (the paper's exact
+            best-first search, :class:`geosynth.search.BlockSearch`; fast for clean
+            queries, slower for synthesis queries whose random or upsampled samples
+            weaken its bounds) or "linear" (every block scored by the gather kernel).
+            All three return the same block.
         band: for float sources, the distance mapped to the uint8 range ends
             (default: half the finest block, in samples).
         spacing: world size of one finest-level sample, for the returned Field.
@@ -324,8 +336,8 @@ def synthesize_volume(
         raise ValueError(f"source must be a (Z, Y, X) volume, got shape {src.shape}.")
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}.")
-    if search not in ("tree", "linear"):
-        raise ValueError(f"search must be 'tree' or 'linear', got {search!r}.")
+    if search not in SEARCHES:
+        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}.")
     blocks = _level_blocks(levels, block)
     if band is None:
         band = blocks[-1] / 2
@@ -414,7 +426,7 @@ def synthesize_geometry(
     tileable: bool = False,
     seed: int | None = 0,
     device: str | None = None,
-    search: str = "linear",
+    search: str = "cascade",
     smooth: int = 10,
     quality_samples: int = 100,
     progress: bool = True,

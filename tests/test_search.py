@@ -10,7 +10,7 @@ import geosynth
 from geosynth import reference
 from geosynth import search as search_mod
 from geosynth.examples import quantize_distance, spheres_field
-from geosynth.search import BlockSearch, block_offsets, block_origins
+from geosynth.search import BlockSearch, CascadeSearch, block_offsets, block_origins, box_sums
 
 # (block size, source side): small enough for CI, every block size of the issue.
 CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
@@ -48,6 +48,40 @@ def test_tree_search_equals_linear(device, rng, kind, block, side):
         want = reference.nearest_block_naive(field, q)
         assert s.nearest(q) == want
         assert s.nearest_linear(q) == want
+
+
+@pytest.mark.parametrize("kind", ["random", "real"])
+@pytest.mark.parametrize("block, side", CASES)
+def test_cascade_search_equals_linear(device, rng, kind, block, side):
+    field = _field(kind, side, rng)
+    s = CascadeSearch(field, block, device=device)
+    for q in _queries(field, block, rng):
+        want = reference.nearest_block_naive(field, q)
+        assert s.nearest(q) == want
+        # any block's SSD is a valid threshold; so is one too low (the search then drops it)
+        o = rng.integers(0, np.array(field.shape) - block + 1)
+        other = int(((field[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block].astype(np.int64) - q) ** 2).sum())
+        assert s.nearest(q, threshold=other) == want
+        assert s.nearest(q, threshold=max(0, want[1] - 1)) == want
+
+
+def test_cascade_drops_blocks_by_bounds(device, rng):
+    """The stages keep fewer and fewer blocks, and the last keeps the answer."""
+    field = _field("real", 32, rng)
+    s = CascadeSearch(field, 16, device=device)
+    assert s.stages == [8, 4]
+    q = field[5:21, 3:19, 7:23].copy()
+    assert s.nearest(q) == ((5, 3, 7), 0)
+    alive = s.last_info["alive"]
+    assert alive[0] == s.n_blocks and alive[0] >= alive[1] >= alive[2] >= 1
+
+
+def test_box_sums_match_numpy(rng):
+    f = rng.integers(0, 256, (7, 6, 5), dtype=np.uint8)
+    got = box_sums(f, 3)
+    assert got.shape == (5, 4, 3)
+    for z, y, x in [(0, 0, 0), (4, 3, 2), (2, 1, 0)]:
+        assert got[z, y, x] == int(f[z:z + 3, y:y + 3, x:x + 3].astype(np.int64).sum())
 
 
 @pytest.mark.parametrize("block", [2, 4, 8])

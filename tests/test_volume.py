@@ -17,7 +17,7 @@ def source():
 
 
 def run(source, device, **kw):
-    args = dict(size=32, levels=2, block=8, search="linear", progress=False, device=device, seed=3)
+    args = dict(size=32, levels=2, block=8, progress=False, device=device, seed=3)
     args.update(kw)
     return synthesize_volume(source, **args)
 
@@ -108,8 +108,10 @@ def test_invalid_input(source, monkeypatch):
         run(source, "cpu")
 
 
-def test_linear_and_tree_search_give_the_same_field(source):
-    """Both searches are exact (the linear one with its early exit), so the fields agree."""
+def test_linear_tree_and_cascade_searches_give_the_same_field(source):
+    """All three searches are exact (the linear one with its early exit), so the fields agree."""
     linear = run(source, "opencl", search="linear")
     tree = run(source, "opencl", search="tree")
+    cascade = run(source, "opencl", search="cascade")
     np.testing.assert_array_equal(linear.quantized, tree.quantized)
+    np.testing.assert_array_equal(linear.quantized, cascade.quantized)

@@ -21,6 +21,7 @@ _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
 # Work-group sizes are always given: with none, PoCL picks the largest divisor of the
 # range up to 4096, which can put a whole launch in one group, on one core.
 _LOCAL_1D = 64
+_SMALL_UPLOAD = 1 << 16  # bytes; smaller arrays are uploaded in one call (per-call overhead)
 
 
 def _round_up(value: int, multiple: int) -> int:
@@ -71,6 +72,11 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, Backend):
     # -- memory -------------------------------------------------------------------
     def to_device(self, array: np.ndarray) -> DeviceArray:
         host = np.ascontiguousarray(array)
+        if host.nbytes <= _SMALL_UPLOAD:  # one call: allocate and copy, spare bytes zero
+            staged = np.zeros(host.nbytes + _SPARE_BYTES, np.uint8)
+            staged[:host.nbytes] = host.reshape(-1).view(np.uint8)
+            buf = cl.Buffer(self.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=staged)
+            return DeviceArray(buf, self, host.shape, host.dtype)
         buf = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, host.nbytes + _SPARE_BYTES)
         if host.nbytes:
             cl.enqueue_copy(self.queue, buf, host, is_blocking=False)
