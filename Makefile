@@ -22,7 +22,8 @@ $(BENCH_STAMP): pyproject.toml bench/install_peers.sh $(STAMP)
 	touch $@
 
 demo: $(STAMP)
-	$(BIN)/geosynth demo
+	$(BIN)/geosynth devices
+	$(BIN)/geosynth volume --example terrain -o demo_out/terrain.ply --png demo_out/terrain.png
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

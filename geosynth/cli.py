@@ -174,13 +174,15 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         raise ValueError(f"-o/--output {str(out)!r} is the exemplar file; choose another name (inputs are never overwritten).")
     if len(args.size) not in (1, 3) or len(args.block) not in (1, args.levels):
         raise ValueError("--size takes one or three numbers (x y z); --block one or one per level.")
-    size = args.size if len(args.size) == 3 else args.size * 3
+    size = tuple(args.size[::-1]) if len(args.size) == 3 else args.size[0]  # (z, y, x) or one number
     block = args.block if len(args.block) > 1 else args.block[0]
     label = args.example or args.exemplar
-    say(f"geosynth volume: {label} -> {size[2]} x {size[1]} x {size[0]} samples, {args.levels} levels, "
+    shape_text = (f"{args.size[0]} x {args.size[1]} x {args.size[2]}" if len(args.size) == 3
+                  else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
+    say(f"geosynth volume: {label} -> {shape_text} samples, {args.levels} levels, "
         f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
     result = synthesize_geometry(
-        args.example or args.exemplar, tuple(size[::-1]) if len(set(size)) > 1 else size[0],
+        args.example or args.exemplar, size,
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
         seed=args.seed, device=args.device, search=args.search, smooth=args.smooth,
         quality_samples=args.quality_samples, progress=not args.quiet,
@@ -189,7 +191,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
     say("\nper level:")
     for i, lv in enumerate(result.volume.levels):
-        say(f"  level {i + 1}: source {lv.source_shape[0]}^3-ish {lv.source_shape}, target {lv.target_shape}, block {lv.block}: "
+        src_xyz, tgt_xyz = (" x ".join(str(v) for v in shape[::-1]) for shape in (lv.source_shape, lv.target_shape))
+        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {lv.block}: "
             f"{lv.matches:,} matches, mean best-match distance {lv.mean_match_distance:.1f} per sample, {lv.seconds:.1f} s "
             f"({lv.seconds / max(1, lv.matches) * 1e3:.2f} ms per match)")
     say("timings:")
@@ -222,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("exemplar", nargs="?", help="an exemplar mesh file (any format trimesh reads)")
     p.add_argument("--example", help="a built-in exemplar instead: chainmail, balls, grid, fibers, terrain")
     p.add_argument("-o", "--output", required=True, help="the output mesh (.ply, .obj or .stl)")
-    p.add_argument("--size", type=int, nargs="+", default=[128], help="target samples per side, or x y z (default 128)")
+    p.add_argument("--size", type=int, nargs="+", default=[128], help="target samples along x and y (z keeps the exemplar's thickness), or x y z (default 128)")
     p.add_argument("--levels", type=int, default=3, help="resolution levels (default 3)")
     p.add_argument("--block", type=int, nargs="+", default=[16], help="finest block size, or one per level (default 16)")
     p.add_argument("--source-resolution", type=int, default=64, help="exemplar samples along its longest side (default 64)")

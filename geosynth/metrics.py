@@ -32,29 +32,23 @@ def bidirectional_block_distance(
     Returns:
         {"output_to_exemplar": float, "exemplar_to_output": float, "mean": float}.
     """
-    from geosynth.backend import to_device
-    from geosynth.scoring import score_gather
-    from geosynth.selection import argmin
-    from geosynth.search import block_offsets
+    from geosynth.search import CascadeSearch
 
     for name, v in (("exemplar", exemplar), ("output", output)):
         if v.dtype != np.uint8 or v.ndim != 3 or min(v.shape) < block:
             raise ValueError(f"{name} must be a uint8 (Z, Y, X) volume of at least {block} per side, got {v.dtype} {v.shape}.")
     rng = np.random.default_rng(seed)
-    off = block_offsets(block)
 
     def one_way(queries_from: np.ndarray, search_in: np.ndarray) -> float:
         counts = [s - block + 1 for s in queries_from.shape]
         total = int(np.prod(counts))
         picks = rng.choice(total, size=min(samples, total), replace=False)
-        grid = to_device(search_in, "auto" if device is None else device)
+        search = CascadeSearch(search_in, block, device=device)  # exact nearest block
         dists = []
         for idx in picks:
             z, y, x = np.unravel_index(idx, counts)
-            q = queries_from[z:z + block, y:y + block, x:x + block].reshape(-1)
-            scores = score_gather(grid, off, q, keep_on_device=True)
-            best = argmin(scores)
-            dists.append(int(scores.numpy()[best]) / block**3)  # sync: one score per query
+            _, ssd = search.nearest(queries_from[z:z + block, y:y + block, x:x + block])
+            dists.append(ssd / block**3)
         return float(np.mean(dists))
 
     a = one_way(output, exemplar)

@@ -304,7 +304,8 @@ def synthesize_volume(
             multiple of 2^(levels-1) and at least the finest block.
         levels: resolution levels, >= 1 (3 in the paper).
         block: the finest level's block size (a power of two; coarser levels use half
-            of it, at least 4), or one size per level, coarsest first.
+            of it, at least 4, and at most the largest power of two that fits in
+            their source and target), or one size per level, coarsest first.
         tileable: make the target periodic (blocks wrap around its faces).
         seed: seed of the numpy Generator drawing the random initial samples.
         device: a device string for the matching kernels (None: "auto").
@@ -354,6 +355,14 @@ def synthesize_volume(
     sources = [src]
     for _ in range(levels - 1):
         sources.insert(0, downsample(sources[0]))
+    if np.ndim(block) == 0:
+        # The default scheme shrinks a coarse level's block to fit a thin source or
+        # target there (a slab exemplar); sizes given per level are taken as they are.
+        for lvl, s in enumerate(sources):
+            t = [n // 2 ** (levels - 1 - lvl) for n in target_shape]
+            fit = 1 << (int(min(min(s.shape), min(t))).bit_length() - 1)
+            if lvl < levels - 1 and fit >= 2:
+                blocks[lvl] = min(blocks[lvl], fit)
     for lvl, (s, b) in enumerate(zip(sources, blocks)):
         t = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
         if b > min(s.shape):
@@ -444,9 +453,12 @@ def synthesize_geometry(
     Args:
         exemplar: a trimesh.Trimesh, a mesh file path, or a built-in exemplar name
             (:data:`geosynth.examples.EXEMPLARS`).
-        size, levels, block, tileable, seed, device, search, progress: as in
+        size: the target: one number gives x = y = size samples and the source's
+            thickness along z (see :func:`target_size`); three give (z, y, x).
+        levels, block, tileable, seed, device, search, progress: as in
             :func:`synthesize_volume`.
-        source_resolution: samples along the exemplar's longest side.
+        source_resolution: samples along the exemplar's longest side (the grid is
+            :func:`exemplar_grid`).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
         quality_samples: blocks sampled each way for the quality numbers.
 
@@ -462,15 +474,17 @@ def synthesize_geometry(
     mesh = _exemplar_mesh(exemplar, seed)
     timings["exemplar"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    exemplar_field = mesh_distance(mesh, resolution=source_resolution, padding=0.0, device=device)
+    exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
+                                   device=device)
     timings["exemplar distance field"] = time.perf_counter() - t0
     spacing = float(exemplar_field.spacing[0])
     distance_in_samples = exemplar_field.values / np.float32(spacing)
+    size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                             device=device, search=search, spacing=spacing, progress=progress)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
-    out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth)
+    out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
     timings["marching cubes + smoothing"] = time.perf_counter() - t0
     quality = {}
     if quality_samples:
@@ -484,6 +498,54 @@ def synthesize_geometry(
                                                                 samples=quality_samples, seed=seed, device=device)
         timings["quality numbers"] = time.perf_counter() - t0
     return GeometryResult(out_mesh, vol, exemplar_field, quality, timings)
+
+
+def exemplar_grid(mesh, resolution: int = 64, margin: int = 2, multiple: int = 1) -> Field:
+    """The grid an exemplar mesh is sampled on for synthesis (values zero).
+
+    Cubic cells of side ``max extent / resolution``. Along x and y the samples sit at
+    the cell centres of the mesh's bounding box, with no margin: a footprint that
+    tiles (the built-in terrain) gives a source that tiles, and no empty border
+    enters the synthesis. Along z (up) at least ``margin`` extra samples lie above and
+    below, so the top and bottom surfaces are inside the grid, and as many more as
+    make the z count a multiple of ``multiple`` (the level factor of a synthesis).
+
+    Args:
+        mesh: a trimesh.Trimesh (its bounds are used).
+        resolution: samples along the longest extent, >= 8.
+        margin: samples added below and above along z, >= 0.
+        multiple: the z count is rounded up to a multiple of it.
+
+    Returns:
+        a float32 Field of shape (Z, Y, X).
+    """
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
+        raise ValueError(f"source_resolution must be an integer >= 8, got {resolution!r}.")
+    lo, hi = np.asarray(mesh.bounds, np.float64)
+    extent = hi - lo
+    spacing = float(extent.max()) / int(resolution)
+    counts = np.maximum(1, np.round(extent / spacing).astype(np.int64))  # x, y, z cells
+    origin = lo + spacing / 2
+    extra = 2 * int(margin) + (-(counts[2] + 2 * int(margin)) % int(multiple))
+    counts[2] += extra
+    origin[2] -= (extra // 2) * spacing
+    shape = (int(counts[2]), int(counts[1]), int(counts[0]))
+    return Field(np.zeros(shape, np.float32), origin, np.full(3, spacing))
+
+
+def target_size(size, source_shape, levels: int) -> tuple[int, int, int]:
+    """The synthesis target (z, y, x) for a ``size`` given as one number or three.
+
+    One number grows the exemplar sideways: x and y get ``size`` samples and z keeps
+    the source's thickness (rounded down to a multiple of 2^(levels-1)), so a slab
+    (chainmail, terrain) grows into a larger slab. Three numbers, (z, y, x), are taken
+    as given.
+    """
+    if np.ndim(size) == 0:
+        factor = 2 ** (levels - 1)
+        z = max(factor, int(source_shape[0]) // factor * factor)
+        return (z, int(size), int(size))
+    return _as_shape("size", size)
 
 
 def _exemplar_mesh(exemplar, seed):
