@@ -63,6 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth import _checks
 from geosynth.backend import DeviceArray
 from geosynth.pyramid import (
     BlockPyramid,
@@ -591,6 +592,9 @@ class BlockSearch:
 # relative margin, far above the float32 error of sums of <= 512 positive terms.
 _BOUND_MARGIN = 1e-4
 _MAX_BOUND_CELL = 32  # c^3 * 255 < 2^24: cell sums stay exact in float32
+# The cascade runs only when scoring every block directly costs more than this many
+# launches' worth of work (backend.launch_work); below, one launch does it all.
+_CASCADE_MIN_LAUNCHES = 40
 
 
 def box_sums(field: np.ndarray, cell: int) -> np.ndarray:
@@ -628,10 +632,14 @@ class CascadeSearch:
         block: the block size N, a power of two <= every side of ``field``.
         device: a device string; None means ``"auto"``.
         guesses: blocks scored exactly in the guess phase (default 32).
+        min_work: sample comparisons (blocks x N^3) below which every block is scored
+            in one launch instead (None: 40 launches' worth on the device; 0: always
+            run the stages).
 
     Attributes:
-        stages: the cell sizes of the bound stages, coarse to fine (empty for N <= 2:
-            every block is scored directly).
+        stages: the cell sizes of the bound stages, coarse to fine; empty for N <= 2
+            and for searches small enough that scoring every block in one launch is
+            cheaper (fewer than 40 launches' worth of work on this backend).
         last_info: per query, the number of blocks alive after each stage.
 
     Example:
@@ -641,7 +649,8 @@ class CascadeSearch:
         ((3, 2, 5), 0)
     """
 
-    def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32):
+    def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32,
+                 min_work: float | None = None):
         from geosynth.backend import to_device
 
         field = check_field(field)
@@ -651,6 +660,10 @@ class CascadeSearch:
         self.lattice = tuple(int(s) - self.block + 1 for s in field.shape)
         self.n_blocks = int(np.prod(self.lattice))
         self.stages = [c for c in (self.block // 2, self.block // 4) if 2 <= c <= _MAX_BOUND_CELL]
+        if min_work is None:
+            min_work = _CASCADE_MIN_LAUNCHES * _checks.resolve_backend(device).launch_work
+        if self.n_blocks * self.block**3 < min_work:
+            self.stages = []  # one launch over every block costs less than the stages' launches
         check_memory(field.size * (1 + 12 * len(self.stages)) + self.n_blocks * 40,
                      f"the cascade search of a {field.shape} field (block {block})")
         dev = "auto" if device is None else device
@@ -665,9 +678,11 @@ class CascadeSearch:
         self.last_info: dict = {}
 
     def _bound(self, cell: int, query_sums: dict, alive: np.ndarray | None) -> np.ndarray:
-        """Lower bounds (float64, SSD units) of the blocks ``alive`` (None: all)."""
+        """Lower bounds (float32, SSD units) of the blocks ``alive`` (None: all)."""
         origins = None if alive is None else self.origins[alive]
-        return self._bound_scorers[cell](query_sums[cell], origins=origins).astype(np.float64) / cell**3
+        bounds = self._bound_scorers[cell](query_sums[cell], origins=origins)
+        bounds *= np.float32(1.0 / cell**3)  # c is a power of two: exact
+        return bounds
 
     def _exact(self, alive: np.ndarray, query: np.ndarray, threshold=None) -> np.ndarray:
         return self._exact_scorer(query.reshape(-1), origins=self.origins[alive], threshold=threshold)

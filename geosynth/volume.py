@@ -465,13 +465,14 @@ def synthesize_geometry(
     Returns:
         GeometryResult.
     """
-    from geosynth.meshes import mesh_distance
+    from geosynth.meshes import check_mesh, mesh_distance
     from geosynth.metrics import bidirectional_block_distance
     from geosynth.surface import field_to_mesh
 
     timings = {}
     t0 = time.perf_counter()
     mesh = _exemplar_mesh(exemplar, seed)
+    check_mesh(mesh, "exemplar")  # empty, NaN or degenerate meshes: a clear error now
     timings["exemplar"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
@@ -557,6 +558,11 @@ def _exemplar_mesh(exemplar, seed):
 
     if isinstance(exemplar, str) and exemplar in EXEMPLARS:
         return exemplar_mesh(exemplar, seed=0 if seed is None else seed)
+    from pathlib import Path
+
+    if isinstance(exemplar, str) and not Path(exemplar).suffix and not Path(exemplar).exists():
+        raise ValueError(f"exemplar {exemplar!r} is neither a built-in exemplar ({', '.join(EXEMPLARS)}) "
+                         "nor a mesh file.")
     from geosynth.meshes import load_mesh
 
     return load_mesh(exemplar)

@@ -54,7 +54,7 @@ def test_tree_search_equals_linear(device, rng, kind, block, side):
 @pytest.mark.parametrize("block, side", CASES)
 def test_cascade_search_equals_linear(device, rng, kind, block, side):
     field = _field(kind, side, rng)
-    s = CascadeSearch(field, block, device=device)
+    s = CascadeSearch(field, block, device=device, min_work=0)
     for q in _queries(field, block, rng):
         want = reference.nearest_block_naive(field, q)
         assert s.nearest(q) == want
@@ -68,12 +68,14 @@ def test_cascade_search_equals_linear(device, rng, kind, block, side):
 def test_cascade_drops_blocks_by_bounds(device, rng):
     """The stages keep fewer and fewer blocks, and the last keeps the answer."""
     field = _field("real", 32, rng)
-    s = CascadeSearch(field, 16, device=device)
+    s = CascadeSearch(field, 16, device=device, min_work=0)
     assert s.stages == [8, 4]
     q = field[5:21, 3:19, 7:23].copy()
     assert s.nearest(q) == ((5, 3, 7), 0)
     alive = s.last_info["alive"]
     assert alive[0] == s.n_blocks and alive[0] >= alive[1] >= alive[2] >= 1
+    direct = CascadeSearch(field, 16, device=device)  # small: one launch over every block
+    assert direct.stages == [] and direct.nearest(q) == ((5, 3, 7), 0)
 
 
 def test_box_sums_match_numpy(rng):

@@ -108,6 +108,23 @@ def test_invalid_input(source, monkeypatch):
         run(source, "cpu")
 
 
+def test_geometry_refuses_bad_meshes():
+    import trimesh
+
+    from geosynth.volume import synthesize_geometry
+
+    with pytest.raises(ValueError, match="empty"):
+        synthesize_geometry(trimesh.Trimesh(), 32, progress=False)
+    box = trimesh.creation.box()
+    box.vertices[0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN|finite"):
+        synthesize_geometry(box, 32, progress=False)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        synthesize_geometry("no-such-exemplar.ply", 32, progress=False)
+    with pytest.raises(ValueError, match="neither a built-in exemplar .*chainmail"):
+        synthesize_geometry("chainmial", 32, progress=False)
+
+
 def test_linear_tree_and_cascade_searches_give_the_same_field(source):
     """All three searches are exact (the linear one with its early exit), so the fields agree."""
     linear = run(source, "opencl", search="linear")

@@ -25,11 +25,15 @@ class Backend(ABC):
         name: canonical device string ("cpu", "cuda:0", "opencl:0:0").
         kind: "cpu", "cuda" or "opencl".
         partial_threads: how many threads the reductions use (argmin, selection).
+        launch_work: sample comparisons worth one kernel launch and its host round
+            trip (measured order of magnitude); searches that can split work into
+            several small launches do so only when the work is well beyond it.
     """
 
     name: str
     kind: str
     partial_threads: int = 1024
+    launch_work: float = 1e5
 
     # -- memory -------------------------------------------------------------------
     @abstractmethod
