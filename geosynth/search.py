@@ -700,8 +700,8 @@ class CascadeSearch:
         """
         query = check_query(query, self.block)
         n_all = self.n_blocks
-        if not self.stages:
-            scores = self._exact(np.arange(n_all), query, threshold)
+        if not self.stages:  # every block, on the lattice (the fast path of the kernel)
+            scores = self._exact_scorer(query.reshape(-1), threshold=threshold)
             best = int(np.argmin(scores))
             self.last_info = {"alive": [n_all]}
             return self.origin_of(best), int(scores[best])
