@@ -195,6 +195,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {lv.block}: "
             f"{lv.matches:,} matches, mean best-match distance {lv.mean_match_distance:.1f} per sample, {lv.seconds:.1f} s "
             f"({lv.seconds / max(1, lv.matches) * 1e3:.2f} ms per match)")
+        say("    search: " + lv.search.replace("\n", "\n    "))
     say("timings:")
     for k, v in result.timings.items():
         say(f"  {k:<34} {v:8.2f} s")
@@ -210,6 +211,69 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)], labels=["exemplar", "synthesized"])
     write_png(png, picture)
     say(f"picture: {png} (exemplar left, result right)")
+    return 0
+
+
+def _cmd_texture(args: argparse.Namespace) -> int:
+    from geosynth.pointmodels import POINT_MODELS, load_point_model, point_model
+    from geosynth.pointsets import write_point_set
+    from geosynth.render import render_points, side_by_side, write_png
+    from geosynth.texture import texture_points
+    from geosynth.textures import TEXTURES, read_texture, texture_example
+
+    say = (lambda *a, **k: None) if args.quiet else print
+    inputs = list(args.inputs)
+    model_path = None if args.example else (inputs.pop(0) if inputs else None)
+    texture_path = None if args.texture_example else (inputs.pop(0) if inputs else None)
+    if inputs:
+        raise ValueError(f"unexpected argument(s): {' '.join(inputs)}; give [MODEL|--example NAME] [TEXTURE|--texture-example NAME].")
+    if model_path is None and args.example is None:
+        raise ValueError(f"give a MODEL file (PLY point set or any mesh) or --example NAME ({', '.join(POINT_MODELS)}).")
+    if texture_path is None and args.texture_example is None:
+        raise ValueError(f"give a TEXTURE image (PNG/JPEG) or --texture-example NAME ({', '.join(TEXTURES)}).")
+    out = Path(args.output)
+    if out.suffix.lower() != ".ply":
+        raise ValueError(f"-o/--output must end in .ply, got {str(out)!r}.")
+    png = Path(args.png) if args.png else out.with_suffix(".png")
+    inputs_used = [p for p in (model_path, texture_path) if p]
+    for target in (out, png):
+        for src in inputs_used:
+            if target.resolve() == Path(src).resolve():
+                raise ValueError(f"the output {str(target)!r} is an input file; choose another name (inputs are never overwritten).")
+
+    if args.example:
+        model, model_label = point_model(args.example, args.count, seed=args.seed), f"example {args.example}"
+    else:
+        model, model_label = load_point_model(model_path, count=args.count, seed=args.seed), model_path
+    if texture_path:
+        texture, tex_label = read_texture(texture_path), Path(texture_path).name
+        tileable = bool(args.tileable)
+        pattern = args.pattern_size
+    else:
+        texture = texture_example(args.texture_example, args.texture_size, seed=args.seed)
+        tex_label = f"{args.texture_example} {args.texture_size}x{args.texture_size}"
+        tileable = args.tileable is not False
+        pattern = args.pattern_size
+    say(f"geosynth texture: {model_label} ({len(model):,} points) with {tex_label} "
+        f"({texture.shape[1]} x {texture.shape[0]}, {'tileable' if tileable else 'not tileable'}), method {args.method}")
+    coloured, report = texture_points(
+        model, texture, method=args.method, k=args.k, levels=args.levels, coherent=args.coherent, m=args.m,
+        unit_scale=args.unit_scale, up=None if args.random_orientation else (0.0, 1.0, 0.0), tileable=tileable,
+        threshold=args.threshold, pattern_size=pattern, quality=not args.no_quality,
+        quality_samples=args.quality_samples, device=args.device, seed=args.seed, progress=not args.quiet,
+    )
+    write_point_set(out, coloured)
+    for line in report.lines():
+        say(line)
+    say(f"written {out}")
+    azimuths = (-60, 60, 180, -150)[:max(1, min(4, args.views))]
+    views = [render_points(coloured.positions, coloured.normals, coloured.colors, size=(360, 320), view=(az, 25))
+             for az in azimuths]
+    scale = max(1, 256 // max(texture.shape[:2]))
+    tex_big = np.repeat(np.repeat(texture, scale, 0), scale, 1)
+    labels = ["texture"] + [f"view {i + 1}" for i in range(len(views))]
+    write_png(png, side_by_side([tex_big] + views, labels=labels))
+    say(f"picture: {png} (the texture, then {len(views)} view(s))")
     return 0
 
 
@@ -239,6 +303,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--png", default=None, help="picture of exemplar and result (default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_volume)
+
+    p = sub.add_parser("texture", help="M3: colour a point model from a sample texture (parameterization, matching, hybrid)")
+    p.add_argument("inputs", nargs="*", metavar="[MODEL] [TEXTURE]",
+                   help="a point model (PLY point set, or a mesh to sample) and a texture image (PNG/JPEG)")
+    p.add_argument("--example", choices=["sphere", "torus", "blob"], help="a built-in point model instead of MODEL")
+    p.add_argument("--count", type=int, default=20_000, help="points of a built-in model or sampled from a mesh (default 20000)")
+    p.add_argument("--texture-example", choices=["bricks", "checker", "noise"], help="a built-in texture instead of TEXTURE")
+    p.add_argument("--texture-size", type=int, default=64, help="size of a built-in texture (default 64)")
+    p.add_argument("-o", "--output", required=True, help="the coloured point set, .ply")
+    p.add_argument("--method", choices=["param", "match", "hybrid"], default="hybrid", help="default hybrid")
+    p.add_argument("-k", type=int, default=25, help="neighbours per point (default 25)")
+    p.add_argument("--levels", type=int, default=1, help="multiresolution levels of matching (default 1)")
+    p.add_argument("--coherent", action="store_true", help="coherent matching (candidates near the neighbours' sources)")
+    p.add_argument("--m", type=int, default=8, help="texture supersampling of the texel search (default 8)")
+    p.add_argument("--unit-scale", type=float, default=1.0, help="one texel = this x the mean point spacing (default 1)")
+    p.add_argument("--random-orientation", action="store_true", help="random texture direction instead of the up vector (0, 1, 0)")
+    p.add_argument("--tileable", action=argparse.BooleanOptionalAction, default=None,
+                   help="the texture tiles (default: yes for built-ins, no for images)")
+    p.add_argument("--threshold", type=float, default=1.6, help="distortion threshold of the parameterization (default 1.6)")
+    p.add_argument("--pattern-size", type=float, default=None, help="texture pattern size in texels, for the hybrid's gap widening")
+    p.add_argument("--quality-samples", type=int, default=200, help="points whose neighbourhoods the quality numbers use (default 200)")
+    p.add_argument("--no-quality", action="store_true", help="skip the quality numbers")
+    p.add_argument("--device", default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--png", default=None, help="picture: the texture and the views (default: OUTPUT with .png)")
+    p.add_argument("--views", type=int, default=3, help="views of the result in the picture, 1 to 4 (default 3)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_texture)
 
     p = sub.add_parser("field", help="sample the signed distance of a mesh or an oriented point set on a grid")
     p.add_argument("input", nargs="?", help="a mesh (any format trimesh reads) or a PLY point set with normals")

@@ -114,6 +114,8 @@ class LevelReport:
         matches: blocks matched.
         mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units).
         seconds: wall time of the level.
+        search: what the search was: the tree's size (nodes per level, branching
+            factor) or the cascade's stages and mean blocks alive after each.
     """
 
     source_shape: tuple[int, int, int]
@@ -122,6 +124,7 @@ class LevelReport:
     matches: int
     mean_match_distance: float
     seconds: float
+    search: str = ""
 
 
 @dataclass
@@ -183,6 +186,7 @@ class _Matcher:
         self.offsets = block_offsets(block)
         self.search = search
         self.engine = None
+        self.alive: list[list[int]] = []  # cascade: blocks alive after each stage, per match
         if search == "tree":
             from geosynth.search import BlockSearch
 
@@ -198,6 +202,20 @@ class _Matcher:
             self.grid = to_device(source, "auto" if device is None else device)
             self.origins = candidate_origins(source.shape, self.offsets)
 
+    def summary(self) -> str:
+        """One line (tree: several) saying what the search was and did."""
+        if self.search == "tree":
+            return "tree: " + str(self.engine.stats())
+        if self.search == "cascade" and self.engine.stages and self.alive:
+            width = max(len(a) for a in self.alive)
+            mean = np.mean([a + [0] * (width - len(a)) for a in self.alive], axis=0)
+            cells = ", ".join(f"{c}^3" for c in self.engine.stages)
+            return (f"cascade over {self.engine.n_blocks:,} blocks, bound cells {cells}: mean blocks alive "
+                    + " -> ".join(f"{v:,.0f}" for v in mean))
+        if self.search == "cascade":
+            return f"cascade: every one of {self.engine.n_blocks:,} blocks scored in one launch (small search)"
+        return "linear"
+
     def nearest(self, query: np.ndarray, threshold: int | None = None,
                 order: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Exact nearest block (lowest source index on ties) and its SSD.
@@ -211,6 +229,7 @@ class _Matcher:
             return np.asarray(origin), int(ssd)
         if self.search == "cascade":
             origin, ssd = self.engine.nearest(query, threshold=threshold)
+            self.alive.append(self.engine.last_info["alive"])
             return np.asarray(origin), int(ssd)
         from geosynth.scoring import score_gather
         from geosynth.selection import argmin
@@ -398,7 +417,8 @@ def synthesize_volume(
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
-        reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds))
+        reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
+                                   "random tiling" if matcher is None else matcher.summary()))
     timings["total"] = time.perf_counter() - t_start
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
