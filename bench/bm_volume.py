@@ -2,7 +2,7 @@
 
 Matching: sources of 64^3 (block 8), 128^3 (block 16) and 256^3 (block 32) samples of a
 real distance field (random periodic spheres, like the BALLS exemplar, quantized to
-uint8 with a band of half a block). Queries are the first finest-level queries of a real 3-level
+uint8 with a band of half a block). Queries are the first finest-level queries of a real 2-level
 synthesis from that source (upsampled coarse content plus earlier matches). Per
 backend: the mean time per exact match of the cascade search (default; alone, and with
 the coherence bound synthesis gives it), the paper's best-first tree and our own linear
@@ -72,7 +72,7 @@ class _Enough(Exception):
 def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> tuple[list, list]:
     """The first ``count`` finest-level queries of a real synthesis from ``source``.
 
-    A 3-level run (blocks block/2, block/2, block) to a target of the source's size;
+    A 2-level run (block ``block`` on both) to a target of the source's size;
     the finest level's queries hold upsampled coarse content and earlier matches, as in
     any multiresolution run. Returns the queries and their coherence bounds (the SSD of
     a neighbour's match moved on, or None), which synthesis passes as thresholds.
@@ -96,8 +96,7 @@ def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> t
 
     volume._Matcher.nearest, volume._Matcher.__init__ = record, init
     try:
-        synthesize_volume(source, source.shape, levels=3, block=[block // 2, block // 2, block], device=dev,
-                          progress=False)
+        synthesize_volume(source, source.shape, levels=2, block=[block, block], device=dev, progress=False)
     except _Enough:
         pass
     finally:
@@ -228,6 +227,7 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="small cases, for a smoke run")
     parser.add_argument("--devices", default=None, help="comma-separated devices (default: every present one)")
     parser.add_argument("--budget", type=float, default=20.0, help="seconds per search and case (at least one query)")
+    parser.add_argument("--part", choices=["all", "matching", "end-to-end"], default="all")
     parser.add_argument("--out", default=None, help="also write the Markdown report here")
     args = parser.parse_args(argv)
     devices = args.devices.split(",") if args.devices else geosynth.devices()
@@ -239,8 +239,10 @@ def main(argv=None) -> int:
     else:
         cases, n_queries, exemplars, size, res, cube = [(64, 8), (128, 16), (256, 32)], 50, list(EXEMPLARS), 128, 64, True
     lines = [f"Machine: {machine()}", ""]
-    lines += matching(devices, cases, n_queries, args.budget)
-    lines += [""] + end_to_end(devices, exemplars, size, res, cube)
+    if args.part in ("all", "matching"):
+        lines += matching(devices, cases, n_queries, args.budget) + [""]
+    if args.part in ("all", "end-to-end"):
+        lines += end_to_end(devices, exemplars, size, res, cube)
     report = "\n".join(lines)
     print()
     print(report)

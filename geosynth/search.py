@@ -703,6 +703,8 @@ class CascadeSearch:
         if not self.stages:  # every block, on the lattice (the fast path of the kernel)
             scores = self._exact_scorer(query.reshape(-1), threshold=threshold)
             best = int(np.argmin(scores))
+            if threshold is not None and int(scores[best]) > threshold:  # the threshold was too low
+                return self.nearest(query)
             self.last_info = {"alive": [n_all]}
             return self.origin_of(best), int(scores[best])
         q64 = query.astype(np.int64)
@@ -730,6 +732,8 @@ class CascadeSearch:
         # minimum over the survivors is the global minimum and their order is the index order.
         scores = self._exact(alive, query, best_ssd)
         i = int(np.argmin(scores))
+        if int(scores[i]) > best_ssd:  # no block within the caller's threshold: it was too low
+            return self.nearest(query)
         return self.origin_of(int(alive[i])), int(scores[i])
 
     def _guess(self, bounds: np.ndarray, query_sums: dict, query: np.ndarray, best_ssd: int | None) -> int:

@@ -63,6 +63,7 @@ def test_cascade_search_equals_linear(device, rng, kind, block, side):
         other = int(((field[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block].astype(np.int64) - q) ** 2).sum())
         assert s.nearest(q, threshold=other) == want
         assert s.nearest(q, threshold=max(0, want[1] - 1)) == want
+        assert s.nearest(q, threshold=max(0, want[1] // 3)) == want  # far too low: searched again without it
 
 
 def test_cascade_drops_blocks_by_bounds(device, rng):
