@@ -15,6 +15,7 @@ from geosynth._backends.base import Backend
 from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
 from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
+from geosynth._backends.opencl_texel import OpenCLTexelOps
 from geosynth.backend import DeviceArray
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
@@ -36,7 +37,7 @@ def _read_source(name: str) -> str:
     return (resources.files("geosynth.kernels") / name).read_text()
 
 
-class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, Backend):
+class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexelOps, Backend):
     """PyOpenCL on ``"opencl:P:D"`` (platform P, device D)."""
 
     def __init__(self, platform_index: int, device_index: int):

@@ -13,6 +13,7 @@ from geosynth._backends.base import Backend
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
 from geosynth._backends.warp_pyramid import WarpPyramidOps
+from geosynth._backends.warp_texel import WarpTexelOps
 from geosynth.backend import DeviceArray
 from geosynth.kernels import ssd as ssd_kernels
 
@@ -24,7 +25,7 @@ _WARP_DTYPES = {
 }
 
 
-class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, Backend):
+class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

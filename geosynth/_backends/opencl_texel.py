@@ -1,0 +1,26 @@
+"""OpenCL backend methods for the batched M3 texel search (mixed into OpenCLBackend).
+
+Launches the kernels of ``kernels/texel.cl``; see kernels/texel.py for the definitions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
+
+
+class OpenCLTexelOps:
+    """Mixin: the batched texel search on an OpenCL device."""
+
+    def texel_search(self, grid, n, width, row_step, col_step, base0, qstart, offsets, values, nq,
+                     scores, best_idx, best_score) -> None:
+        """Same arguments as WarpTexelOps.texel_search."""
+        i32 = np.int32
+        k = self._kernel("texel", "texel_scores", np.uint8)
+        strips = (n // width) * (-(-width // 16))
+        k(self.queue, (-(-strips // _LOCAL) * _LOCAL, nq), (_LOCAL, 1), grid.data, i32(n), i32(width), i32(row_step),
+          i32(col_step), i32(base0), qstart.data, offsets.data, values.data, scores.data)
+        k = self._kernel("texel", "texel_argmin", np.uint8)
+        k(self.queue, (-(-nq // _LOCAL) * _LOCAL,), (_LOCAL,), scores.data, i32(n), best_idx.data, best_score.data,
+          i32(nq))

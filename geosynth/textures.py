@@ -1,0 +1,369 @@
+"""Sample textures for M3 (texturing point models): image input/output through Pillow,
+procedural built-ins, bilinear lookups, the m-times supersampled texture of the
+neighbourhood search and the texture pyramid of multiresolution matching.
+
+A texture is an (H, W, 3) uint8 RGB array. Texel (i, j) sits at the continuous texture
+coordinate (y, x) = (i, j) (texel centres at integers, texel side 1); the point
+parameterization and the tangent-plane neighbourhoods are measured in these units.
+
+Every float step here (bilinear lookups, supersampling, pyramid) runs once on the host
+in float64 and is rounded to uint8, so every device scores the same integers.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from geosynth._atomic import atomic_write
+
+__all__ = [
+    "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",
+    "read_texture", "sample_bilinear", "supersample", "texture_example", "texture_pyramid", "write_texture",
+]
+
+
+# ------------------------------------------------------------------ conversion and I/O
+
+
+def as_texture(image, name: str = "texture") -> np.ndarray:
+    """Check and convert an image array to an (H, W, 3) uint8 RGB texture.
+
+    - (H, W) grey and (H, W, 1) are converted to RGB by repeating the channel.
+    - (H, W, 4) RGBA: an alpha that is everywhere opaque (255, or 1.0 for floats) is
+      dropped; a texture with transparent texels is refused (there is no colour to
+      copy there): flatten it onto a background first.
+    - float data must lie in [0, 1] and is scaled to 0..255 (rounded); integer data
+      must lie in 0..255.
+
+    Args:
+        image: the array.
+        name: the argument's name, for error messages.
+
+    Returns:
+        (H, W, 3) uint8 C-contiguous array (a new array unless already so).
+
+    Raises:
+        TypeError: not a numeric array.
+        ValueError: wrong shape, values out of range, NaN, or transparent texels.
+    """
+    a = np.asarray(image)
+    if a.dtype.kind not in "iuf" and a.dtype != np.bool_:
+        raise TypeError(f"{name} must be a numeric image array, got dtype {a.dtype}.")
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[2] not in (1, 3, 4):
+        raise ValueError(f"{name} must have shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), got {np.shape(image)}.")
+    if a.shape[0] < 1 or a.shape[1] < 1:
+        raise ValueError(f"{name} is empty (shape {a.shape}).")
+    if a.dtype.kind == "f":
+        if not np.isfinite(a).all():
+            raise ValueError(f"{name} contains NaN or inf.")
+        if a.min() < 0 or a.max() > 1:
+            raise ValueError(f"float {name} must lie in [0, 1], got [{a.min():.3g}, {a.max():.3g}]; pass uint8 for 0..255.")
+        a = np.rint(a.astype(np.float64) * 255)
+    elif a.dtype != np.uint8:
+        if a.min() < 0 or a.max() > 255:
+            raise ValueError(f"integer {name} must lie in 0..255, got [{a.min()}, {a.max()}].")
+    a = a.astype(np.uint8)
+    if a.shape[2] == 4:
+        transparent = int(np.count_nonzero(a[:, :, 3] < 255))
+        if transparent:
+            raise ValueError(
+                f"{name} is RGBA with {transparent} transparent texel(s): a texture needs a colour everywhere; "
+                "flatten it onto a background colour first (e.g. Pillow's Image.alpha_composite), or drop the alpha."
+            )
+        a = a[:, :, :3]
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    return np.ascontiguousarray(a)
+
+
+def read_texture(path: str | os.PathLike) -> np.ndarray:
+    """Read a texture image (PNG, JPEG or anything Pillow reads) as RGB.
+
+    Grey (L, I;16, ...) and palette images are converted to RGB; an RGBA (or LA, or a
+    palette with transparency) image is accepted only if fully opaque, see
+    :func:`as_texture`.
+
+    Args:
+        path: the image file.
+
+    Returns:
+        (H, W, 3) uint8 array.
+
+    Raises:
+        ImportError: Pillow is missing.
+        FileNotFoundError: no such file.
+        ValueError: an unreadable image, or transparent texels.
+    """
+    try:
+        from PIL import Image
+    except ImportError as exc:  # pragma: no cover - pillow is a dependency
+        raise ImportError("reading texture images needs Pillow: pip install pillow") from exc
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"texture image {str(p)!r} does not exist.")
+    try:
+        with Image.open(p) as img:
+            img.load()
+            mode = img.mode
+            if mode in ("RGBA", "LA", "PA") or (mode == "P" and "transparency" in img.info):
+                rgba = np.asarray(img.convert("RGBA"))
+                return as_texture(rgba, f"texture {p.name}")
+            if mode.startswith("I;16") or mode == "I":
+                grey = np.asarray(img, dtype=np.float64)
+                top = 65535.0 if grey.max() > 255 else 255.0
+                return as_texture(np.rint(grey / top * 255).astype(np.uint8), f"texture {p.name}")
+            return as_texture(np.asarray(img.convert("RGB")), f"texture {p.name}")
+    except OSError as exc:
+        raise ValueError(f"cannot read {str(p)!r} as an image: {exc}") from exc
+
+
+def write_texture(path: str | os.PathLike, texture: np.ndarray, *, inputs=()) -> Path:
+    """Write a texture as PNG or JPEG (by suffix, through Pillow), atomically.
+
+    Args:
+        path: .png, .jpg or .jpeg file.
+        texture: (H, W, 3) uint8 (anything :func:`as_texture` accepts).
+        inputs: files never to overwrite.
+
+    Returns:
+        The path written.
+    """
+    from PIL import Image
+
+    tex = as_texture(texture)
+    out = Path(path)
+    fmt = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(out.suffix.lower())
+    if fmt is None:
+        raise ValueError(f"textures are written as .png, .jpg or .jpeg; got {str(out)!r}.")
+
+    def write(tmp: str) -> None:
+        Image.fromarray(tex, "RGB").save(tmp, format=fmt, **({"quality": 95} if fmt == "JPEG" else {}))
+
+    return atomic_write(out, write, inputs=inputs)
+
+
+# ------------------------------------------------------------------ lookups
+
+
+def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
+    """Bilinear texture lookup at continuous texel coordinates, in float64.
+
+    Args:
+        texture: (H, W, C) array.
+        y, x: arrays of the same shape S: coordinates in texels (texel centres at integers).
+        wrap: periodic texture (tileable); otherwise coordinates are clamped to the edge.
+
+    Returns:
+        S + (C,) float64 values.
+    """
+    tex = np.asarray(texture, np.float64)
+    h, w = tex.shape[:2]
+    y = np.asarray(y, np.float64)
+    x = np.asarray(x, np.float64)
+    if not wrap:
+        y = np.clip(y, 0, h - 1)
+        x = np.clip(x, 0, w - 1)
+    y0, x0 = np.floor(y), np.floor(x)
+    fy, fx = (y - y0)[..., None], (x - x0)[..., None]
+    y0, x0 = y0.astype(np.int64), x0.astype(np.int64)
+    if wrap:
+        y0, x0 = np.mod(y0, h), np.mod(x0, w)
+        y1, x1 = np.mod(y0 + 1, h), np.mod(x0 + 1, w)
+    else:
+        y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
+    bottom = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def supersample(texture: np.ndarray, m: int = 8, wrap: bool = True, scale: float = 1.0,
+                shift: float = 0.0) -> np.ndarray:
+    """The texture resampled bilinearly at 1/m texel steps (the paper's m-times supersampling).
+
+    Pixel (Y, X) of the result holds the texture at ``((Y / m - shift) / scale,
+    (X / m - shift) / scale)``; with the defaults, pixel (m i, m j) is texel (i, j)
+    exactly, so a lookup rounded to the nearest pixel needs no interpolation and the
+    candidates of the search are the pixels on the stride-m lattice.
+
+    ``scale`` and ``shift`` resample a coarser pyramid level into a finer level's
+    pixels (scale 2, shift 0.5 for a 2 x 2 box reduction).
+
+    Args:
+        texture: (H, W, C) uint8 (or float) texture.
+        m: supersampling factor, >= 1.
+        wrap: periodic texture.
+        scale, shift: see above.
+
+    Returns:
+        (m * H * scale, m * W * scale, C) uint8, rounded half to even.
+    """
+    if not isinstance(m, (int, np.integer)) or m < 1:
+        raise ValueError(f"m (the supersampling factor) must be an integer >= 1, got {m!r}.")
+    tex = np.asarray(texture)
+    h, w = tex.shape[:2]
+    hh, ww = int(round(m * h * scale)), int(round(m * w * scale))
+    yy = (np.arange(hh, dtype=np.float64) / m - shift) / scale
+    xx = (np.arange(ww, dtype=np.float64) / m - shift) / scale
+    out = sample_bilinear(tex, yy[:, None] * np.ones((1, ww)), np.ones((hh, 1)) * xx[None, :], wrap)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def texture_pyramid(texture: np.ndarray, levels: int) -> list[np.ndarray]:
+    """A texture pyramid by 2 x 2 box averaging (rounded to uint8): level 0 is the texture.
+
+    An odd last row or column is dropped before reducing.
+
+    Args:
+        texture: (H, W, 3) uint8.
+        levels: number of levels, >= 1; the coarsest must keep at least 2 x 2 texels.
+
+    Returns:
+        ``levels`` arrays, level l of size (H >> l, W >> l, 3).
+
+    Raises:
+        ValueError: levels < 1, or a texture too small for that many levels.
+    """
+    tex = as_texture(texture)
+    if not isinstance(levels, (int, np.integer)) or levels < 1:
+        raise ValueError(f"levels must be an integer >= 1, got {levels!r}.")
+    h, w = tex.shape[:2]
+    if min(h, w) >> (levels - 1) < 2:
+        raise ValueError(f"a {w} x {h} texture is too small for {levels} pyramid levels (the coarsest needs 2 x 2 texels).")
+    out = [tex]
+    for _ in range(levels - 1):
+        t = out[-1].astype(np.float64)
+        hh, ww = t.shape[0] // 2 * 2, t.shape[1] // 2 * 2
+        t = t[:hh, :ww]
+        box = (t[0::2, 0::2] + t[1::2, 0::2] + t[0::2, 1::2] + t[1::2, 1::2]) / 4
+        out.append(np.clip(np.rint(box), 0, 255).astype(np.uint8))
+    return out
+
+
+# ------------------------------------------------------------------ procedural textures
+
+
+def bricks_texture(size: int = 64, seed: int = 0, brick: tuple[int, int] = (8, 16), mortar: int = 2) -> np.ndarray:
+    """A tileable brick wall (a regular texture): staggered rows of bricks whose colours
+    vary a little, light mortar joints, slight per-texel grain.
+
+    Args:
+        size: texels per side; a multiple of brick height, of brick width, and of 2 x
+            (half a brick) so that the pattern tiles.
+        seed: seed of the colour variation.
+        brick: (height, width) of a brick including its mortar, in texels.
+        mortar: mortar width in texels, in [1, min(brick) - 2].
+
+    Returns:
+        (size, size, 3) uint8.
+    """
+    bh, bw = brick
+    if size < 4 or size % bh or size % bw or bw % 2 or not 1 <= mortar <= min(bh, bw) - 2:
+        raise ValueError(f"size {size} must be a multiple of the brick size {brick} (even width) and "
+                         f"mortar {mortar} in [1, {min(bh, bw) - 2}].")
+    rng = np.random.default_rng(seed)
+    rows, cols = size // bh, size // bw
+    base = np.array([160.0, 62.0, 42.0])
+    tint = base[None, None, :] * rng.uniform(0.8, 1.15, (rows, cols, 1)) + rng.normal(0, 6, (rows, cols, 3))
+    y, x = np.mgrid[0:size, 0:size]
+    row = y // bh
+    xs = (x + (row % 2) * (bw // 2)) % size  # odd rows shifted by half a brick
+    col = xs // bw
+    img = tint[row, col] + rng.normal(0, 5, (size, size, 1))
+    joint = (y % bh < mortar) | (xs % bw < mortar)
+    img[joint] = np.array([205.0, 200.0, 190.0]) + rng.normal(0, 4, (int(joint.sum()), 1))
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def checker_texture(size: int = 64, seed: int = 0, cells: int = 6) -> np.ndarray:
+    """A tileable checker of varying cells (a regular texture): cell edges at random
+    positions along each axis (an even count, so colours alternate across the seam),
+    two colours.
+
+    Args:
+        size: texels per side, >= 4 * cells.
+        seed: seed of the cell sizes.
+        cells: cells per axis, even, >= 2.
+
+    Returns:
+        (size, size, 3) uint8.
+    """
+    if cells < 2 or cells % 2 or size < 4 * cells:
+        raise ValueError(f"cells must be even and >= 2 with size >= 4 * cells, got cells={cells}, size={size}.")
+    rng = np.random.default_rng(seed)
+
+    def edges():
+        widths = rng.uniform(0.6, 1.4, cells)
+        cuts = np.rint(np.cumsum(widths) / widths.sum() * size).astype(np.int64)
+        return np.searchsorted(cuts, np.arange(size), side="right")  # cell index per texel
+
+    cy, cx = edges(), edges()
+    parity = (cy[:, None] + cx[None, :]) % 2
+    dark, light = np.array([40, 52, 96]), np.array([236, 214, 150])
+    return np.where(parity[:, :, None] == 1, dark, light).astype(np.uint8)
+
+
+def noise_texture(size: int = 64, seed: int = 0, wavelength: float = 8.0) -> np.ndarray:
+    """Tileable filtered noise (a stochastic texture): white noise low-pass filtered in
+    the Fourier domain (a Gaussian of the given wavelength, so it tiles) for a scalar
+    field and a finer second field, mapped to a moss-and-stone colour ramp.
+
+    Args:
+        size: texels per side, >= 8.
+        seed: seed of the noise.
+        wavelength: feature size in texels, > 1.
+
+    Returns:
+        (size, size, 3) uint8.
+    """
+    if size < 8 or not wavelength > 1:
+        raise ValueError(f"size must be >= 8 and wavelength > 1, got size={size}, wavelength={wavelength}.")
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(size)
+    rad2 = f[:, None] ** 2 + f[None, :] ** 2
+
+    def field(wl):
+        spectrum = np.fft.fft2(rng.standard_normal((size, size))) * np.exp(-rad2 * (wl / 2.0) ** 2 * 2 * np.pi**2 / 2)
+        v = np.real(np.fft.ifft2(spectrum))
+        return (v - v.mean()) / (v.std() + 1e-12)
+
+    a, b = field(wavelength), field(wavelength / 3)
+    t = np.clip(0.5 + 0.22 * a + 0.08 * b, 0, 1)[:, :, None]
+    low, high = np.array([46.0, 70.0, 30.0]), np.array([196.0, 186.0, 150.0])
+    return np.clip(np.rint(low + (high - low) * t), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class TextureExample:
+    """A built-in texture: ``build(size, seed)``, whether it tiles, and its kind."""
+
+    name: str
+    build: Callable[..., np.ndarray]
+    summary: str
+    regular: bool
+    tileable: bool = True
+    pattern_size: int = 8  # the texture's pattern size in texels at size 64 (hybrid gap widening)
+
+
+TEXTURES: dict[str, TextureExample] = {
+    "bricks": TextureExample("bricks", bricks_texture, "staggered bricks (regular)", True, pattern_size=16),
+    "checker": TextureExample("checker", checker_texture, "checker of varying cells (regular)", True, pattern_size=11),
+    "noise": TextureExample("noise", noise_texture, "filtered noise, moss and stone (stochastic)", False, pattern_size=8),
+}
+
+
+def texture_example(name: str, size: int = 64, seed: int = 0) -> np.ndarray:
+    """A built-in procedural texture by name (bricks, checker, noise), (size, size, 3) uint8.
+
+    Raises:
+        ValueError: an unknown name (the message lists the built-in ones).
+    """
+    if name not in TEXTURES:
+        raise ValueError(f"unknown texture example {name!r}; the built-in textures are: {', '.join(TEXTURES)}.")
+    return TEXTURES[name].build(size=size, seed=seed)
