@@ -15,7 +15,7 @@ End to end: ``synthesize_geometry`` with the defaults (64 samples across the exe
 64^3 -> 128^3 cube of spheres, with the time of each stage.
 
 Usage: python bench/bm_volume.py [--quick] [--devices cpu,opencl:0:0] [--out FILE]
-       [--budget SECONDS]
+       [--budget SECONDS] [--part matching|end-to-end] [--cases 64,128,256]
 """
 
 from __future__ import annotations
@@ -228,6 +228,8 @@ def main(argv=None) -> int:
     parser.add_argument("--devices", default=None, help="comma-separated devices (default: every present one)")
     parser.add_argument("--budget", type=float, default=20.0, help="seconds per search and case (at least one query)")
     parser.add_argument("--part", choices=["all", "matching", "end-to-end"], default="all")
+    parser.add_argument("--cases", default=None,
+                        help="comma-separated matching source sides, e.g. 64,128 (default: 64,128,256)")
     parser.add_argument("--out", default=None, help="also write the Markdown report here")
     args = parser.parse_args(argv)
     devices = args.devices.split(",") if args.devices else geosynth.devices()
@@ -238,6 +240,11 @@ def main(argv=None) -> int:
         cases, n_queries, exemplars, size, res, cube = [(32, 8)], 4, ["terrain"], 64, 32, False
     else:
         cases, n_queries, exemplars, size, res, cube = [(64, 8), (128, 16), (256, 32)], 50, list(EXEMPLARS), 128, 64, True
+    if args.cases:
+        sides = {int(side) for side in args.cases.split(",")}
+        cases = [case for case in cases if case[0] in sides]
+        if not cases:
+            parser.error(f"--cases {args.cases}: choose among 32 (with --quick), 64, 128, 256")
     lines = [f"Machine: {machine()}", ""]
     if args.part in ("all", "matching"):
         lines += matching(devices, cases, n_queries, args.budget) + [""]
