@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import functools
+
 import numpy as np
 
 from geosynth import _checks
@@ -207,7 +209,11 @@ def score_gather(
         origins: optional (N, nd) integer candidate origins. Default: every origin
             whose window lies inside the grid (every origin when ``wrap``), on the
             lattice with ``stride``, in raster order (see :func:`candidate_origins`).
-        stride: step between lattice origins; one int or one per axis.
+        stride: step between lattice origins; one int or one per axis. Lattices with
+            a stride above 1 or several channels are scored on a polyphase copy of the
+            grid (one plane per residue modulo the stride, channels interleaved), so
+            that neighbouring candidates read neighbouring memory; for a DeviceArray
+            grid the copy is made once per layout and cached with it.
         threshold: optional early exit for nearest-window searches: a candidate whose
             partial sum passes ``threshold`` may stop there, so every score above it
             means only "above the threshold"; scores at or below it are exact. With a
@@ -280,12 +286,9 @@ class GatherScorer:
         self._wrap = bool(wrap)
         pad_lo = np.maximum(0, -off.min(axis=0)) if wrap else np.zeros(nd, np.int64)
         pad_hi = np.maximum(0, off.max(axis=0)) if wrap else np.zeros(nd, np.int64)
+        self._pad = None
         if wrap:
-            pad = tuple((int(a), int(b)) for a, b in zip(pad_lo, pad_hi)) + (((0, 0),) if grid.ndim == nd + 1 else ())
-            if isinstance(grid, DeviceArray):  # padded once per padding, then cached with the grid
-                grid = grid.derived(("wrap", pad), lambda host: np.pad(host, pad, mode="wrap"))
-            else:
-                grid = np.pad(grid, pad, mode="wrap")
+            self._pad = tuple((int(a), int(b)) for a, b in zip(pad_lo, pad_hi)) + (((0, 0),) if grid.ndim == nd + 1 else ())
         padded = self._dims + pad_lo + pad_hi
         if int(np.prod(padded)) * channels > _INT32_LIMIT:
             raise ValueError(f"grid of {int(np.prod(padded)) * channels} elements exceeds 2^31; split it.")
@@ -311,15 +314,22 @@ class GatherScorer:
         self._lattice_xyz = (int(lattice3[2]), int(lattice3[1]), int(lattice3[0]))
 
         self.backend = _checks.resolve_backend(device, grid)
-        self._grid = _upload(self.backend, grid)
-        self._flat_off = self.backend.to_device(flat_off.reshape(-1).astype(np.int32))
+        self._source = grid  # padded (wrap) and uploaded on the first call that reads it
+        self._grid = None
+        self._flat_off_host = flat_off.reshape(-1).astype(np.int32)
+        self._flat_off = None
         self._weights = None if w is None else self.backend.to_device(np.repeat(w, channels))
+        # Strided or multi-channel lattices read a polyphase copy (see _polyphase_layout).
+        self._poly = None
+        self._poly_args = None
+        if self._lattice_error is None and (channels > 1 or (step > 1).any()):
+            self._poly_args = (off, step, -off.min(axis=0) if not wrap else np.zeros(nd, np.int64))
 
     def __call__(self, values: np.ndarray, *, origins: np.ndarray | None = None, threshold: float | None = None,
                  keep_on_device: bool = False) -> np.ndarray | DeviceArray:
         """Scores of one query (see :func:`score_gather` for the arguments and result)."""
         k, nd, channels = self._k, self._nd, self._channels
-        vals = _checks.same_kind("values", values, "grid", self._grid)
+        vals = _checks.same_kind("values", values, "grid", self._source)
         if isinstance(vals, DeviceArray):
             raise TypeError("values must be a host array (it is small and uploaded per call).")
         if vals.shape not in ((k, channels),) + (((k,),) if channels == 1 else ()):
@@ -369,10 +379,95 @@ class GatherScorer:
 
         backend = self.backend
         out = backend.empty((n,), _score_dtype(self._grid_dtype))
+        pick = 1
+        if bases is None and self._poly_args is not None:
+            grid, flat_off, lattice, steps, base0, pick = self._polyphase()
+        else:
+            grid, flat_off = self._regular()
         backend.ssd_gather(
-            self._grid, None if bases is None else backend.to_device(bases),
-            lattice, steps, base0, self._flat_off,
+            grid, None if bases is None else backend.to_device(bases),
+            lattice, steps, base0, flat_off,
             backend.to_device(np.ascontiguousarray(vals.reshape(-1))), self._weights,
-            k * channels, None if thr is None else backend.to_device(thr), out,
+            k * channels, None if thr is None else backend.to_device(thr), out, pick,
         )
         return out if keep_on_device else out.numpy()
+
+    def _regular(self):
+        """The grid (periodically padded for wrap) and flat offsets on the device, made once."""
+        if self._grid is None:
+            grid, pad = self._source, self._pad
+            if pad is not None:
+                if isinstance(grid, DeviceArray):  # padded once per padding, then cached with the grid
+                    grid = grid.derived(("wrap", pad), lambda host: np.pad(host, pad, mode="wrap"))
+                else:
+                    grid = np.pad(grid, pad, mode="wrap")
+            self._grid = _upload(self.backend, grid)
+            self._flat_off = self.backend.to_device(self._flat_off_host)
+        return self._grid, self._flat_off
+
+    def _polyphase(self):
+        """The lattice problem on the polyphase copy of the grid, made once and cached."""
+        if self._poly is None:
+            source = self._source
+            off, step, lo = self._poly_args
+            key = ("polyphase", tuple(int(v) for v in step), tuple(int(v) for v in lo), self._wrap,
+                   tuple(self.lattice), tuple(int(v) for v in off.min(0)), tuple(int(v) for v in off.max(0)))
+            make = functools.partial(_polyphase_layout, nd=self._nd, channels=self._channels, step=step, lo=lo,
+                                     lattice=self.lattice, omin=off.min(0), omax=off.max(0), wrap=self._wrap)
+            planes, strides = make(None)[1]
+            size = int(np.prod(step)) * planes
+            if size > _INT32_LIMIT:
+                raise ValueError(f"the strided lattice's copy of the grid ({size} elements) exceeds 2^31; split the grid.")
+            if isinstance(source, DeviceArray):  # made once per layout, then cached with the grid
+                grid = source.derived(key, lambda host: make(host)[0])
+            else:
+                grid = self.backend.to_device(make(source)[0])
+            c = self._channels
+            q = np.floor_divide(off, step) - np.floor_divide(off.min(0), step)  # (K, nd) index within a plane
+            r = np.mod(off, step)  # (K, nd) plane
+            plane = np.ravel_multi_index(tuple(r.T), tuple(int(v) for v in step))
+            flat = plane * planes + q @ strides
+            flat_off = (flat[:, None] + np.arange(c)[None, :]).reshape(-1).astype(np.int32)
+            full = np.concatenate([np.ones(3 - self._nd, np.int64), np.asarray(self.lattice, np.int64)])
+            st = np.concatenate([np.zeros(3 - self._nd, np.int64), strides])
+            lattice = (int(full[2]) * c, int(full[1]), int(full[0]))
+            steps = (1, int(st[1]), int(st[0]))
+            self._poly = (grid, self.backend.to_device(flat_off), lattice, steps, 0, c)
+        return self._poly
+
+
+def _polyphase_layout(host, *, nd, channels, step, lo, lattice, omin, omax, wrap):
+    """Reorder a grid so that a strided lattice reads contiguous rows.
+
+    Plane r (one per residue of the position modulo the stride, per axis) holds
+    ``grid[lo + step * (i + floor(omin / step)) + r]`` at index i (wrapped for periodic
+    grids, clamped where no real candidate reads), channels last. A candidate c with
+    offset d then reads plane ``d mod step`` at ``c + floor(d / step) - floor(omin /
+    step)``: neighbouring candidates read neighbouring elements, for every offset.
+
+    Args:
+        host: (spatial..., [C]) grid, or None to get only the geometry.
+        channels: C (1 for a grid without a channel axis).
+
+    Returns:
+        (array of shape (step..., n..., C) or None, (elements per plane, (nd,) flat
+        element strides of the index within a plane)).
+    """
+    step = np.asarray(step, np.int64)
+    q_lo, q_hi = np.floor_divide(omin, step), np.floor_divide(omax, step)
+    n = np.asarray(lattice, np.int64) + q_hi - q_lo
+    strides = np.ones(nd, np.int64) * channels
+    for a in range(nd - 2, -1, -1):
+        strides[a] = strides[a + 1] * n[a + 1]
+    geometry = (int(np.prod(n)) * channels, strides)
+    if host is None:
+        return None, geometry
+    dims = host.shape[:nd]
+    index = []
+    for a in range(nd):
+        pos = lo[a] + step[a] * (np.arange(n[a])[None, :] + q_lo[a]) + np.arange(step[a])[:, None]  # (s, n)
+        index.append(np.mod(pos, dims[a]) if wrap else np.clip(pos, 0, dims[a] - 1))
+    picked = host[np.ix_(*[p.reshape(-1) for p in index])]  # (s0*n0, s1*n1, ..., [C])
+    picked = picked.reshape(sum(([int(step[a]), int(n[a])] for a in range(nd)), []) + [channels])
+    order = [2 * a for a in range(nd)] + [2 * a + 1 for a in range(nd)] + [2 * nd]
+    return np.ascontiguousarray(picked.transpose(order)), geometry

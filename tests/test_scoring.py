@@ -164,6 +164,28 @@ def test_gather_wrap(device, rng, dtype):
     assert len(gd._derived) == 1
 
 
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("wrap", [False, True])
+def test_gather_strided_multichannel_3d(device, rng, dtype, wrap):
+    """Strided, multi-channel 3D lattices (scored on the polyphase copy) equal the oracle,
+    with a threshold, and the same scorer still serves explicit origins from the plain grid."""
+    grid = random_data(rng, (9, 11, 13, 2), dtype)
+    off = rng.integers(-3, 4, size=(7, 3)) if wrap else rng.integers(0, 4, size=(7, 3))
+    vals = random_data(rng, (7, 2), dtype)
+    stride = (2, 3, 4)
+    want = reference.score_gather_naive(grid, off, vals, stride=stride, wrap=wrap)
+    gd = geosynth.to_device(grid, device)
+    scorer = geosynth.scoring.GatherScorer(gd, off, stride=stride, wrap=wrap)
+    assert_scores(scorer(vals), want, dtype)
+    thr = float(np.sort(want)[want.size // 3])
+    got = scorer(vals, threshold=thr)
+    kept = want <= thr
+    assert_scores(got[kept], want[kept], dtype)
+    assert (got[~kept] > thr).all()
+    origins = geosynth.scoring.candidate_origins(grid.shape, off, stride, wrap)[::-1]
+    assert_scores(scorer(vals, origins=origins), want[::-1], dtype)
+
+
 def test_gather_supersampled_texture_neighbourhood(device, rng):
     """M3's eq. 5 form: irregular offsets on an x8 supersampled texture, one candidate per texel."""
     texture = rng.random((16, 16, 3)).astype(np.float32)

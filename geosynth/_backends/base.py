@@ -9,6 +9,7 @@ selection by count + prefix + compact) are written once, here.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -48,6 +49,10 @@ class Backend(ABC):
     def to_host(self, array: DeviceArray) -> np.ndarray:
         """Copy a device array to the host (a synchronization point)."""
 
+    def to_host_all(self, arrays: Sequence[DeviceArray]) -> list[np.ndarray]:
+        """Copy several device arrays to the host with one synchronization (where the backend can)."""
+        return [self.to_host(a) for a in arrays]
+
     @abstractmethod
     def synchronize(self) -> None:
         """Wait until every launched kernel has finished."""
@@ -58,13 +63,18 @@ class Backend(ABC):
         """out (b*n,) <- weighted SSD of every query row against every candidate row."""
 
     @abstractmethod
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
+                   pick: int = 1) -> None:
         """out <- SSD of the query entries at base(c) + offsets for every candidate c.
 
         ``bases`` is a DeviceArray of explicit base indices or None for the lattice
         (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.
         ``threshold``: None, or a (1,) DeviceArray of the score dtype above which a
         candidate may stop early and report any value above it.
+        ``pick`` (lattice only, nx a multiple of it): only lattice x positions that are
+        multiples of ``pick`` are candidates, so out holds (nz, ny, nx // pick) scores.
+        Backends may compute the others too (a vector kernel over channel-interleaved
+        rows does), but they never reach out.
         """
 
     @abstractmethod
@@ -88,7 +98,7 @@ class Backend(ABC):
         part_idx = self.empty((g,), np.int32)
         self.argmin_partials(scores, n, part_val, part_idx)
         # sync: the orchestrator needs the index now; g values come back, not n.
-        vals, idx = self.to_host(part_val), self.to_host(part_idx)
+        vals, idx = self.to_host_all((part_val, part_idx))
         valid = idx >= 0
         vals, idx = vals[valid], idx[valid]
         best = vals.min()

@@ -100,6 +100,14 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             cl.enqueue_copy(self.queue, host, array.data, is_blocking=True)
         return host
 
+    def to_host_all(self, arrays) -> list[np.ndarray]:
+        hosts = [np.empty(a.shape, a.dtype) for a in arrays]
+        for host, array in zip(hosts, arrays):
+            if host.size:
+                cl.enqueue_copy(self.queue, host, array.data, is_blocking=False)
+        self.queue.finish()  # sync: one wait for every copy (the queue is in order)
+        return hosts
+
     def synchronize(self) -> None:
         self.queue.finish()
 
@@ -123,12 +131,17 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             np.int32(n), np.int32(d), np.int32(b), out.data,
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
+                   pick: int = 1) -> None:
         nx, ny, nz = lattice
-        if bases is None and steps[0] == 1:
+        x16 = bases is None and steps[0] == 1
+        if pick > 1 and not x16:  # one work-item per real candidate: every pick-th lattice x
+            nx, steps, pick = nx // pick, (steps[0] * pick, steps[1], steps[2]), 1
+        if x16:
             name, gsize, lsize = "ssd_gather_x16", (-(-nx // 64), _round_up(ny, 7), nz), (1, 7, 1)
         else:
             name, gsize, lsize = "ssd_gather", (_round_up(nx, 16), ny, nz), (16, 1, 1)
+        extra = (np.int32(pick),) if x16 else ()
         kernel = self._kernel("ssd", name, grid.dtype)
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
@@ -139,7 +152,7 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             *(np.int32(s) for s in steps), np.int32(base0),
             offsets.data, values.data, w, np.int32(weights is not None), np.int32(kc),
             threshold.data if threshold is not None else self._dummy(out.dtype), np.int32(threshold is not None),
-            out.data,
+            *extra, out.data,
         )
 
     def _launch_1d(self, name: str, dtype, g: int, *args) -> None:

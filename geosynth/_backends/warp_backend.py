@@ -74,8 +74,11 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Back
             [candidates.data, queries.data, w, int(weights is not None), n, d, b, out.data],
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
+                   pick: int = 1) -> None:
         nx, ny, nz = lattice
+        if pick > 1:  # one thread per real candidate: every pick-th lattice x
+            nx, steps = nx // pick, (steps[0] * pick, steps[1], steps[2])
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
         self._launch(
