@@ -211,7 +211,7 @@ def score_gather(
             lattice with ``stride``, in raster order (see :func:`candidate_origins`).
         stride: step between lattice origins; one int or one per axis. Lattices with
             a stride above 1 or several channels are scored on a polyphase copy of the
-            grid (one plane per residue modulo the stride, channels interleaved), so
+            grid (one plane per channel and residue modulo the stride), so
             that neighbouring candidates read neighbouring memory; for a DeviceArray
             grid the copy is made once per layout and cached with it.
         threshold: optional early exit for nearest-window searches: a candidate whose
@@ -379,16 +379,15 @@ class GatherScorer:
 
         backend = self.backend
         out = backend.empty((n,), _score_dtype(self._grid_dtype))
-        pick = 1
         if bases is None and self._poly_args is not None:
-            grid, flat_off, lattice, steps, base0, pick = self._polyphase()
+            grid, flat_off, lattice, steps, base0 = self._polyphase()
         else:
             grid, flat_off = self._regular()
         backend.ssd_gather(
             grid, None if bases is None else backend.to_device(bases),
             lattice, steps, base0, flat_off,
             backend.to_device(np.ascontiguousarray(vals.reshape(-1))), self._weights,
-            k * channels, None if thr is None else backend.to_device(thr), out, pick,
+            k * channels, None if thr is None else backend.to_device(thr), out,
         )
         return out if keep_on_device else out.numpy()
 
@@ -415,51 +414,54 @@ class GatherScorer:
             make = functools.partial(_polyphase_layout, nd=self._nd, channels=self._channels, step=step, lo=lo,
                                      lattice=self.lattice, omin=off.min(0), omax=off.max(0), wrap=self._wrap)
             planes, strides = make(None)[1]
-            size = int(np.prod(step)) * planes
+            size = int(np.prod(step)) * planes * self._channels
             if size > _INT32_LIMIT:
                 raise ValueError(f"the strided lattice's copy of the grid ({size} elements) exceeds 2^31; split the grid.")
             if isinstance(source, DeviceArray):  # made once per layout, then cached with the grid
                 grid = source.derived(key, lambda host: make(host)[0])
             else:
                 grid = self.backend.to_device(make(source)[0])
-            c = self._channels
             q = np.floor_divide(off, step) - np.floor_divide(off.min(0), step)  # (K, nd) index within a plane
-            r = np.mod(off, step)  # (K, nd) plane
+            r = np.mod(off, step)  # (K, nd) plane of the residue
             plane = np.ravel_multi_index(tuple(r.T), tuple(int(v) for v in step))
             flat = plane * planes + q @ strides
-            flat_off = (flat[:, None] + np.arange(c)[None, :]).reshape(-1).astype(np.int32)
+            channel_plane = int(np.prod(step)) * planes
+            flat_off = (flat[:, None] + channel_plane * np.arange(self._channels)[None, :]).reshape(-1).astype(np.int32)
             full = np.concatenate([np.ones(3 - self._nd, np.int64), np.asarray(self.lattice, np.int64)])
             st = np.concatenate([np.zeros(3 - self._nd, np.int64), strides])
-            lattice = (int(full[2]) * c, int(full[1]), int(full[0]))
+            lattice = (int(full[2]), int(full[1]), int(full[0]))
             steps = (1, int(st[1]), int(st[0]))
-            self._poly = (grid, self.backend.to_device(flat_off), lattice, steps, 0, c)
+            self._poly = (grid, self.backend.to_device(flat_off), lattice, steps, 0)
         return self._poly
 
 
 def _polyphase_layout(host, *, nd, channels, step, lo, lattice, omin, omax, wrap):
     """Reorder a grid so that a strided lattice reads contiguous rows.
 
-    Plane r (one per residue of the position modulo the stride, per axis) holds
-    ``grid[lo + step * (i + floor(omin / step)) + r]`` at index i (wrapped for periodic
-    grids, clamped where no real candidate reads), channels last. A candidate c with
+    For each channel and each residue r of the position modulo the stride (per axis),
+    a plane holds ``grid[lo + step * (i + floor(omin / step)) + r]`` at index i
+    (wrapped for periodic grids, clamped where no candidate reads). A candidate c with
     offset d then reads plane ``d mod step`` at ``c + floor(d / step) - floor(omin /
-    step)``: neighbouring candidates read neighbouring elements, for every offset.
+    step)``: neighbouring candidates read neighbouring elements, for every offset and
+    channel, which the 16-wide gather kernel loads as vectors.
 
     Args:
         host: (spatial..., [C]) grid, or None to get only the geometry.
         channels: C (1 for a grid without a channel axis).
+        step, lo, lattice, omin, omax: (nd,) stride, first origin, lattice shape and
+            the offsets' per-axis minimum and maximum.
 
     Returns:
-        (array of shape (step..., n..., C) or None, (elements per plane, (nd,) flat
-        element strides of the index within a plane)).
+        (array of shape (C, step..., n...) or None, (elements per plane, (nd,) element
+        strides of the index within a plane)).
     """
     step = np.asarray(step, np.int64)
     q_lo, q_hi = np.floor_divide(omin, step), np.floor_divide(omax, step)
     n = np.asarray(lattice, np.int64) + q_hi - q_lo
-    strides = np.ones(nd, np.int64) * channels
+    strides = np.ones(nd, np.int64)
     for a in range(nd - 2, -1, -1):
         strides[a] = strides[a + 1] * n[a + 1]
-    geometry = (int(np.prod(n)) * channels, strides)
+    geometry = (int(np.prod(n)), strides)
     if host is None:
         return None, geometry
     dims = host.shape[:nd]
@@ -469,5 +471,5 @@ def _polyphase_layout(host, *, nd, channels, step, lo, lattice, omin, omax, wrap
         index.append(np.mod(pos, dims[a]) if wrap else np.clip(pos, 0, dims[a] - 1))
     picked = host[np.ix_(*[p.reshape(-1) for p in index])]  # (s0*n0, s1*n1, ..., [C])
     picked = picked.reshape(sum(([int(step[a]), int(n[a])] for a in range(nd)), []) + [channels])
-    order = [2 * a for a in range(nd)] + [2 * a + 1 for a in range(nd)] + [2 * nd]
+    order = [2 * nd] + [2 * a for a in range(nd)] + [2 * a + 1 for a in range(nd)]
     return np.ascontiguousarray(picked.transpose(order)), geometry

@@ -173,10 +173,6 @@ __kernel void ssd_gather(__global const T* grid, __global const int* bases, cons
 // (overlapping its neighbour; it stores only its own lanes), so with nx >= 16 nothing
 // is read past the last window; with nx < 16 the grid needs 15 spare elements (the
 // backend allocates 64 bytes more than every buffer).
-// pick > 1 (channel-interleaved lattices, see GatherScorer's polyphase layout): only
-// candidates x % pick == 0 are real; candidate x is stored at out[row * nx/pick + x/pick]
-// and the others are computed but dropped (they read in-bounds grid values or the spare
-// elements, and never stop the early exit of a real one).
 // Range: (ceil(nx/64), round_up(ny, 7), nz), local (1, 7, 1).
 #ifndef GATHER_NV
 #define GATHER_NV 4  // vectors of 16 candidates per work-item (build option)
@@ -186,8 +182,7 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
                              const int step_x, const int step_y, const int step_z, const int base0,
                              __global const int* offsets, __global const T* values,
                              __global const W* weights, const int use_weights, const int kc,
-                             __global const S* threshold, const int use_threshold, const int pick,
-                             __global S* out)
+                             __global const S* threshold, const int use_threshold, __global S* out)
 {
     const int x0 = get_global_id(0) * (16 * GATHER_NV), y = get_global_id(1), z = get_global_id(2);
     if (x0 >= nx || y >= ny || z >= nz) return;
@@ -226,18 +221,6 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
             for (int v = 0; v < GATHER_NV; ++v) alive |= acc[v] <= thr;
             if (!any16(alive)) break;
         }
-    }
-    if (pick > 1) {
-        __global S* prow = out + (z * ny + y) * (nx / pick);
-        for (int v = 0; v < GATHER_NV; ++v) {
-            const int a = x0 + 16 * v;
-            if (a >= nx) break;
-            S lanes[16];
-            *(Sx16u*)lanes = acc[v];
-            const int hi = a + 16 < nx ? a + 16 : nx;
-            for (int c = a + (pick - a % pick) % pick; c < hi; c += pick) prow[c / pick] = lanes[c - xs[v]];
-        }
-        return;
     }
     __global S* orow = out + (z * ny + y) * nx;
 #pragma unroll

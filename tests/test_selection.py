@@ -19,7 +19,10 @@ def scores_with_ties(rng, n, dtype):
 
 @pytest.mark.parametrize("dtype", [np.float32, np.uint32])
 @pytest.mark.parametrize("n", [1, 7, 1000, 100_003])
-def test_argmin_lowest_index_on_ties(device, rng, dtype, n):
+@pytest.mark.parametrize("reduce_on", ["default", "kernel"])
+def test_argmin_lowest_index_on_ties(device, rng, dtype, n, reduce_on, monkeypatch):
+    if reduce_on == "kernel":  # small inputs too through the partial-minimum kernel
+        monkeypatch.setattr(geosynth.get_backend(device), "host_reduce_below", 0)
     s = scores_with_ties(rng, n, dtype)
     s[n // 2] = 0
     s[n - 1] = 0

@@ -26,6 +26,8 @@ class Backend(ABC):
         name: canonical device string ("cpu", "cuda:0", "opencl:0:0").
         kind: "cpu", "cuda" or "opencl".
         partial_threads: how many threads the reductions use (argmin, selection).
+        host_reduce_below: argmin reads fewer scores than this back and reduces them
+            on the host (where memory is shared, one copy is cheaper than a launch).
         launch_work: sample comparisons worth one kernel launch and its host round
             trip (measured order of magnitude); searches that can split work into
             several small launches do so only when the work is well beyond it.
@@ -34,6 +36,7 @@ class Backend(ABC):
     name: str
     kind: str
     partial_threads: int = 1024
+    host_reduce_below: int = 0
     launch_work: float = 1e5
 
     # -- memory -------------------------------------------------------------------
@@ -63,18 +66,13 @@ class Backend(ABC):
         """out (b*n,) <- weighted SSD of every query row against every candidate row."""
 
     @abstractmethod
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
-                   pick: int = 1) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
         """out <- SSD of the query entries at base(c) + offsets for every candidate c.
 
         ``bases`` is a DeviceArray of explicit base indices or None for the lattice
         (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.
         ``threshold``: None, or a (1,) DeviceArray of the score dtype above which a
         candidate may stop early and report any value above it.
-        ``pick`` (lattice only, nx a multiple of it): only lattice x positions that are
-        multiples of ``pick`` are candidates, so out holds (nz, ny, nx // pick) scores.
-        Backends may compute the others too (a vector kernel over channel-interleaved
-        rows does), but they never reach out.
         """
 
     @abstractmethod
@@ -93,6 +91,10 @@ class Backend(ABC):
     def argmin(self, scores: DeviceArray) -> tuple[int, np.generic]:
         """Index of the smallest score (the lowest index on ties) and that score."""
         n = scores.size
+        if n <= self.host_reduce_below:  # one read beats a kernel plus a read
+            host = self.to_host(scores).reshape(-1)
+            i = int(np.argmin(host))  # the first minimum: the lowest index on ties
+            return i, host[i]
         g = max(1, min(n, self.partial_threads))
         part_val = self.empty((g,), scores.dtype)
         part_idx = self.empty((g,), np.int32)

@@ -49,6 +49,7 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
         self.queue = cl.CommandQueue(self.context)
         self.is_cpu = bool(self.cl_device.type & cl.device_type.CPU)
         self.partial_threads = 4096 if self.is_cpu else 65536
+        self.host_reduce_below = 1 << 16 if self.is_cpu else 0
         # PoCL on a CPU: ~0.3 ms per launch and round trip at ~12 G comparisons/s.
         self.launch_work = 4e6 if self.is_cpu else 1e6
         self._programs: dict[tuple, cl.Program] = {}
@@ -131,17 +132,12 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             np.int32(n), np.int32(d), np.int32(b), out.data,
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
-                   pick: int = 1) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
         nx, ny, nz = lattice
-        x16 = bases is None and steps[0] == 1
-        if pick > 1 and not x16:  # one work-item per real candidate: every pick-th lattice x
-            nx, steps, pick = nx // pick, (steps[0] * pick, steps[1], steps[2]), 1
-        if x16:
+        if bases is None and steps[0] == 1:
             name, gsize, lsize = "ssd_gather_x16", (-(-nx // 64), _round_up(ny, 7), nz), (1, 7, 1)
         else:
             name, gsize, lsize = "ssd_gather", (_round_up(nx, 16), ny, nz), (16, 1, 1)
-        extra = (np.int32(pick),) if x16 else ()
         kernel = self._kernel("ssd", name, grid.dtype)
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
@@ -152,7 +148,7 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             *(np.int32(s) for s in steps), np.int32(base0),
             offsets.data, values.data, w, np.int32(weights is not None), np.int32(kc),
             threshold.data if threshold is not None else self._dummy(out.dtype), np.int32(threshold is not None),
-            *extra, out.data,
+            out.data,
         )
 
     def _launch_1d(self, name: str, dtype, g: int, *args) -> None:

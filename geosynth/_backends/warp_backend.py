@@ -34,6 +34,7 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Back
         self.kind = "cpu" if self.device.is_cpu else "cuda"
         # One thread per share of a reduction; many on a GPU, few on one CPU thread.
         self.partial_threads = 65536 if self.device.is_cuda else 256
+        self.host_reduce_below = 0 if self.device.is_cuda else 1 << 16
         self._dummies: dict[np.dtype, DeviceArray] = {}
 
     # -- memory -------------------------------------------------------------------
@@ -74,11 +75,8 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Back
             [candidates.data, queries.data, w, int(weights is not None), n, d, b, out.data],
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
-                   pick: int = 1) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
         nx, ny, nz = lattice
-        if pick > 1:  # one thread per real candidate: every pick-th lattice x
-            nx, steps = nx // pick, (steps[0] * pick, steps[1], steps[2])
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
         self._launch(
