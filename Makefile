@@ -14,6 +14,7 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(PIP) install -e '.[test]'
+	$(BIN)/python tools/ensure_opencl.py
 	touch $@
 
 $(BENCH_STAMP): pyproject.toml bench/install_peers.sh $(STAMP)

@@ -10,7 +10,11 @@ Device strings:
 - ``"cpu"``: Warp on the CPU (one thread).
 - ``"cuda"`` / ``"cuda:N"``: Warp on an NVIDIA GPU.
 - ``"opencl"`` / ``"opencl:P:D"``: PyOpenCL, platform P, device D (``"opencl"`` is
-  ``"opencl:0:0"``; on a machine with no GPU that is PoCL from PyPI).
+  the first usable OpenCL device; on a machine with no GPU that is PoCL). An OpenCL
+  device whose compiler cannot build a kernel (PyPI's PoCL 3.0 with LLVM 14 on a CPU
+  that LLVM 14 does not know, such as AMD Zen 5) is not usable: ``devices()`` leaves it
+  out, ``describe_devices()`` shows it with the compiler's reason, and asking for it is
+  a RuntimeError with that reason.
 - ``"auto"``: the first CUDA GPU if present, else the fastest CPU backend as
   measured by ``bench/bm_scoring.py`` (OpenCL on PoCL, which uses every core),
   else Warp's ``cpu``.
@@ -68,8 +72,8 @@ def parse_device(device: str) -> DeviceSpec:
     if text.startswith("cuda"):
         return DeviceSpec("cuda", index=int(m.group(2)) if m.group(2) is not None else 0)
     if text.startswith("opencl"):
-        if m.group(3) is None:
-            return DeviceSpec("opencl", platform=0, device=0)
+        if m.group(3) is None:  # the first usable OpenCL device, chosen by resolve_device
+            return DeviceSpec("opencl")
         return DeviceSpec("opencl", platform=int(m.group(3)), device=int(m.group(4)))
     return DeviceSpec(text)
 
@@ -112,18 +116,46 @@ def _warp_device_names() -> list[str]:
     return [str(d) for d in wp.get_devices()]
 
 
-def _opencl_device_names() -> list[str]:
+_PROBE_SOURCE = "__kernel void geosynth_probe(__global int *out) { out[get_global_id(0)] = 1; }"
+
+
+@functools.lru_cache(maxsize=1)
+def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
+    """Every OpenCL device as ``(name, description, why_unusable or None)``.
+
+    Each platform's devices must build a one-line kernel to count as usable: an ICD
+    can list a CPU that its compiler cannot target, and every kernel call would fail.
+    """
     cl, _ = _opencl_status()
     if cl is None:
-        return []
-    names = []
+        return ()
+    out = []
     for p, platform in enumerate(cl.get_platforms()):
         try:
             devs = platform.get_devices()
         except Exception:  # a platform with no devices raises on some ICDs
             continue
-        names.extend(f"opencl:{p}:{d}" for d in range(len(devs)))
-    return names
+        for i, dev in enumerate(devs):
+            version = platform.version.strip().split("  ")[0]  # "OpenCL 3.0 PoCL 3.1+debian"
+            desc = f"{platform.name.strip()} ({version}): {dev.name.strip()}, {dev.max_compute_units} compute units"
+            why = None
+            try:
+                cl.Program(cl.Context([dev]), _PROBE_SOURCE).build()
+            except Exception as exc:
+                lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower() and ln.strip()]
+                why = (lines[-1] if lines else str(exc).strip().splitlines()[0])[:200]
+            out.append((f"opencl:{p}:{i}", desc, why))
+    return tuple(out)
+
+
+def _opencl_device_names() -> list[str]:
+    return [name for name, _, why in _opencl_inventory() if why is None]
+
+
+def unusable_devices() -> dict[str, str]:
+    """``{device string: reason}`` for OpenCL devices that are listed by an ICD but
+    cannot build a kernel (left out of :func:`devices`)."""
+    return {name: why for name, _, why in _opencl_inventory() if why is not None}
 
 
 def devices() -> list[str]:
@@ -143,15 +175,8 @@ def describe_devices() -> list[tuple[str, str]]:
         for d in wp.get_devices():
             desc = "Warp on the CPU (one thread)" if d.is_cpu else f"Warp on {d.name}"
             out.append((str(d), desc))
-    cl, _ = _opencl_status()
-    if cl is not None:
-        for p, platform in enumerate(cl.get_platforms()):
-            try:
-                devs = platform.get_devices()
-            except Exception:
-                continue
-            for i, dev in enumerate(devs):
-                out.append((f"opencl:{p}:{i}", f"OpenCL {platform.name.strip()}: {dev.name.strip()}, {dev.max_compute_units} compute units"))
+    for name, desc, why in _opencl_inventory():
+        out.append((name, desc if why is None else f"{desc}; UNUSABLE, its compiler fails: {why}"))
     return out
 
 
@@ -196,9 +221,17 @@ def resolve_device(device: str) -> str:
             device,
             f"OpenCL failed to load: {err}; install it with `pip install pyopencl pocl-binary-distribution`",
         )
+    usable = _opencl_device_names()
+    if spec.platform is None:
+        if not usable:
+            why = "; ".join(f"{n}: {w}" for n, w in unusable_devices().items()) or "no OpenCL device is listed"
+            raise _absent(device, f"no usable OpenCL device ({why}); `make test` or `make demo` installs "
+                                  "Debian's pocl-opencl-icd where PyPI's PoCL cannot compile for this CPU")
+        return usable[0]
     name = f"opencl:{spec.platform}:{spec.device}"
-    if name not in _opencl_device_names():
-        raise _absent(device)
+    if name not in usable:
+        why = unusable_devices().get(name)
+        raise _absent(device, f"listed, but its OpenCL compiler fails: {why}" if why else "")
     return name
 
 

@@ -32,7 +32,10 @@ def pytest_generate_tests(metafunc):
 
 
 def pytest_report_header(config):
-    return f"geosynth test devices: {', '.join(TEST_DEVICES)}"
+    from geosynth.backend import unusable_devices
+
+    unusable = "".join(f"; left out, unusable: {name} ({why})" for name, why in unusable_devices().items())
+    return f"geosynth test devices: {', '.join(TEST_DEVICES)}{unusable}"
 
 
 @pytest.fixture

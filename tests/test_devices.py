@@ -26,7 +26,7 @@ def test_devices_lists_warp_cpu_and_opencl():
         ("auto", "auto", {}),
         ("cuda", "cuda", {"index": 0}),
         ("cuda:3", "cuda", {"index": 3}),
-        ("opencl", "opencl", {"platform": 0, "device": 0}),
+        ("opencl", "opencl", {"platform": None, "device": None}),
         ("opencl:1:2", "opencl", {"platform": 1, "device": 2}),
     ],
 )
@@ -38,7 +38,8 @@ def test_parse_device(text, kind, fields):
 
 
 def test_resolve_names_present_devices():
-    assert resolve_device("opencl") == "opencl:0:0"
+    first_opencl = next(d for d in geosynth.devices() if d.startswith("opencl:"))
+    assert resolve_device("opencl") == first_opencl
     assert resolve_device("cpu") == "cpu"
     auto = resolve_device("auto")
     assert auto in geosynth.devices()
@@ -77,3 +78,22 @@ def test_no_top_level_kernels_package():
            "print(importlib.util.find_spec('kernels') is None, importlib.util.find_spec('geosynth.kernels') is not None)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", check=True)
     assert out.stdout.split() == ["True", "True"]
+
+
+def test_an_opencl_device_whose_compiler_fails_is_left_out_and_refused(monkeypatch):
+    from geosynth import backend
+
+    fake = (
+        ("opencl:0:0", "OpenCL PoCL 3.0: pthread-AMD EPYC", "error: unknown target CPU 'generic'"),
+        ("opencl:1:0", "OpenCL PoCL 3.1: pthread-skylake-avx512", None),
+    )
+    monkeypatch.setattr(backend, "_opencl_inventory", lambda: fake)
+    assert [d for d in backend.devices() if d.startswith("opencl")] == ["opencl:1:0"]
+    assert backend.unusable_devices() == {"opencl:0:0": "error: unknown target CPU 'generic'"}
+    assert resolve_device("opencl") == "opencl:1:0"  # the first usable one
+    with pytest.raises(RuntimeError, match="unknown target CPU 'generic'"):
+        resolve_device("opencl:0:0")
+    assert any("UNUSABLE" in desc for _, desc in backend.describe_devices())
+    monkeypatch.setattr(backend, "_opencl_inventory", lambda: fake[:1])
+    with pytest.raises(RuntimeError, match="no usable OpenCL device"):
+        resolve_device("opencl")
