@@ -178,7 +178,7 @@ def matching(devices, cases, n_queries, budget) -> list[str]:
                 if search == "cascade" and alive:
                     stages = " -> ".join(f"{v:,.0f}" for v in np.mean(np.array(alive), axis=0))
                 note_q = str(len(answers)) if answers is not None else "estimated"
-                vs_paper = f"{paper / per:,.0f}x" if paper else "-"
+                vs_paper = "-" if not paper else f"{paper / per:,.0f}x" if paper >= 10 * per else f"{paper / per:.2f}x"
                 lines.append(f"| {side}^3 / {block} | {dev} | {search} | {build:.2f} s | {per * 1e3:,.2f} ms | {note_q} | "
                              f"{lin_t / per:,.1f}x | {paper} s | {vs_paper} | {stages} |")
                 print("   ", lines[-1], flush=True)
