@@ -22,6 +22,7 @@ typedef uint W;
 typedef int16 E16;   // signed differences, 16 lanes
 typedef uint16 S16;  // score accumulators, 16 lanes
 typedef u32x16u Sx16u;
+#define LOADS16(p) (*(const __global Sx16u*)(p))  // 16 scores
 // 16 consecutive elements at p (any alignment), widened to int
 #define LOAD16(p) __builtin_convertvector(*(const __global u8x16u*)(p), int16)
 #define LOADW16(p) (*(const __global u32x16u*)(p))
@@ -38,6 +39,7 @@ typedef float W;
 typedef float16 E16;
 typedef float16 S16;
 typedef f32x16u Sx16u;
+#define LOADS16(p) (*(const __global Sx16u*)(p))  // 16 scores
 #define LOAD16(p) (*(const __global f32x16u*)(p))
 #define LOADW16(p) (*(const __global f32x16u*)(p))
 #define SQ16(e) ((e) * (e))
@@ -66,6 +68,7 @@ inline S hsum16(S16 v)
 }
 
 // Unrolling helpers: REPn(M) expands M(0) ... M(n-1); REP6_R(M, r) expands M(r, 0) ... M(r, 5).
+#define REP2(M) M(0) M(1)
 #define REP4(M) M(0) M(1) M(2) M(3)
 #define REP8(M) M(0) M(1) M(2) M(3) M(4) M(5) M(6) M(7)
 #define REP6(M) M(0) M(1) M(2) M(3) M(4) M(5)

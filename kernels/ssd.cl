@@ -12,49 +12,65 @@
 // ---------------------------------------------------------------------------------
 // Dense: out[q, i] = sum_k w[k] * (candidates[i, k] - queries[q, k])^2
 
-// 8 candidate rows per work-item, rows g, g+m, ..., g+7m (m = ceil(n/8)): eight memory
-// streams per work-item keep the prefetchers busy; one query at a time.
-// Range: round_up(ceil(n/8), 16), local 16.
+// DENSE_ROWS candidate rows per work-item, rows g, g+m, ..., g+(DENSE_ROWS-1)m
+// (m = ceil(n/DENSE_ROWS)): several memory streams per work-item keep the prefetchers
+// busy; one query at a time. float builds use 2 rows (measured on PoCL: 8 rows of
+// float16 lanes read 35-60 GB/s, 2 rows 57-75 GB/s), uchar builds 8 (a build option).
+// Range: round_up(ceil(n/DENSE_ROWS), local), local 16 or 32 (the backend's choice).
+#ifndef DENSE_ROWS
+#ifdef GS_U8
+#define DENSE_ROWS 8
+#else
+#define DENSE_ROWS 2
+#endif
+#endif
+#if DENSE_ROWS == 2
+#define REP_ROWS REP2
+#elif DENSE_ROWS == 4
+#define REP_ROWS REP4
+#else
+#define REP_ROWS REP8
+#endif
 __kernel void ssd_dense_rows(__global const T* candidates, __global const T* queries,
                              __global const W* weights, const int use_weights,
                              const int n, const int d, const int b, __global S* out)
 {
     const int g = get_global_id(0);
-    const int m = (n + 7) / 8;
+    const int m = (n + DENSE_ROWS - 1) / DENSE_ROWS;
     if (g >= m) return;
 #define ROW_PTR(r) const int row##r = g + r * m; \
     const __global T* x##r = candidates + (size_t)(row##r < n ? row##r : n - 1) * d;
-    REP8(ROW_PTR)
+    REP_ROWS(ROW_PTR)
     const int d16 = d & ~15;
     for (int qi = 0; qi < b; ++qi) {
         const __global T* q = queries + (size_t)qi * d;
 #define ROW_INIT(r) S16 acc##r = (S16)(0); S tail##r = 0;
-        REP8(ROW_INIT)
+        REP_ROWS(ROW_INIT)
         if (use_weights) {
             for (int k = 0; k < d16; k += 16) {
                 const S16 w = LOADW16(weights + k);
                 const E16 qv = LOAD16(q + k);
 #define ROW_STEP_W(r) { const E16 e = LOAD16(x##r + k) - qv; acc##r += w * SQ16(e); }
-                REP8(ROW_STEP_W)
+                REP_ROWS(ROW_STEP_W)
             }
             for (int k = d16; k < d; ++k) {
                 const W wk = weights[k];
 #define ROW_TAIL_W(r) tail##r += wk * SQ1(x##r[k], q[k]);
-                REP8(ROW_TAIL_W)
+                REP_ROWS(ROW_TAIL_W)
             }
         } else {
             for (int k = 0; k < d16; k += 16) {
                 const E16 qv = LOAD16(q + k);
 #define ROW_STEP(r) { const E16 e = LOAD16(x##r + k) - qv; acc##r += SQ16(e); }
-                REP8(ROW_STEP)
+                REP_ROWS(ROW_STEP)
             }
             for (int k = d16; k < d; ++k) {
 #define ROW_TAIL(r) tail##r += SQ1(x##r[k], q[k]);
-                REP8(ROW_TAIL)
+                REP_ROWS(ROW_TAIL)
             }
         }
 #define ROW_STORE(r) if (row##r < n) out[(size_t)qi * n + row##r] = hsum16(acc##r) + tail##r;
-        REP8(ROW_STORE)
+        REP_ROWS(ROW_STORE)
     }
 }
 
@@ -242,6 +258,48 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
 // Selection. Ranges: round_up(g, 64), local 64; work-items t >= g do nothing.
 
 // Work-item t scans t, t+g, t+2g, ... ascending, so a strict < keeps the lowest index.
+// The same partial minima over contiguous chunks, 16 lanes at a time: work-item t owns
+// [t*chunk, (t+1)*chunk) (chunk a multiple of 16). Each lane keeps its first minimum
+// (strict <), the lanes' minimum with the lowest index among equals is the chunk's.
+// For CPU devices, where a strided share reads a new cache line per element.
+__kernel void argmin_chunks(__global const S* scores, const int n, const int chunk,
+                            __global S* part_val, __global int* part_idx, const int g)
+{
+    const int t = get_global_id(0);
+    if (t >= g) return;
+    const int lo = t * chunk, hi = MIN_INT(lo + chunk, n);
+    if (lo >= hi) { part_val[t] = 0; part_idx[t] = -1; return; }
+    const int hi16 = lo + ((hi - lo) & ~15);
+    const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    S best = scores[lo];
+    int best_idx = lo;
+    if (hi16 > lo) {
+        S16 vbest = LOADS16(scores + lo);
+        int16 vidx = lane + lo;
+        for (int i = lo + 16; i < hi16; i += 16) {
+            const S16 v = LOADS16(scores + i);
+            const int16 less = v < vbest;
+            vbest = less ? v : vbest;
+            vidx = less ? lane + i : vidx;
+        }
+        S lv[16];
+        int li[16];
+        vstore16(vbest, 0, lv);
+        vstore16(vidx, 0, li);
+        best = lv[0];
+        best_idx = li[0];
+        for (int l = 1; l < 16; ++l) {
+            if (lv[l] < best || (lv[l] == best && li[l] < best_idx)) { best = lv[l]; best_idx = li[l]; }
+        }
+    }
+    for (int i = hi16; i < hi; ++i) {
+        const S s = scores[i];
+        if (s < best) { best = s; best_idx = i; }
+    }
+    part_val[t] = best;
+    part_idx[t] = best_idx;
+}
+
 __kernel void argmin_partials(__global const S* scores, const int n,
                               __global S* part_val, __global int* part_idx, const int g)
 {

@@ -48,7 +48,8 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
         self.context = cl.Context([self.cl_device])
         self.queue = cl.CommandQueue(self.context)
         self.is_cpu = bool(self.cl_device.type & cl.device_type.CPU)
-        self.partial_threads = 4096 if self.is_cpu else 65536
+        # Partial minima: a few contiguous chunks per core on a CPU, many strided shares on a GPU.
+        self.partial_threads = 256 if self.is_cpu else 65536
         self.host_reduce_below = 1 << 16 if self.is_cpu else 0
         # PoCL on a CPU: ~0.3 ms per launch and round trip at ~12 G comparisons/s.
         self.launch_work = 4e6 if self.is_cpu else 1e6
@@ -123,11 +124,14 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
         # Batches: 4 rows x 6 queries per work-item (float lanes, exact for unweighted
         # uint8); else 8 rows, one query at a time. Both give the same results.
         tile = b > 1 and (candidates.dtype == np.float32 or weights is None)
-        name, rows = ("ssd_dense_tile", 4) if tile else ("ssd_dense_rows", 8)
+        if tile:
+            name, rows, local = "ssd_dense_tile", 4, 16
+        else:  # DENSE_ROWS in ssd.cl: 8 rows for uchar, 2 for float (wider work-groups)
+            name, rows, local = ("ssd_dense_rows", 8, 16) if candidates.dtype == np.uint8 else ("ssd_dense_rows", 2, 32)
         kernel = self._kernel("ssd", name, candidates.dtype)
         w = weights.data if weights is not None else self._dummy(out.dtype)
         kernel(
-            self.queue, (_round_up(-(-n // rows), 16),), (16,),
+            self.queue, (_round_up(-(-n // rows), local),), (local,),
             candidates.data, queries.data, w, np.int32(weights is not None),
             np.int32(n), np.int32(d), np.int32(b), out.data,
         )
@@ -156,7 +160,13 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
         kernel(self.queue, (_round_up(g, _LOCAL_1D),), (_LOCAL_1D,), *args, np.int32(g))
 
     def argmin_partials(self, scores, n, part_val, part_idx) -> None:
-        self._launch_1d("argmin_partials", scores.dtype, part_idx.size, scores.data, np.int32(n), part_val.data, part_idx.data)
+        g = part_idx.size
+        if self.is_cpu:  # contiguous 16-lane chunks: a strided share misses the cache on every read
+            chunk = _round_up(-(-n // g), 16)
+            self._launch_1d("argmin_chunks", scores.dtype, g, scores.data, np.int32(n), np.int32(chunk),
+                            part_val.data, part_idx.data)
+        else:
+            self._launch_1d("argmin_partials", scores.dtype, g, scores.data, np.int32(n), part_val.data, part_idx.data)
 
     def count_selected(self, scores, n, chunk, thr, mode, counts) -> None:
         self._launch_1d(
