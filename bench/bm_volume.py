@@ -72,7 +72,7 @@ class _Enough(Exception):
 def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> tuple[list, list]:
     """The first ``count`` finest-level queries of a real synthesis from ``source``.
 
-    A 2-level run (block ``block`` on both) to a target of the source's size;
+    A 2-level run (block ``block // 2``, then ``block``) to a target of the source's size;
     the finest level's queries hold upsampled coarse content and earlier matches, as in
     any multiresolution run. Returns the queries and their coherence bounds (the SSD of
     a neighbour's match moved on, or None), which synthesis passes as thresholds.
@@ -96,7 +96,9 @@ def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> t
 
     volume._Matcher.nearest, volume._Matcher.__init__ = record, init
     try:
-        synthesize_volume(source, source.shape, levels=2, block=[block, block], device=dev, progress=False)
+        # The coarse level (half the resolution) matches half-size blocks, as a multiresolution
+        # run would; its queries start from random samples, which no bound prunes well.
+        synthesize_volume(source, source.shape, levels=2, block=[block // 2, block], device=dev, progress=False)
     except _Enough:
         pass
     finally:

@@ -328,7 +328,90 @@ class GatherScorer:
     def __call__(self, values: np.ndarray, *, origins: np.ndarray | None = None, threshold: float | None = None,
                  keep_on_device: bool = False) -> np.ndarray | DeviceArray:
         """Scores of one query (see :func:`score_gather` for the arguments and result)."""
-        k, nd, channels = self._k, self._nd, self._channels
+        vals, thr = self._check_query(values, threshold)
+        if origins is None:
+            if self._lattice_error:
+                raise ValueError(self._lattice_error)
+            return self._launch(vals, thr, None, keep_on_device)
+        return self._launch(vals, thr, self.flat_bases(origins), keep_on_device)
+
+    def flat_bases(self, origins: np.ndarray) -> np.ndarray:
+        """Checked flat grid indices of candidate origins, for :meth:`score_bases`.
+
+        Args:
+            origins: (N, nd) integer origins, as for :func:`score_gather`.
+
+        Returns:
+            (N,) int32 flat indices into this scorer's (padded) grid.
+
+        Raises:
+            ValueError, TypeError: as :func:`score_gather` for bad origins.
+        """
+        nd = self._nd
+        org = np.asarray(origins)
+        if org.ndim != 2 or org.shape[1] != nd:
+            raise ValueError(f"origins must have shape (N, {nd}), got {org.shape}.")
+        if org.shape[0] == 0:
+            raise ValueError("origins is empty: the candidate set must hold at least one origin.")
+        if org.dtype.kind not in "iu":
+            raise TypeError(f"origins must be integers, got dtype {org.dtype}.")
+        org = org.astype(np.int64)
+        if self._wrap:
+            org = np.mod(org, self._dims) + self._pad_lo
+        else:
+            reach_lo, reach_hi = org + self._reach[0], org + self._reach[1]
+            bad = np.flatnonzero((reach_lo < 0).any(axis=1) | (reach_hi >= self._dims).any(axis=1))
+            if bad.size:
+                i = int(bad[0])
+                raise ValueError(
+                    f"offsets reach outside the grid {tuple(int(v) for v in self._dims)} for {bad.size} candidate "
+                    f"origin(s), first origins[{i}] = {tuple(int(v) for v in org[i])}; drop them or use wrap=True."
+                )
+        return (org @ self._strides).astype(np.int32)
+
+    def lattice_bases(self, indices: np.ndarray) -> np.ndarray:
+        """Flat grid indices of lattice candidates, for :meth:`score_bases`.
+
+        Args:
+            indices: (N,) integer indices into the candidate lattice (C order, as the
+                scores of a call without origins are laid out), each in
+                ``[0, prod(lattice))``.
+
+        Returns:
+            (N,) int32 flat indices into this scorer's (padded) grid.
+        """
+        idx = np.asarray(indices, np.int64).reshape(-1)
+        nx, ny, nz = self._lattice_xyz
+        if idx.size and (idx.min() < 0 or idx.max() >= nx * ny * nz):
+            raise ValueError(f"indices must lie in [0, {nx * ny * nz}), the candidate lattice {self.lattice}.")
+        sx, sy, sz = self._lattice_steps
+        x, y, z = idx % nx, (idx // nx) % ny, idx // (nx * ny)
+        return (self._lattice_base0 + z * sz + y * sy + x * sx).astype(np.int32)
+
+    def score_bases(self, values: np.ndarray, bases: np.ndarray, *, threshold: float | None = None,
+                    keep_on_device: bool = False) -> np.ndarray | DeviceArray:
+        """Scores at candidates given by flat indices that :meth:`flat_bases` made.
+
+        The bases are not checked again: searches that score subsets of one candidate
+        set many times (M1's cascade) convert the origins once and index the result.
+
+        Args:
+            values: as for :meth:`__call__`.
+            bases: (N,) int32, N >= 1, a subset of :meth:`flat_bases` output.
+            threshold, keep_on_device: as for :func:`score_gather`.
+
+        Returns:
+            (N,) scores, as :meth:`__call__` with the matching origins returns.
+        """
+        vals, thr = self._check_query(values, threshold)
+        bases = np.ascontiguousarray(bases, np.int32)
+        if bases.ndim != 1 or bases.size == 0:
+            raise ValueError(f"bases must be a non-empty 1-D array, got shape {bases.shape}.")
+        return self._launch(vals, thr, bases, keep_on_device)
+
+    def _check_query(self, values, threshold):
+        """The query values (host array) and the threshold as a one-element array or None."""
+        k, channels = self._k, self._channels
         vals = _checks.same_kind("values", values, "grid", self._source)
         if isinstance(vals, DeviceArray):
             raise TypeError("values must be a host array (it is small and uploaded per call).")
@@ -346,37 +429,16 @@ class GatherScorer:
                 thr = np.array([threshold], np.float32)
                 if float(thr[0]) < float(threshold):  # never below the caller's bound
                     thr[0] = np.nextafter(thr[0], np.float32(np.inf))
+        return vals, thr
 
-        bases = None
-        if origins is None:
-            if self._lattice_error:
-                raise ValueError(self._lattice_error)
+    def _launch(self, vals, thr, bases, keep_on_device):
+        """One kernel launch: the lattice (bases None) or explicit flat bases."""
+        if bases is None:
             lattice, steps, base0 = self._lattice_xyz, self._lattice_steps, self._lattice_base0
             n = int(np.prod(self.lattice))
         else:
-            org = np.asarray(origins)
-            if org.ndim != 2 or org.shape[1] != nd:
-                raise ValueError(f"origins must have shape (N, {nd}), got {org.shape}.")
-            if org.shape[0] == 0:
-                raise ValueError("origins is empty: the candidate set must hold at least one origin.")
-            if org.dtype.kind not in "iu":
-                raise TypeError(f"origins must be integers, got dtype {org.dtype}.")
-            org = org.astype(np.int64)
-            if self._wrap:
-                org = np.mod(org, self._dims) + self._pad_lo
-            else:
-                reach_lo, reach_hi = org + self._reach[0], org + self._reach[1]
-                bad = np.flatnonzero((reach_lo < 0).any(axis=1) | (reach_hi >= self._dims).any(axis=1))
-                if bad.size:
-                    i = int(bad[0])
-                    raise ValueError(
-                        f"offsets reach outside the grid {tuple(int(v) for v in self._dims)} for {bad.size} candidate "
-                        f"origin(s), first origins[{i}] = {tuple(int(v) for v in org[i])}; drop them or use wrap=True."
-                    )
-            n = org.shape[0]
-            bases = (org @ self._strides).astype(np.int32)
+            n = bases.shape[0]
             lattice, steps, base0 = (n, 1, 1), (0, 0, 0), 0
-
         backend = self.backend
         out = backend.empty((n,), _score_dtype(self._grid_dtype))
         if bases is None and self._poly_args is not None:
@@ -387,7 +449,7 @@ class GatherScorer:
             grid, None if bases is None else backend.to_device(bases),
             lattice, steps, base0, flat_off,
             backend.to_device(np.ascontiguousarray(vals.reshape(-1))), self._weights,
-            k * channels, None if thr is None else backend.to_device(thr), out,
+            self._k * self._channels, None if thr is None else backend.to_device(thr), out,
         )
         return out if keep_on_device else out.numpy()
 

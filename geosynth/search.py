@@ -679,13 +679,17 @@ class CascadeSearch:
 
     def _bound(self, cell: int, query_sums: dict, alive: np.ndarray | None) -> np.ndarray:
         """Lower bounds (float32, SSD units) of the blocks ``alive`` (None: all)."""
-        origins = None if alive is None else self.origins[alive]
-        bounds = self._bound_scorers[cell](query_sums[cell], origins=origins)
+        scorer = self._bound_scorers[cell]
+        if alive is None:
+            bounds = scorer(query_sums[cell])
+        else:  # block indices are lattice indices: no origins to gather and check
+            bounds = scorer.score_bases(query_sums[cell], scorer.lattice_bases(alive))
         bounds *= np.float32(1.0 / cell**3)  # c is a power of two: exact
         return bounds
 
     def _exact(self, alive: np.ndarray, query: np.ndarray, threshold=None) -> np.ndarray:
-        return self._exact_scorer(query.reshape(-1), origins=self.origins[alive], threshold=threshold)
+        scorer = self._exact_scorer
+        return scorer.score_bases(query.reshape(-1), scorer.lattice_bases(alive), threshold=threshold)
 
     def nearest(self, query: np.ndarray, threshold: int | None = None) -> tuple[tuple[int, int, int], int]:
         """The exact nearest block of ``query``.
@@ -701,12 +705,13 @@ class CascadeSearch:
         query = check_query(query, self.block)
         n_all = self.n_blocks
         if not self.stages:  # every block, on the lattice (the fast path of the kernel)
-            scores = self._exact_scorer(query.reshape(-1), threshold=threshold)
-            best = int(np.argmin(scores))
-            if threshold is not None and int(scores[best]) > threshold:  # the threshold was too low
+            scores = self._exact_scorer(query.reshape(-1), threshold=threshold, keep_on_device=True)
+            # sync: the reduction runs where the scores are; one index and score come back
+            best, best_score = self._exact_scorer.backend.argmin(scores)
+            if threshold is not None and int(best_score) > threshold:  # the threshold was too low
                 return self.nearest(query)
             self.last_info = {"alive": [n_all]}
-            return self.origin_of(best), int(scores[best])
+            return self.origin_of(best), int(best_score)
         q64 = query.astype(np.int64)
         query_sums = {}
         for c in self.stages:

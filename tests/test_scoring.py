@@ -296,3 +296,25 @@ def test_gather_threshold_invalid(device):
     grid = np.zeros((8, 8), np.uint8)
     with pytest.raises(ValueError, match="threshold must be a finite number >= 0"):
         geosynth.score_gather(grid, np.array([[0, 0]]), np.zeros(1, np.uint8), threshold=-1, device=device)
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_gather_scorer_bases_equal_origins(device, rng, channels):
+    """score_bases over lattice_bases / flat_bases gives what origins give."""
+    from geosynth.scoring import GatherScorer
+
+    shape = (9, 11, 13) + ((channels,) if channels > 1 else ())
+    grid = rng.integers(0, 256, shape, dtype=np.uint8)
+    offsets = rng.integers(0, 4, (7, 3))
+    values = rng.integers(0, 256, (7, channels) if channels > 1 else (7,), dtype=np.uint8)
+    scorer = GatherScorer(grid, offsets, device=device)
+    every = scorer(values)
+    pick = np.sort(rng.choice(every.size, 40, replace=False))
+    origins = np.stack(np.unravel_index(pick, scorer.lattice), 1)
+    np.testing.assert_array_equal(scorer.score_bases(values, scorer.lattice_bases(pick)), every[pick])
+    np.testing.assert_array_equal(scorer.score_bases(values, scorer.flat_bases(origins)), every[pick])
+    np.testing.assert_array_equal(scorer(values, origins=origins), every[pick])
+    with pytest.raises(ValueError, match="indices must lie"):
+        scorer.lattice_bases([every.size])
+    with pytest.raises(ValueError, match="bases must be a non-empty"):
+        scorer.score_bases(values, np.zeros(0, np.int32))
