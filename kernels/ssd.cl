@@ -183,6 +183,32 @@ __kernel void ssd_gather(__global const T* grid, __global const int* bases, cons
     out[cand] = acc;
 }
 
+// Explicit bases whose offsets come in runs of `run` consecutive grid elements (run a
+// multiple of 16 dividing GATHER_CHUNK: the x rows of a block of side >= 16), unweighted:
+// one candidate per work-item, 16 lanes per load of the grid and of the query values.
+// Same results as ssd_gather on those inputs. Range: round_up(n, 16), local 16.
+__kernel void ssd_gather_runs(__global const T* grid, __global const int* bases, const int n,
+                              __global const int* offsets, __global const T* values, const int kc,
+                              const int run, __global const S* threshold, const int use_threshold,
+                              __global S* out)
+{
+    const int c = get_global_id(0);
+    if (c >= n) return;
+    const __global T* g = grid + bases[c];
+    const S thr = threshold[0];
+    S16 acc = (S16)(0);
+    for (int j0 = 0; j0 < kc; j0 += GATHER_CHUNK) {
+        const int j1 = MIN_INT(j0 + GATHER_CHUNK, kc);
+        for (int j = j0; j < j1; j += run) {
+            const __global T* p = g + offsets[j];
+            const __global T* v = values + j;
+            for (int l = 0; l < run; l += 16) { const E16 e = LOAD16(p + l) - LOAD16(v + l); acc += SQ16(e); }
+        }
+        if (use_threshold && hsum16(acc) > thr) break;  // only "above threshold" matters now
+    }
+    out[c] = hsum16(acc);
+}
+
 // Lattices with step_x == 1 (one channel, unit x stride): each work-item scores 64
 // neighbouring candidates along x as 4 vectors of 16, so one offset/value fetch serves
 // 4 vector loads. A vector that would run past nx is moved back to start at nx - 16

@@ -318,3 +318,27 @@ def test_gather_scorer_bases_equal_origins(device, rng, channels):
         scorer.lattice_bases([every.size])
     with pytest.raises(ValueError, match="bases must be a non-empty"):
         scorer.score_bases(values, np.zeros(0, np.int32))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("block, channels", [(16, 1), (32, 1), (16, 2)])
+def test_gather_explicit_origins_of_block_rows(device, rng, dtype, block, channels):
+    """Block offsets come in x runs (16-lane loads on OpenCL); explicit origins, with and
+    without a threshold, give the oracle's scores (the argmin stays exact)."""
+    from geosynth.scoring import GatherScorer, _offset_run
+
+    shape = (block + 3, block + 2, block + 5) + ((channels,) if channels > 1 else ())
+    grid = random_data(rng, shape, dtype)
+    off = block_offsets(block, 3)[: block * block * 4]  # 4 z-slices of the block
+    vals = random_data(rng, (len(off), channels) if channels > 1 else (len(off),), dtype)
+    origins = np.stack([rng.integers(0, 4, 50), rng.integers(0, 3, 50), rng.integers(0, 6, 50)], 1)
+    scorer = GatherScorer(grid, off, device=device)
+    assert _offset_run(scorer._flat_off_host) == min(64, block * channels)
+    want = reference.score_gather_naive(grid, off, vals, origins=origins)
+    assert_scores(scorer(vals, origins=origins), want, dtype)
+    thr = float(np.sort(want)[5])
+    got = scorer(vals, origins=origins, threshold=thr)
+    best = int(np.argmin(want))
+    assert int(np.argmin(got)) == best
+    assert_scores(got[best:best + 1], want[best:best + 1], dtype)
+    assert np.all(got[want > thr * 1.001] > thr)

@@ -66,8 +66,13 @@ class Backend(ABC):
         """out (b*n,) <- weighted SSD of every query row against every candidate row."""
 
     @abstractmethod
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
+                   run: int = 0) -> None:
         """out <- SSD of the query entries at base(c) + offsets for every candidate c.
+
+        ``run``: 0, or the length (a multiple of 16 dividing 256) of the runs of
+        consecutive flat offsets that the entries come in (a block's x rows); a hint a
+        backend may use for explicit bases, never a change of the result.
 
         ``bases`` is a DeviceArray of explicit base indices or None for the lattice
         (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.

@@ -136,8 +136,18 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             np.int32(n), np.int32(d), np.int32(b), out.data,
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
+                   run: int = 0) -> None:
         nx, ny, nz = lattice
+        if bases is not None and run and weights is None:  # 16-lane loads along each run of offsets
+            n = nx
+            self._kernel("ssd", "ssd_gather_runs", grid.dtype)(
+                self.queue, (_round_up(n, 16),), (16,),
+                grid.data, bases.data, np.int32(n), offsets.data, values.data, np.int32(kc), np.int32(run),
+                threshold.data if threshold is not None else self._dummy(out.dtype), np.int32(threshold is not None),
+                out.data,
+            )
+            return
         if bases is None and steps[0] == 1:
             name, gsize, lsize = "ssd_gather_x16", (-(-nx // 64), _round_up(ny, 7), nz), (1, 7, 1)
         else:

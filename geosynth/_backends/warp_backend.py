@@ -75,8 +75,9 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Back
             [candidates.data, queries.data, w, int(weights is not None), n, d, b, out.data],
         )
 
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out) -> None:
-        nx, ny, nz = lattice
+    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
+                   run: int = 0) -> None:
+        nx, ny, nz = lattice  # run: one kernel serves every layout here
         b = bases.data if bases is not None else self._dummy(np.int32)
         w = weights.data if weights is not None else self._dummy(out.dtype)
         self._launch(
