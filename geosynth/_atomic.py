@@ -34,6 +34,9 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], None], *,
     os.close(fd)
     try:
         write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get the usual mode
         os.replace(tmp, out)
     except BaseException:
         if os.path.exists(tmp):

@@ -152,3 +152,12 @@ def test_save_is_atomic(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.stl"]  # no partial file left
     monkeypatch.undo()
     assert Path(save_mesh(trimesh.creation.box(), target)).stat().st_size > 3
+
+
+def test_outputs_get_the_usual_file_mode(tmp_path):
+    old = os.umask(0o022)
+    try:
+        path = Path(save_mesh(trimesh.creation.box(), tmp_path / "box.ply"))
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
