@@ -659,7 +659,10 @@ class CascadeSearch:
         self.block = int(block)
         self.lattice = tuple(int(s) - self.block + 1 for s in field.shape)
         self.n_blocks = int(np.prod(self.lattice))
-        self.stages = [c for c in (self.block // 2, self.block // 4) if 2 <= c <= _MAX_BOUND_CELL]
+        # Blocks of 32 and more get a third stage (cells of block/8) before the exact SSDs,
+        # which cost 32^3 comparisons a block.
+        cells = (self.block // 2, self.block // 4) + ((self.block // 8,) if self.block >= 32 else ())
+        self.stages = [c for c in cells if 2 <= c <= _MAX_BOUND_CELL]
         if min_work is None:
             min_work = _CASCADE_MIN_LAUNCHES * _checks.resolve_backend(device).launch_work
         if self.n_blocks * self.block**3 < min_work:

@@ -66,6 +66,18 @@ def test_cascade_search_equals_linear(device, rng, kind, block, side):
         assert s.nearest(q, threshold=max(0, want[1] // 3)) == want  # far too low: searched again without it
 
 
+def test_cascade_with_three_stages_equals_linear(device, rng):
+    """Blocks of 32 run three bound stages (cells 16, 8, 4) before the exact SSDs."""
+    field = _field("real", 36, rng)
+    s = CascadeSearch(field, 32, device=device, min_work=0)
+    assert s.stages == [16, 8, 4]
+    for q in _queries(field, 32, rng):
+        want = reference.nearest_block_naive(field, q)
+        assert s.nearest(q) == want
+        assert len(s.last_info["alive"]) == 4
+        assert s.nearest(q, threshold=max(0, want[1] - 1)) == want
+
+
 def test_cascade_drops_blocks_by_bounds(device, rng):
     """The stages keep fewer and fewer blocks, and the last keeps the answer."""
     field = _field("real", 32, rng)
