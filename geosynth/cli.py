@@ -151,7 +151,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
     n = int(np.prod(field.shape))
     say(f"field {field.shape[2]} x {field.shape[1]} x {field.shape[0]} (x, y, z), spacing {field.spacing[0]:.4g}: "
         f"{n:,} samples in {t_field:.2f} s ({n / t_field:,.0f} samples/s; loading {t_load:.2f} s) on "
-        f"{args.device or 'auto'}")
+        f"{geosynth.get_backend(args.device or 'auto').name}")
     say(f"written {out}" + (" (channels: distance, gradient x, y, z)" if field.values.ndim == 4 else ""))
     png = Path(args.png) if args.png else out.with_suffix(".png")
     write_png(png, field_slices_image(distance.values, count=3))
