@@ -67,9 +67,10 @@ def test_cascade_search_equals_linear(device, rng, kind, block, side):
 
 
 def test_cascade_with_three_stages_equals_linear(device, rng):
-    """Blocks of 32 run three bound stages (cells 16, 8, 4) before the exact SSDs."""
+    """Any chain of bound stages (here cells 16, 8, 4) gives the exact answer."""
     field = _field("real", 36, rng)
-    s = CascadeSearch(field, 32, device=device, min_work=0)
+    assert CascadeSearch(field, 32, device=device, min_work=0).stages == [8]  # the default: 64 cells a block
+    s = CascadeSearch(field, 32, device=device, min_work=0, cells=(16, 8, 4))
     assert s.stages == [16, 8, 4]
     for q in _queries(field, 32, rng):
         want = reference.nearest_block_naive(field, q)
@@ -81,7 +82,7 @@ def test_cascade_with_three_stages_equals_linear(device, rng):
 def test_cascade_drops_blocks_by_bounds(device, rng):
     """The stages keep fewer and fewer blocks, and the last keeps the answer."""
     field = _field("real", 32, rng)
-    s = CascadeSearch(field, 16, device=device, min_work=0)
+    s = CascadeSearch(field, 16, device=device, min_work=0, cells=[8, 4])
     assert s.stages == [8, 4]
     q = field[5:21, 3:19, 7:23].copy()
     assert s.nearest(q) == ((5, 3, 7), 0)
@@ -215,6 +216,9 @@ def test_search_invalid_input(monkeypatch):
         s.nearest(np.zeros((4, 4, 4), np.float32))
     with pytest.raises(ValueError, match="prune_eps"):
         s.nearest(np.zeros((4, 4, 4), np.uint8), prune_eps=-1.0)
+    for cells in ([3], [8], [1], [2, 4], [2, 2]):
+        with pytest.raises(ValueError, match="cells must"):
+            CascadeSearch(field, 8, device="cpu", cells=cells)
     import geosynth.pyramid as pyramid
 
     monkeypatch.setattr(pyramid, "available_memory", lambda: 10_000)
