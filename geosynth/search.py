@@ -638,11 +638,12 @@ class CascadeSearch:
             in one launch instead (None: 10 launches' worth on the device; 0: always
             run the stages).
         cells: the bound stages' cell sizes, coarse to fine (powers of two, 2 <= c <
-            N). None: one stage of (N/4)^3-sample cells, 64 cell sums a block (for N = 4:
-            cells of 2, 8 sums). Measured on PoCL with synthesis queries: one 64-cell
-            stage over every block (the fast lattice kernel), then the exact SSDs of its
-            few survivors, beats 8 then 64 cells by 1.2x at N = 16 and 4x at N = 32 (the
-            8-cell bound keeps a third of the blocks, scored again by index).
+            N). None: the backend's ``bound_cells_per_side``: on PoCL one stage of
+            (N/4)^3-sample cells, 64 cell sums a block, over every block (the fast
+            lattice kernel), then the exact SSDs of its few survivors: measured with
+            synthesis queries 1.2x faster than 8 then 64 cells at N = 16 and 4x at N = 32
+            (the 8-cell bound keeps a third of the blocks, scored again by index); on
+            Warp's one CPU thread 8 then 64 cells, 4x faster there than 64 at once.
 
     Attributes:
         stages: the cell sizes of the bound stages, coarse to fine; empty for N <= 2
@@ -667,8 +668,9 @@ class CascadeSearch:
         self.block = int(block)
         self.lattice = tuple(int(s) - self.block + 1 for s in field.shape)
         self.n_blocks = int(np.prod(self.lattice))
-        if cells is None:
-            cells = (max(2, self.block // 4),) if self.block >= 4 else ()
+        if cells is None:  # the backend's choice (Backend.bound_cells_per_side)
+            per_side = _checks.resolve_backend(device).bound_cells_per_side
+            cells = [self.block // n for n in per_side if self.block // n >= 2]
         cells = [int(c) for c in cells]
         for c in cells:
             if c < 2 or c >= self.block or c & (c - 1) or c > _MAX_BOUND_CELL:

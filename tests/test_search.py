@@ -69,7 +69,10 @@ def test_cascade_search_equals_linear(device, rng, kind, block, side):
 def test_cascade_with_three_stages_equals_linear(device, rng):
     """Any chain of bound stages (here cells 16, 8, 4) gives the exact answer."""
     field = _field("real", 36, rng)
-    assert CascadeSearch(field, 32, device=device, min_work=0).stages == [8]  # the default: 64 cells a block
+    from geosynth.backend import get_backend
+
+    default = [32 // n for n in get_backend(device).bound_cells_per_side]  # [16, 8] or [8]
+    assert CascadeSearch(field, 32, device=device, min_work=0).stages == default
     s = CascadeSearch(field, 32, device=device, min_work=0, cells=(16, 8, 4))
     assert s.stages == [16, 8, 4]
     for q in _queries(field, 32, rng):

@@ -31,6 +31,11 @@ class Backend(ABC):
         launch_work: sample comparisons worth one kernel launch and its host round
             trip (measured order of magnitude); searches that can split work into
             several small launches do so only when the work is well beyond it.
+        bound_cells_per_side: M1's cascade search by default: its bound stages, as
+            cells per block side, coarse to fine. (2, 4): 2^3 then 4^3 cell sums, the
+            second only over the first's survivors (fewer comparisons: best where
+            compute is scarce, Warp's one CPU thread); (4,): one 4^3-cell stage over
+            every block (fewer launches and host steps: best on PoCL, measured).
     """
 
     name: str
@@ -38,6 +43,7 @@ class Backend(ABC):
     partial_threads: int = 1024
     host_reduce_below: int = 0
     launch_work: float = 1e5
+    bound_cells_per_side: tuple[int, ...] = (2, 4)
 
     # -- memory -------------------------------------------------------------------
     @abstractmethod
