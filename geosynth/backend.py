@@ -135,8 +135,8 @@ def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
             devs = platform.get_devices()
         except Exception:  # a platform with no devices raises on some ICDs
             continue
+        version = platform.version.strip().split("  ")[0]  # "OpenCL 3.0 PoCL 3.1+debian"
         for i, dev in enumerate(devs):
-            version = platform.version.strip().split("  ")[0]  # "OpenCL 3.0 PoCL 3.1+debian"
             desc = f"{platform.name.strip()} ({version}): {dev.name.strip()}, {dev.max_compute_units} compute units"
             why = None
             try:

@@ -406,14 +406,15 @@ class GatherScorer:
 
     def score_bases(self, values: np.ndarray, bases: np.ndarray, *, threshold: float | None = None,
                     keep_on_device: bool = False) -> np.ndarray | DeviceArray:
-        """Scores at candidates given by flat indices that :meth:`flat_bases` made.
+        """Scores at candidates given by flat indices from :meth:`flat_bases` or
+        :meth:`lattice_bases`.
 
         The bases are not checked again: searches that score subsets of one candidate
         set many times (M1's cascade) convert the origins once and index the result.
 
         Args:
             values: as for :meth:`__call__`.
-            bases: (N,) int32, N >= 1, a subset of :meth:`flat_bases` output.
+            bases: (N,) int32, N >= 1, made by :meth:`flat_bases` or :meth:`lattice_bases`.
             threshold, keep_on_device: as for :func:`score_gather`.
 
         Returns:

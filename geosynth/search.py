@@ -668,9 +668,9 @@ class CascadeSearch:
         self.block = int(block)
         self.lattice = tuple(int(s) - self.block + 1 for s in field.shape)
         self.n_blocks = int(np.prod(self.lattice))
+        backend = _checks.resolve_backend(device)
         if cells is None:  # the backend's choice (Backend.bound_cells_per_side)
-            per_side = _checks.resolve_backend(device).bound_cells_per_side
-            cells = [self.block // n for n in per_side if self.block // n >= 2]
+            cells = [self.block // n for n in backend.bound_cells_per_side if self.block // n >= 2]
         cells = [int(c) for c in cells]
         for c in cells:
             if c < 2 or c >= self.block or c & (c - 1) or c > _MAX_BOUND_CELL:
@@ -680,13 +680,12 @@ class CascadeSearch:
             raise ValueError(f"cells must go coarse to fine (strictly decreasing), got {cells}.")
         self.stages = cells
         if min_work is None:
-            min_work = _CASCADE_MIN_LAUNCHES * _checks.resolve_backend(device).launch_work
+            min_work = _CASCADE_MIN_LAUNCHES * backend.launch_work
         if self.n_blocks * self.block**3 < min_work:
             self.stages = []  # one launch over every block costs less than the stages' launches
         check_memory(field.size * (1 + 12 * len(self.stages)) + self.n_blocks * 40,
                      f"the cascade search of a {field.shape} field (block {block})")
         dev = "auto" if device is None else device
-        self.origins = block_origins(field.shape, self.block)
         self._exact_scorer = GatherScorer(to_device(field, dev), block_offsets(self.block))
         self._bound_scorers = {
             c: GatherScorer(to_device(box_sums(field, c).astype(np.float32), dev), c * block_offsets(self.block // c))

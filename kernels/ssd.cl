@@ -15,14 +15,11 @@
 // DENSE_ROWS candidate rows per work-item, rows g, g+m, ..., g+(DENSE_ROWS-1)m
 // (m = ceil(n/DENSE_ROWS)): several memory streams per work-item keep the prefetchers
 // busy; one query at a time. float builds use 2 rows (measured on PoCL: 8 rows of
-// float16 lanes read 35-60 GB/s, 2 rows 57-75 GB/s), uchar builds 8 (a build option).
-// Range: round_up(ceil(n/DENSE_ROWS), local), local 16 or 32 (the backend's choice).
+// float16 lanes read 35-60 GB/s, 2 rows 57-75 GB/s), uchar builds 8.
+// Range: round_up(ceil(n/DENSE_ROWS), local), local 16 or 32 (the backend's choice);
+// DENSE_ROWS (2, 4 or 8) is a build option the backend sets.
 #ifndef DENSE_ROWS
-#ifdef GS_U8
-#define DENSE_ROWS 8
-#else
-#define DENSE_ROWS 2
-#endif
+#error "DENSE_ROWS must be defined by the build options"
 #endif
 #if DENSE_ROWS == 2
 #define REP_ROWS REP2
