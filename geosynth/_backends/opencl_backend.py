@@ -26,10 +26,26 @@ _LOCAL_1D = 64
 # (measured on PoCL: float rows stream 45-75 GB/s two at a time, 35-46 eight at a time).
 _DENSE_ROWS = {True: 8, False: 2}
 _SMALL_UPLOAD = 1 << 16  # bytes; smaller arrays are uploaded in one call (per-call overhead)
+# OpenCL scalar argument types -> NumPy. Kernels get their scalar types declared once
+# (Kernel.set_scalar_arg_dtypes): an undeclared NumPy scalar costs pyopencl ~7 us per
+# argument and launch (measured, PoCL), 60-70 us for the gather kernels' 10 scalars.
+_SCALAR_TYPES = {"char": np.int8, "uchar": np.uint8, "short": np.int16, "ushort": np.uint16, "int": np.int32,
+                 "uint": np.uint32, "long": np.int64, "ulong": np.uint64, "float": np.float32, "double": np.float64}
 
 
 def _round_up(value: int, multiple: int) -> int:
     return -(-value // multiple) * multiple
+
+
+def _scalar_arg_dtypes(kernel: cl.Kernel) -> list:
+    """Per argument: the NumPy dtype of a scalar, None for a buffer (or anything else)."""
+    types = []
+    for i in range(kernel.num_args):
+        name = kernel.get_arg_info(i, cl.kernel_arg_info.TYPE_NAME)
+        qualifier = kernel.get_arg_info(i, cl.kernel_arg_info.ADDRESS_QUALIFIER)
+        scalar = qualifier == cl.kernel_arg_address_qualifier.PRIVATE and not name.endswith("*")
+        types.append(_SCALAR_TYPES.get(name) if scalar else None)
+    return types
 
 
 def _kernel_dir() -> str:
@@ -73,10 +89,12 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             pkey = (family, u8)
             program = self._programs.get(pkey)
             if program is None:
-                options = ["-I", _kernel_dir(), f"-DDENSE_ROWS={_DENSE_ROWS[u8]}"] + (["-DGS_U8"] if u8 else [])
-                program = cl.Program(self.context, _read_source(f"{family}.cl")).build(options=options)
+                options = ["-I", _kernel_dir(), f"-DDENSE_ROWS={_DENSE_ROWS[u8]}", "-cl-kernel-arg-info"]
+                program = cl.Program(self.context, _read_source(f"{family}.cl")).build(
+                    options=options + (["-DGS_U8"] if u8 else []))
                 self._programs[pkey] = program
-            kernel = self._kernels[key] = getattr(program, name)
+            kernel = self._kernels[key] = cl.Kernel(program, name)
+            kernel.set_scalar_arg_dtypes(_scalar_arg_dtypes(kernel))
         return kernel
 
     # -- memory -------------------------------------------------------------------
