@@ -71,10 +71,13 @@ def test_cascade_with_three_stages_equals_linear(device, rng):
     field = _field("real", 36, rng)
     from geosynth.backend import get_backend
 
-    default = [32 // n for n in get_backend(device).bound_cells_per_side]  # [16, 8] or [8]
-    assert CascadeSearch(field, 32, device=device, min_work=0).stages == default
+    default = CascadeSearch(field, 32, device=device, min_work=0)
+    assert default.fused and default.stages == [16, 8]  # N = 8, 16, 32: fused, one launch
+    unfused = CascadeSearch(field[:20, :20, :20], 4, device=device, min_work=0)
+    assert not unfused.fused
+    assert unfused.stages == [4 // n for n in get_backend(device).bound_cells_per_side if 4 // n >= 2]
     s = CascadeSearch(field, 32, device=device, min_work=0, cells=(16, 8, 4))
-    assert s.stages == [16, 8, 4]
+    assert s.stages == [16, 8, 4] and not s.fused
     for q in _queries(field, 32, rng):
         want = reference.nearest_block_naive(field, q)
         assert s.nearest(q) == want
@@ -95,6 +98,27 @@ def test_cascade_drops_blocks_by_bounds(device, rng):
     assert direct.stages == [] and direct.nearest(q) == ((5, 3, 7), 0)
 
 
+@pytest.mark.parametrize("items", [None, 1, 1 << 20])
+@pytest.mark.parametrize("shape", [(9, 30, 12), (40, 10, 8), (17, 8, 45)])
+def test_fused_cascade_on_thin_and_wide_fields(device, rng, shape, items, monkeypatch):
+    """Rows shorter and longer than the kernel's 16 lanes, one-block-thick axes, one
+    work-item, the device's default and one per row (sharing the best SSD and ties
+    between items): always the linear answer; blocks scored exactly are counted."""
+    from geosynth.backend import get_backend
+
+    if items is not None:
+        monkeypatch.setattr(get_backend(device), "search_items", items)
+    field = _field("real", 48, rng)[:shape[0], :shape[1], :shape[2]].copy()
+    s = CascadeSearch(field, 8, device=device, min_work=0)
+    assert s.fused
+    for q in _queries(field, 8, rng, count=4):
+        want = reference.nearest_block_naive(field, q)
+        assert s.nearest(q) == want
+        alive = s.last_info["alive"]
+        assert alive[0] == s.n_blocks and 1 <= alive[1] <= s.n_blocks
+        assert s.nearest(q, threshold=want[1]) == want
+
+
 def test_box_sums_match_numpy(rng):
     f = rng.integers(0, 256, (7, 6, 5), dtype=np.uint8)
     got = box_sums(f, 3)
@@ -110,6 +134,8 @@ def test_cut_query_finds_lowest_identical_block(device, block):
     field[7:, :, :] = 200
     field[3, 4, 5] = 17
     s = BlockSearch(field, block, device=device)
+    cascade = CascadeSearch(field, block, device=device, min_work=0)  # fused for block 8
+    assert cascade.fused == (block == 8)
     hi = np.array(field.shape) - block
     for o in [np.minimum((6, 6, 6), hi), (0, 0, 0), (2, 3, 4), hi]:
         q = field[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block]
@@ -117,6 +143,8 @@ def test_cut_query_finds_lowest_identical_block(device, block):
         assert got[1] == 0
         assert got == reference.nearest_block_naive(field, q)
         assert s.index_of(got[0]) <= s.index_of(o)
+        assert cascade.nearest(q) == got
+        assert cascade.nearest(q, threshold=0) == got
 
 
 def _check_tree_holds_every_block_once(s: BlockSearch, field: np.ndarray) -> None:

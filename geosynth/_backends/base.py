@@ -36,6 +36,9 @@ class Backend(ABC):
             second only over the first's survivors (fewer comparisons: best where
             compute is scarce, Warp's one CPU thread); (4,): one 4^3-cell stage over
             every block (fewer launches and host steps: best on PoCL, measured).
+        search_items: how many work-items M1's fused cascade search splits the
+            lattice rows into: a few per core on a CPU (they share the best SSD found,
+            so fewer, longer items prune more), one row each on a GPU.
     """
 
     name: str
@@ -44,6 +47,7 @@ class Backend(ABC):
     host_reduce_below: int = 0
     launch_work: float = 1e5
     bound_cells_per_side: tuple[int, ...] = (2, 4)
+    search_items: int = 1 << 16
 
     # -- memory -------------------------------------------------------------------
     @abstractmethod

@@ -35,6 +35,7 @@ class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Back
         # One thread per share of a reduction; many on a GPU, few on one CPU thread.
         self.partial_threads = 65536 if self.device.is_cuda else 256
         self.host_reduce_below = 0 if self.device.is_cuda else 1 << 16
+        self.search_items = 1 << 16 if self.device.is_cuda else 1  # one CPU thread: one item, the best pruning
         self._dummies: dict[np.dtype, DeviceArray] = {}
 
     # -- memory -------------------------------------------------------------------
