@@ -80,8 +80,6 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
         self._programs: dict[tuple, cl.Program] = {}
         self._kernels: dict[tuple, cl.Kernel] = {}
         self._dummies: dict[np.dtype, DeviceArray] = {}
-        self._last_args: dict[cl.Kernel, list] = {}
-        self._arg_dtypes: dict[cl.Kernel, list] = {}
 
     # -- programs -------------------------------------------------------------------
     def _kernel(self, family: str, name: str, data_dtype) -> cl.Kernel:
@@ -101,33 +99,6 @@ class OpenCLBackend(OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexe
             kernel = self._kernels[key] = cl.Kernel(program, name)
             kernel.set_scalar_arg_dtypes(_scalar_arg_dtypes(kernel))
         return kernel
-
-    def _enqueue_changed(self, kernel: cl.Kernel, global_size, local_size, args) -> None:
-        """Launch ``kernel`` setting only the arguments that differ from its last launch
-        through here (buffers by handle, scalars by value): for kernels launched once per
-        query with mostly the same arguments (M1's fused search: 4 of 20 change). Handles,
-        not buffers, are remembered: no buffer is kept alive, and a handle equal to the
-        last one is the same live buffer."""
-        last = self._last_args.get(kernel)
-        if last is None:
-            last = self._last_args[kernel] = [None] * len(args)
-            self._arg_dtypes[kernel] = _scalar_arg_dtypes(kernel)
-        dtypes = self._arg_dtypes[kernel]
-        for i, (arg, prev) in enumerate(zip(args, last)):
-            dtype = dtypes[i]
-            if dtype is None:
-                handle = arg.int_ptr
-                if handle == prev:
-                    continue
-                kernel.set_arg(i, arg)
-                arg = handle
-            else:
-                arg = dtype(arg)
-                if prev is not None and arg == prev:
-                    continue
-                kernel.set_arg(i, arg)
-            last[i] = arg
-        cl.enqueue_nd_range_kernel(self.queue, kernel, global_size, local_size)
 
     # -- memory -------------------------------------------------------------------
     def to_device(self, array: np.ndarray) -> DeviceArray:

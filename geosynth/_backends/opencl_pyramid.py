@@ -98,8 +98,8 @@ class OpenCLPyramidOps:
                        inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
         """Same as WarpPyramidOps.cascade_search."""
         local = 1 if self.is_cpu else _LOCAL  # one work-group per item on a CPU: the items balance the cores
-        self._enqueue_changed(  # once per query, 4 of its arguments new each time
-            self._pyr("cascade_search"), (-(-items // local) * local,), (local,),
-            [field.data, coarse.data, coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data,
-             query_terms.data, inv_c, inv_f, query.data, rows, margin, slack, best_shared.data, out.data],
+        self._pyr("cascade_search")(
+            self.queue, (-(-items // local) * local,), (local,), field.data, coarse.data, coarse_norm.data, fine.data, lx, ly,
+            lz, sy, sz, n, offsets.data, query_terms.data, inv_c, inv_f, query.data, rows, margin, slack,
+            best_shared.data, out.data,
         )
