@@ -596,9 +596,12 @@ _MAX_BOUND_CELL = 32  # c^3 * 255 < 2^24: cell sums stay exact in float32
 # The cascade runs only when scoring every block directly costs more than this many
 # launches' worth of work (backend.launch_work); below, one launch does it all.
 _CASCADE_MIN_LAUNCHES = 10
-# Block sizes the fused kernel (pyramid.cl cascade_search) takes: rows of 8-byte loads,
-# SSDs below 2^31. Its stages are fixed: 2^3 cells of side N/2, each split into 2^3 of N/4.
-_FUSED_BLOCKS = (8, 16, 32)
+# Block sizes the fused kernel (pyramid.cl cascade_search) runs by default. It takes any
+# multiple of 8 up to 32 (8-byte rows, SSDs below 2^31); its stages are fixed: 2^3 cells
+# of side N/2, each split into 2^3 of N/4. At N = 32 its 8^3-sample fine cells leave
+# ~100 k blocks of 32^3 samples to score exactly: 105 ms a match at 256^3 on PoCL, where
+# the staged search's (N/4)^3 cells take 53 ms; at N = 8 and 16 it is 3x faster.
+_FUSED_BLOCKS = (8, 16)
 _INT32_MAX = 2**31 - 1
 # The fused bound's centred-norm terms (C_q - C_b)^2 carry float32 rounding of the norms
 # (each <= 127.5 sqrt(m) for m samples): <= 2 |d| 2^-23 (C_q + C_b) < 0.008 m per cell.
@@ -648,12 +651,13 @@ class CascadeSearch:
         field: (Z, Y, X) uint8 source.
         block: the block size N, a power of two <= every side of ``field``.
         device: a device string; None means ``"auto"``.
-        guesses: blocks scored exactly in the guess phase (default 32).
+        guesses: blocks scored exactly in the guess phase of the staged search (default
+            32; the fused search needs none: its work-items share the best SSD found).
         min_work: sample comparisons (blocks x N^3) below which every block is scored
             in one launch instead (None: 10 launches' worth on the device; 0: always
             run the stages).
         cells: the bound stages' cell sizes, coarse to fine (powers of two, 2 <= c <
-            N), each a launch of its own. None: for N = 8, 16, 32 the fused search,
+            N), each a launch of its own. None: for N = 8 and 16 the fused search,
             one launch per query (``fused``); for other N the backend's
             ``bound_cells_per_side``: on PoCL one stage of
             (N/4)^3-sample cells, 64 cell sums a block, over every block (the fast
@@ -662,7 +666,7 @@ class CascadeSearch:
             (the 8-cell bound keeps a third of the blocks, scored again by index); on
             Warp's one CPU thread 8 then 64 cells, 4x faster there than 64 at once.
 
-    The fused search (``cells=None``, N in 8, 16, 32) runs the stages (N/2, N/4) and the
+    The fused search (``cells=None``, N = 8 or 16) runs the stages (N/2, N/4) and the
     exact SSDs in one kernel: work-items scan rows of blocks 16 at a time, refine a
     block's bound cell by cell only while it stays below the best SSD any of them has
     found (shared through an atomic minimum) and score the survivors exactly; no bounds

@@ -71,11 +71,9 @@ def test_cascade_with_three_stages_equals_linear(device, rng):
     field = _field("real", 36, rng)
     from geosynth.backend import get_backend
 
-    default = CascadeSearch(field, 32, device=device, min_work=0)
-    assert default.fused and default.stages == [16, 8]  # N = 8, 16, 32: fused, one launch
-    unfused = CascadeSearch(field[:20, :20, :20], 4, device=device, min_work=0)
-    assert not unfused.fused
-    assert unfused.stages == [4 // n for n in get_backend(device).bound_cells_per_side if 4 // n >= 2]
+    default = CascadeSearch(field, 32, device=device, min_work=0)  # N = 8, 16: fused; 32: staged
+    assert not default.fused and default.stages == [32 // n for n in get_backend(device).bound_cells_per_side]
+    assert CascadeSearch(field, 16, device=device, min_work=0).fused
     s = CascadeSearch(field, 32, device=device, min_work=0, cells=(16, 8, 4))
     assert s.stages == [16, 8, 4] and not s.fused
     for q in _queries(field, 32, rng):
