@@ -27,6 +27,7 @@ fallback from one device to another.
 from __future__ import annotations
 
 import functools
+import os
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -98,9 +99,27 @@ def _warp_status() -> tuple[Any, Exception | None]:
         return None, exc
 
 
+def _pin_pocl_threads() -> None:
+    """Ask PoCL's CPU driver to pin its worker threads, one per core (``POCL_AFFINITY``),
+    unless the user chose otherwise or this process may not run on every core (PoCL pins
+    thread i to CPU i). Read once, when PoCL starts; a no-op for other OpenCL drivers.
+
+    Measured on the 2-vCPU CI machine (PoCL 3.1): M1's fused search, one ~0.1 ms launch
+    per query, 0.17-0.18 ms a match pinned against 0.26-0.34 ms unpinned (the threads'
+    wake-ups and migrations between launches cost more than the kernel).
+    """
+    try:
+        every_core = os.sched_getaffinity(0) == set(range(os.cpu_count() or 0))
+    except (AttributeError, OSError):  # not Linux
+        return
+    if every_core:
+        os.environ.setdefault("POCL_AFFINITY", "1")
+
+
 @functools.lru_cache(maxsize=1)
 def _opencl_status() -> tuple[Any, Exception | None]:
     try:
+        _pin_pocl_threads()
         import pyopencl as cl
 
         cl.get_platforms()
