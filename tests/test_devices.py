@@ -97,3 +97,24 @@ def test_an_opencl_device_whose_compiler_fails_is_left_out_and_refused(monkeypat
     monkeypatch.setattr(backend, "_opencl_inventory", lambda: fake[:1])
     with pytest.raises(RuntimeError, match="no usable OpenCL device"):
         resolve_device("opencl")
+
+
+def test_pocl_threads_pinned_only_when_every_core_is_ours(monkeypatch):
+    """POCL_AFFINITY=1 by default; a user's value is kept; no pinning where the process
+    may not run on every core (PoCL would pin its threads to CPUs 0..n-1)."""
+    import os
+
+    from geosynth import backend
+
+    monkeypatch.delenv("POCL_AFFINITY", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    backend._pin_pocl_threads()
+    assert os.environ["POCL_AFFINITY"] == "1"
+    monkeypatch.setenv("POCL_AFFINITY", "0")
+    backend._pin_pocl_threads()
+    assert os.environ["POCL_AFFINITY"] == "0"
+    monkeypatch.delenv("POCL_AFFINITY")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {2, 3})
+    backend._pin_pocl_threads()
+    assert "POCL_AFFINITY" not in os.environ
