@@ -751,6 +751,8 @@ class CascadeSearch:
         s2 = box_sums(self.field.astype(np.int64) ** 2, cc)
         self._fused_arrays = (padded(s1), padded(_centred_norms(s1, s2, cc**3)), padded(box_sums(self.field, cf)))
         sy, sz = shape[2], shape[2] * shape[1]
+        lz, ly, lx = self.lattice
+        self._fused_geometry = (lx, ly, lz, sy, sz)  # lattice and field strides, as the kernel takes them
         coarse = np.indices((2, 2, 2)).reshape(3, -1).T  # (8, 3) coarse cells, C order
         fine = (2 * coarse[:, None, :] + coarse[None, :, :]).reshape(-1, 3)  # grouped by coarse cell
         strides = np.array([sz, sy, 1])
@@ -761,7 +763,6 @@ class CascadeSearch:
         inner = np.indices((cf, cf, cf)).reshape(3, -1).T
         samples = (cf * fine)[:, None, :] + inner[None, :, :]  # (64, cf^3, 3)
         self._fused_order = (samples @ np.array([n * n, n, 1])).reshape(-1).astype(np.intp)
-        lz, ly, lx = self.lattice
         n_rows = ly * lz
         self._fused_rows = -(-n_rows // max(1, min(n_rows, self._backend.search_items)))
         self._fused_items = -(-n_rows // self._fused_rows)
@@ -777,10 +778,8 @@ class CascadeSearch:
         terms = np.concatenate([s1, _centred_norms(s1, s2, cc**3), fine]).astype(np.float32)
         start = _INT32_MAX if threshold is None else min(int(threshold), _INT32_MAX)
         out = be.empty((self._fused_items, 3), np.int32)
-        lz, ly, lx = self.lattice
-        shape = self.field.shape
         be.cascade_search(
-            self._field_device, *self._fused_arrays, lx, ly, lz, shape[2], shape[2] * shape[1], n,
+            self._field_device, *self._fused_arrays, *self._fused_geometry, n,
             self._fused_offsets, be.to_device(terms), 1.0 / cc**3, 1.0 / cf**3,
             be.to_device(np.ascontiguousarray(query.reshape(-1))), self._fused_rows, 1.0 + _BOUND_MARGIN,
             1.0 + _NORM_SLACK * cc**3, be.to_device(np.array([start], np.int32)), out, self._fused_items,
