@@ -33,10 +33,11 @@ Definitions (paper's notation):
   colours their patch neighbours map them to; a coloured gap point then counts as a
   patch point (of the patch with the largest weight among its neighbours).
 
-Batching (our addition, for speed): the growth pops up to ``batch`` candidates at once
-from the top of the queue (keys within one of the best), none of them in another's
-k-neighbourhood, so their computations are independent and run as one vectorized
-step; ``batch=1`` is the paper's strictly sequential order.
+The growth runs in one kernel launch in the paper's sequential order (kernels/growth.py
+defines the queue's tie order: first in, first out within a priority). The gap blending
+(our addition, for speed) pops up to ``batch`` gap points at once from the top of its
+queue (keys within BATCH_KEY_SLACK of the best), none of them in another's
+k-neighbourhood, so their computations are independent and run as one vectorized step.
 """
 
 from __future__ import annotations
@@ -51,14 +52,13 @@ from geosynth.textures import as_texture, sample_bilinear
 
 __all__ = [
     "FREE", "GAP", "PATCH", "Parameterization", "colour_parameterization", "frames_from_up", "neighbourhood_offsets",
-    "parameterize_points", "propagate",
+    "growth_inputs", "parameterize_points", "propagate",
 ]
 
 FREE, PATCH, GAP = 0, 1, 2
 DEFAULT_WEIGHTS = (1.0, 1.0, 3.0, 2.0)  # w1, w2, w3, w4 of eqs. 2-4 (paper, Sec. 3.2)
 DEFAULT_THRESHOLD = 1.6
-DEFAULT_BATCH = 128  # candidates per vectorized growth step; 1 = the paper's sequential order
-ADJACENT_BATCHES = True  # a batch may hold neighbours (each then ignores the other)
+DEFAULT_BATCH = 128  # gap points per vectorized blending step
 BATCH_KEY_SLACK = 5  # a batch takes candidates whose key is within this of the best (34k-point blob, k = 36:
 # gap fraction 0.089-0.093 for slack 2-6, 0.113 for 10)
 PARALLEL_LIMIT = 1 - 1e-9  # |V0 . N_P| at or above this: F lies along P's normal (Appendix A)
@@ -299,6 +299,63 @@ def _pick_batch(cand: np.ndarray, neighbours: np.ndarray, blocked: np.ndarray, l
     return out
 
 
+def _check_growth_options(weights, threshold, unit_scale, max_patch) -> tuple[float, float, float, float]:
+    w = tuple(float(x) for x in weights)
+    if len(w) != 4 or not all(np.isfinite(x) and x >= 0 for x in w):
+        raise ValueError(f"weights must be four numbers >= 0 (w1, w2, w3, w4), got {weights!r}.")
+    if not (np.isfinite(threshold) and threshold > 0):
+        raise ValueError(f"threshold must be a number > 0, got {threshold!r}.")
+    if not (np.isfinite(unit_scale) and unit_scale > 0):
+        raise ValueError(f"unit_scale must be a number > 0, got {unit_scale!r}.")
+    if max_patch is not None and not (np.isfinite(max_patch) and max_patch >= 1):
+        raise ValueError(f"max_patch must be None or a size >= 1 texel, got {max_patch!r}.")
+    return w
+
+
+def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0, 1.0, 0.0), seed=0,
+                  neighbours: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Everything the growth needs besides the options: positions, unit normals, the
+    k-neighbour table, the unit length, the seed order and every point's seed frame.
+
+    Returns:
+        dict with ``pos`` (N, 3) float64, ``nrm`` (N, 3) float64, ``dist`` (N, k) float64,
+        ``nb`` (N, k) int64, ``unit`` float, ``order`` (N,) int64 (a seeded permutation:
+        patches start at its first free point), ``seed_s``, ``seed_t`` (N, 3) float64 (the
+        frame a patch seeded at that point starts with: from ``up``, or a random tangent
+        direction per point when ``up`` is None).
+    """
+    from geosynth.pointmodels import knn_table
+
+    p, nrm = _as_model(points)
+    n_pts = len(p)
+    k = check_k(k, n_pts)
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if neighbours is None:
+        dist, nb = knn_table(p, k)
+    else:
+        dist, nb = neighbours
+        if nb.shape != (n_pts, k):
+            raise ValueError(f"neighbours must be ({n_pts}, {k}) tables, got {nb.shape}.")
+    unit = mean_spacing(dist) * float(unit_scale)
+    order = rng.permutation(n_pts)
+    if up is not None:
+        seed_s, seed_t = frames_from_up(nrm, up)
+    else:  # a random direction per point, projected on its tangent plane
+        seed_s, seed_t = _frames_from_directions(nrm, rng.standard_normal((n_pts, 3)))
+    return dict(pos=p, nrm=nrm, dist=dist, nb=nb, unit=unit, order=order, seed_s=seed_s, seed_t=seed_t)
+
+
+def _frames_from_directions(normals: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point frames_from_up: T = each row's direction projected on its tangent plane."""
+    t = directions - _dot(directions, normals)[:, None] * normals
+    small = np.linalg.norm(t, axis=1) < 1e-3 * np.linalg.norm(directions, axis=1)
+    if small.any():
+        alt = np.where(np.abs(normals[small, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        t[small] = alt - _dot(alt, normals[small])[:, None] * normals[small]
+    _, s, t = _orthonormal(normals, t)
+    return s, t
+
+
 def parameterize_points(
     points: PointSet,
     k: int = 25,
@@ -308,11 +365,15 @@ def parameterize_points(
     weights=DEFAULT_WEIGHTS,
     threshold: float = DEFAULT_THRESHOLD,
     max_patch: float | None = None,
-    batch: int = DEFAULT_BATCH,
     seed: int | np.random.Generator | None = 0,
     neighbours: tuple[np.ndarray, np.ndarray] | None = None,
+    device: str | None = None,
 ) -> Parameterization:
     """Flatten a point model into 2D patches with bounded distortion (paper Sec. 3.2-3.3).
+
+    The growth is the paper's sequential order, in one kernel launch (``kernels/growth``;
+    the queue's tie order is defined there); :func:`geosynth.reference.parameterize_reference`
+    is its plain-Python twin.
 
     Args:
         points: PointSet with positions and normals (N >= k + 1).
@@ -323,9 +384,9 @@ def parameterize_points(
         threshold: distortion bound; a candidate with ``D > threshold`` becomes a gap point.
         max_patch: None for unbounded patches (tileable textures), else the largest
             patch extent (bounding box of q) in texels.
-        batch: candidates evaluated per vectorized step (1: the paper's sequential order).
         seed: int seed or Generator (patch seeds, random orientations).
         neighbours: optional precomputed (distances, indices) k-neighbour table.
+        device: where the growth runs (a device string; None: "auto").
 
     Returns:
         :class:`Parameterization`.
@@ -333,114 +394,36 @@ def parameterize_points(
     Raises:
         TypeError: points is not a PointSet.
         ValueError: no normals, NaN positions, k < 3 or >= N, bad weights/threshold.
+        RuntimeError: the device is absent.
     """
-    from geosynth.pointmodels import knn_table
+    import geosynth
 
     t_start = time.perf_counter()
-    p, nrm = _as_model(points)
-    n_pts = len(p)
-    k = check_k(k, n_pts)
-    w = tuple(float(x) for x in weights)
-    if len(w) != 4 or not all(np.isfinite(x) and x >= 0 for x in w):
-        raise ValueError(f"weights must be four numbers >= 0 (w1, w2, w3, w4), got {weights!r}.")
-    if not (np.isfinite(threshold) and threshold > 0):
-        raise ValueError(f"threshold must be a number > 0, got {threshold!r}.")
-    if not (np.isfinite(unit_scale) and unit_scale > 0):
-        raise ValueError(f"unit_scale must be a number > 0, got {unit_scale!r}.")
-    if max_patch is not None and not (np.isfinite(max_patch) and max_patch >= 1):
-        raise ValueError(f"max_patch must be None or a size >= 1 texel, got {max_patch!r}.")
-    if not isinstance(batch, (int, np.integer)) or batch < 1:
-        raise ValueError(f"batch must be an integer >= 1, got {batch!r}.")
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-
-    if neighbours is None:
-        dist, nb = knn_table(p, k)
-    else:
-        dist, nb = neighbours
-        if nb.shape != (n_pts, k):
-            raise ValueError(f"neighbours must be ({n_pts}, {k}) tables, got {nb.shape}.")
-    unit = mean_spacing(dist) * float(unit_scale)
-
-    state = np.zeros(n_pts, np.int8)
-    patch = np.full(n_pts, -1, np.int32)
-    uv = np.full((n_pts, 2), np.nan)
-    fn = np.full((n_pts, 3), np.nan)
-    fs = np.full((n_pts, 3), np.nan)
-    ft = np.full((n_pts, 3), np.nan)
-    distortion = np.full(n_pts, np.nan)
-    key = np.zeros(n_pts, np.int32)
-    frontier = np.zeros(n_pts, bool)
-    blocked = np.zeros((n_pts, 2), bool)
-    order = rng.permutation(n_pts)  # seeds are drawn from the free points in this order
-    next_seed = 0
-    seeds: list[int] = []
-    if up is not None:
-        s_up, t_up = frames_from_up(nrm, up)
-
-    while True:
-        while next_seed < n_pts and state[order[next_seed]] != FREE:
-            next_seed += 1
-        if next_seed == n_pts:
-            break
-        sd = int(order[next_seed])
-        pid = len(seeds)
-        seeds.append(sd)
-        # seed frame: T from the up vector (or random), S = T x N, q = (0, 0)
-        if up is not None:
-            s0, t0 = s_up[sd], t_up[sd]
-        else:
-            s0, t0 = frames_from_up(nrm[sd:sd + 1], rng.standard_normal(3))
-            s0, t0 = s0[0], t0[0]
-        state[sd], patch[sd] = PATCH, pid
-        uv[sd], fn[sd], fs[sd], ft[sd], distortion[sd] = 0.0, nrm[sd], s0, t0, 0.0
-        lo = hi = np.zeros(2)
-        touched = [nb[sd]]
-        fr_nb = nb[sd][state[nb[sd]] == FREE]
-        key[fr_nb] += 1
-        frontier[fr_nb] = True
-
-        while True:
-            top = _frontier_by_priority(frontier, key, BATCH_KEY_SLACK if batch > 1 else 0)
-            if top is None:
-                break
-            chosen = (_pick_batch(top, nb, blocked, batch) if ADJACENT_BATCHES is False else top[:batch]).astype(np.int64)
-            frontier[chosen] = False
-
-            # Appendix A from every usable patch neighbour, all candidates at once
-            L = nb[chosen]  # (B, k)
-            use = (state[L] == PATCH) & (patch[L] == pid) & (_dot(nrm[L], nrm[chosen][:, None]) > 0)
-            Lc = np.where(use, L, sd)
-            uv_l, n_l, s_l, t_l, d_l, ok = propagate(p[chosen][:, None], p[Lc], uv[Lc], fn[Lc], fs[Lc], ft[Lc], unit)
-            use &= ok
-            wl = np.where(use, unit / np.maximum(d_l, 1e-300), 0.0)
-            q, n_f, s_f, t_f, dist_f = _combine(uv_l, n_l, s_l, t_l, wl, w)
-            accept = use.any(1) & (dist_f <= threshold)
-            distortion[chosen] = dist_f
-            if max_patch is not None:  # in order: each accepted point may grow the patch's box
-                for i in np.flatnonzero(accept).tolist():
-                    nlo, nhi = np.minimum(lo, q[i]), np.maximum(hi, q[i])
-                    if (nhi - nlo).max() > max_patch:
-                        accept[i] = False
-                    else:
-                        lo, hi = nlo, nhi
-            # refused with a usable neighbour: a gap point. With none (all face away,
-            # n_i . n_j <= 0) F stays free for a later patch, and is looked at again if
-            # another of its neighbours joins this one.
-            state[chosen[~accept & use.any(1)]] = GAP
-            if accept.any():
-                a = chosen[accept]
-                sel = accept
-                state[a], patch[a] = PATCH, pid
-                uv[a], fn[a], fs[a], ft[a] = q[sel], n_f[sel], s_f[sel], t_f[sel]
-                nbs = nb[a].reshape(-1)
-                nbs = nbs[state[nbs] == FREE]
-                np.add.at(key, nbs, 1)
-                frontier[nbs] = True
-                touched.append(nbs)
-        key[np.concatenate(touched)] = 0  # keys count the current patch only
-
-    return Parameterization(state, patch, uv, fn, fs, ft, unit, np.asarray(seeds, np.int64), distortion, nb, dist,
+    w = _check_growth_options(weights, threshold, unit_scale, max_patch)
+    backend = geosynth.get_backend(device or "auto")
+    g = growth_inputs(points, k, unit_scale=unit_scale, up=up, seed=seed, neighbours=neighbours)
+    n_pts, k = g["nb"].shape
+    n_buckets = growth_buckets(k)
+    f64, i32 = np.float64, np.int32
+    inputs = [backend.to_device(np.ascontiguousarray(a, dt)) for a, dt in
+              ((g["pos"], f64), (g["nrm"], f64), (g["nb"], i32), (g["order"], i32), (g["seed_s"], f64),
+               (g["seed_t"], f64))]
+    outputs = [backend.empty(shape, dt) for shape, dt in
+               (((n_pts,), i32), ((n_pts,), i32), ((n_pts, 2), f64), ((n_pts, 3), f64), ((n_pts, 3), f64),
+                ((n_pts, 3), f64), ((n_pts,), f64), ((n_pts,), i32), ((1,), i32))]
+    scratch = [backend.empty((n_pts,), i32) for _ in range(5)] + \
+        [backend.empty((n_buckets,), i32) for _ in range(2)] + [backend.empty((k * 12,), f64)]
+    backend.grow_patches(n_pts, k, inputs, g["unit"], w, float(threshold),
+                         -1.0 if max_patch is None else float(max_patch), n_buckets, outputs, scratch)
+    state, patch, uv, fn, fs, ft, distortion, seeds, counts = backend.to_host_all(outputs)
+    return Parameterization(state.astype(np.int8), patch, uv, fn, fs, ft, g["unit"],
+                            seeds[:int(counts[0])].astype(np.int64), distortion, g["nb"], g["dist"],
                             seconds=time.perf_counter() - t_start)
+
+
+def growth_buckets(k: int) -> int:
+    """Priority levels of the growth queue: keys 1 .. 4k - 1 apart, larger ones share the top."""
+    return 4 * int(k)
 
 
 # ------------------------------------------------------------------ texturing (Sec. 3.4)

@@ -276,3 +276,138 @@ def nearest_block_naive(field: np.ndarray, query: np.ndarray) -> tuple[tuple[int
     i = int(np.argmin(ssd.reshape(-1)))  # argmin returns the first minimum
     z, y, x = np.unravel_index(i, ssd.shape)
     return (int(z), int(y), int(x)), int(ssd.reshape(-1)[i])
+
+
+def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(0.0, 1.0, 0.0), weights=None,
+                           threshold: float | None = None, max_patch: float | None = None, seed=0, neighbours=None):
+    """Same arguments (less ``device``) and result as :func:`geosynth.parameterize.parameterize_points`:
+    the growth of ``kernels/growth.py`` as a plain-Python loop, the same float64
+    arithmetic in the same order (so normally the same bits)."""
+    from geosynth.parameterize import (
+        DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, FREE, GAP, PATCH, PARALLEL_LIMIT, Parameterization, growth_buckets,
+        growth_inputs,
+    )
+
+    w1, w2, w3, w4 = (float(x) for x in (DEFAULT_WEIGHTS if weights is None else weights))
+    threshold = DEFAULT_THRESHOLD if threshold is None else float(threshold)
+    g = growth_inputs(points, k, unit_scale=unit_scale, up=up, seed=seed, neighbours=neighbours)
+    n, k = g["nb"].shape
+    unit, n_buckets, tiny = g["unit"], growth_buckets(k), 1e-300
+    pos, nrm, nb = g["pos"].tolist(), g["nrm"].tolist(), g["nb"].tolist()
+    state, patch, key = [FREE] * n, [-1] * n, [0] * n
+    nan = float("nan")
+    uv = [[nan, nan] for _ in range(n)]
+    fn, fs, ft = ([[nan] * 3 for _ in range(n)] for _ in range(3))
+    distortion = [nan] * n
+    slot = [-1] * n
+    lists: list[dict] = [dict() for _ in range(n_buckets)]  # insertion-ordered: FIFO per priority
+    seeds = []
+
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    def div(a, s):
+        return [a[0] / s, a[1] / s, a[2] / s]
+
+    for sd in g["order"].tolist():
+        if state[sd] != FREE:
+            continue
+        pid = len(seeds)
+        seeds.append(sd)
+        state[sd], patch[sd], uv[sd], distortion[sd] = PATCH, pid, [0.0, 0.0], 0.0
+        fn[sd], fs[sd], ft[sd] = list(nrm[sd]), g["seed_s"][sd].tolist(), g["seed_t"][sd].tolist()
+        lo, hi = [0.0, 0.0], [0.0, 0.0]
+        touched, top, joined = [], 0, sd
+        while True:
+            if joined >= 0:
+                for q in nb[joined]:
+                    if state[q] != FREE:
+                        continue
+                    if key[q] == 0:
+                        touched.append(q)
+                    key[q] += 1
+                    b = min(key[q], n_buckets - 1)
+                    if slot[q] != b:
+                        if slot[q] >= 0:
+                            del lists[slot[q]][q]
+                        lists[b][q] = None
+                        slot[q] = b
+                        top = max(top, b)
+                joined = -1
+            while top > 0 and not lists[top]:
+                top -= 1
+            if top == 0:
+                break
+            f = next(iter(lists[top]))
+            del lists[top][f]
+            slot[f] = -1
+            pf, nf = pos[f], nrm[f]
+            terms = []
+            wsum = su = sv = 0.0
+            sn, st = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+            for l in nb[f]:
+                if state[l] != PATCH or patch[l] != pid or not dot(nrm[l], nf) > 0.0:
+                    continue
+                pp, pn, ps, pt = pos[l], fn[l], fs[l], ft[l]
+                v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
+                dist = math.sqrt(dot(v, v))
+                v0 = div(v, max(dist, tiny))
+                along = dot(v0, pn)
+                if not (dist > 0.0 and abs(along) < PARALLEL_LIMIT):
+                    continue
+                a, b = dot(v, ps), dot(v, pt)
+                scale = dist / max(math.sqrt(a * a + b * b), tiny) / unit
+                lu, lv = uv[l][0] + a * scale, uv[l][1] + b * scale
+                nn = [pn[0] - along * v0[0], pn[1] - along * v0[1], pn[2] - along * v0[2]]
+                nn = div(nn, max(math.sqrt(dot(nn, nn)), tiny))
+                vt, vs = dot(v0, pt), dot(v0, ps)
+                c = cross(nn, v0)
+                tt = [vt * v0[0] + vs * c[0], vt * v0[1] + vs * c[1], vt * v0[2] + vs * c[2]]
+                ss = cross(tt, nn)
+                w = unit / max(dist, tiny)
+                terms.append((w, lu, lv, ss, tt))
+                wsum += w
+                su += w * lu
+                sv += w * lv
+                sn = [sn[i] + w * nn[i] for i in range(3)]
+                st = [st[i] + w * tt[i] for i in range(3)]
+            if not terms:
+                continue
+            inv = 1.0 / wsum
+            qu, qv = su * inv, sv * inv
+            n_f = div(sn, max(math.sqrt(dot(sn, sn)), tiny))
+            tn = dot(st, n_f)
+            t_f = [st[i] - tn * n_f[i] for i in range(3)]
+            t_f = div(t_f, max(math.sqrt(dot(t_f, t_f)), tiny))
+            s_f = cross(t_f, n_f)
+            pos_sum = pos_max = ori_sum = ori_max = 0.0
+            for w, lu, lv, ss, tt in terms:
+                du, dv = lu - qu, lv - qv
+                dp = w * math.sqrt(du * du + dv * dv)
+                dor = w * (2.0 - dot(ss, s_f) - dot(tt, t_f))
+                pos_sum += dp
+                ori_sum += dor
+                pos_max, ori_max = max(pos_max, dp), max(ori_max, dor)
+            d = w3 * (w2 * ori_sum * inv + ori_max) + w4 * (w1 * pos_sum * inv + pos_max)
+            distortion[f] = d
+            accept = d <= threshold
+            if accept and max_patch is not None:
+                nlo, nhi = [min(lo[0], qu), min(lo[1], qv)], [max(hi[0], qu), max(hi[1], qv)]
+                if max(nhi[0] - nlo[0], nhi[1] - nlo[1]) > max_patch:
+                    accept = False
+                else:
+                    lo, hi = nlo, nhi
+            if not accept:
+                state[f] = GAP
+                continue
+            state[f], patch[f], uv[f] = PATCH, pid, [qu, qv]
+            fn[f], fs[f], ft[f] = n_f, s_f, t_f
+            joined = f
+        for q in touched:
+            key[q] = 0
+    return Parameterization(np.asarray(state, np.int8), np.asarray(patch, np.int32), np.asarray(uv), np.asarray(fn),
+                            np.asarray(fs), np.asarray(ft), unit, np.asarray(seeds, np.int64),
+                            np.asarray(distortion), g["nb"], g["dist"])

@@ -843,7 +843,8 @@ def texture_points(
     def run_param():
         t1 = time.perf_counter()
         par = parameterize_points(points, k, unit_scale=unit_scale, up=up, weights=weights, threshold=threshold,
-                                  max_patch=None if tileable else max_patch, seed=rng, neighbours=(dist, nb))
+                                  max_patch=None if tileable else max_patch, seed=rng, neighbours=(dist, nb),
+                                  device=dev_name)
         sec["parameterization"] = time.perf_counter() - t1
         rates["parameterization"] = n_pts / max(sec["parameterization"], 1e-9)
         t1 = time.perf_counter()

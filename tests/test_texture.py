@@ -10,6 +10,7 @@ import pytest
 from conftest import TEST_DEVICES
 
 from geosynth.parameterize import PATCH, parameterize_points
+from geosynth.reference import parameterize_reference
 from geosynth.pointmodels import knn_table, load_point_model, point_model
 from geosynth.pointsets import PointSet, read_point_set, write_point_set
 from geosynth.texture import TexelSearch, texture_points
@@ -119,10 +120,9 @@ def test_knn_table_excludes_self():
 # ------------------------------------------------------------------ parameterization
 
 
-@pytest.mark.parametrize("batch", [1, 64])
-def test_parameterization_of_a_plane_is_its_own_coordinates(batch):
+def test_parameterization_of_a_plane_is_its_own_coordinates(device):
     ps = grid_points(40, 30, spacing=0.1, jitter=0.2)
-    par = parameterize_points(ps, 25, batch=batch, seed=3)
+    par = parameterize_points(ps, 25, seed=3, device=device)
     assert par.patch_count == 1 and par.gap_fraction == 0.0
     p = ps.positions.astype(np.float64)
     sd = par.seeds[0]
@@ -133,40 +133,60 @@ def test_parameterization_of_a_plane_is_its_own_coordinates(batch):
     assert np.nanmax(par.distortion) < 1e-9
 
 
-def test_parameterization_of_a_sphere_near_the_seed():
+def test_parameterization_of_a_sphere_near_the_seed(device):
     ps = point_model("sphere", 6000, seed=1)
-    par = parameterize_points(ps, 25, seed=5)
+    par = parameterize_points(ps, 25, seed=5, device=device)
     sd = par.seeds[0]
     p = ps.positions.astype(np.float64)
     angle = np.arccos(np.clip(p @ p[sd], -1, 1))  # geodesic distance on the unit sphere
-    near = angle < 0.3  # about 7 point spacings around the seed
+    near = angle < 0.15  # about 5 point spacings around the seed
     assert (par.state[near] == PATCH).all() and (par.patch[near] == 0).all()
     assert (par.distortion[near] <= 1.6).all()
+    # farther out the sequential growth's frame drift (the sphere's holonomy) adds up
+    # where growth fronts meet, and a few points become gap points
+    wider = angle < 0.3
+    assert (par.state[wider] == PATCH).mean() > 0.9
     # distances in the patch: geodesic arc length in texels, within a few percent
-    r = np.linalg.norm(par.uv[near], axis=1) * par.unit
-    far = angle[near] > 0.1  # (close to the seed, rounding of the few-texel distances dominates)
-    np.testing.assert_allclose(r[far], angle[near][far], rtol=0.04)
+    ring = wider & (par.state == PATCH) & (angle > 0.1)  # (close to the seed, rounding of few-texel distances dominates)
+    r = np.linalg.norm(par.uv[ring], axis=1) * par.unit
+    assert np.median(np.abs(r / angle[ring] - 1)) < 0.02
+    inner = near & (angle > 0.1)
+    np.testing.assert_allclose(np.linalg.norm(par.uv[inner], axis=1) * par.unit, angle[inner], rtol=0.04)
     assert 0.02 < par.gap_fraction < 0.3  # a closed surface needs cuts, but few
     # a stricter threshold cuts more
-    assert parameterize_points(ps, 25, seed=5, threshold=0.8).gap_fraction > par.gap_fraction
+    assert parameterize_points(ps, 25, seed=5, threshold=0.8, device=device).gap_fraction > par.gap_fraction
 
 
-def test_parameterization_keeps_facing_sides_apart():
+@pytest.mark.parametrize("model, k, options", [("sphere", 16, {}), ("blob", 12, {"max_patch": 10.0}),
+                                               ("torus", 9, {"up": None, "threshold": 0.9})])
+def test_parameterization_kernel_equals_the_python_growth(device, model, k, options):
+    # the kernel's growth order, arithmetic and results against the plain-Python loop of
+    # geosynth.reference (same operations in the same order: the same bits, NaN included)
+    ps = point_model(model, 2500, seed=2)
+    ref = parameterize_reference(ps, k, seed=4, **options)
+    par = parameterize_points(ps, k, seed=4, device=device, **options)
+    assert par.patch_count == ref.patch_count and par.patch_count >= 1
+    assert 0 < (ref.state == PATCH).mean() < 1
+    for name in ("state", "patch", "seeds", "uv", "normal", "s_axis", "t_axis", "distortion"):
+        np.testing.assert_array_equal(getattr(par, name), getattr(ref, name), err_msg=name)
+
+
+def test_parameterization_keeps_facing_sides_apart(device):
     # two parallel sheets 0.3 spacings apart with opposite normals: k-neighbourhoods mix
     # them, but the n_i . n_j > 0 rule never puts both in one patch
     a = grid_points(20, 20, spacing=1.0)
     b = PointSet(a.positions + [0, 0, 0.3], -a.normals)
     ps = PointSet(np.r_[a.positions, b.positions], np.r_[a.normals, b.normals])
-    par = parameterize_points(ps, 12, seed=0)
+    par = parameterize_points(ps, 12, seed=0, device=device)
     side = np.r_[np.zeros(400), np.ones(400)]
     for pid in range(par.patch_count):
         assert len(np.unique(side[par.patch == pid])) == 1
     assert (par.state == PATCH).mean() > 0.95
 
 
-def test_capped_patches_fit_the_texture():
+def test_capped_patches_fit_the_texture(device):
     ps = point_model("sphere", 4000, seed=0)
-    par = parameterize_points(ps, 16, max_patch=12, seed=1)
+    par = parameterize_points(ps, 16, max_patch=12, seed=1, device=device)
     assert par.patch_count > 3
     for pid in range(par.patch_count):
         uv = par.uv[par.patch == pid]

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from geosynth._backends.base import Backend
+from geosynth._backends.warp_growth import WarpGrowthOps
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
 from geosynth._backends.warp_pyramid import WarpPyramidOps
@@ -19,13 +20,14 @@ from geosynth.kernels import ssd as ssd_kernels
 
 _WARP_DTYPES = {
     np.dtype(np.float32): wp.float32,
+    np.dtype(np.float64): wp.float64,
     np.dtype(np.uint8): wp.uint8,
     np.dtype(np.uint32): wp.uint32,
     np.dtype(np.int32): wp.int32,
 }
 
 
-class WarpBackend(WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
+class WarpBackend(WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

@@ -1,0 +1,34 @@
+"""Warp backend methods for the M3 patch growth (mixed into WarpBackend).
+
+Launches the kernel of ``geosynth.kernels.growth``; see there for the definitions.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from geosynth.kernels import growth as growth_kernels
+
+
+class WarpGrowthOps:
+    """Mixin: the sequential patch growth on a Warp device."""
+
+    def grow_patches(self, n, k, inputs, unit, weights, threshold, max_patch, n_buckets, outputs, scratch) -> None:
+        """Grow every patch of a point model in one thread (kernels/growth.py).
+
+        Args:
+            n, k: points and neighbours per point.
+            inputs: DeviceArrays pos (n*3 float64), nrm (n*3 float64), nb (n*k int32),
+                order (n int32), seed_s, seed_t (n*3 float64).
+            unit: world length of a texel; weights: (w1, w2, w3, w4); threshold: the
+                distortion bound; max_patch: largest patch extent in texels (<= 0: none);
+                n_buckets: priority levels of the queue.
+            outputs: DeviceArrays state, patch (n int32), uv (n*2), fn, fs, ft (n*3),
+                distortion (n) float64, seeds (n int32), counts (1 int32).
+            scratch: DeviceArrays key, slot, next, prev, touched (n int32), head, tail
+                (n_buckets int32), terms (k*12 float64).
+        """
+        f64 = wp.float64
+        self._launch(growth_kernels.grow_patches_kernel, 1,
+                     [n, k, *(a.data for a in inputs), f64(unit), *(f64(w) for w in weights), f64(threshold),
+                      f64(max_patch), n_buckets, *(a.data for a in outputs), *(a.data for a in scratch)])

@@ -1,0 +1,185 @@
+// M3 point parameterization (Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A): the
+// sequential region growing of distortion-bounded patches, in one work-item. The twin of
+// growth.py (same kernel, same arguments in the same order, same arithmetic in the same
+// order, float64 without contraction); see there and geosynth/parameterize.py for the
+// definitions.
+#include "common.h"
+
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#pragma OPENCL FP_CONTRACT OFF
+
+#define G_FREE 0
+#define G_PATCH 1
+#define G_GAP 2
+#define PARALLEL_LIMIT (1.0 - 1e-9)
+#define TINY 1e-300
+
+typedef struct { double x, y, z; } d3;
+
+inline d3 d3_at(__global const double* a, int i) { d3 r = {a[3 * i], a[3 * i + 1], a[3 * i + 2]}; return r; }
+inline void d3_put(__global double* a, int i, d3 v) { a[3 * i] = v.x; a[3 * i + 1] = v.y; a[3 * i + 2] = v.z; }
+inline double d3_dot(d3 a, d3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline d3 d3_cross(d3 a, d3 b)
+{
+    d3 r = {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+    return r;
+}
+inline d3 d3_scale(d3 a, double s) { d3 r = {a.x * s, a.y * s, a.z * s}; return r; }
+inline d3 d3_div(d3 a, double s) { d3 r = {a.x / s, a.y / s, a.z / s}; return r; }
+
+// Priority queue of frontier points: one FIFO list per priority min(key, n_buckets - 1)
+// (key: patch points that have the point among their k neighbours), linked through
+// next/prev (-1 ends a list); a point is in at most one list (slot[i]: its bucket, -1
+// when in none). The next candidate is the head of the highest non-empty list.
+inline void queue_unlink(__global int* next, __global int* prev, __global int* slot, __global int* head,
+                         __global int* tail, int i)
+{
+    const int b = slot[i], p = prev[i], q = next[i];
+    if (p >= 0) next[p] = q; else head[b] = q;
+    if (q >= 0) prev[q] = p; else tail[b] = p;
+    slot[i] = -1;
+}
+
+inline void queue_append(__global int* next, __global int* prev, __global int* slot, __global int* head,
+                         __global int* tail, int i, int b)
+{
+    const int t = tail[b];
+    prev[i] = t; next[i] = -1;
+    if (t >= 0) next[t] = i; else head[b] = i;
+    tail[b] = i;
+    slot[i] = b;
+}
+
+// One work-item (range (1,), local (1,)) grows every patch.
+// Inputs: n points, k neighbours each (nb: n*k int, self excluded); pos, nrm: n*3 double
+// (unit normals); order: n int, the seed order; seed_s, seed_t: n*3 double, each point's
+// seed frame; unit: world length of a texel; w1..w4, threshold: eqs. 2-4; max_patch: the
+// largest patch extent in texels, <= 0 for unbounded; n_buckets: priority levels.
+// Outputs: state, patch (n int); uv (n*2), fn, fs, ft (n*3), distortion (n) double;
+// seeds (n int, the first counts[0] used); counts: (1,) int: patches.
+// Scratch: key, slot, next, prev, touched (n int), head, tail (n_buckets int), terms (k * 12 double).
+__kernel void grow_patches(const int n, const int k, __global const double* pos, __global const double* nrm,
+                           __global const int* nb, __global const int* order, __global const double* seed_s,
+                           __global const double* seed_t, const double unit, const double w1, const double w2,
+                           const double w3, const double w4, const double threshold, const double max_patch,
+                           const int n_buckets, __global int* state, __global int* patch, __global double* uv,
+                           __global double* fn, __global double* fs, __global double* ft,
+                           __global double* distortion, __global int* seeds, __global int* counts,
+                           __global int* key, __global int* slot, __global int* next, __global int* prev,
+                           __global int* touched, __global int* head, __global int* tail, __global double* terms)
+{
+    if (get_global_id(0) != 0) return;
+    const double nan_value = NAN;
+    for (int i = 0; i < n; ++i) {
+        state[i] = G_FREE; patch[i] = -1; key[i] = 0; slot[i] = -1;
+        uv[2 * i] = nan_value; uv[2 * i + 1] = nan_value; distortion[i] = nan_value;
+        for (int c = 0; c < 3; ++c) { fn[3 * i + c] = nan_value; fs[3 * i + c] = nan_value; ft[3 * i + c] = nan_value; }
+    }
+    for (int b = 0; b < n_buckets; ++b) { head[b] = -1; tail[b] = -1; }
+    int n_patches = 0, next_seed = 0;
+    while (1) {
+        while (next_seed < n && state[order[next_seed]] != G_FREE) ++next_seed;
+        if (next_seed == n) break;
+        const int sd = order[next_seed];
+        const int pid = n_patches++;
+        seeds[pid] = sd;
+        state[sd] = G_PATCH; patch[sd] = pid;
+        uv[2 * sd] = 0.0; uv[2 * sd + 1] = 0.0; distortion[sd] = 0.0;
+        d3_put(fn, sd, d3_at(nrm, sd)); d3_put(fs, sd, d3_at(seed_s, sd)); d3_put(ft, sd, d3_at(seed_t, sd));
+        double lo_x = 0.0, lo_y = 0.0, hi_x = 0.0, hi_y = 0.0;
+        int n_touched = 0, top = 0;
+        int joined = sd;  // the point whose free neighbours get +1 next
+        while (1) {
+            if (joined >= 0) {
+                for (int j = 0; j < k; ++j) {
+                    const int q = nb[joined * k + j];
+                    if (state[q] != G_FREE) continue;
+                    if (key[q] == 0) touched[n_touched++] = q;
+                    key[q] += 1;
+                    const int b = min(key[q], n_buckets - 1);
+                    if (slot[q] != b) {  // to the end of its new priority's list
+                        if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
+                        queue_append(next, prev, slot, head, tail, q, b);
+                        top = max(top, b);
+                    }
+                }
+                joined = -1;
+            }
+            while (top > 0 && head[top] < 0) --top;
+            if (top == 0) break;
+            const int f = head[top];  // the next candidate: highest priority, first in
+            queue_unlink(next, prev, slot, head, tail, f);
+            // Appendix A from every usable patch neighbour P
+            const d3 pf = d3_at(pos, f), nf = d3_at(nrm, f);
+            int used = 0;
+            double wsum = 0.0, su = 0.0, sv = 0.0;
+            d3 sn = {0.0, 0.0, 0.0}, st = {0.0, 0.0, 0.0};
+            for (int j = 0; j < k; ++j) {
+                const int l = nb[f * k + j];
+                if (state[l] != G_PATCH || patch[l] != pid) continue;
+                const d3 pn = d3_at(fn, l);
+                if (!(d3_dot(d3_at(nrm, l), nf) > 0.0)) continue;
+                const d3 pp = d3_at(pos, l), ps = d3_at(fs, l), pt = d3_at(ft, l);
+                const d3 v = {pf.x - pp.x, pf.y - pp.y, pf.z - pp.z};
+                const double dist = sqrt(d3_dot(v, v));
+                const d3 v0 = d3_div(v, fmax(dist, TINY));
+                const double along = d3_dot(v0, pn);
+                if (!(dist > 0.0 && fabs(along) < PARALLEL_LIMIT)) continue;
+                const double a = d3_dot(v, ps), b = d3_dot(v, pt);
+                const double plane = sqrt(a * a + b * b);
+                const double scale = dist / fmax(plane, TINY) / unit;
+                const double lu = uv[2 * l] + a * scale, lv = uv[2 * l + 1] + b * scale;
+                d3 nn = {pn.x - along * v0.x, pn.y - along * v0.y, pn.z - along * v0.z};
+                nn = d3_div(nn, fmax(sqrt(d3_dot(nn, nn)), TINY));
+                const double vt = d3_dot(v0, pt), vs = d3_dot(v0, ps);
+                const d3 c = d3_cross(nn, v0);
+                const d3 tt = {vt * v0.x + vs * c.x, vt * v0.y + vs * c.y, vt * v0.z + vs * c.z};
+                const d3 ss = d3_cross(tt, nn);
+                const double w = unit / fmax(dist, TINY);
+                __global double* term = terms + 12 * used;
+                term[0] = w; term[1] = lu; term[2] = lv;
+                term[3] = ss.x; term[4] = ss.y; term[5] = ss.z; term[6] = tt.x; term[7] = tt.y; term[8] = tt.z;
+                wsum += w; su += w * lu; sv += w * lv;
+                sn.x += w * nn.x; sn.y += w * nn.y; sn.z += w * nn.z;
+                st.x += w * tt.x; st.y += w * tt.y; st.z += w * tt.z;
+                ++used;
+            }
+            if (used == 0) continue;  // no usable neighbour: F stays free for a later patch
+            // weighted averages, re-orthonormalized frame, distortion (eqs. 2-4)
+            const double inv = 1.0 / wsum;
+            const double qu = su * inv, qv = sv * inv;
+            const d3 n_f = d3_div(sn, fmax(sqrt(d3_dot(sn, sn)), TINY));
+            const double tn = d3_dot(st, n_f);
+            d3 t_f = {st.x - tn * n_f.x, st.y - tn * n_f.y, st.z - tn * n_f.z};
+            t_f = d3_div(t_f, fmax(sqrt(d3_dot(t_f, t_f)), TINY));
+            const d3 s_f = d3_cross(t_f, n_f);
+            double pos_sum = 0.0, pos_max = 0.0, ori_sum = 0.0, ori_max = 0.0;
+            for (int j = 0; j < used; ++j) {
+                __global const double* term = terms + 12 * j;
+                const double w = term[0], du = term[1] - qu, dv = term[2] - qv;
+                const double dp = w * sqrt(du * du + dv * dv);
+                const d3 ss = {term[3], term[4], term[5]}, tt = {term[6], term[7], term[8]};
+                const double dor = w * (2.0 - d3_dot(ss, s_f) - d3_dot(tt, t_f));
+                pos_sum += dp; ori_sum += dor;
+                pos_max = fmax(pos_max, dp); ori_max = fmax(ori_max, dor);
+            }
+            const double d_pos = w1 * pos_sum * inv + pos_max;
+            const double d_ori = w2 * ori_sum * inv + ori_max;
+            const double d = w3 * d_ori + w4 * d_pos;
+            distortion[f] = d;
+            int accept = d <= threshold;
+            if (accept && max_patch > 0.0) {  // the patch's bounding box may not outgrow max_patch
+                const double nlx = fmin(lo_x, qu), nly = fmin(lo_y, qv), nhx = fmax(hi_x, qu), nhy = fmax(hi_y, qv);
+                if (fmax(nhx - nlx, nhy - nly) > max_patch) accept = 0;
+                else { lo_x = nlx; lo_y = nly; hi_x = nhx; hi_y = nhy; }
+            }
+            if (!accept) { state[f] = G_GAP; continue; }
+            state[f] = G_PATCH; patch[f] = pid;
+            uv[2 * f] = qu; uv[2 * f + 1] = qv;
+            d3_put(fn, f, n_f); d3_put(fs, f, s_f); d3_put(ft, f, t_f);
+            joined = f;
+        }
+        for (int i = 0; i < n_touched; ++i) key[touched[i]] = 0;  // keys count the current patch only
+    }
+    counts[0] = n_patches;
+}
