@@ -75,7 +75,7 @@ def main(argv=None) -> int:
         tex = texture_example("noise", size, seed=0)
         for dev in devices:
             # warm-up: kernel builds and uploads outside the timing
-            texture_points(point_model("sphere", 2_000), tex[:32, :32], method="match", k=8, device=dev,
+            texture_points(point_model("sphere", 2_000), tex[:32, :32], method="hybrid", k=8, device=dev,
                            quality=False)
             t0 = time.perf_counter()
             _, rep = texture_points(ps, tex, method=method, k=k, levels=levels, coherent=coherent, device=dev,

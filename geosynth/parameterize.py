@@ -33,11 +33,9 @@ Definitions (paper's notation):
   colours their patch neighbours map them to; a coloured gap point then counts as a
   patch point (of the patch with the largest weight among its neighbours).
 
-The growth runs in one kernel launch in the paper's sequential order (kernels/growth.py
-defines the queue's tie order: first in, first out within a priority). The gap blending
-(our addition, for speed) pops up to ``batch`` gap points at once from the top of its
-queue (keys within BATCH_KEY_SLACK of the best), none of them in another's
-k-neighbourhood, so their computations are independent and run as one vectorized step.
+The growth and the gap blending each run in one kernel launch (one work-item) in the
+paper's sequential order; kernels/growth.py defines the queues' tie order (first in,
+first out within a priority) and geosynth.reference has plain-Python twins.
 """
 
 from __future__ import annotations
@@ -52,15 +50,12 @@ from geosynth.textures import as_texture, sample_bilinear
 
 __all__ = [
     "FREE", "GAP", "PATCH", "Parameterization", "colour_parameterization", "frames_from_up", "neighbourhood_offsets",
-    "growth_inputs", "parameterize_points", "propagate",
+    "growth_inputs", "parameterize_points", "patch_offsets", "propagate",
 ]
 
 FREE, PATCH, GAP = 0, 1, 2
 DEFAULT_WEIGHTS = (1.0, 1.0, 3.0, 2.0)  # w1, w2, w3, w4 of eqs. 2-4 (paper, Sec. 3.2)
 DEFAULT_THRESHOLD = 1.6
-DEFAULT_BATCH = 128  # gap points per vectorized blending step
-BATCH_KEY_SLACK = 5  # a batch takes candidates whose key is within this of the best (34k-point blob, k = 36:
-# gap fraction 0.089-0.093 for slack 2-6, 0.113 for 10)
 PARALLEL_LIMIT = 1 - 1e-9  # |V0 . N_P| at or above this: F lies along P's normal (Appendix A)
 
 
@@ -156,24 +151,6 @@ def _orthonormal(n, t):
     return n, _cross(t, n), t
 
 
-def _combine(uv_l, n_l, s_l, t_l, w, weights):
-    """Weighted averages and the distortion D of eqs. 2-4 over the last-but-one axis.
-
-    ``w`` is (B, m) with 0 for unused entries; rows with no weight give NaN.
-    """
-    w1, w2, w3, w4 = weights
-    wsum = w.sum(-1)
-    has = wsum > 0
-    inv = np.where(has, 1.0 / np.where(has, wsum, 1.0), np.nan)
-    uv = (w[..., None] * uv_l).sum(-2) * inv[..., None]
-    n, s, t = _orthonormal((w[..., None] * n_l).sum(-2), (w[..., None] * t_l).sum(-2))
-    dpos_l = w * np.linalg.norm(uv_l - uv[..., None, :], axis=-1)
-    dori_l = w * (2.0 - _dot(s_l, s[..., None, :]) - _dot(t_l, t[..., None, :]))
-    d_pos = w1 * dpos_l.sum(-1) * inv + dpos_l.max(-1)
-    d_ori = w2 * dori_l.sum(-1) * inv + dori_l.max(-1)
-    return uv, n, s, t, w3 * d_ori + w4 * d_pos
-
-
 # ------------------------------------------------------------------ frames
 
 
@@ -263,18 +240,6 @@ def mean_spacing(distances: np.ndarray) -> float:
     if not d > 0:
         raise ValueError("all points coincide with their nearest neighbour (spacing 0): remove duplicate points.")
     return d
-
-
-def _frontier_by_priority(frontier: np.ndarray, key: np.ndarray, slack: int) -> np.ndarray | None:
-    """Frontier points whose key is within ``slack`` of the highest (and >= 1 when
-    slack > 0), most neighbours first, then by index; None when the frontier is empty."""
-    fr = np.flatnonzero(frontier)
-    if len(fr) == 0:
-        return None
-    kf = key[fr]
-    best = int(kf.max())
-    top = fr[kf >= max(1, best - slack)] if slack > 0 else fr[kf == best]
-    return top[np.lexsort((top, -key[top]))]
 
 
 def _pick_batch(cand: np.ndarray, neighbours: np.ndarray, blocked: np.ndarray, limit: int) -> np.ndarray:
@@ -429,6 +394,27 @@ def growth_buckets(k: int) -> int:
 # ------------------------------------------------------------------ texturing (Sec. 3.4)
 
 
+def patch_offsets(param: Parameterization, shape: tuple[int, int], tileable: bool,
+                  rng: np.random.Generator) -> np.ndarray:
+    """A random texel offset (x, y) per patch: anywhere for a tileable texture, else such
+    that the patch's bounding box fits inside the texture (where it can).
+
+    Returns:
+        (P, 2) float64.
+    """
+    h, w = shape
+    n_patch = param.patch_count
+    if tileable:
+        return rng.uniform(0, [w, h], (n_patch, 2))
+    members = param.patch >= 0
+    lo = np.full((n_patch, 2), np.inf)
+    hi = np.full((n_patch, 2), -np.inf)
+    np.minimum.at(lo, param.patch[members], param.uv[members])
+    np.maximum.at(hi, param.patch[members], param.uv[members])
+    room = np.maximum(np.array([w - 1, h - 1]) - (hi - lo), 0)
+    return -lo + rng.uniform(0, 1, (n_patch, 2)) * room
+
+
 def colour_parameterization(
     points: PointSet,
     param: Parameterization,
@@ -437,16 +423,16 @@ def colour_parameterization(
     tileable: bool = True,
     seed: int | np.random.Generator | None = 0,
     blend_gaps: bool = True,
-    batch: int = DEFAULT_BATCH,
+    device: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Map the texture onto the patches and blend the gap points (paper Sec. 3.4).
 
-    Each patch gets a random texel offset (anywhere for a tileable texture; inside the
-    texture so that the patch fits otherwise). A patch point's colour is the bilinear
-    texture value at its patch position plus the offset. Gap points, the one with the
-    most coloured neighbours first, take the 1/distance-weighted blend of the colours
-    that their coloured neighbours' patches map them to (Appendix A from each
-    neighbour), then count as patch points.
+    Each patch gets a random texel offset (:func:`patch_offsets`). A patch point's colour
+    is the bilinear texture value at its patch position plus the offset. Gap points, the
+    one with the most coloured neighbours first, take the 1/distance-weighted blend of the
+    colours that their coloured neighbours' patches map them to (Appendix A from each
+    neighbour), then count as patch points (kernels/growth.py, ``blend_gaps``, gives the
+    rules). Gap points with no coloured neighbour at all take a random texel.
 
     Args:
         points: the PointSet that was parameterized.
@@ -455,88 +441,41 @@ def colour_parameterization(
         tileable: wrap texture lookups (and place offsets anywhere).
         seed: int seed or Generator for the patch offsets.
         blend_gaps: colour the gap points (False leaves them uncoloured).
-        batch: gap points blended per vectorized step (none in another's neighbourhood).
+        device: where the blending runs (a device string; None: "auto").
 
     Returns:
         (colours (N, 3) uint8, coloured (N,) bool, offsets (P, 2) float64 texel offset (x, y) per patch).
     """
+    import geosynth
+
     p, nrm = _as_model(points)
     tex = as_texture(texture)
     h, wdt = tex.shape[:2]
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    n_pts = len(p)
-    n_patch = param.patch_count
-    offsets = np.zeros((n_patch, 2))
+    offsets = patch_offsets(param, (h, wdt), tileable, rng)
     is_patch = param.state == PATCH
-    for pid in range(n_patch):
-        members = np.flatnonzero(param.patch == pid)
-        if tileable:
-            offsets[pid] = rng.uniform(0, [wdt, h])
-        else:
-            lo, hi = param.uv[members].min(0), param.uv[members].max(0)
-            room = np.maximum(np.array([wdt - 1, h - 1]) - (hi - lo), 0)
-            offsets[pid] = -lo + rng.uniform(0, 1, 2) * room
-    colours_f = np.zeros((n_pts, 3))
-    coloured = is_patch.copy()
-    idx = np.flatnonzero(is_patch)
-    at = param.uv[idx] + offsets[param.patch[idx]]
-    colours_f[idx] = sample_bilinear(tex, at[:, 1], at[:, 0], tileable)
-
-    uv, fn, fs, ft = param.uv.copy(), param.normal.copy(), param.s_axis.copy(), param.t_axis.copy()
-    patch = param.patch.copy()
-    if blend_gaps:
-        nb, unit = param.neighbours, param.unit
-        gap = ~coloured
-        key = np.zeros(n_pts, np.int32)
-        np.add.at(key, nb[coloured].reshape(-1), 1)
-        key[coloured] = 0
-        frontier = gap & (key > 0)
-        blocked = np.zeros((n_pts, 2), bool)
-        while True:
-            top = _frontier_by_priority(frontier, key, BATCH_KEY_SLACK)
-            if top is None:
-                break
-            chosen = _pick_batch(top, nb, blocked, batch)
-            frontier[chosen] = False
-            L = nb[chosen]
-            use = coloured[L] & (_dot(nrm[L], nrm[chosen][:, None]) > 0)
-            Lc = np.where(use, L, L[:, :1])
-            uv_l, n_l, s_l, t_l, d_l, ok = propagate(p[chosen][:, None], p[Lc], uv[Lc], fn[Lc], fs[Lc], ft[Lc], unit)
-            use &= ok & (patch[Lc] >= 0)
-            fallback = ~use.any(1)  # no usable neighbour: take every coloured one, plain mean
-            wl = np.where(use, 1.0 / np.maximum(d_l, 1e-300), 0.0)
-            pl = np.where(use, patch[Lc], 0)
-            at = np.where(use[..., None], uv_l + offsets[pl], 0.0)  # unused entries may be NaN
-            col_l = sample_bilinear(tex, at[..., 1], at[..., 0], tileable)
-            wsum = wl.sum(1)
-            blend = (wl[..., None] * col_l).sum(1) / np.where(wsum > 0, wsum, 1)[:, None]
-            if fallback.any():
-                cm = coloured[L[fallback]]
-                blend[fallback] = (colours_f[L[fallback]] * cm[..., None]).sum(1) / np.maximum(cm.sum(1), 1)[:, None]
-            colours_f[chosen] = blend
-            coloured[chosen] = True
-            # the gap point joins the patch with the largest weight among its neighbours (the
-            # lowest patch index on ties), with the position and frame that patch gives it
-            rows = np.repeat(np.arange(len(chosen)), use.sum(1))
-            tot = np.zeros((len(chosen), n_patch))
-            np.add.at(tot, (rows, pl[use]), wl[use])
-            best_patch = np.argmax(tot, axis=1)
-            wsel = np.where(use & (pl == best_patch[:, None]), wl, 0.0)
-            on = wsel[..., None] > 0  # unused entries may hold NaN (uncoloured neighbours): zero them
-            q, n_f, s_f, t_f, _ = _combine(np.where(on, uv_l, 0.0), np.where(on, n_l, 0.0), np.where(on, s_l, 0.0),
-                                           np.where(on, t_l, 0.0), wsel, DEFAULT_WEIGHTS)
-            joined = ~fallback
-            f = chosen[joined]
-            uv[f], fn[f], fs[f], ft[f] = q[joined], n_f[joined], s_f[joined], t_f[joined]
-            patch[f] = best_patch[joined]
-            nbs = nb[chosen].reshape(-1)
-            nbs = nbs[~coloured[nbs]]
-            np.add.at(key, nbs, 1)
-            frontier[nbs] = True
-        rest = np.flatnonzero(~coloured)  # gap points with no coloured neighbour at all
-        if len(rest):
-            texel = rng.integers(0, h * wdt, len(rest))
-            colours_f[rest] = tex.reshape(-1, 3)[texel]
-            coloured[rest] = True
-    colours = np.clip(np.rint(colours_f), 0, 255).astype(np.uint8)
-    return colours, coloured, offsets
+    if not blend_gaps:
+        colours_f = np.zeros((len(p), 3))
+        idx = np.flatnonzero(is_patch)
+        at = param.uv[idx] + offsets[param.patch[idx]]
+        colours_f[idx] = sample_bilinear(tex, at[:, 1], at[:, 0], tileable)
+        return np.clip(np.rint(colours_f), 0, 255).astype(np.uint8), is_patch.copy(), offsets
+    backend = geosynth.get_backend(device or "auto")
+    n_pts, k = param.neighbours.shape
+    n_buckets = growth_buckets(k)
+    f64, i32 = np.float64, np.int32
+    up = backend.to_device
+    inputs = [up(p), up(nrm), up(param.neighbours.astype(i32)), up(param.state.astype(i32))]
+    in_out = [up(param.patch.astype(i32)), up(param.uv), up(param.normal), up(param.s_axis), up(param.t_axis)]
+    outputs = [backend.empty((n_pts, 3), f64), backend.empty((n_pts,), i32)]
+    scratch = [backend.empty((n_pts,), i32) for _ in range(4)] + \
+        [backend.empty((n_buckets,), i32) for _ in range(2)] + [backend.empty((k * 16,), f64)]
+    backend.blend_gaps(n_pts, k, inputs, param.unit, up(tex.reshape(-1)), h, wdt, int(tileable),
+                       up(np.ascontiguousarray(offsets, f64).reshape(-1)), n_buckets, in_out, outputs, scratch)
+    colours_f, coloured = backend.to_host_all(outputs)
+    coloured = coloured.astype(bool)
+    rest = np.flatnonzero(~coloured)  # gap points with no coloured neighbour at all
+    if len(rest):
+        colours_f[rest] = tex.reshape(-1, 3)[rng.integers(0, h * wdt, len(rest))]
+        coloured[rest] = True
+    return np.clip(np.rint(colours_f), 0, 255).astype(np.uint8), coloured, offsets

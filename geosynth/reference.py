@@ -411,3 +411,158 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
     return Parameterization(np.asarray(state, np.int8), np.asarray(patch, np.int32), np.asarray(uv), np.asarray(fn),
                             np.asarray(fs), np.asarray(ft), unit, np.asarray(seeds, np.int64),
                             np.asarray(distortion), g["nb"], g["dist"])
+
+
+def colour_parameterization_reference(points, param, texture, *, tileable: bool = True, seed=0):
+    """Same arguments (less ``blend_gaps`` and ``device``) and result as
+    :func:`geosynth.parameterize.colour_parameterization`: the blending of
+    ``kernels/growth.py`` (``blend_gaps``) as a plain-Python loop, same arithmetic in the
+    same order."""
+    from geosynth.parameterize import PARALLEL_LIMIT, PATCH, _as_model, growth_buckets, patch_offsets
+    from geosynth.textures import as_texture
+
+    p, nrm = _as_model(points)
+    tex = as_texture(texture)
+    h, w = tex.shape[:2]
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    offsets = patch_offsets(param, (h, w), tileable, rng).tolist()
+    n, k = param.neighbours.shape
+    n_buckets, tiny, unit = growth_buckets(k), 1e-300, param.unit
+    pos, nrm_l, nb = p.tolist(), nrm.tolist(), param.neighbours.tolist()
+    patch, uv = param.patch.tolist(), param.uv.tolist()
+    fn, fs, ft = param.normal.tolist(), param.s_axis.tolist(), param.t_axis.tolist()
+    texl = tex.astype(np.float64).tolist()
+
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    def bilinear(x, y):
+        if not tileable:
+            y, x = min(max(y, 0.0), float(h - 1)), min(max(x, 0.0), float(w - 1))
+        yf, xf = math.floor(y), math.floor(x)
+        fy, fx = y - yf, x - xf
+        y0, x0 = int(yf), int(xf)
+        if tileable:
+            y0, x0 = y0 % h, x0 % w
+            y1, x1 = (y0 + 1) % h, (x0 + 1) % w
+        else:
+            y1, x1 = min(y0 + 1, h - 1), min(x0 + 1, w - 1)
+        out = []
+        for c in range(3):
+            top = texl[y0][x0][c] * (1.0 - fx) + texl[y0][x1][c] * fx
+            bottom = texl[y1][x0][c] * (1.0 - fx) + texl[y1][x1][c] * fx
+            out.append(top * (1.0 - fy) + bottom * fy)
+        return out
+
+    coloured = [s == PATCH for s in param.state.tolist()]
+    colours = [bilinear(uv[i][0] + offsets[patch[i]][0], uv[i][1] + offsets[patch[i]][1]) if coloured[i]
+               else [0.0, 0.0, 0.0] for i in range(n)]
+    key = [0] * n
+    for i in range(n):
+        if coloured[i]:
+            for q in nb[i]:
+                key[q] += 1
+    slot = [-1] * n
+    lists: list[dict] = [dict() for _ in range(n_buckets)]
+
+    def requeue(q, top):
+        b = min(key[q], n_buckets - 1)
+        if slot[q] != b:
+            if slot[q] >= 0:
+                del lists[slot[q]][q]
+            lists[b][q] = None
+            slot[q] = b
+            top = max(top, b)
+        return top
+
+    top = 0
+    for i in range(n):
+        if not coloured[i] and key[i] > 0:
+            top = requeue(i, top)
+    while True:
+        while top > 0 and not lists[top]:
+            top -= 1
+        if top == 0:
+            break
+        f = next(iter(lists[top]))
+        del lists[top][f]
+        slot[f] = -1
+        pf, nf = pos[f], nrm_l[f]
+        terms, n_coloured, wsum = [], 0, 0.0
+        plain, blend = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        for l in nb[f]:
+            if not coloured[l]:
+                continue
+            n_coloured += 1
+            plain = [plain[c] + colours[l][c] for c in range(3)]
+            pl = patch[l]
+            if pl < 0 or not dot(nrm_l[l], nf) > 0.0:
+                continue
+            pp, pn, ps, pt = pos[l], fn[l], fs[l], ft[l]
+            v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
+            dist = math.sqrt(dot(v, v))
+            v0 = [x / max(dist, tiny) for x in v]
+            along = dot(v0, pn)
+            if not (dist > 0.0 and abs(along) < PARALLEL_LIMIT):
+                continue
+            a, b = dot(v, ps), dot(v, pt)
+            scale = dist / max(math.sqrt(a * a + b * b), tiny) / unit
+            lu, lv = uv[l][0] + a * scale, uv[l][1] + b * scale
+            nn = [pn[i] - along * v0[i] for i in range(3)]
+            norm = max(math.sqrt(dot(nn, nn)), tiny)
+            nn = [x / norm for x in nn]
+            vt, vs = dot(v0, pt), dot(v0, ps)
+            cv = cross(nn, v0)
+            tt = [vt * v0[i] + vs * cv[i] for i in range(3)]
+            wl = 1.0 / max(dist, tiny)
+            col = bilinear(lu + offsets[pl][0], lv + offsets[pl][1])
+            terms.append((wl, pl, lu, lv, nn, tt))
+            wsum += wl
+            blend = [blend[c] + wl * col[c] for c in range(3)]
+        if n_coloured == 0:
+            continue
+        coloured[f] = True
+        if not terms:
+            colours[f] = [plain[c] / float(n_coloured) for c in range(3)]
+        else:
+            colours[f] = [blend[c] / wsum for c in range(3)]
+            best, best_total = -1, 0.0
+            for _, pj, *_rest in terms:
+                total = 0.0
+                for t in terms:
+                    if t[1] == pj:
+                        total += t[0]
+                if best < 0 or total > best_total or (total == best_total and pj < best):
+                    best, best_total = pj, total
+            su = sv = sw = 0.0
+            sn, st = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+            for wl, pj, lu, lv, nn, tt in terms:
+                if pj != best:
+                    continue
+                sw += wl
+                su += wl * lu
+                sv += wl * lv
+                sn = [sn[i] + wl * nn[i] for i in range(3)]
+                st = [st[i] + wl * tt[i] for i in range(3)]
+            norm = max(math.sqrt(dot(sn, sn)), tiny)
+            n_f = [x / norm for x in sn]
+            tn = dot(st, n_f)
+            t_f = [st[i] - tn * n_f[i] for i in range(3)]
+            norm = max(math.sqrt(dot(t_f, t_f)), tiny)
+            t_f = [x / norm for x in t_f]
+            patch[f], uv[f] = best, [su / sw, sv / sw]
+            fn[f], fs[f], ft[f] = n_f, cross(t_f, n_f), t_f
+        for q in nb[f]:
+            if not coloured[q]:
+                key[q] += 1
+                top = requeue(q, top)
+    colours_f = np.asarray(colours)
+    done = np.asarray(coloured)
+    rest = np.flatnonzero(~done)
+    if len(rest):
+        colours_f[rest] = tex.reshape(-1, 3)[rng.integers(0, h * w, len(rest))]
+        done[rest] = True
+    return np.clip(np.rint(colours_f), 0, 255).astype(np.uint8), done, np.asarray(offsets)

@@ -848,7 +848,7 @@ def texture_points(
         sec["parameterization"] = time.perf_counter() - t1
         rates["parameterization"] = n_pts / max(sec["parameterization"], 1e-9)
         t1 = time.perf_counter()
-        cols, _, offs = colour_parameterization(points, par, tex, tileable=tileable, seed=rng)
+        cols, _, offs = colour_parameterization(points, par, tex, tileable=tileable, seed=rng, device=dev_name)
         sec["texture mapping + gaps"] = time.perf_counter() - t1
         rates["texture mapping + gaps"] = n_pts / max(sec["texture mapping + gaps"], 1e-9)
         return par, cols, offs

@@ -27,6 +27,47 @@ inline d3 d3_cross(d3 a, d3 b)
 inline d3 d3_scale(d3 a, double s) { d3 r = {a.x * s, a.y * s, a.z * s}; return r; }
 inline d3 d3_div(d3 a, double s) { d3 r = {a.x / s, a.y / s, a.z / s}; return r; }
 
+// Appendix A: F (at pf) seen from patch point P (at pp, patch position (pu, pv), frame
+// pn, ps, pt): F's patch position (*qu, *qv) in texels, normal *nn, axes *tt, *ss and
+// the distance |F - P|. Returns 0 where F coincides with P or lies along P's normal.
+inline int appendix_a(d3 pf, d3 pp, double pu, double pv, d3 pn, d3 ps, d3 pt, double unit, double* qu,
+                      double* qv, d3* nn, d3* tt, d3* ss, double* dist)
+{
+    const d3 v = {pf.x - pp.x, pf.y - pp.y, pf.z - pp.z};
+    const double d = sqrt(d3_dot(v, v));
+    *dist = d;
+    const d3 v0 = d3_div(v, fmax(d, TINY));
+    const double along = d3_dot(v0, pn);
+    if (!(d > 0.0 && fabs(along) < PARALLEL_LIMIT)) return 0;
+    const double a = d3_dot(v, ps), b = d3_dot(v, pt);
+    const double plane = sqrt(a * a + b * b);
+    const double scale = d / fmax(plane, TINY) / unit;
+    *qu = pu + a * scale;
+    *qv = pv + b * scale;
+    d3 m = {pn.x - along * v0.x, pn.y - along * v0.y, pn.z - along * v0.z};
+    m = d3_div(m, fmax(sqrt(d3_dot(m, m)), TINY));
+    const double vt = d3_dot(v0, pt), vs = d3_dot(v0, ps);
+    const d3 c = d3_cross(m, v0);
+    const d3 t = {vt * v0.x + vs * c.x, vt * v0.y + vs * c.y, vt * v0.z + vs * c.z};
+    *nn = m;
+    *tt = t;
+    *ss = d3_cross(t, m);
+    return 1;
+}
+
+// The frame of weighted sums sn (normals) and st (T axes): N = sn normalized, T = st
+// minus its N part, normalized, S = T x N.
+inline void average_frame(d3 sn, d3 st, d3* n_f, d3* s_f, d3* t_f)
+{
+    const d3 n = d3_div(sn, fmax(sqrt(d3_dot(sn, sn)), TINY));
+    const double tn = d3_dot(st, n);
+    d3 t = {st.x - tn * n.x, st.y - tn * n.y, st.z - tn * n.z};
+    t = d3_div(t, fmax(sqrt(d3_dot(t, t)), TINY));
+    *n_f = n;
+    *t_f = t;
+    *s_f = d3_cross(t, n);
+}
+
 // Priority queue of frontier points: one FIFO list per priority min(key, n_buckets - 1)
 // (key: patch points that have the point among their k neighbours), linked through
 // next/prev (-1 ends a list); a point is in at most one list (slot[i]: its bucket, -1
@@ -119,22 +160,10 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
                 if (state[l] != G_PATCH || patch[l] != pid) continue;
                 const d3 pn = d3_at(fn, l);
                 if (!(d3_dot(d3_at(nrm, l), nf) > 0.0)) continue;
-                const d3 pp = d3_at(pos, l), ps = d3_at(fs, l), pt = d3_at(ft, l);
-                const d3 v = {pf.x - pp.x, pf.y - pp.y, pf.z - pp.z};
-                const double dist = sqrt(d3_dot(v, v));
-                const d3 v0 = d3_div(v, fmax(dist, TINY));
-                const double along = d3_dot(v0, pn);
-                if (!(dist > 0.0 && fabs(along) < PARALLEL_LIMIT)) continue;
-                const double a = d3_dot(v, ps), b = d3_dot(v, pt);
-                const double plane = sqrt(a * a + b * b);
-                const double scale = dist / fmax(plane, TINY) / unit;
-                const double lu = uv[2 * l] + a * scale, lv = uv[2 * l + 1] + b * scale;
-                d3 nn = {pn.x - along * v0.x, pn.y - along * v0.y, pn.z - along * v0.z};
-                nn = d3_div(nn, fmax(sqrt(d3_dot(nn, nn)), TINY));
-                const double vt = d3_dot(v0, pt), vs = d3_dot(v0, ps);
-                const d3 c = d3_cross(nn, v0);
-                const d3 tt = {vt * v0.x + vs * c.x, vt * v0.y + vs * c.y, vt * v0.z + vs * c.z};
-                const d3 ss = d3_cross(tt, nn);
+                double lu, lv, dist;
+                d3 nn, tt, ss;
+                if (!appendix_a(pf, d3_at(pos, l), uv[2 * l], uv[2 * l + 1], pn, d3_at(fs, l), d3_at(ft, l), unit,
+                                &lu, &lv, &nn, &tt, &ss, &dist)) continue;
                 const double w = unit / fmax(dist, TINY);
                 __global double* term = terms + 12 * used;
                 term[0] = w; term[1] = lu; term[2] = lv;
@@ -148,11 +177,8 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
             // weighted averages, re-orthonormalized frame, distortion (eqs. 2-4)
             const double inv = 1.0 / wsum;
             const double qu = su * inv, qv = sv * inv;
-            const d3 n_f = d3_div(sn, fmax(sqrt(d3_dot(sn, sn)), TINY));
-            const double tn = d3_dot(st, n_f);
-            d3 t_f = {st.x - tn * n_f.x, st.y - tn * n_f.y, st.z - tn * n_f.z};
-            t_f = d3_div(t_f, fmax(sqrt(d3_dot(t_f, t_f)), TINY));
-            const d3 s_f = d3_cross(t_f, n_f);
+            d3 n_f, s_f, t_f;
+            average_frame(sn, st, &n_f, &s_f, &t_f);
             double pos_sum = 0.0, pos_max = 0.0, ori_sum = 0.0, ori_max = 0.0;
             for (int j = 0; j < used; ++j) {
                 __global const double* term = terms + 12 * j;
@@ -182,4 +208,147 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
         for (int i = 0; i < n_touched; ++i) key[touched[i]] = 0;  // keys count the current patch only
     }
     counts[0] = n_patches;
+}
+
+// Bilinear texture lookup at texel coordinates (x, y) (texel centres at integers), as
+// geosynth.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge.
+inline void bilinear(__global const uchar* tex, int h, int w, int wrap, double x, double y, double* out)
+{
+    if (!wrap) { y = fmin(fmax(y, 0.0), (double)(h - 1)); x = fmin(fmax(x, 0.0), (double)(w - 1)); }
+    const double yf = floor(y), xf = floor(x);
+    const double fy = y - yf, fx = x - xf;
+    long y0 = (long)yf, x0 = (long)xf, y1, x1;
+    if (wrap) {
+        y0 %= h; if (y0 < 0) y0 += h;
+        x0 %= w; if (x0 < 0) x0 += w;
+        y1 = (y0 + 1) % h; x1 = (x0 + 1) % w;
+    } else {
+        y1 = min(y0 + 1, (long)(h - 1)); x1 = min(x0 + 1, (long)(w - 1));
+    }
+    for (int c = 0; c < 3; ++c) {
+        const double t00 = tex[(y0 * w + x0) * 3 + c], t01 = tex[(y0 * w + x1) * 3 + c];
+        const double t10 = tex[(y1 * w + x0) * 3 + c], t11 = tex[(y1 * w + x1) * 3 + c];
+        const double top = t00 * (1.0 - fx) + t01 * fx;
+        const double bottom = t10 * (1.0 - fx) + t11 * fx;
+        out[c] = top * (1.0 - fy) + bottom * fy;
+    }
+}
+
+
+// One work-item colours the patch points (the texture at their patch position plus their
+// patch's offset) and then the gap points, most coloured neighbours first (the same FIFO
+// bucket queue as grow_patches, key = coloured points that have the point among their k
+// neighbours): the 1/distance-weighted blend of the colours that the usable coloured
+// neighbours' patches map it to (Appendix A from each; usable: in a patch, n_P . n_F > 0);
+// it then joins the patch of the largest total weight (lowest index on ties) with the
+// weighted position and frame that patch's neighbours give it. With coloured neighbours
+// but none usable it takes their plain mean colour and joins no patch; with no coloured
+// neighbour of its own it waits (and stays uncoloured if none comes).
+// In: state (n int), tex (h*w*3 uchar), offsets (patches*2 double: x, y). In/out: patch
+// (n int), uv (n*2), fn, fs, ft (n*3 double). Out: colours (n*3 double), coloured (n int).
+// Scratch: key, slot, next, prev (n int), head, tail (n_buckets int), terms (k * 16 double).
+__kernel void blend_gaps(const int n, const int k, __global const double* pos, __global const double* nrm,
+                         __global const int* nb, __global const int* state, const double unit,
+                         __global const uchar* tex, const int h, const int w, const int wrap,
+                         __global const double* offsets, const int n_buckets, __global int* patch,
+                         __global double* uv, __global double* fn, __global double* fs, __global double* ft,
+                         __global double* colours, __global int* coloured, __global int* key, __global int* slot,
+                         __global int* next, __global int* prev, __global int* head, __global int* tail,
+                         __global double* terms)
+{
+    if (get_global_id(0) != 0) return;
+    double col[3];
+    for (int i = 0; i < n; ++i) {
+        key[i] = 0; slot[i] = -1;
+        coloured[i] = state[i] == G_PATCH;
+        col[0] = 0.0; col[1] = 0.0; col[2] = 0.0;
+        if (coloured[i]) {
+            const int p = patch[i];
+            bilinear(tex, h, w, wrap, uv[2 * i] + offsets[2 * p], uv[2 * i + 1] + offsets[2 * p + 1], col);
+        }
+        for (int c = 0; c < 3; ++c) colours[3 * i + c] = col[c];
+    }
+    for (int b = 0; b < n_buckets; ++b) { head[b] = -1; tail[b] = -1; }
+    for (int i = 0; i < n; ++i)
+        if (coloured[i])
+            for (int j = 0; j < k; ++j) key[nb[i * k + j]] += 1;
+    int top = 0;
+    for (int i = 0; i < n; ++i)
+        if (!coloured[i] && key[i] > 0) {
+            const int b = min(key[i], n_buckets - 1);
+            queue_append(next, prev, slot, head, tail, i, b);
+            top = max(top, b);
+        }
+    while (1) {
+        while (top > 0 && head[top] < 0) --top;
+        if (top == 0) break;
+        const int f = head[top];
+        queue_unlink(next, prev, slot, head, tail, f);
+        const d3 pf = d3_at(pos, f), nf = d3_at(nrm, f);
+        int used = 0, n_coloured = 0;
+        double wsum = 0.0, plain[3] = {0.0, 0.0, 0.0}, blend[3] = {0.0, 0.0, 0.0};
+        for (int j = 0; j < k; ++j) {
+            const int l = nb[f * k + j];
+            if (!coloured[l]) continue;
+            ++n_coloured;
+            for (int c = 0; c < 3; ++c) plain[c] += colours[3 * l + c];
+            const int pl = patch[l];
+            if (pl < 0 || !(d3_dot(d3_at(nrm, l), nf) > 0.0)) continue;
+            double lu, lv, dist;
+            d3 nn, tt, ss;
+            if (!appendix_a(pf, d3_at(pos, l), uv[2 * l], uv[2 * l + 1], d3_at(fn, l), d3_at(fs, l), d3_at(ft, l),
+                            unit, &lu, &lv, &nn, &tt, &ss, &dist)) continue;
+            const double wl = 1.0 / fmax(dist, TINY);
+            bilinear(tex, h, w, wrap, lu + offsets[2 * pl], lv + offsets[2 * pl + 1], col);
+            __global double* term = terms + 16 * used;
+            term[0] = wl; term[1] = (double)pl; term[2] = lu; term[3] = lv;
+            term[4] = nn.x; term[5] = nn.y; term[6] = nn.z; term[7] = tt.x; term[8] = tt.y; term[9] = tt.z;
+            wsum += wl;
+            for (int c = 0; c < 3; ++c) blend[c] += wl * col[c];
+            ++used;
+        }
+        if (n_coloured == 0) continue;  // waits for a coloured neighbour
+        coloured[f] = 1;
+        if (used == 0) {
+            for (int c = 0; c < 3; ++c) colours[3 * f + c] = plain[c] / (double)n_coloured;
+        } else {
+            for (int c = 0; c < 3; ++c) colours[3 * f + c] = blend[c] / wsum;
+            // the patch with the largest total weight, the lowest index on ties
+            int best = -1;
+            double best_total = 0.0;
+            for (int j = 0; j < used; ++j) {
+                const int pj = (int)terms[16 * j + 1];
+                double total = 0.0;
+                for (int i = 0; i < used; ++i)
+                    if ((int)terms[16 * i + 1] == pj) total += terms[16 * i];
+                if (best < 0 || total > best_total || (total == best_total && pj < best)) { best = pj; best_total = total; }
+            }
+            double su = 0.0, sv = 0.0, sw = 0.0;
+            d3 sn = {0.0, 0.0, 0.0}, st = {0.0, 0.0, 0.0};
+            for (int j = 0; j < used; ++j) {
+                __global const double* term = terms + 16 * j;
+                if ((int)term[1] != best) continue;
+                const double wl = term[0];
+                sw += wl; su += wl * term[2]; sv += wl * term[3];
+                sn.x += wl * term[4]; sn.y += wl * term[5]; sn.z += wl * term[6];
+                st.x += wl * term[7]; st.y += wl * term[8]; st.z += wl * term[9];
+            }
+            d3 n_f, s_f, t_f;
+            average_frame(sn, st, &n_f, &s_f, &t_f);
+            patch[f] = best;
+            uv[2 * f] = su / sw; uv[2 * f + 1] = sv / sw;
+            d3_put(fn, f, n_f); d3_put(fs, f, s_f); d3_put(ft, f, t_f);
+        }
+        for (int j = 0; j < k; ++j) {  // its uncoloured neighbours: one coloured point more
+            const int q = nb[f * k + j];
+            if (coloured[q]) continue;
+            key[q] += 1;
+            const int b = min(key[q], n_buckets - 1);
+            if (slot[q] != b) {
+                if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
+                queue_append(next, prev, slot, head, tail, q, b);
+                top = max(top, b);
+            }
+        }
+    }
 }

@@ -60,6 +60,50 @@ def _div(a: wp.vec3d, s: wp.float64):
 
 
 @wp.func
+def _appendix_a(pf: wp.vec3d, pp: wp.vec3d, pu: wp.float64, pv: wp.float64, pn: wp.vec3d, ps: wp.vec3d,
+                pt: wp.vec3d, unit: wp.float64):
+    """Appendix A: F (at pf) seen from patch point P: (ok, qu, qv, normal, T, S, |F - P|);
+    ok is False where F coincides with P or lies along P's normal (the rest is then 0)."""
+    zero = wp.float64(0.0)
+    v = wp.vec3d(pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2])
+    d = wp.sqrt(_dot(v, v))
+    v0 = _div(v, wp.max(d, TINY))
+    along = _dot(v0, pn)
+    qu = zero
+    qv = zero
+    m = wp.vec3d(zero, zero, zero)
+    t = wp.vec3d(zero, zero, zero)
+    s = wp.vec3d(zero, zero, zero)
+    ok = d > zero and wp.abs(along) < PARALLEL_LIMIT
+    if ok:
+        a = _dot(v, ps)
+        b = _dot(v, pt)
+        plane = wp.sqrt(a * a + b * b)
+        scale = d / wp.max(plane, TINY) / unit
+        qu = pu + a * scale
+        qv = pv + b * scale
+        m = wp.vec3d(pn[0] - along * v0[0], pn[1] - along * v0[1], pn[2] - along * v0[2])
+        m = _div(m, wp.max(wp.sqrt(_dot(m, m)), TINY))
+        vt = _dot(v0, pt)
+        vs = _dot(v0, ps)
+        c = _cross(m, v0)
+        t = wp.vec3d(vt * v0[0] + vs * c[0], vt * v0[1] + vs * c[1], vt * v0[2] + vs * c[2])
+        s = _cross(t, m)
+    return ok, qu, qv, m, t, s, d
+
+
+@wp.func
+def _average_frame(sn: wp.vec3d, st: wp.vec3d):
+    """The frame of weighted sums: (N, S, T), N = sn normalized, T = st minus its N part
+    normalized, S = T x N."""
+    n = _div(sn, wp.max(wp.sqrt(_dot(sn, sn)), TINY))
+    tn = _dot(st, n)
+    t = wp.vec3d(st[0] - tn * n[0], st[1] - tn * n[1], st[2] - tn * n[2])
+    t = _div(t, wp.max(wp.sqrt(_dot(t, t)), TINY))
+    return n, _cross(t, n), t
+
+
+@wp.func
 def _unlink(nxt: wp.array(dtype=wp.int32), prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
             head: wp.array(dtype=wp.int32), tail: wp.array(dtype=wp.int32), i: int):
     b = slot[i]
@@ -207,28 +251,10 @@ def grow_patches_kernel(
                 pn = _at(fn, l)
                 if not (_dot(_at(nrm, l), nf) > zero):
                     continue
-                pp = _at(pos, l)
-                ps = _at(fs, l)
-                pt = _at(ft, l)
-                v = wp.vec3d(pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2])
-                dist = wp.sqrt(_dot(v, v))
-                v0 = _div(v, wp.max(dist, TINY))
-                along = _dot(v0, pn)
-                if not (dist > zero and wp.abs(along) < PARALLEL_LIMIT):
+                ok, lu, lv, nn, tt, ss, dist = _appendix_a(pf, _at(pos, l), uv[2 * l], uv[2 * l + 1], pn, _at(fs, l),
+                                                           _at(ft, l), unit)
+                if not ok:
                     continue
-                a = _dot(v, ps)
-                bb = _dot(v, pt)
-                plane = wp.sqrt(a * a + bb * bb)
-                scale = dist / wp.max(plane, TINY) / unit
-                lu = uv[2 * l] + a * scale
-                lv = uv[2 * l + 1] + bb * scale
-                nn = wp.vec3d(pn[0] - along * v0[0], pn[1] - along * v0[1], pn[2] - along * v0[2])
-                nn = _div(nn, wp.max(wp.sqrt(_dot(nn, nn)), TINY))
-                vt = _dot(v0, pt)
-                vs = _dot(v0, ps)
-                cv = _cross(nn, v0)
-                tt = wp.vec3d(vt * v0[0] + vs * cv[0], vt * v0[1] + vs * cv[1], vt * v0[2] + vs * cv[2])
-                ss = _cross(tt, nn)
                 w = unit / wp.max(dist, TINY)
                 base = 12 * used
                 terms[base] = w
@@ -251,11 +277,7 @@ def grow_patches_kernel(
             inv = wp.float64(1.0) / wsum
             qu = su * inv
             qv = sv * inv
-            n_f = _div(sn, wp.max(wp.sqrt(_dot(sn, sn)), TINY))
-            tn = _dot(st, n_f)
-            t_f = wp.vec3d(st[0] - tn * n_f[0], st[1] - tn * n_f[1], st[2] - tn * n_f[2])
-            t_f = _div(t_f, wp.max(wp.sqrt(_dot(t_f, t_f)), TINY))
-            s_f = _cross(t_f, n_f)
+            n_f, s_f, t_f = _average_frame(sn, st)
             pos_sum = zero
             pos_max = zero
             ori_sum = zero
@@ -304,3 +326,206 @@ def grow_patches_kernel(
         for i in range(n_touched):
             key[touched[i]] = 0
     counts[0] = n_patches
+
+
+@wp.func
+def _bilinear(tex: wp.array(dtype=wp.uint8), h: int, w: int, wrap: int, x: wp.float64, y: wp.float64):
+    """Bilinear texture lookup at texel coordinates (x, y), as
+    geosynth.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge."""
+    one = wp.float64(1.0)
+    if wrap == 0:
+        y = wp.min(wp.max(y, wp.float64(0.0)), wp.float64(h - 1))
+        x = wp.min(wp.max(x, wp.float64(0.0)), wp.float64(w - 1))
+    yf = wp.floor(y)
+    xf = wp.floor(x)
+    fy = y - yf
+    fx = x - xf
+    y0 = int(yf)
+    x0 = int(xf)
+    y1 = int(0)
+    x1 = int(0)
+    if wrap != 0:
+        y0 = y0 % h
+        if y0 < 0:
+            y0 += h
+        x0 = x0 % w
+        if x0 < 0:
+            x0 += w
+        y1 = (y0 + 1) % h
+        x1 = (x0 + 1) % w
+    else:
+        y1 = wp.min(y0 + 1, h - 1)
+        x1 = wp.min(x0 + 1, w - 1)
+    out = wp.vec3d()
+    for c in range(3):
+        t00 = wp.float64(tex[(y0 * w + x0) * 3 + c])
+        t01 = wp.float64(tex[(y0 * w + x1) * 3 + c])
+        t10 = wp.float64(tex[(y1 * w + x0) * 3 + c])
+        t11 = wp.float64(tex[(y1 * w + x1) * 3 + c])
+        top = t00 * (one - fx) + t01 * fx
+        bottom = t10 * (one - fx) + t11 * fx
+        out[c] = top * (one - fy) + bottom * fy
+    return out
+
+
+@wp.func
+def _requeue(q: int, key: wp.array(dtype=wp.int32), n_buckets: int, nxt: wp.array(dtype=wp.int32),
+             prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), head: wp.array(dtype=wp.int32),
+             tail: wp.array(dtype=wp.int32), top: int):
+    """key[q] + 1, q to the end of its new priority's list; returns the new top priority."""
+    key[q] = key[q] + 1
+    b = wp.min(key[q], n_buckets - 1)
+    new_top = top
+    if slot[q] != b:
+        if slot[q] >= 0:
+            _unlink(nxt, prv, slot, head, tail, q)
+        _append(nxt, prv, slot, head, tail, q, b)
+        new_top = wp.max(top, b)
+    return new_top
+
+
+@wp.kernel
+def blend_gaps_kernel(
+    n: int,
+    k: int,
+    pos: wp.array(dtype=wp.float64),  # (n * 3,)
+    nrm: wp.array(dtype=wp.float64),  # (n * 3,)
+    nb: wp.array(dtype=wp.int32),  # (n * k,)
+    state: wp.array(dtype=wp.int32),  # (n,) PATCH or GAP
+    unit: wp.float64,
+    tex: wp.array(dtype=wp.uint8),  # (h * w * 3,) RGB texture
+    h: int,
+    w: int,
+    wrap: int,  # 1: tileable (wrapped lookups), 0: clamped
+    offsets: wp.array(dtype=wp.float64),  # (patches * 2,) texel offset (x, y) of each patch
+    n_buckets: int,
+    patch: wp.array(dtype=wp.int32),  # (n,) in/out: joined gap points get a patch
+    uv: wp.array(dtype=wp.float64),  # (n * 2,) in/out
+    fn: wp.array(dtype=wp.float64),  # (n * 3,) in/out
+    fs: wp.array(dtype=wp.float64),
+    ft: wp.array(dtype=wp.float64),
+    colours: wp.array(dtype=wp.float64),  # (n * 3,) out
+    coloured: wp.array(dtype=wp.int32),  # (n,) out
+    key: wp.array(dtype=wp.int32),  # (n,) scratch
+    slot: wp.array(dtype=wp.int32),
+    nxt: wp.array(dtype=wp.int32),
+    prv: wp.array(dtype=wp.int32),
+    head: wp.array(dtype=wp.int32),  # (n_buckets,) scratch
+    tail: wp.array(dtype=wp.int32),
+    terms: wp.array(dtype=wp.float64),  # (k * 16,) scratch
+):
+    """One thread colours the patch points, then blends the gap points (see growth.cl's
+    blend_gaps for the rules; launch dim 1)."""
+    zero = wp.float64(0.0)
+    for i in range(n):
+        key[i] = 0
+        slot[i] = -1
+        col = wp.vec3d(zero, zero, zero)
+        if state[i] == G_PATCH:
+            coloured[i] = 1
+            p = patch[i]
+            col = _bilinear(tex, h, w, wrap, uv[2 * i] + offsets[2 * p], uv[2 * i + 1] + offsets[2 * p + 1])
+        else:
+            coloured[i] = 0
+        for c in range(3):
+            colours[3 * i + c] = col[c]
+    for b in range(n_buckets):
+        head[b] = -1
+        tail[b] = -1
+    for i in range(n):
+        if coloured[i] != 0:
+            for j in range(k):
+                q = nb[i * k + j]
+                key[q] = key[q] + 1
+    top = int(0)
+    for i in range(n):
+        if coloured[i] == 0 and key[i] > 0:
+            b = wp.min(key[i], n_buckets - 1)
+            _append(nxt, prv, slot, head, tail, i, b)
+            top = wp.max(top, b)
+    while True:
+        while top > 0 and head[top] < 0:
+            top -= 1
+        if top == 0:
+            break
+        f = head[top]
+        _unlink(nxt, prv, slot, head, tail, f)
+        pf = _at(pos, f)
+        nf = _at(nrm, f)
+        used = int(0)
+        n_coloured = int(0)
+        wsum = zero
+        plain = wp.vec3d(zero, zero, zero)
+        blend = wp.vec3d(zero, zero, zero)
+        for j in range(k):
+            l = nb[f * k + j]
+            if coloured[l] == 0:
+                continue
+            n_coloured += 1
+            plain = wp.vec3d(plain[0] + colours[3 * l], plain[1] + colours[3 * l + 1], plain[2] + colours[3 * l + 2])
+            pl = patch[l]
+            if pl < 0 or not (_dot(_at(nrm, l), nf) > zero):
+                continue
+            ok, lu, lv, nn, tt, ss, dist = _appendix_a(pf, _at(pos, l), uv[2 * l], uv[2 * l + 1], _at(fn, l),
+                                                       _at(fs, l), _at(ft, l), unit)
+            if not ok:
+                continue
+            wl = wp.float64(1.0) / wp.max(dist, TINY)
+            col = _bilinear(tex, h, w, wrap, lu + offsets[2 * pl], lv + offsets[2 * pl + 1])
+            base = 16 * used
+            terms[base] = wl
+            terms[base + 1] = wp.float64(pl)
+            terms[base + 2] = lu
+            terms[base + 3] = lv
+            for r in range(3):
+                terms[base + 4 + r] = nn[r]
+                terms[base + 7 + r] = tt[r]
+            wsum += wl
+            blend = wp.vec3d(blend[0] + wl * col[0], blend[1] + wl * col[1], blend[2] + wl * col[2])
+            used += 1
+        if n_coloured == 0:
+            continue
+        coloured[f] = 1
+        if used == 0:
+            for c in range(3):
+                colours[3 * f + c] = plain[c] / wp.float64(n_coloured)
+        else:
+            for c in range(3):
+                colours[3 * f + c] = blend[c] / wsum
+            best = int(-1)
+            best_total = zero
+            for j in range(used):
+                pj = int(terms[16 * j + 1])
+                total = zero
+                for i in range(used):
+                    if int(terms[16 * i + 1]) == pj:
+                        total += terms[16 * i]
+                if best < 0 or total > best_total or (total == best_total and pj < best):
+                    best = pj
+                    best_total = total
+            su = zero
+            sv = zero
+            sw = zero
+            sn = wp.vec3d(zero, zero, zero)
+            st = wp.vec3d(zero, zero, zero)
+            for j in range(used):
+                base = 16 * j
+                if int(terms[base + 1]) != best:
+                    continue
+                wl = terms[base]
+                sw += wl
+                su += wl * terms[base + 2]
+                sv += wl * terms[base + 3]
+                sn = wp.vec3d(sn[0] + wl * terms[base + 4], sn[1] + wl * terms[base + 5], sn[2] + wl * terms[base + 6])
+                st = wp.vec3d(st[0] + wl * terms[base + 7], st[1] + wl * terms[base + 8], st[2] + wl * terms[base + 9])
+            n_f, s_f, t_f = _average_frame(sn, st)
+            patch[f] = best
+            uv[2 * f] = su / sw
+            uv[2 * f + 1] = sv / sw
+            _put(fn, f, n_f)
+            _put(fs, f, s_f)
+            _put(ft, f, t_f)
+        for j in range(k):
+            q = nb[f * k + j]
+            if coloured[q] == 0:
+                top = _requeue(q, key, n_buckets, nxt, prv, slot, head, tail, top)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from conftest import TEST_DEVICES
 
-from geosynth.parameterize import PATCH, parameterize_points
-from geosynth.reference import parameterize_reference
+from geosynth.parameterize import PATCH, colour_parameterization, parameterize_points
+from geosynth.reference import colour_parameterization_reference, parameterize_reference
 from geosynth.pointmodels import knn_table, load_point_model, point_model
 from geosynth.pointsets import PointSet, read_point_set, write_point_set
 from geosynth.texture import TexelSearch, texture_points
@@ -169,6 +169,23 @@ def test_parameterization_kernel_equals_the_python_growth(device, model, k, opti
     assert 0 < (ref.state == PATCH).mean() < 1
     for name in ("state", "patch", "seeds", "uv", "normal", "s_axis", "t_axis", "distortion"):
         np.testing.assert_array_equal(getattr(par, name), getattr(ref, name), err_msg=name)
+
+
+@pytest.mark.parametrize("model, k, tileable", [("sphere", 16, True), ("blob", 12, False), ("torus", 9, True)])
+def test_gap_blending_kernel_equals_the_python_blending(device, model, k, tileable):
+    ps = point_model(model, 2500, seed=2)
+    tex = texture_example("noise", 40, seed=1)
+    par = parameterize_reference(ps, k, seed=4, max_patch=None if tileable else 24.0, threshold=1.0)
+    assert 0.05 < par.gap_fraction < 0.6
+    ref = colour_parameterization_reference(ps, par, tex, tileable=tileable, seed=6)
+    out = colour_parameterization(ps, par, tex, tileable=tileable, seed=6, device=device)
+    for name, a, b in zip(("colours", "coloured", "offsets"), out, ref):
+        np.testing.assert_array_equal(a, b, err_msg=name)
+    assert out[1].all()
+    # blends of texture values: inside the texture's range per channel, and not constant
+    gap = out[0][par.state != PATCH].astype(int)
+    flat = tex.reshape(-1, 3).astype(int)
+    assert (gap >= flat.min(0)).all() and (gap <= flat.max(0)).all() and gap.std(0).min() > 1
 
 
 def test_parameterization_keeps_facing_sides_apart(device):

@@ -16,3 +16,9 @@ class OpenCLGrowthOps:
         kernel = self._kernel("growth", "grow_patches", np.float64)
         kernel(self.queue, (1,), (1,), n, k, *(a.data for a in inputs), unit, *weights, threshold, max_patch,
                n_buckets, *(a.data for a in outputs), *(a.data for a in scratch))
+
+    def blend_gaps(self, n, k, inputs, unit, tex, h, w, wrap, offsets, n_buckets, in_out, outputs, scratch) -> None:
+        """Same arguments as WarpGrowthOps.blend_gaps."""
+        kernel = self._kernel("growth", "blend_gaps", np.float64)
+        kernel(self.queue, (1,), (1,), n, k, *(a.data for a in inputs), unit, tex.data, h, w, wrap, offsets.data,
+               n_buckets, *(a.data for a in in_out), *(a.data for a in outputs), *(a.data for a in scratch))

@@ -32,3 +32,22 @@ class WarpGrowthOps:
         self._launch(growth_kernels.grow_patches_kernel, 1,
                      [n, k, *(a.data for a in inputs), f64(unit), *(f64(w) for w in weights), f64(threshold),
                       f64(max_patch), n_buckets, *(a.data for a in outputs), *(a.data for a in scratch)])
+
+    def blend_gaps(self, n, k, inputs, unit, tex, h, w, wrap, offsets, n_buckets, in_out, outputs, scratch) -> None:
+        """Colour the patch points, then blend the gap points in one thread (kernels/growth.py).
+
+        Args:
+            n, k: points and neighbours per point.
+            inputs: DeviceArrays pos, nrm (n*3 float64), nb (n*k int32), state (n int32).
+            unit: world length of a texel; tex: (h*w*3,) uint8 DeviceArray; wrap: 1 for
+                periodic lookups; offsets: (patches*2,) float64 DeviceArray; n_buckets:
+                priority levels of the queue.
+            in_out: DeviceArrays patch (n int32), uv (n*2), fn, fs, ft (n*3 float64).
+            outputs: DeviceArrays colours (n*3 float64), coloured (n int32).
+            scratch: DeviceArrays key, slot, next, prev (n int32), head, tail (n_buckets
+                int32), terms (k*16 float64).
+        """
+        self._launch(growth_kernels.blend_gaps_kernel, 1,
+                     [n, k, *(a.data for a in inputs), wp.float64(unit), tex.data, h, w, wrap, offsets.data,
+                      n_buckets, *(a.data for a in in_out), *(a.data for a in outputs),
+                      *(a.data for a in scratch)])
