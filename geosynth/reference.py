@@ -309,8 +309,9 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
     def cross(a, b):
         return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
-    def div(a, s):
-        return [a[0] / s, a[1] / s, a[2] / s]
+    def div(a, s):  # one division, as the kernels
+        r = 1.0 / s
+        return [a[0] * r, a[1] * r, a[2] * r]
 
     for sd in g["order"].tolist():
         if state[sd] != FREE:
@@ -504,7 +505,8 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
             pp, pn, ps, pt = pos[l], fn[l], fs[l], ft[l]
             v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
             dist = math.sqrt(dot(v, v))
-            v0 = [x / max(dist, tiny) for x in v]
+            r = 1.0 / max(dist, tiny)
+            v0 = [x * r for x in v]
             along = dot(v0, pn)
             if not (dist > 0.0 and abs(along) < PARALLEL_LIMIT):
                 continue
@@ -513,7 +515,8 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
             lu, lv = uv[l][0] + a * scale, uv[l][1] + b * scale
             nn = [pn[i] - along * v0[i] for i in range(3)]
             norm = max(math.sqrt(dot(nn, nn)), tiny)
-            nn = [x / norm for x in nn]
+            r = 1.0 / norm
+            nn = [x * r for x in nn]
             vt, vs = dot(v0, pt), dot(v0, ps)
             cv = cross(nn, v0)
             tt = [vt * v0[i] + vs * cv[i] for i in range(3)]
@@ -548,11 +551,13 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
                 sn = [sn[i] + wl * nn[i] for i in range(3)]
                 st = [st[i] + wl * tt[i] for i in range(3)]
             norm = max(math.sqrt(dot(sn, sn)), tiny)
-            n_f = [x / norm for x in sn]
+            r = 1.0 / norm
+            n_f = [x * r for x in sn]
             tn = dot(st, n_f)
             t_f = [st[i] - tn * n_f[i] for i in range(3)]
             norm = max(math.sqrt(dot(t_f, t_f)), tiny)
-            t_f = [x / norm for x in t_f]
+            r = 1.0 / norm
+            t_f = [x * r for x in t_f]
             patch[f], uv[f] = best, [su / sw, sv / sw]
             fn[f], fs[f], ft[f] = n_f, cross(t_f, n_f), t_f
         for q in nb[f]:

@@ -56,7 +56,8 @@ def _cross(a: wp.vec3d, b: wp.vec3d):
 
 @wp.func
 def _div(a: wp.vec3d, s: wp.float64):
-    return wp.vec3d(a[0] / s, a[1] / s, a[2] / s)
+    r = wp.float64(1.0) / s  # one division
+    return wp.vec3d(a[0] * r, a[1] * r, a[2] * r)
 
 
 @wp.func
