@@ -285,9 +285,9 @@ def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0,
     Returns:
         dict with ``pos`` (N, 3) float64, ``nrm`` (N, 3) float64, ``dist`` (N, k) float64,
         ``nb`` (N, k) int64, ``unit`` float, ``order`` (N,) int64 (a seeded permutation:
-        patches start at its first free point), ``seed_s``, ``seed_t`` (N, 3) float64 (the
-        frame a patch seeded at that point starts with: from ``up``, or a random tangent
-        direction per point when ``up`` is None).
+        patches start at its first free point), ``dirs`` float64, the direction that a
+        patch's seed frame starts from (kernels/growth.py): ``up`` as (1, 3), or (N, 3)
+        random directions (one per point) when ``up`` is None.
     """
     from geosynth.pointmodels import knn_table
 
@@ -304,21 +304,12 @@ def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0,
     unit = mean_spacing(dist) * float(unit_scale)
     order = rng.permutation(n_pts)
     if up is not None:
-        seed_s, seed_t = frames_from_up(nrm, up)
-    else:  # a random direction per point, projected on its tangent plane
-        seed_s, seed_t = _frames_from_directions(nrm, rng.standard_normal((n_pts, 3)))
-    return dict(pos=p, nrm=nrm, dist=dist, nb=nb, unit=unit, order=order, seed_s=seed_s, seed_t=seed_t)
-
-
-def _frames_from_directions(normals: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-point frames_from_up: T = each row's direction projected on its tangent plane."""
-    t = directions - _dot(directions, normals)[:, None] * normals
-    small = np.linalg.norm(t, axis=1) < 1e-3 * np.linalg.norm(directions, axis=1)
-    if small.any():
-        alt = np.where(np.abs(normals[small, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        t[small] = alt - _dot(alt, normals[small])[:, None] * normals[small]
-    _, s, t = _orthonormal(normals, t)
-    return s, t
+        dirs = np.asarray(up, np.float64).reshape(1, 3)
+        if not (np.isfinite(dirs).all() and np.linalg.norm(dirs) > 0):
+            raise ValueError(f"up must be a non-zero 3-vector or None, got {up!r}.")
+    else:
+        dirs = rng.standard_normal((n_pts, 3))
+    return dict(pos=p, nrm=nrm, dist=dist, nb=nb, unit=unit, order=order, dirs=dirs)
 
 
 def parameterize_points(
@@ -371,14 +362,13 @@ def parameterize_points(
     n_buckets = growth_buckets(k)
     f64, i32 = np.float64, np.int32
     inputs = [backend.to_device(np.ascontiguousarray(a, dt)) for a, dt in
-              ((g["pos"], f64), (g["nrm"], f64), (g["nb"], i32), (g["order"], i32), (g["seed_s"], f64),
-               (g["seed_t"], f64))]
+              ((g["pos"], f64), (g["nrm"], f64), (g["nb"], i32), (g["order"], i32), (g["dirs"], f64))]
     outputs = [backend.empty(shape, dt) for shape, dt in
                (((n_pts,), i32), ((n_pts,), i32), ((n_pts, 2), f64), ((n_pts, 3), f64), ((n_pts, 3), f64),
                 ((n_pts, 3), f64), ((n_pts,), f64), ((n_pts,), i32), ((1,), i32))]
     scratch = [backend.empty((n_pts,), i32) for _ in range(5)] + \
         [backend.empty((n_buckets,), i32) for _ in range(2)] + [backend.empty((k * 12,), f64)]
-    backend.grow_patches(n_pts, k, inputs, g["unit"], w, float(threshold),
+    backend.grow_patches(n_pts, k, inputs, int(len(g["dirs"]) > 1), g["unit"], w, float(threshold),
                          -1.0 if max_patch is None else float(max_patch), n_buckets, outputs, scratch)
     state, patch, uv, fn, fs, ft, distortion, seeds, counts = backend.to_host_all(outputs)
     return Parameterization(state.astype(np.int8), patch, uv, fn, fs, ft, g["unit"],

@@ -319,7 +319,19 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
         pid = len(seeds)
         seeds.append(sd)
         state[sd], patch[sd], uv[sd], distortion[sd] = PATCH, pid, [0.0, 0.0], 0.0
-        fn[sd], fs[sd], ft[sd] = list(nrm[sd]), g["seed_s"][sd].tolist(), g["seed_t"][sd].tolist()
+        n0 = nrm[sd]
+        u = g["dirs"][sd if len(g["dirs"]) > 1 else 0].tolist()
+        u = div(u, math.sqrt(dot(u, u)))
+        un = dot(u, n0)
+        t0 = [u[i] - un * n0[i] for i in range(3)]
+        if math.sqrt(dot(t0, t0)) < 1e-3:
+            alt = [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0]
+            an = dot(alt, n0)
+            t0 = [alt[i] - an * n0[i] for i in range(3)]
+        tn = dot(t0, n0)
+        t0 = [t0[i] - tn * n0[i] for i in range(3)]
+        t0 = div(t0, max(math.sqrt(dot(t0, t0)), tiny))
+        fn[sd], fs[sd], ft[sd] = list(n0), cross(t0, n0), t0
         lo, hi = [0.0, 0.0], [0.0, 0.0]
         touched, top, joined = [], 0, sd
         while True:

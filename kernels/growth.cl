@@ -79,6 +79,26 @@ GS_INLINE void average_frame(d3 sn, d3 st, d3* n_f, d3* s_f, d3* t_f)
     *s_f = d3_cross(t, n);
 }
 
+// The frame a patch seeded at a point of unit normal n starts with, from the direction
+// u (normalized here): T = u minus its n part (where that is shorter than 1e-3, the x
+// axis, or y when u is near x, instead), normalized; S = T x N.
+GS_INLINE void seed_frame(d3 n, d3 u, d3* s_f, d3* t_f)
+{
+    u = d3_div(u, SQRT(d3_dot(u, u)));
+    const double un = d3_dot(u, n);
+    d3 t = {u.x - un * n.x, u.y - un * n.y, u.z - un * n.z};
+    if (SQRT(d3_dot(t, t)) < 1e-3) {
+        const d3 alt = {FABS(u.x) < 0.9 ? 1.0 : 0.0, FABS(u.x) < 0.9 ? 0.0 : 1.0, 0.0};
+        const double an = d3_dot(alt, n);
+        t.x = alt.x - an * n.x; t.y = alt.y - an * n.y; t.z = alt.z - an * n.z;
+    }
+    const double tn = d3_dot(t, n);
+    t.x -= tn * n.x; t.y -= tn * n.y; t.z -= tn * n.z;
+    t = d3_div(t, FMAX(SQRT(d3_dot(t, t)), TINY));
+    *t_f = t;
+    *s_f = d3_cross(t, n);
+}
+
 // Priority queue of frontier points: one FIFO list per priority min(key, n_buckets - 1)
 // (key: patch points that have the point among their k neighbours), linked through
 // next/prev (-1 ends a list); a point is in at most one list (slot[i]: its bucket, -1
@@ -104,15 +124,15 @@ GS_INLINE void queue_append(__global int* next, __global int* prev, __global int
 
 // One work-item (range (1,), local (1,)) grows every patch.
 // Inputs: n points, k neighbours each (nb: n*k int, self excluded); pos, nrm: n*3 double
-// (unit normals); order: n int, the seed order; seed_s, seed_t: n*3 double, each point's
-// seed frame; unit: world length of a texel; w1..w4, threshold: eqs. 2-4; max_patch: the
+// (unit normals); order: n int, the seed order; dirs: the seed frames' directions (see
+// seed_frame), dir_step 0: one (3 double) for every point, 1: one per point (n*3); unit: world length of a texel; w1..w4, threshold: eqs. 2-4; max_patch: the
 // largest patch extent in texels, <= 0 for unbounded; n_buckets: priority levels.
 // Outputs: state, patch (n int); uv (n*2), fn, fs, ft (n*3), distortion (n) double;
 // seeds (n int, the first counts[0] used); counts: (1,) int: patches.
 // Scratch: key, slot, next, prev, touched (n int), head, tail (n_buckets int), terms (k * 12 double).
 __kernel void grow_patches(const int n, const int k, __global const double* pos, __global const double* nrm,
-                           __global const int* nb, __global const int* order, __global const double* seed_s,
-                           __global const double* seed_t, const double unit, const double w1, const double w2,
+                           __global const int* nb, __global const int* order, __global const double* dirs,
+                           const int dir_step, const double unit, const double w1, const double w2,
                            const double w3, const double w4, const double threshold, const double max_patch,
                            const int n_buckets, __global int* state, __global int* patch, __global double* uv,
                            __global double* fn, __global double* fs, __global double* ft,
@@ -137,7 +157,9 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
         seeds[pid] = sd;
         state[sd] = G_PATCH; patch[sd] = pid;
         uv[2 * sd] = 0.0; uv[2 * sd + 1] = 0.0; distortion[sd] = 0.0;
-        d3_put(fn, sd, d3_at(nrm, sd)); d3_put(fs, sd, d3_at(seed_s, sd)); d3_put(ft, sd, d3_at(seed_t, sd));
+        d3 s0, t0;
+        seed_frame(d3_at(nrm, sd), d3_at(dirs, dir_step * sd), &s0, &t0);
+        d3_put(fn, sd, d3_at(nrm, sd)); d3_put(fs, sd, s0); d3_put(ft, sd, t0);
         double lo_x = 0.0, lo_y = 0.0, hi_x = 0.0, hi_y = 0.0;
         int n_touched = 0, top = 0;
         int joined = sd;  // the point whose free neighbours get +1 next

@@ -5,8 +5,9 @@ The twin of ``growth.cl`` (same kernel name without ``_kernel``, same arguments 
 same order, the same float64 arithmetic in the same order). Definitions are those of
 ``geosynth/parameterize.py``; the order of growth is fixed here:
 
-- Patches start at the first free point of ``order`` (a seeded permutation), in the
-  seed frame ``(seed_s, seed_t)`` of that point, at q = (0, 0).
+- Patches start at the first free point of ``order`` (a seeded permutation), at q =
+  (0, 0), in the frame that the point's normal and its direction (``dirs``: the up
+  vector, or a random one per point) give (``_seed_frame``).
 - Priority queue: one FIFO list per priority ``min(key, n_buckets - 1)``, ``key`` the
   number of points of the current patch that have the point among their k neighbours.
   When a point joins, each free point of its k-neighbourhood (in table order) gets +1
@@ -105,6 +106,25 @@ def _average_frame(sn: wp.vec3d, st: wp.vec3d):
 
 
 @wp.func
+def _seed_frame(n: wp.vec3d, u: wp.vec3d):
+    """The frame (S, T) a patch seeded at a point of unit normal n starts with, from the
+    direction u (see growth.cl's seed_frame)."""
+    u = _div(u, wp.sqrt(_dot(u, u)))
+    un = _dot(u, n)
+    t = wp.vec3d(u[0] - un * n[0], u[1] - un * n[1], u[2] - un * n[2])
+    if wp.sqrt(_dot(t, t)) < wp.float64(1e-3):
+        alt = wp.vec3d(wp.float64(0.0), wp.float64(1.0), wp.float64(0.0))
+        if wp.abs(u[0]) < wp.float64(0.9):
+            alt = wp.vec3d(wp.float64(1.0), wp.float64(0.0), wp.float64(0.0))
+        an = _dot(alt, n)
+        t = wp.vec3d(alt[0] - an * n[0], alt[1] - an * n[1], alt[2] - an * n[2])
+    tn = _dot(t, n)
+    t = wp.vec3d(t[0] - tn * n[0], t[1] - tn * n[1], t[2] - tn * n[2])
+    t = _div(t, wp.max(wp.sqrt(_dot(t, t)), TINY))
+    return _cross(t, n), t
+
+
+@wp.func
 def _unlink(nxt: wp.array(dtype=wp.int32), prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
             head: wp.array(dtype=wp.int32), tail: wp.array(dtype=wp.int32), i: int):
     b = slot[i]
@@ -143,8 +163,8 @@ def grow_patches_kernel(
     nrm: wp.array(dtype=wp.float64),  # (n * 3,) unit normals
     nb: wp.array(dtype=wp.int32),  # (n * k,) k-neighbour table, self excluded
     order: wp.array(dtype=wp.int32),  # (n,) seed order
-    seed_s: wp.array(dtype=wp.float64),  # (n * 3,) seed frame S of each point
-    seed_t: wp.array(dtype=wp.float64),  # (n * 3,) seed frame T of each point
+    dirs: wp.array(dtype=wp.float64),  # seed frame directions: (3,) for all or (n * 3,) per point
+    dir_step: int,  # 0: one direction for all, 1: one per point
     unit: wp.float64,  # world length of a texel
     w1: wp.float64,
     w2: wp.float64,
@@ -206,8 +226,9 @@ def grow_patches_kernel(
         uv[2 * sd + 1] = zero
         distortion[sd] = zero
         _put(fn, sd, _at(nrm, sd))
-        _put(fs, sd, _at(seed_s, sd))
-        _put(ft, sd, _at(seed_t, sd))
+        s0, t0 = _seed_frame(_at(nrm, sd), _at(dirs, dir_step * sd))
+        _put(fs, sd, s0)
+        _put(ft, sd, t0)
         lo_x = zero
         lo_y = zero
         hi_x = zero

@@ -11,10 +11,10 @@ import numpy as np
 class OpenCLGrowthOps:
     """Mixin: the sequential patch growth on an OpenCL device."""
 
-    def grow_patches(self, n, k, inputs, unit, weights, threshold, max_patch, n_buckets, outputs, scratch) -> None:
+    def grow_patches(self, n, k, inputs, dir_step, unit, weights, threshold, max_patch, n_buckets, outputs, scratch) -> None:
         """Same arguments as WarpGrowthOps.grow_patches."""
         kernel = self._kernel("growth", "grow_patches", np.float64)
-        kernel(self.queue, (1,), (1,), n, k, *(a.data for a in inputs), unit, *weights, threshold, max_patch,
+        kernel(self.queue, (1,), (1,), n, k, *(a.data for a in inputs), dir_step, unit, *weights, threshold, max_patch,
                n_buckets, *(a.data for a in outputs), *(a.data for a in scratch))
 
     def blend_gaps(self, n, k, inputs, unit, tex, h, w, wrap, offsets, n_buckets, in_out, outputs, scratch) -> None:

@@ -13,13 +13,14 @@ from geosynth.kernels import growth as growth_kernels
 class WarpGrowthOps:
     """Mixin: the sequential patch growth on a Warp device."""
 
-    def grow_patches(self, n, k, inputs, unit, weights, threshold, max_patch, n_buckets, outputs, scratch) -> None:
+    def grow_patches(self, n, k, inputs, dir_step, unit, weights, threshold, max_patch, n_buckets, outputs, scratch) -> None:
         """Grow every patch of a point model in one thread (kernels/growth.py).
 
         Args:
             n, k: points and neighbours per point.
             inputs: DeviceArrays pos (n*3 float64), nrm (n*3 float64), nb (n*k int32),
-                order (n int32), seed_s, seed_t (n*3 float64).
+                order (n int32), dirs (3 or n*3 float64): the seed frames' directions.
+            dir_step: 0 for one direction, 1 for one per point.
             unit: world length of a texel; weights: (w1, w2, w3, w4); threshold: the
                 distortion bound; max_patch: largest patch extent in texels (<= 0: none);
                 n_buckets: priority levels of the queue.
@@ -30,7 +31,7 @@ class WarpGrowthOps:
         """
         f64 = wp.float64
         self._launch(growth_kernels.grow_patches_kernel, 1,
-                     [n, k, *(a.data for a in inputs), f64(unit), *(f64(w) for w in weights), f64(threshold),
+                     [n, k, *(a.data for a in inputs), dir_step, f64(unit), *(f64(w) for w in weights), f64(threshold),
                       f64(max_patch), n_buckets, *(a.data for a in outputs), *(a.data for a in scratch)])
 
     def blend_gaps(self, n, k, inputs, unit, tex, h, w, wrap, offsets, n_buckets, in_out, outputs, scratch) -> None:
