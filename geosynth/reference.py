@@ -583,3 +583,129 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
         colours_f[rest] = tex.reshape(-1, 3)[rng.integers(0, h * w, len(rest))]
         done[rest] = True
     return np.clip(np.rint(colours_f), 0, 255).astype(np.uint8), done, np.asarray(offsets)
+
+
+def match_coherent_reference(level, search, colours, coloured, source, rng, subtexel: bool = True):
+    """The coherent matching of ``kernels/growth.py`` (``match_coherent``) as a plain-Python
+    loop: same arguments as ``geosynth.texture._match_coherent_level`` (level, TexelSearch,
+    colours (n, 3) uint8, coloured (n,) bool, source (n,) int64, Generator, subtexel), the
+    same random draws, the same arithmetic; returns new (colours, coloured, source)."""
+    from geosynth.parameterize import PARALLEL_LIMIT, growth_buckets
+    from geosynth.texture import refine_shifts
+
+    n, k = level.neighbours.shape
+    order = rng.permutation(n).tolist()
+    rand_texel = rng.integers(0, search.h * search.w, n).tolist()
+    dy1, dx1, ring = refine_shifts(search.m)
+    shifts1 = list(zip(dy1.tolist(), dx1.tolist()))
+    m, h, w, pad, tiny = search.m, search.h, search.w, search.pad, 1e-300
+    grid = search.host.astype(np.int64)  # (rows, xp, 3)
+    xp = grid.shape[1]
+    flat = grid.reshape(-1, 3)
+    unit, n_buckets = level.unit, growth_buckets(k)
+    pos, nrm, s_ax, t_ax = (a.tolist() for a in (level.positions, level.normals, level.s_axis, level.t_axis))
+    nb = level.neighbours.tolist()
+    colours, coloured, source = colours.copy(), coloured.copy(), source.copy()
+    key = [0] * n
+    for i in np.flatnonzero(coloured).tolist():
+        for q in nb[i]:
+            key[q] += 1
+    slot = [-1] * n
+    lists: list[dict] = [dict() for _ in range(n_buckets)]
+
+    def requeue(q, top):
+        b = min(key[q], n_buckets - 1)
+        if slot[q] != b:
+            if slot[q] >= 0:
+                del lists[slot[q]][q]
+            lists[b][q] = None
+            slot[q] = b
+            top = max(top, b)
+        return top
+
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    def error(centre, rel, vals):
+        return int(((flat[centre + rel] - vals) ** 2).sum())
+
+    top = 0
+    for i in range(n):
+        if not coloured[i] and key[i] > 0:
+            top = requeue(i, top)
+    next_order = 0
+    while True:
+        while top > 0 and not lists[top]:
+            top -= 1
+        if top > 0:
+            f = next(iter(lists[top]))
+            del lists[top][f]
+            slot[f] = -1
+        else:
+            while next_order < n and coloured[order[next_order]]:
+                next_order += 1
+            if next_order == n:
+                break
+            f = order[next_order]
+        pf, nf, sf, tf = pos[f], nrm[f], s_ax[f], t_ax[f]
+        rel, vals, cand = [], [], []
+        for l in nb[f]:
+            if not coloured[l]:
+                continue
+            v = [pos[l][i] - pf[i] for i in range(3)]
+            dist = math.sqrt(dot(v, v))
+            r = 1.0 / max(dist, tiny)
+            along = dot([x * r for x in v], nf)
+            a, b = dot(v, sf), dot(v, tf)
+            if dist > 0.0 and abs(along) < PARALLEL_LIMIT:
+                scale = dist / max(math.sqrt(a * a + b * b), tiny) / unit
+                ox, oy = a * scale, b * scale
+            else:
+                ox, oy = a / unit, b / unit
+            dy, dx = int(np.rint(oy * m)), int(np.rint(ox * m))
+            rel.append(min(max(dy, -pad), pad) * xp + min(max(dx, -pad), pad))
+            vals.append(colours[l].astype(np.int64))
+            src = int(source[l])
+            if src < 0:
+                continue
+            cy, cx = src // w - int(np.rint(dy / m)), src % w - int(np.rint(dx / m))
+            if search.tileable:
+                cy, cx = cy % h, cx % w
+            elif not (0 <= cy < h and 0 <= cx < w):
+                continue
+            if cy * w + cx not in cand:
+                cand.append(cy * w + cx)
+        if not rel:
+            texel = rand_texel[f]
+            colours[f] = grid[pad + m * (texel // w), pad + m * (texel % w)]
+        else:
+            rel_a, vals_a = np.asarray(rel), np.asarray(vals)
+            texel, best = -1, None
+            for t in cand if cand else range(h * w):
+                err = error((pad + m * (t // w)) * xp + pad + m * (t % w), rel_a, vals_a)
+                if best is None or err < best or (err == best and t < texel):
+                    best, texel = err, t
+            cy, cx = pad + m * (texel // w), pad + m * (texel % w)
+            by = bx = 0
+            if subtexel:
+                best = None
+                for sy, sx in shifts1:
+                    err = error((cy + sy) * xp + cx + sx, rel_a, vals_a)
+                    if best is None or err < best:
+                        best, by, bx = err, sy, sx
+                if ring:
+                    oy, ox, best = by, bx, None
+                    for a, b in [(0, 0)] + [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)]:
+                        sy = min(max(oy + a, -(m // 2)), m - m // 2 - 1)
+                        sx = min(max(ox + b, -(m // 2)), m - m // 2 - 1)
+                        err = error((cy + sy) * xp + cx + sx, rel_a, vals_a)
+                        if best is None or err < best:
+                            best, by, bx = err, sy, sx
+            colours[f] = grid[cy + by, cx + bx]
+        source[f] = texel
+        coloured[f] = True
+        for q in nb[f]:
+            if not coloured[q]:
+                key[q] += 1
+                top = requeue(q, top)
+    return colours, coloured, source

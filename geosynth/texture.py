@@ -31,9 +31,12 @@ Point neighbourhood matching (paper Sec. 4):
   (texture level l + 1), both in one call: the two supersampled levels are the two
   z-slices of one 3D grid and the coarse entries carry dz = 1.
 - Coherent mode: the candidates are only the texels that the sources of the coloured
-  neighbours suggest (their source texel minus their offset); these few dozen
-  candidates are scored exactly in integers on the host (a kernel launch costs more
-  than that work), so every device still agrees.
+  neighbours suggest (their source texel minus their offset), scored exactly in
+  integers, so every device agrees. A level with no coarser one (one level, or the
+  coarsest matched level) is matched whole in one kernel launch in the paper's
+  sequential order, tangent-plane offsets, suggestions, scores and sub-texel refinement
+  included (kernels/growth.py, ``match_coherent``); finer levels of a hierarchy score
+  the batches' suggestions on the host, vectorized.
 
 Hybrid (Sec. 5): the parameterization colours the patch points; gaps are widened
 towards the texture's pattern size (each round turns every patch point in the
@@ -63,7 +66,7 @@ from geosynth.parameterize import (
     mean_spacing, neighbourhood_offsets, parameterize_points, propagate,
 )
 from geosynth.pointsets import PointSet
-from geosynth.textures import as_texture, sample_bilinear, texture_pyramid
+from geosynth.textures import as_texture, sample_bilinear_grid, texture_pyramid
 
 __all__ = [
     "METHODS", "PointLevel", "TextureReport", "TexelSearch", "build_hierarchy", "neighbourhood_error",
@@ -124,11 +127,9 @@ class TexelSearch:
         self.tileable = tileable
         yy = np.arange(self.m * self.h, dtype=np.float64) / self.m
         xx = np.arange(self.m * self.w, dtype=np.float64) / self.m
-        ones_y, ones_x = np.ones((len(yy), 1)), np.ones((1, len(xx)))
-        slices = [sample_bilinear(texture, yy[:, None] * ones_x, ones_y * xx[None, :], tileable)]
+        slices = [sample_bilinear_grid(texture, yy, xx, tileable)]
         if coarse is not None:  # coarse texel i covers fine texels 2i, 2i + 1: centre at 2i + 0.5
-            slices.append(sample_bilinear(coarse, (yy[:, None] * ones_x - 0.5) / 2, (ones_y * xx[None, :] - 0.5) / 2,
-                                          tileable))
+            slices.append(sample_bilinear_grid(coarse, (yy - 0.5) / 2, (xx - 0.5) / 2, tileable))
         grid = np.clip(np.rint(np.stack(slices)), 0, 255).astype(np.uint8)  # (Z, mH, mW, 3)
         pad = ((0, 0), (self.pad, self.pad), (self.pad, self.pad), (0, 0))
         grid = np.pad(grid, pad, mode="wrap" if tileable else "edge")
@@ -137,6 +138,7 @@ class TexelSearch:
         self.device_grid = geosynth.to_device(np.ascontiguousarray(self.host), device if device else "auto")
         self.device = self.device_grid.backend.name
         self.phase_grid = None  # the batched kernel's layout, uploaded on first use
+        self.flat_grid = None  # the host grid flat (the coherent kernel's layout), uploaded on first use
         self.phase_dims = (0, 0)
         self._scratch = None  # batched scores, reused across launches
         self.searches = 0  # queries answered on the device
@@ -348,14 +350,11 @@ class TexelSearch:
             err = (win.sum(-1, dtype=np.int64) * mask[:, None, :]).sum(-1)
             return np.argmin(err, axis=1)  # first minimum: the order of the shifts breaks ties
 
-        half, step = self.m // 2, max(1, self.m // 4)
-        grid1 = np.arange(-half, self.m - half, step)
-        dy1, dx1 = np.repeat(grid1, len(grid1)), np.tile(grid1, len(grid1))
-        first = np.lexsort((dx1, dy1, np.abs(dy1) + np.abs(dx1)))
-        dy1, dx1 = dy1[first], dx1[first]
+        half = self.m // 2
+        dy1, dx1, ring = refine_shifts(self.m)
         pick = best_shift(np.broadcast_to(dy1, (nq, len(dy1))), np.broadcast_to(dx1, (nq, len(dx1))))
         by, bx = dy1[pick], dx1[pick]
-        if step > 1:
+        if ring:
             ring = np.array([(0, 0)] + [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)])
             dy2 = np.clip(by[:, None] + ring[None, :, 0], -half, self.m - half - 1)
             dx2 = np.clip(bx[:, None] + ring[None, :, 1], -half, self.m - half - 1)
@@ -364,6 +363,21 @@ class TexelSearch:
         flat = self.host[0] if self.nd == 3 else self.host
         return flat[cy + by, cx + bx]
 
+
+
+def refine_shifts(m: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The sub-texel refinement's first shifts: a grid of step max(1, m // 4) pixels over
+    [-m // 2, m - m // 2), centre first (by |dy| + |dx|, then dy, then dx); and whether a
+    second pass over the 3 x 3 pixels around the best follows (step > 1).
+
+    Returns:
+        (dy (S,) int64, dx (S,) int64, ring).
+    """
+    half, step = m // 2, max(1, m // 4)
+    grid1 = np.arange(-half, m - half, step)
+    dy1, dx1 = np.repeat(grid1, len(grid1)), np.tile(grid1, len(grid1))
+    first = np.lexsort((dx1, dy1, np.abs(dy1) + np.abs(dx1)))
+    return dy1[first], dx1[first], step > 1
 
 
 # ------------------------------------------------------------------ point hierarchy
@@ -517,9 +531,10 @@ def _match_level(level: PointLevel, tex: np.ndarray, search: TexelSearch, colour
     that colouring one cannot change another's query, and searches them in one launch
     (``batch=1``: one :func:`geosynth.score_gather` call per point, the paper's sequential
     order). While nothing near is coloured (the very first point of a level without a
-    coarser one) a single point takes a random texel. Coherent mode scores each point's
-    few suggested texels exactly on the host (vectorized over the batch) and searches every
-    texel only for points whose neighbours suggest none.
+    coarser one) a single point takes a random texel. Coherent mode without a coarser
+    level runs in one kernel launch (:func:`_match_coherent_level`); with one, it scores
+    each point's few suggested texels exactly on the host (vectorized over the batch) and
+    searches every texel only for points whose neighbours suggest none.
     """
     from geosynth.parameterize import _pick_batch
 
@@ -528,6 +543,8 @@ def _match_level(level: PointLevel, tex: np.ndarray, search: TexelSearch, colour
     todo = int(np.count_nonzero(~coloured))
     if todo == 0:
         return 0
+    if coherent and coarse is None:
+        return _match_coherent_level(level, search, colours, coloured, source, rng, subtexel)
     # the irregular neighbourhoods of the points to colour (rows of other points stay 0)
     need = np.flatnonzero(~coloured)
     off_px = np.zeros((n, k, 2), np.int64)
@@ -626,6 +643,41 @@ def _match_level(level: PointLevel, tex: np.ndarray, search: TexelSearch, colour
     if bar is not None:
         bar.close()
     return done
+
+
+def _match_coherent_level(level: PointLevel, search: TexelSearch, colours: np.ndarray, coloured: np.ndarray,
+                          source: np.ndarray, rng: np.random.Generator, subtexel: bool) -> int:
+    """Coherent matching of a level with no coarser one, in the paper's sequential order,
+    in one kernel launch (kernels/growth.py, ``match_coherent``, gives the rules).
+    Updates colours (n, 3) uint8, coloured (n,) bool and source (n,) int64 in place;
+    returns the count coloured."""
+    from geosynth.parameterize import growth_buckets
+
+    backend = search.device_grid.backend
+    n, k = level.neighbours.shape
+    todo = int(np.count_nonzero(~coloured))
+    order = rng.permutation(n).astype(np.int32)
+    rand_texel = rng.integers(0, search.h * search.w, n).astype(np.int32)
+    dy1, dx1, ring = refine_shifts(search.m)
+    n_buckets = growth_buckets(k)
+    f64, i32 = np.float64, np.int32
+    up = backend.to_device
+    if search.flat_grid is None:
+        search.flat_grid = up(np.ascontiguousarray(search.host).reshape(-1))
+    inputs = [up(np.ascontiguousarray(a, f64)) for a in (level.positions, level.normals, level.s_axis, level.t_axis)]
+    inputs.append(up(level.neighbours.astype(i32)))
+    in_out = [up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32))]
+    scratch = [backend.empty((n,), i32) for _ in range(4)] + [backend.empty((n_buckets,), i32) for _ in range(2)] + \
+        [backend.empty((k,), i32), backend.empty((k * 3,), np.uint8), backend.empty((k,), i32)]
+    backend.match_coherent(n, k, inputs, level.unit, search.flat_grid, search.host.shape[1], search.pad, search.m,
+                           search.h, search.w, int(search.tileable), int(subtexel),
+                           up(np.stack([dy1, dx1], 1).astype(i32).reshape(-1)), len(dy1), int(ring), up(order),
+                           up(rand_texel), n_buckets, in_out, scratch)
+    done, cols, src = backend.to_host_all(in_out)
+    coloured[:] = done.astype(bool)
+    colours[:] = cols
+    source[:] = src
+    return todo
 
 
 # ------------------------------------------------------------------ quality

@@ -183,6 +183,37 @@ def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
+def sample_bilinear_grid(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
+    """:func:`sample_bilinear` at every (y[i], x[j]) of a grid, the same values bit for
+    bit (the same operations: rows are blended along x first, then along y), in
+    O(H * len(x) + len(y) * len(x)) work instead of four lookups per sample.
+
+    Args:
+        texture: (H, W, C) array; y: (Ny,) and x: (Nx,) coordinates in texels.
+        wrap: periodic texture; otherwise coordinates are clamped to the edge.
+
+    Returns:
+        (Ny, Nx, C) float64.
+    """
+    tex = np.asarray(texture, np.float64)
+    h, w = tex.shape[:2]
+    y = np.asarray(y, np.float64)
+    x = np.asarray(x, np.float64)
+    if not wrap:
+        y = np.clip(y, 0, h - 1)
+        x = np.clip(x, 0, w - 1)
+    y0, x0 = np.floor(y), np.floor(x)
+    fy, fx = (y - y0)[:, None, None], (x - x0)[None, :, None]
+    y0, x0 = y0.astype(np.int64), x0.astype(np.int64)
+    if wrap:
+        y0, x0 = np.mod(y0, h), np.mod(x0, w)
+        y1, x1 = np.mod(y0 + 1, h), np.mod(x0 + 1, w)
+    else:
+        y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
+    rows = tex[:, x0] * (1 - fx) + tex[:, x1] * fx  # (H, Nx, C): every texture row along x
+    return rows[y0] * (1 - fy) + rows[y1] * fy
+
+
 def supersample(texture: np.ndarray, m: int = 8, wrap: bool = True, scale: float = 1.0,
                 shift: float = 0.0) -> np.ndarray:
     """The texture resampled bilinearly at 1/m texel steps (the paper's m-times supersampling).
@@ -211,8 +242,7 @@ def supersample(texture: np.ndarray, m: int = 8, wrap: bool = True, scale: float
     hh, ww = int(round(m * h * scale)), int(round(m * w * scale))
     yy = (np.arange(hh, dtype=np.float64) / m - shift) / scale
     xx = (np.arange(ww, dtype=np.float64) / m - shift) / scale
-    out = sample_bilinear(tex, yy[:, None] * np.ones((1, ww)), np.ones((hh, 1)) * xx[None, :], wrap)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(sample_bilinear_grid(tex, yy, xx, wrap)), 0, 255).astype(np.uint8)
 
 
 def texture_pyramid(texture: np.ndarray, levels: int) -> list[np.ndarray]:

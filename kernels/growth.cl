@@ -385,3 +385,165 @@ __kernel void blend_gaps(const int n, const int k, __global const double* pos, _
         }
     }
 }
+
+// Eq. 5 of one candidate texel t = (ty, tx): the squared differences of the entries'
+// colours against the supersampled pixels at their offsets from t's centre pixel. The sum
+// stops once it exceeds bound (then only "more than bound" is meaningful).
+GS_INLINE uint window_error(__global const uchar* grid, int centre, __global const int* rel,
+                            __global const uchar* vals, int count, uint bound)
+{
+    uint err = 0;
+    for (int e = 0; e < count && err <= bound; ++e) {
+        __global const uchar* px = grid + 3 * (centre + rel[e]);
+        for (int c = 0; c < 3; ++c) {
+            const int d = (int)px[c] - (int)vals[3 * e + c];
+            err += (uint)(d * d);
+        }
+    }
+    return err;
+}
+
+// Coherent neighbourhood matching of one level (paper Sec. 4; no coarser level), one
+// work-item, the points in the paper's sequential order: most coloured neighbours first
+// (the FIFO bucket queue of grow_patches; key = coloured points that have the point among
+// their k neighbours); with none queued, the next uncoloured point of `order` takes the
+// random texel rand_texel[i]. A point's entries are its coloured neighbours at their
+// tangent-plane offsets (Appendix A from the point, in texels x along S and y along T;
+// the plain projection where Appendix A fails), as supersampled pixel offsets
+// (rint(m * y), rint(m * x)) clipped to [-pad, pad]. Each entry j suggests the texel
+// source_j - rint(offset_j / m) (wrapped when tileable, else dropped outside); the
+// suggestion of least eq. 5 error wins (lowest texel on ties); with none, every texel is
+// searched. Sub-texel refinement (subtexel != 0): the supersampled pixel around the
+// texel, first over shifts1 (n_shift1 (dy, dx), in order), then (ring != 0) over the 3 x 3
+// ring around the best (clipped to [-m/2, m - m/2 - 1]), first minimum winning, gives the
+// colour; else the texel's own colour (grid pixel at its centre).
+// grid: (rows, xp, 3) uchar, the padded supersampled texture (texel (ty, tx) centred at
+// pixel (pad + m ty, pad + m tx)). In/out: coloured (n int), colours (n*3 uchar), source
+// (n int). Scratch: key, slot, next, prev (n int), head, tail (n_buckets int), rel (k int),
+// vals (k*3 uchar), cand (k int). Pixel indices are int: grids below 2^31 / 3 bytes.
+__kernel void match_coherent(const int n, const int k, __global const double* pos, __global const double* nrm,
+                             __global const double* s_axis, __global const double* t_axis, __global const int* nb,
+                             const double unit, __global const uchar* grid, const int xp, const int pad,
+                             const int m, const int h, const int w, const int tileable, const int subtexel,
+                             __global const int* shifts1, const int n_shift1, const int ring, __global const int* order,
+                             __global const int* rand_texel, const int n_buckets, __global int* coloured,
+                             __global uchar* colours, __global int* source, __global int* key, __global int* slot,
+                             __global int* next, __global int* prev, __global int* head, __global int* tail,
+                             __global int* rel, __global uchar* vals, __global int* cand)
+{
+    if (get_global_id(0) != 0) return;
+    for (int i = 0; i < n; ++i) { key[i] = 0; slot[i] = -1; }
+    for (int b = 0; b < n_buckets; ++b) { head[b] = -1; tail[b] = -1; }
+    for (int i = 0; i < n; ++i)
+        if (coloured[i])
+            for (int j = 0; j < k; ++j) key[nb[i * k + j]] += 1;
+    int top = 0;
+    for (int i = 0; i < n; ++i)
+        if (!coloured[i] && key[i] > 0) {
+            const int b = min(key[i], n_buckets - 1);
+            queue_append(next, prev, slot, head, tail, i, b);
+            top = max(top, b);
+        }
+    const int half_m = m / 2;
+    int next_order = 0;
+    while (1) {
+        while (top > 0 && head[top] < 0) --top;
+        int f;
+        if (top > 0) {
+            f = head[top];
+            queue_unlink(next, prev, slot, head, tail, f);
+        } else {
+            while (next_order < n && coloured[order[next_order]]) ++next_order;
+            if (next_order == n) break;
+            f = order[next_order];
+        }
+        const d3 pf = d3_at(pos, f), nf = d3_at(nrm, f), sf = d3_at(s_axis, f), tf = d3_at(t_axis, f);
+        int count = 0, n_cand = 0;
+        for (int j = 0; j < k; ++j) {
+            const int l = nb[f * k + j];
+            if (!coloured[l]) continue;
+            const d3 pl = d3_at(pos, l);
+            const d3 v = {pl.x - pf.x, pl.y - pf.y, pl.z - pf.z};
+            const double dist = SQRT(d3_dot(v, v));
+            const d3 v0 = d3_div(v, FMAX(dist, TINY));
+            const double along = d3_dot(v0, nf);
+            const double a = d3_dot(v, sf), b = d3_dot(v, tf);
+            double ox, oy;
+            if (dist > 0.0 && FABS(along) < PARALLEL_LIMIT) {
+                const double scale = dist / FMAX(SQRT(a * a + b * b), TINY) / unit;
+                ox = a * scale; oy = b * scale;
+            } else {
+                ox = a / unit; oy = b / unit;
+            }
+            const int dy = (int)__builtin_rint(oy * m), dx = (int)__builtin_rint(ox * m);
+            rel[count] = min(max(dy, -pad), pad) * xp + min(max(dx, -pad), pad);
+            for (int c = 0; c < 3; ++c) vals[3 * count + c] = colours[3 * l + c];
+            ++count;
+            const int src = source[l];
+            if (src < 0) continue;
+            int cy = src / w - (int)__builtin_rint((double)dy / m), cx = src % w - (int)__builtin_rint((double)dx / m);
+            if (tileable) {
+                cy %= h; if (cy < 0) cy += h;
+                cx %= w; if (cx < 0) cx += w;
+            } else if (cy < 0 || cy >= h || cx < 0 || cx >= w) {
+                continue;
+            }
+            const int t = cy * w + cx;
+            int seen = 0;  // neighbours that agree suggest the same texel: score it once
+            for (int i = 0; i < n_cand && !seen; ++i) seen = cand[i] == t;
+            if (!seen) cand[n_cand++] = t;
+        }
+        int texel;
+        if (count == 0) {
+            texel = rand_texel[f];
+            const int centre = (pad + m * (texel / w)) * xp + pad + m * (texel % w);
+            for (int c = 0; c < 3; ++c) colours[3 * f + c] = grid[3 * centre + c];
+        } else {
+            uint best = 0xffffffffu;
+            texel = -1;
+            const int n_search = n_cand > 0 ? n_cand : h * w;  // no suggestion: every texel
+            for (int i = 0; i < n_search; ++i) {
+                const int t = n_cand > 0 ? cand[i] : i;
+                const int centre = (pad + m * (t / w)) * xp + pad + m * (t % w);
+                const uint err = window_error(grid, centre, rel, vals, count, best);
+                if (err < best || (err == best && t < texel)) { best = err; texel = t; }
+            }
+            const int cy = pad + m * (texel / w), cx = pad + m * (texel % w);
+            int by = 0, bx = 0;
+            if (subtexel) {
+                best = 0xffffffffu;
+                for (int i = 0; i < n_shift1; ++i) {
+                    const int sy = shifts1[2 * i], sx = shifts1[2 * i + 1];
+                    const uint err = window_error(grid, (cy + sy) * xp + cx + sx, rel, vals, count, best);
+                    if (err < best) { best = err; by = sy; bx = sx; }
+                }
+                if (ring) {
+                    const int oy = by, ox = bx;
+                    best = 0xffffffffu;
+                    for (int r = 0; r < 9; ++r) {  // (0, 0) first, then row by row
+                        const int q = r == 0 ? 4 : (r <= 4 ? r - 1 : r);
+                        const int sy = min(max(oy + q / 3 - 1, -half_m), m - half_m - 1);
+                        const int sx = min(max(ox + q % 3 - 1, -half_m), m - half_m - 1);
+                        const uint err = window_error(grid, (cy + sy) * xp + cx + sx, rel, vals, count, best);
+                        if (err < best) { best = err; by = sy; bx = sx; }
+                    }
+                }
+            }
+            const int px = (cy + by) * xp + cx + bx;
+            for (int c = 0; c < 3; ++c) colours[3 * f + c] = grid[3 * px + c];
+        }
+        source[f] = texel;
+        coloured[f] = 1;
+        for (int j = 0; j < k; ++j) {
+            const int q = nb[f * k + j];
+            if (coloured[q]) continue;
+            key[q] += 1;
+            const int b = min(key[q], n_buckets - 1);
+            if (slot[q] != b) {
+                if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
+                queue_append(next, prev, slot, head, tail, q, b);
+                top = max(top, b);
+            }
+        }
+    }
+}

@@ -551,3 +551,211 @@ def blend_gaps_kernel(
             q = nb[f * k + j]
             if coloured[q] == 0:
                 top = _requeue(q, key, n_buckets, nxt, prv, slot, head, tail, top)
+
+
+@wp.func
+def _window_error(grid: wp.array(dtype=wp.uint8), centre: int, rel: wp.array(dtype=wp.int32),
+                  vals: wp.array(dtype=wp.uint8), count: int, bound: int):
+    """Eq. 5 of one candidate: the entries' colours against the supersampled pixels at
+    their offsets from the candidate's centre pixel (exact integers); the sum stops once
+    it exceeds bound."""
+    err = int(0)
+    for e in range(count):
+        if err > bound:
+            break
+        px = 3 * (centre + rel[e])
+        for c in range(3):
+            d = int(grid[px + c]) - int(vals[3 * e + c])
+            err += d * d
+    return err
+
+
+@wp.func
+def _centre(t: int, w: int, m: int, pad: int, xp: int):
+    """Flat pixel index of texel t's centre in the padded supersampled grid."""
+    return (pad + m * (t / w)) * xp + pad + m * (t % w)
+
+
+@wp.kernel
+def match_coherent_kernel(
+    n: int,
+    k: int,
+    pos: wp.array(dtype=wp.float64),  # (n * 3,)
+    nrm: wp.array(dtype=wp.float64),  # (n * 3,) unit normals
+    s_axis: wp.array(dtype=wp.float64),  # (n * 3,) texture x direction
+    t_axis: wp.array(dtype=wp.float64),  # (n * 3,) texture y direction
+    nb: wp.array(dtype=wp.int32),  # (n * k,)
+    unit: wp.float64,
+    grid: wp.array(dtype=wp.uint8),  # (rows * xp * 3,) padded supersampled texture
+    xp: int,  # pixels per grid row
+    pad: int,  # padding in pixels (offsets are clipped to it)
+    m: int,  # supersampling factor
+    h: int,  # texels
+    w: int,
+    tileable: int,
+    subtexel: int,
+    shifts1: wp.array(dtype=wp.int32),  # (n_shift1 * 2,) first refinement shifts (dy, dx), in order
+    n_shift1: int,
+    ring: int,  # 1: refine again over the 3 x 3 pixels around the best shift
+    order: wp.array(dtype=wp.int32),  # (n,) order of the points taken when none is queued
+    rand_texel: wp.array(dtype=wp.int32),  # (n,) the texel a point with no coloured neighbour takes
+    n_buckets: int,
+    coloured: wp.array(dtype=wp.int32),  # (n,) in/out
+    colours: wp.array(dtype=wp.uint8),  # (n * 3,) in/out
+    source: wp.array(dtype=wp.int32),  # (n,) in/out: texel each coloured point came from (-1: none)
+    key: wp.array(dtype=wp.int32),  # (n,) scratch
+    slot: wp.array(dtype=wp.int32),
+    nxt: wp.array(dtype=wp.int32),
+    prv: wp.array(dtype=wp.int32),
+    head: wp.array(dtype=wp.int32),  # (n_buckets,) scratch
+    tail: wp.array(dtype=wp.int32),
+    rel: wp.array(dtype=wp.int32),  # (k,) scratch: entry pixel offsets
+    vals: wp.array(dtype=wp.uint8),  # (k * 3,) scratch: entry colours
+    cand: wp.array(dtype=wp.int32),  # (k,) scratch: suggested texels
+):
+    """One thread colours every uncoloured point of a level (see growth.cl's
+    match_coherent for the rules; launch dim 1)."""
+    zero = wp.float64(0.0)
+    for i in range(n):
+        key[i] = 0
+        slot[i] = -1
+    for b in range(n_buckets):
+        head[b] = -1
+        tail[b] = -1
+    for i in range(n):
+        if coloured[i] != 0:
+            for j in range(k):
+                q = nb[i * k + j]
+                key[q] = key[q] + 1
+    top = int(0)
+    for i in range(n):
+        if coloured[i] == 0 and key[i] > 0:
+            b = wp.min(key[i], n_buckets - 1)
+            _append(nxt, prv, slot, head, tail, i, b)
+            top = wp.max(top, b)
+    half = m / 2
+    big = int(2147483647)
+    next_order = int(0)
+    while True:
+        while top > 0 and head[top] < 0:
+            top -= 1
+        f = wp.int32(-1)
+        if top > 0:
+            f = head[top]
+            _unlink(nxt, prv, slot, head, tail, f)
+        else:
+            while next_order < n and coloured[order[next_order]] != 0:
+                next_order += 1
+            if next_order == n:
+                break
+            f = order[next_order]
+        pf = _at(pos, f)
+        nf = _at(nrm, f)
+        sf = _at(s_axis, f)
+        tf = _at(t_axis, f)
+        count = int(0)
+        n_cand = int(0)
+        for j in range(k):
+            l = nb[f * k + j]
+            if coloured[l] == 0:
+                continue
+            pl = _at(pos, l)
+            v = wp.vec3d(pl[0] - pf[0], pl[1] - pf[1], pl[2] - pf[2])
+            dist = wp.sqrt(_dot(v, v))
+            v0 = _div(v, wp.max(dist, TINY))
+            along = _dot(v0, nf)
+            a = _dot(v, sf)
+            bb = _dot(v, tf)
+            ox = a / unit
+            oy = bb / unit
+            if dist > zero and wp.abs(along) < PARALLEL_LIMIT:
+                scale = dist / wp.max(wp.sqrt(a * a + bb * bb), TINY) / unit
+                ox = a * scale
+                oy = bb * scale
+            dy = int(wp.rint(oy * wp.float64(m)))
+            dx = int(wp.rint(ox * wp.float64(m)))
+            rel[count] = wp.clamp(dy, -pad, pad) * xp + wp.clamp(dx, -pad, pad)
+            for c in range(3):
+                vals[3 * count + c] = colours[3 * l + c]
+            count += 1
+            src = source[l]
+            if src < 0:
+                continue
+            cy = src / w - int(wp.rint(wp.float64(dy) / wp.float64(m)))
+            cx = src % w - int(wp.rint(wp.float64(dx) / wp.float64(m)))
+            if tileable != 0:
+                cy = cy % h
+                if cy < 0:
+                    cy += h
+                cx = cx % w
+                if cx < 0:
+                    cx += w
+            elif cy < 0 or cy >= h or cx < 0 or cx >= w:
+                continue
+            t = cy * w + cx
+            seen = int(0)  # neighbours that agree suggest the same texel: score it once
+            for i in range(n_cand):
+                if cand[i] == t:
+                    seen = 1
+            if seen == 0:
+                cand[n_cand] = t
+                n_cand += 1
+        texel = wp.int32(-1)
+        if count == 0:
+            texel = rand_texel[f]
+            at = 3 * _centre(texel, w, m, pad, xp)
+            for ch in range(3):
+                colours[3 * f + ch] = grid[at + ch]
+        else:
+            best = big
+            n_search = h * w
+            if n_cand > 0:
+                n_search = n_cand
+            for i in range(n_search):
+                t = i
+                if n_cand > 0:
+                    t = cand[i]
+                err = _window_error(grid, _centre(t, w, m, pad, xp), rel, vals, count, best)
+                if err < best or (err == best and t < texel):
+                    best = err
+                    texel = t
+            cy0 = pad + m * (texel / w)
+            cx0 = pad + m * (texel % w)
+            by = int(0)
+            bx = int(0)
+            if subtexel != 0:
+                best = big
+                for i in range(n_shift1):
+                    sy = shifts1[2 * i]
+                    sx = shifts1[2 * i + 1]
+                    err = _window_error(grid, (cy0 + sy) * xp + cx0 + sx, rel, vals, count, best)
+                    if err < best:
+                        best = err
+                        by = sy
+                        bx = sx
+                if ring != 0:
+                    oy0 = by
+                    ox0 = bx
+                    best = big
+                    for r in range(9):
+                        q = r
+                        if r == 0:
+                            q = 4
+                        elif r <= 4:
+                            q = r - 1
+                        sy = wp.clamp(oy0 + q / 3 - 1, -half, m - half - 1)
+                        sx = wp.clamp(ox0 + q % 3 - 1, -half, m - half - 1)
+                        err = _window_error(grid, (cy0 + sy) * xp + cx0 + sx, rel, vals, count, best)
+                        if err < best:
+                            best = err
+                            by = sy
+                            bx = sx
+            at = 3 * ((cy0 + by) * xp + cx0 + bx)
+            for ch in range(3):
+                colours[3 * f + ch] = grid[at + ch]
+        source[f] = texel
+        coloured[f] = 1
+        for j in range(k):
+            q = nb[f * k + j]
+            if coloured[q] == 0:
+                top = _requeue(q, key, n_buckets, nxt, prv, slot, head, tail, top)

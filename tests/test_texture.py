@@ -15,7 +15,8 @@ from geosynth.pointmodels import knn_table, load_point_model, point_model
 from geosynth.pointsets import PointSet, read_point_set, write_point_set
 from geosynth.texture import TexelSearch, texture_points
 from geosynth.textures import (
-    as_texture, read_texture, supersample, texture_example, texture_pyramid, write_texture,
+    as_texture, read_texture, sample_bilinear, sample_bilinear_grid, supersample, texture_example, texture_pyramid,
+    write_texture,
 )
 
 
@@ -71,6 +72,14 @@ def test_texture_conversion_and_io(tmp_path):
     assert np.abs(read_texture(tmp_path / "n.jpg").astype(int) - noise).mean() < 8  # lossy, but close
     with pytest.raises(FileNotFoundError):
         read_texture(tmp_path / "missing.png")
+
+
+@pytest.mark.parametrize("wrap", [True, False])
+def test_grid_sampling_is_pointwise_sampling_bit_for_bit(wrap):
+    tex = texture_example("noise", 40, seed=0)[:37]  # not square
+    y, x = np.linspace(-3.3, 45, 301), np.linspace(-2, 50, 257)  # off the texture on every side
+    point = sample_bilinear(tex, y[:, None] * np.ones((1, len(x))), np.ones((len(y), 1)) * x[None], wrap)
+    np.testing.assert_array_equal(sample_bilinear_grid(tex, y, x, wrap), point)
 
 
 def test_supersample_and_pyramid():
@@ -323,6 +332,40 @@ def test_multilevel_and_coherent_matching():
     assert rep_c.error["result"] < 0.5 * rep_c.error["random"]
     for out in (out2, out_c):
         assert out.colors.shape == (len(ps), 3)
+
+
+@pytest.mark.parametrize("tileable, subtexel, m, prefilled", [(True, True, 8, False), (False, True, 8, True),
+                                                              (True, False, 4, True), (False, True, 4, False)])
+def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, m, prefilled):
+    # the one-launch coherent matching against its plain-Python twin (same order, same
+    # integer scores, same random draws): the same texels and colours on every device
+    from geosynth.parameterize import frames_from_up
+    from geosynth.reference import match_coherent_reference
+    from geosynth.texture import _match_coherent_level, build_hierarchy
+
+    ps = point_model("blob", 1500, seed=5)
+    tex = texture_example("noise", 24, seed=2)
+    p, nrm = ps.positions.astype(np.float64), ps.normals.astype(np.float64)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    dist, nb = knn_table(p, 12)
+    unit = float(dist[:, 0].mean())
+    level = build_hierarchy(p, nrm, *frames_from_up(nrm), 12, 1, unit, np.random.default_rng(0), (dist, nb))[0]
+    search = TexelSearch(tex, None, m, float(dist[:, -1].max()) / unit, tileable, device)
+    rng = np.random.default_rng(3)
+    colours = np.zeros((len(p), 3), np.uint8)
+    coloured = np.zeros(len(p), bool)
+    source = np.full(len(p), -1, np.int64)
+    if prefilled:  # a hybrid-like start: a third coloured, with sources, some near the edges
+        pick = rng.random(len(p)) < 0.33
+        source[pick] = rng.integers(0, 24 * 24, int(pick.sum()))
+        colours[pick] = tex.reshape(-1, 3)[source[pick]]
+        coloured[pick] = True
+    ref = match_coherent_reference(level, search, colours, coloured, source, np.random.default_rng(9), subtexel)
+    todo = int((~coloured).sum())
+    assert _match_coherent_level(level, search, colours, coloured, source, np.random.default_rng(9), subtexel) == todo
+    for name, a, b in zip(("colours", "coloured", "source"), (colours, coloured, source), ref):
+        np.testing.assert_array_equal(a, b, err_msg=name)
+    assert coloured.all() and (source >= 0).all() and (source < 24 * 24).all()
 
 
 def test_same_seed_same_colours_on_every_device(device):

@@ -22,3 +22,11 @@ class OpenCLGrowthOps:
         kernel = self._kernel("growth", "blend_gaps", np.float64)
         kernel(self.queue, (1,), (1,), n, k, *(a.data for a in inputs), unit, tex.data, h, w, wrap, offsets.data,
                n_buckets, *(a.data for a in in_out), *(a.data for a in outputs), *(a.data for a in scratch))
+
+    def match_coherent(self, n, k, inputs, unit, grid, xp, pad, m, h, w, tileable, subtexel, shifts1, n_shift1, ring,
+                       order, rand_texel, n_buckets, in_out, scratch) -> None:
+        """Same arguments as WarpGrowthOps.match_coherent."""
+        kernel = self._kernel("growth", "match_coherent", np.float64)
+        kernel(self.queue, (1,), (1,), n, k, *(a.data for a in inputs), unit, grid.data, xp, pad, m, h, w, tileable,
+               subtexel, shifts1.data, n_shift1, ring, order.data, rand_texel.data, n_buckets,
+               *(a.data for a in in_out), *(a.data for a in scratch))

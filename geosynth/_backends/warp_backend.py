@@ -24,6 +24,7 @@ _WARP_DTYPES = {
     np.dtype(np.uint8): wp.uint8,
     np.dtype(np.uint32): wp.uint32,
     np.dtype(np.int32): wp.int32,
+    np.dtype(np.int64): wp.int64,
 }
 
 

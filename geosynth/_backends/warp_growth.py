@@ -52,3 +52,24 @@ class WarpGrowthOps:
                      [n, k, *(a.data for a in inputs), wp.float64(unit), tex.data, h, w, wrap, offsets.data,
                       n_buckets, *(a.data for a in in_out), *(a.data for a in outputs),
                       *(a.data for a in scratch)])
+
+    def match_coherent(self, n, k, inputs, unit, grid, xp, pad, m, h, w, tileable, subtexel, shifts1, n_shift1, ring,
+                       order, rand_texel, n_buckets, in_out, scratch) -> None:
+        """Coherent neighbourhood matching of one level in one thread (kernels/growth.py).
+
+        Args:
+            n, k: points and neighbours per point.
+            inputs: DeviceArrays pos, nrm, s_axis, t_axis (n*3 float64), nb (n*k int32).
+            unit: world length of a texel; grid: flat uint8 DeviceArray, the padded
+                supersampled texture, xp pixels per row, pad pixels of padding, m the
+                supersampling factor, h x w texels; tileable, subtexel: 0 or 1.
+            shifts1: (n_shift1*2,) int32 DeviceArray, the first refinement shifts; ring: 0 or 1.
+            order: (n,) int32 and rand_texel (n,) int32 DeviceArrays; n_buckets: priority levels.
+            in_out: DeviceArrays coloured (n int32), colours (n*3 uint8), source (n int32).
+            scratch: DeviceArrays key, slot, next, prev (n int32), head, tail (n_buckets
+                int32), rel (k int32), vals (k*3 uint8), cand (k int32).
+        """
+        self._launch(growth_kernels.match_coherent_kernel, 1,
+                     [n, k, *(a.data for a in inputs), wp.float64(unit), grid.data, xp, pad, m, h, w, tileable,
+                      subtexel, shifts1.data, n_shift1, ring, order.data, rand_texel.data, n_buckets,
+                      *(a.data for a in in_out), *(a.data for a in scratch)])
