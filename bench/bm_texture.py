@@ -12,7 +12,8 @@ per point; with ``--scale f`` every model has f times the paper's points (the ra
 point of those rows hardly depends on the model size; the parameterization's does a
 little: its frontier is longer on larger models). Rows report the stage that the
 paper's row measures (total time of the method, everything included) and the rates of
-the stages inside it. Quality numbers are off (they are not timed by the paper).
+the stages inside it. Quality numbers are off (they are not timed by the paper). Cases
+that take under 2 s run 3 times and report the best pass (listing all).
 
 Usage: python bench/bm_texture.py [--scale 0.1] [--devices cpu,opencl:0:0] [--out FILE]
        (default out: bench/out/bm_texture.md)
@@ -33,6 +34,7 @@ from geosynth.pointmodels import point_model  # noqa: E402
 from geosynth.texture import texture_points  # noqa: E402
 from geosynth.textures import texture_example  # noqa: E402
 
+QUICK_PASSES, QUICK_SECONDS = 3, 2.0  # cases under 2 s run 3 times, the best pass reported (this VM's noise)
 # (name, method, model, points, texture size, k, levels, coherent, paper points/s)
 CASES = [
     ("param sphere", "param", "sphere", 16_386, 64, 25, 1, False, 54_620),
@@ -77,19 +79,26 @@ def main(argv=None) -> int:
             # warm-up: kernel builds and uploads outside the timing
             texture_points(point_model("sphere", 2_000), tex[:32, :32], method="hybrid", k=8, device=dev,
                            quality=False)
-            t0 = time.perf_counter()
-            _, rep = texture_points(ps, tex, method=method, k=k, levels=levels, coherent=coherent, device=dev,
-                                    quality=False, seed=0)
-            wall = time.perf_counter() - t0
+            walls, best = [], None
+            while len(walls) < (QUICK_PASSES if walls and walls[0] < QUICK_SECONDS else 1):
+                t0 = time.perf_counter()
+                _, rep = texture_points(ps, tex, method=method, k=k, levels=levels, coherent=coherent, device=dev,
+                                        quality=False, seed=0)
+                walls.append(time.perf_counter() - t0)
+                if walls[-1] == min(walls):
+                    best = rep
+            rep, wall = best, min(walls)
             rate = n / wall
             stages = "; ".join(f"{s} {r:,.0f}" for s, r in rep.rates.items() if s != "total")
             srch = f"{rep.searches['count']:,} ({rep.searches['ms_each']:.2f})" if rep.searches.get("count") else "-"
-            row = (f"| {name} | {n:,} | {rep.device} | {wall:.2f} | {rate:,.0f} | {paper:,} | {rate / paper:.2f}x | "
-                   f"{stages} | {srch} |")
+            passes = "" if len(walls) == 1 else " (passes: " + ", ".join(f"{x:.3f}" for x in walls) + ")"
+            row = (f"| {name} | {n:,} | {rep.device} | {wall:.3f}{passes} | {rate:,.0f} | {paper:,} | "
+                   f"{rate / paper:.2f}x | {stages} | {srch} |")
             print(row, flush=True)
             lines.append(row)
     lines += ["", "points/s = points of the model / total wall time of the method (kNN, parameterization, "
-              "hierarchy, matching; no quality numbers). 'vs paper' = our rate / the paper's (P4 2.53 GHz)."]
+              "hierarchy, matching; no quality numbers). 'vs paper' = our rate / the paper's (P4 2.53 GHz). "
+              f"Cases under {QUICK_SECONDS:g} s ran {QUICK_PASSES} times: the best pass is reported, all are listed."]
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n")

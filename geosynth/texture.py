@@ -138,7 +138,6 @@ class TexelSearch:
         self.device_grid = geosynth.to_device(np.ascontiguousarray(self.host), device if device else "auto")
         self.device = self.device_grid.backend.name
         self.phase_grid = None  # the batched kernel's layout, uploaded on first use
-        self.flat_grid = None  # the host grid flat (the coherent kernel's layout), uploaded on first use
         self.phase_dims = (0, 0)
         self._scratch = None  # batched scores, reused across launches
         self.searches = 0  # queries answered on the device
@@ -662,14 +661,12 @@ def _match_coherent_level(level: PointLevel, search: TexelSearch, colours: np.nd
     n_buckets = growth_buckets(k)
     f64, i32 = np.float64, np.int32
     up = backend.to_device
-    if search.flat_grid is None:
-        search.flat_grid = up(np.ascontiguousarray(search.host).reshape(-1))
     inputs = [up(np.ascontiguousarray(a, f64)) for a in (level.positions, level.normals, level.s_axis, level.t_axis)]
     inputs.append(up(level.neighbours.astype(i32)))
     in_out = [up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32))]
     scratch = [backend.empty((n,), i32) for _ in range(4)] + [backend.empty((n_buckets,), i32) for _ in range(2)] + \
         [backend.empty((k,), i32), backend.empty((k * 3,), np.uint8), backend.empty((k,), i32)]
-    backend.match_coherent(n, k, inputs, level.unit, search.flat_grid, search.host.shape[1], search.pad, search.m,
+    backend.match_coherent(n, k, inputs, level.unit, search.device_grid, search.host.shape[1], search.pad, search.m,
                            search.h, search.w, int(search.tileable), int(subtexel),
                            up(np.stack([dy1, dx1], 1).astype(i32).reshape(-1)), len(dy1), int(ring), up(order),
                            up(rand_texel), n_buckets, in_out, scratch)

@@ -511,17 +511,19 @@ __kernel void match_coherent(const int n, const int k, __global const double* po
             const int cy = pad + m * (texel / w), cx = pad + m * (texel % w);
             int by = 0, bx = 0;
             if (subtexel) {
-                best = 0xffffffffu;
-                for (int i = 0; i < n_shift1; ++i) {
+                // the texel centre comes first when it is a shift: its error is the search's
+                int first = 0;
+                if (shifts1[0] == 0 && shifts1[1] == 0) first = 1;
+                else best = 0xffffffffu;
+                for (int i = first; i < n_shift1; ++i) {
                     const int sy = shifts1[2 * i], sx = shifts1[2 * i + 1];
                     const uint err = window_error(grid, (cy + sy) * xp + cx + sx, rel, vals, count, best);
                     if (err < best) { best = err; by = sy; bx = sx; }
                 }
                 if (ring) {
-                    const int oy = by, ox = bx;
-                    best = 0xffffffffu;
-                    for (int r = 0; r < 9; ++r) {  // (0, 0) first, then row by row
-                        const int q = r == 0 ? 4 : (r <= 4 ? r - 1 : r);
+                    const int oy = by, ox = bx;  // best is its error: the ring's (0, 0)
+                    for (int r = 1; r < 9; ++r) {  // (0, 0) first (done), then row by row
+                        const int q = r <= 4 ? r - 1 : r;  // ring cell 3 (dy + 1) + (dx + 1); 4 is done
                         const int sy = min(max(oy + q / 3 - 1, -half_m), m - half_m - 1);
                         const int sx = min(max(ox + q % 3 - 1, -half_m), m - half_m - 1);
                         const uint err = window_error(grid, (cy + sy) * xp + cx + sx, rel, vals, count, best);

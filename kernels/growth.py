@@ -724,8 +724,13 @@ def match_coherent_kernel(
             by = int(0)
             bx = int(0)
             if subtexel != 0:
-                best = big
-                for i in range(n_shift1):
+                # the texel centre comes first when it is a shift: its error is the search's
+                first = int(0)
+                if shifts1[0] == 0 and shifts1[1] == 0:
+                    first = 1
+                else:
+                    best = big
+                for i in range(first, n_shift1):
                     sy = shifts1[2 * i]
                     sx = shifts1[2 * i + 1]
                     err = _window_error(grid, (cy0 + sy) * xp + cx0 + sx, rel, vals, count, best)
@@ -734,14 +739,11 @@ def match_coherent_kernel(
                         by = sy
                         bx = sx
                 if ring != 0:
-                    oy0 = by
+                    oy0 = by  # best is its error: the ring's (0, 0)
                     ox0 = bx
-                    best = big
-                    for r in range(9):
-                        q = r
-                        if r == 0:
-                            q = 4
-                        elif r <= 4:
+                    for r in range(1, 9):
+                        q = r  # ring cell q = 3 (dy + 1) + (dx + 1); the centre, 4, is done
+                        if r <= 4:
                             q = r - 1
                         sy = wp.clamp(oy0 + q / 3 - 1, -half, m - half - 1)
                         sx = wp.clamp(ox0 + q % 3 - 1, -half, m - half - 1)
