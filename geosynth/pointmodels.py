@@ -25,6 +25,7 @@ from geosynth.pointsets import PointSet, estimate_normals, read_point_set
 
 __all__ = [
     "POINT_MODELS", "PointModelExample", "knn_table", "load_point_model", "point_model", "sample_mesh_points",
+    "spatial_order",
 ]
 
 RELAX_ROUNDS = 4  # repulsion rounds: enough to remove the clumps of random sampling
@@ -228,6 +229,37 @@ def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0
                              f"{max(3, k_normals)} neighbours; give normals in the file or more points.")
         ps.normals = estimate_normals(ps.positions, k=k_normals)
     return ps
+
+
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """uint64 values below 2^21 with two zero bits inserted after every bit."""
+    v = v & np.uint64(0x1FFFFF)
+    v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    return (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+
+
+def spatial_order(positions: np.ndarray) -> np.ndarray:
+    """A permutation that puts nearby points near each other in memory: the Morton (Z)
+    order of the points on a 2^21 grid over their bounding box (ties by index).
+
+    The sequential kernels and the kNN query read every point's neighbours; in this order
+    those reads mostly hit the cache (measured on the M3 models: kNN 1.2-1.35x, the growth
+    1.05-1.15x faster than in the models' random sampling order).
+
+    Args:
+        positions: (N, 3) finite positions.
+
+    Returns:
+        (N,) int64 permutation.
+    """
+    p = np.asarray(positions, np.float64)
+    lo, hi = p.min(0), p.max(0)
+    q = ((p - lo) * ((2**21 - 1) / np.maximum(hi - lo, 1e-300))).astype(np.uint64)
+    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
+    return np.argsort(code, kind="stable")
 
 
 KNN_LEAF_SIZE = 32  # measured on the M3 models: 8 -> 32 is 10% faster, beyond that flat

@@ -368,6 +368,28 @@ def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, 
     assert coloured.all() and (source >= 0).all() and (source < 24 * 24).all()
 
 
+def test_colours_follow_the_points_whatever_their_order():
+    # texture_points works in a spatial order of its own: the same points given in another
+    # order get the same colours, in that order
+    from geosynth.pointmodels import spatial_order
+
+    tex = texture_example("noise", 32, seed=1)
+    ps = point_model("blob", 900, seed=3)
+    shuffle = np.random.default_rng(0).permutation(len(ps))
+    moved = PointSet(ps.positions[shuffle], ps.normals[shuffle])
+    for method in ("hybrid", "match"):
+        a, _ = texture_points(ps, tex, method=method, k=12, device="cpu", quality=False, coherent=method == "match")
+        b, _ = texture_points(moved, tex, method=method, k=12, device="cpu", quality=False, coherent=method == "match")
+        np.testing.assert_array_equal(b.colors, a.colors[shuffle])
+        np.testing.assert_array_equal(b.positions, moved.positions)
+    order = spatial_order(ps.positions)
+    assert np.array_equal(np.sort(order), np.arange(len(ps)))
+    _, nb = knn_table(ps.positions[order], 8)
+    _, nb0 = knn_table(ps.positions, 8)
+    gap = lambda table: np.median(np.abs(table - np.arange(len(table))[:, None]))  # noqa: E731
+    assert gap(nb) < 0.2 * gap(nb0)  # neighbours sit near each other in memory
+
+
 def test_same_seed_same_colours_on_every_device(device):
     tex = texture_example("checker", 32, seed=1)
     ps = point_model("blob", 800, seed=3)
