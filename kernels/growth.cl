@@ -1,7 +1,9 @@
-// M3 point parameterization (Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A): the
-// sequential region growing of distortion-bounded patches, in one work-item. The twin of
-// growth.py (same kernel, same arguments in the same order, same arithmetic in the same
-// order, float64 without contraction); see there and geosynth/parameterize.py for the
+// M3's sequential orders, each in one work-item: the point parameterization's region
+// growing (Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A: grow_patches), the texture
+// mapping and gap blending (Sec. 3.4: blend_gaps) and the coherent neighbourhood matching
+// of one level (Sec. 4: match_coherent). The twin of growth.py (same kernels, same
+// arguments in the same order, float64 without contraction in the same order, exact
+// integer scores); see there and geosynth/parameterize.py, geosynth/texture.py for the
 // definitions.
 #include "common.h"
 

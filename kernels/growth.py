@@ -1,24 +1,31 @@
-"""M3 point parameterization (Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A): the
-sequential region growing of distortion-bounded patches, in one thread. Warp kernels.
+"""M3's sequential orders, each in one thread: the point parameterization's region growing
+(Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A), the texture mapping and gap
+blending (Sec. 3.4) and the coherent neighbourhood matching of one level (Sec. 4). Warp
+kernels.
 
-The twin of ``growth.cl`` (same kernel name without ``_kernel``, same arguments in the
-same order, the same float64 arithmetic in the same order). Definitions are those of
-``geosynth/parameterize.py``; the order of growth is fixed here:
+The twin of ``growth.cl`` (same kernel names without ``_kernel``, same arguments in the
+same order, the same float64 arithmetic in the same order, exact integer scores);
+``geosynth.reference`` has plain-Python twins (``parameterize_reference``,
+``colour_parameterization_reference``, ``match_coherent_reference``) that give the same
+bits. Definitions are those of ``geosynth/parameterize.py`` and ``geosynth/texture.py``;
+the orders are fixed here:
 
-- Patches start at the first free point of ``order`` (a seeded permutation), at q =
-  (0, 0), in the frame that the point's normal and its direction (``dirs``: the up
-  vector, or a random one per point) give (``_seed_frame``).
-- Priority queue: one FIFO list per priority ``min(key, n_buckets - 1)``, ``key`` the
-  number of points of the current patch that have the point among their k neighbours.
-  When a point joins, each free point of its k-neighbourhood (in table order) gets +1
-  and moves to the end of its new priority's list. The next candidate is the first of
-  the highest non-empty list. A candidate with no usable patch neighbour stays free
-  (out of the lists until another neighbour joins).
-- A candidate's usable neighbours are the points of its k-neighbourhood in the current
-  patch with n_P . n_F > 0 that Appendix A accepts (F not on P and not along P's normal).
-  Their weights, averages and the distortion (eqs. 2-4) are summed in table order.
+- ``grow_patches_kernel``: patches start at the first free point of ``order`` (a seeded
+  permutation), at q = (0, 0), in the frame that the point's normal and its direction
+  (``dirs``: the up vector, or a random one per point) give (``_seed_frame``).
+- Priority queue (all three kernels): one FIFO list per priority ``min(key, n_buckets -
+  1)``, ``key`` the number of points of the current patch (or coloured points) that have
+  the point among their k neighbours. When a point joins, each free (uncoloured) point of
+  its k-neighbourhood, in table order, gets +1 and moves to the end of its new priority's
+  list. The next candidate is the first of the highest non-empty list. A growth candidate
+  with no usable patch neighbour stays free (out of the lists until another neighbour
+  joins).
+- A growth candidate's usable neighbours are the points of its k-neighbourhood in the
+  current patch with n_P . n_F > 0 that Appendix A accepts (F not on P and not along P's
+  normal). Their weights, averages and the distortion (eqs. 2-4) are summed in table order.
 - Bounded patches (``max_patch > 0``): an accepted point that would grow the patch's
   bounding box of q past ``max_patch`` texels becomes a gap point.
+- ``blend_gaps_kernel`` and ``match_coherent_kernel``: see their rules in ``growth.cl``.
 
 Arrays are flat; sizes are explicit; nothing here validates. Host wrappers live in
 ``geosynth._backends.warp_growth``.

@@ -56,11 +56,23 @@ def test_backends_are_cached_and_named(device):
 
 
 def test_round_trip(device, rng):
-    for dtype in (np.float32, np.uint8, np.int32, np.uint32):
+    for dtype in (np.float32, np.uint8, np.int32, np.uint32, np.int64, np.float64):
         a = (rng.random((7, 5, 3)) * 100).astype(dtype)
         d = geosynth.to_device(a, device)
         assert d.shape == a.shape and d.dtype == a.dtype
         np.testing.assert_array_equal(d.numpy(), a)
+
+
+def test_to_host_is_a_copy_that_later_kernels_leave_alone(device):
+    # (Warp's .numpy() on the CPU is a view of the device memory itself)
+    backend = geosynth.get_backend(device)
+    cand = backend.to_device(np.arange(12, dtype=np.float32).reshape(4, 3))
+    out = backend.empty((4,), np.float32)
+    backend.ssd_dense(cand, backend.to_device(np.zeros(3, np.float32)), None, 4, 3, 1, out)
+    first = backend.to_host(out)
+    backend.ssd_dense(cand, backend.to_device(np.full(3, 100, np.float32)), None, 4, 3, 1, out)
+    np.testing.assert_array_equal(first, [5, 50, 149, 302])
+    assert not np.array_equal(backend.to_host(out), first)
 
 
 def test_to_device_refuses_another_devices_array():

@@ -191,6 +191,13 @@ def test_gap_blending_kernel_equals_the_python_blending(device, model, k, tileab
     for name, a, b in zip(("colours", "coloured", "offsets"), out, ref):
         np.testing.assert_array_equal(a, b, err_msg=name)
     assert out[1].all()
+    # the device arrays of a device growth, used in place of uploads, give the same
+    grown = parameterize_points(ps, k, seed=4, max_patch=None if tileable else 24.0, threshold=1.0, device=device)
+    assert "device" in grown.extra
+    again = colour_parameterization(ps, grown, tex, tileable=tileable, seed=6, device=device)
+    assert "device" not in grown.extra  # used once: the blending overwrote them
+    for a, b in zip(again, colour_parameterization(ps, grown, tex, tileable=tileable, seed=6, device=device)):
+        np.testing.assert_array_equal(a, b)
     # blends of texture values: inside the texture's range per channel, and not constant
     gap = out[0][par.state != PATCH].astype(int)
     flat = tex.reshape(-1, 3).astype(int)

@@ -54,8 +54,10 @@ class WarpBackend(WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, War
         return DeviceArray(data, self, shape, dtype)
 
     def to_host(self, array: DeviceArray) -> np.ndarray:
-        # sync: .numpy() waits for the device.
-        return array.data.numpy()[: array.size].reshape(array.shape)
+        # sync: .numpy() waits for the device. On the CPU it is a view of the device array
+        # itself: copy, so that a later kernel writing that array cannot change the result.
+        host = array.data.numpy()[: array.size].reshape(array.shape)
+        return host.copy() if self.device.is_cpu else host
 
     def synchronize(self) -> None:
         wp.synchronize_device(self.device)
