@@ -278,13 +278,103 @@ def nearest_block_naive(field: np.ndarray, query: np.ndarray) -> tuple[tuple[int
     return (int(z), int(y), int(x)), int(ssd.reshape(-1)[i])
 
 
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross3(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _div3(a, s):  # one division, as the kernels
+    r = 1.0 / s
+    return [a[0] * r, a[1] * r, a[2] * r]
+
+
+def _appendix_a(pf, pp, pu, pv, pn, ps, pt, unit):
+    """The kernels' appendix_a on Python floats: (ok, qu, qv, normal, T, S, |F - P|)."""
+    from geosynth.parameterize import PARALLEL_LIMIT
+
+    tiny = 1e-300
+    v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
+    dist = math.sqrt(_dot3(v, v))
+    v0 = _div3(v, max(dist, tiny))
+    along = _dot3(v0, pn)
+    if not (dist > 0.0 and abs(along) < PARALLEL_LIMIT):
+        return False, 0.0, 0.0, None, None, None, dist
+    a, b = _dot3(v, ps), _dot3(v, pt)
+    scale = dist / max(math.sqrt(a * a + b * b), tiny) / unit
+    m = [pn[i] - along * v0[i] for i in range(3)]
+    nn = _div3(m, max(math.sqrt(_dot3(m, m)), tiny))
+    vt, vs = _dot3(v0, pt), _dot3(v0, ps)
+    c = _cross3(nn, v0)
+    tt = [vt * v0[i] + vs * c[i] for i in range(3)]
+    return True, pu + a * scale, pv + b * scale, nn, tt, _cross3(tt, nn), dist
+
+
+def _average_frame(sn, st):
+    """The kernels' average_frame: (N, S, T) of weighted sums of normals and T axes."""
+    tiny = 1e-300
+    n = _div3(sn, max(math.sqrt(_dot3(sn, sn)), tiny))
+    tn = _dot3(st, n)
+    t = [st[i] - tn * n[i] for i in range(3)]
+    t = _div3(t, max(math.sqrt(_dot3(t, t)), tiny))
+    return n, _cross3(t, n), t
+
+
+class _FifoQueue:
+    """The kernels' priority queue (kernels/growth.py): one FIFO list per priority
+    min(key, n_buckets - 1); ``pop`` gives the first of the highest non-empty list."""
+
+    def __init__(self, n: int, n_buckets: int):
+        self.key, self.slot = [0] * n, [-1] * n
+        self.lists: list[dict] = [dict() for _ in range(n_buckets)]  # insertion-ordered
+        self.top = 0
+
+    @classmethod
+    def from_coloured(cls, nb: list, coloured, n_buckets: int) -> "_FifoQueue":
+        """Key = coloured points that have the point among their neighbours; the
+        uncoloured points with a key queued in index order."""
+        queue = cls(len(nb), n_buckets)
+        for i, done in enumerate(coloured):
+            if done:
+                for q in nb[i]:
+                    queue.key[q] += 1
+        for i, done in enumerate(coloured):
+            if not done and queue.key[i] > 0:
+                queue.key[i] -= 1
+                queue.raise_key(i)
+        return queue
+
+    def raise_key(self, q: int) -> None:
+        self.key[q] += 1
+        b = min(self.key[q], len(self.lists) - 1)
+        if self.slot[q] != b:
+            if self.slot[q] >= 0:
+                del self.lists[self.slot[q]][q]
+            self.lists[b][q] = None
+            self.slot[q] = b
+            self.top = max(self.top, b)
+
+    def pop(self) -> int:
+        """The next point, or -1 when every list is empty."""
+        while self.top > 0 and not self.lists[self.top]:
+            self.top -= 1
+        if self.top == 0:
+            return -1
+        f = next(iter(self.lists[self.top]))
+        del self.lists[self.top][f]
+        self.slot[f] = -1
+        return f
+
+
 def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(0.0, 1.0, 0.0), weights=None,
                            threshold: float | None = None, max_patch: float | None = None, seed=0, neighbours=None):
     """Same arguments (less ``device``) and result as :func:`geosynth.parameterize.parameterize_points`:
     the growth of ``kernels/growth.py`` as a plain-Python loop, the same float64
     arithmetic in the same order (so normally the same bits)."""
     from geosynth.parameterize import (
-        DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, FREE, GAP, PATCH, PARALLEL_LIMIT, Parameterization, growth_buckets,
+        DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, FREE, GAP, PATCH, Parameterization, growth_buckets,
         growth_inputs,
     )
 
@@ -294,25 +384,16 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
     n, k = g["nb"].shape
     unit, n_buckets, tiny = g["unit"], growth_buckets(k), 1e-300
     pos, nrm, nb = g["pos"].tolist(), g["nrm"].tolist(), g["nb"].tolist()
-    state, patch, key = [FREE] * n, [-1] * n, [0] * n
+    state, patch = [FREE] * n, [-1] * n
+    queue = _FifoQueue(n, n_buckets)
+    key = queue.key
     nan = float("nan")
     uv = [[nan, nan] for _ in range(n)]
     fn, fs, ft = ([[nan] * 3 for _ in range(n)] for _ in range(3))
     distortion = [nan] * n
-    slot = [-1] * n
-    lists: list[dict] = [dict() for _ in range(n_buckets)]  # insertion-ordered: FIFO per priority
     seeds = []
 
-    def dot(a, b):
-        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-    def cross(a, b):
-        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-    def div(a, s):  # one division, as the kernels
-        r = 1.0 / s
-        return [a[0] * r, a[1] * r, a[2] * r]
-
+    dot, cross, div = _dot3, _cross3, _div3
     for sd in g["order"].tolist():
         if state[sd] != FREE:
             continue
@@ -333,7 +414,7 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
         t0 = div(t0, max(math.sqrt(dot(t0, t0)), tiny))
         fn[sd], fs[sd], ft[sd] = list(n0), cross(t0, n0), t0
         lo, hi = [0.0, 0.0], [0.0, 0.0]
-        touched, top, joined = [], 0, sd
+        touched, joined = [], sd
         while True:
             if joined >= 0:
                 for q in nb[joined]:
@@ -341,22 +422,11 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
                         continue
                     if key[q] == 0:
                         touched.append(q)
-                    key[q] += 1
-                    b = min(key[q], n_buckets - 1)
-                    if slot[q] != b:
-                        if slot[q] >= 0:
-                            del lists[slot[q]][q]
-                        lists[b][q] = None
-                        slot[q] = b
-                        top = max(top, b)
+                    queue.raise_key(q)
                 joined = -1
-            while top > 0 and not lists[top]:
-                top -= 1
-            if top == 0:
+            f = queue.pop()
+            if f < 0:
                 break
-            f = next(iter(lists[top]))
-            del lists[top][f]
-            slot[f] = -1
             pf, nf = pos[f], nrm[f]
             terms = []
             wsum = su = sv = 0.0
@@ -364,22 +434,9 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
             for l in nb[f]:
                 if state[l] != PATCH or patch[l] != pid or not dot(nrm[l], nf) > 0.0:
                     continue
-                pp, pn, ps, pt = pos[l], fn[l], fs[l], ft[l]
-                v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
-                dist = math.sqrt(dot(v, v))
-                v0 = div(v, max(dist, tiny))
-                along = dot(v0, pn)
-                if not (dist > 0.0 and abs(along) < PARALLEL_LIMIT):
+                ok, lu, lv, nn, tt, ss, dist = _appendix_a(pf, pos[l], uv[l][0], uv[l][1], fn[l], fs[l], ft[l], unit)
+                if not ok:
                     continue
-                a, b = dot(v, ps), dot(v, pt)
-                scale = dist / max(math.sqrt(a * a + b * b), tiny) / unit
-                lu, lv = uv[l][0] + a * scale, uv[l][1] + b * scale
-                nn = [pn[0] - along * v0[0], pn[1] - along * v0[1], pn[2] - along * v0[2]]
-                nn = div(nn, max(math.sqrt(dot(nn, nn)), tiny))
-                vt, vs = dot(v0, pt), dot(v0, ps)
-                c = cross(nn, v0)
-                tt = [vt * v0[0] + vs * c[0], vt * v0[1] + vs * c[1], vt * v0[2] + vs * c[2]]
-                ss = cross(tt, nn)
                 w = unit / max(dist, tiny)
                 terms.append((w, lu, lv, ss, tt))
                 wsum += w
@@ -391,11 +448,7 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
                 continue
             inv = 1.0 / wsum
             qu, qv = su * inv, sv * inv
-            n_f = div(sn, max(math.sqrt(dot(sn, sn)), tiny))
-            tn = dot(st, n_f)
-            t_f = [st[i] - tn * n_f[i] for i in range(3)]
-            t_f = div(t_f, max(math.sqrt(dot(t_f, t_f)), tiny))
-            s_f = cross(t_f, n_f)
+            n_f, s_f, t_f = _average_frame(sn, st)
             pos_sum = pos_max = ori_sum = ori_max = 0.0
             for w, lu, lv, ss, tt in terms:
                 du, dv = lu - qu, lv - qv
@@ -431,7 +484,7 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     :func:`geosynth.parameterize.colour_parameterization`: the blending of
     ``kernels/growth.py`` (``blend_gaps``) as a plain-Python loop, same arithmetic in the
     same order."""
-    from geosynth.parameterize import PARALLEL_LIMIT, PATCH, _as_model, growth_buckets, patch_offsets
+    from geosynth.parameterize import PATCH, _as_model, growth_buckets, patch_offsets
     from geosynth.textures import as_texture
 
     p, nrm = _as_model(points)
@@ -446,11 +499,7 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     fn, fs, ft = param.normal.tolist(), param.s_axis.tolist(), param.t_axis.tolist()
     texl = tex.astype(np.float64).tolist()
 
-    def dot(a, b):
-        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-    def cross(a, b):
-        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    dot = _dot3
 
     def bilinear(x, y):
         if not tileable:
@@ -473,36 +522,11 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     coloured = [s == PATCH for s in param.state.tolist()]
     colours = [bilinear(uv[i][0] + offsets[patch[i]][0], uv[i][1] + offsets[patch[i]][1]) if coloured[i]
                else [0.0, 0.0, 0.0] for i in range(n)]
-    key = [0] * n
-    for i in range(n):
-        if coloured[i]:
-            for q in nb[i]:
-                key[q] += 1
-    slot = [-1] * n
-    lists: list[dict] = [dict() for _ in range(n_buckets)]
-
-    def requeue(q, top):
-        b = min(key[q], n_buckets - 1)
-        if slot[q] != b:
-            if slot[q] >= 0:
-                del lists[slot[q]][q]
-            lists[b][q] = None
-            slot[q] = b
-            top = max(top, b)
-        return top
-
-    top = 0
-    for i in range(n):
-        if not coloured[i] and key[i] > 0:
-            top = requeue(i, top)
+    queue = _FifoQueue.from_coloured(nb, coloured, n_buckets)
     while True:
-        while top > 0 and not lists[top]:
-            top -= 1
-        if top == 0:
+        f = queue.pop()
+        if f < 0:
             break
-        f = next(iter(lists[top]))
-        del lists[top][f]
-        slot[f] = -1
         pf, nf = pos[f], nrm_l[f]
         terms, n_coloured, wsum = [], 0, 0.0
         plain, blend = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
@@ -514,24 +538,9 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
             pl = patch[l]
             if pl < 0 or not dot(nrm_l[l], nf) > 0.0:
                 continue
-            pp, pn, ps, pt = pos[l], fn[l], fs[l], ft[l]
-            v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
-            dist = math.sqrt(dot(v, v))
-            r = 1.0 / max(dist, tiny)
-            v0 = [x * r for x in v]
-            along = dot(v0, pn)
-            if not (dist > 0.0 and abs(along) < PARALLEL_LIMIT):
+            ok, lu, lv, nn, tt, _, dist = _appendix_a(pf, pos[l], uv[l][0], uv[l][1], fn[l], fs[l], ft[l], unit)
+            if not ok:
                 continue
-            a, b = dot(v, ps), dot(v, pt)
-            scale = dist / max(math.sqrt(a * a + b * b), tiny) / unit
-            lu, lv = uv[l][0] + a * scale, uv[l][1] + b * scale
-            nn = [pn[i] - along * v0[i] for i in range(3)]
-            norm = max(math.sqrt(dot(nn, nn)), tiny)
-            r = 1.0 / norm
-            nn = [x * r for x in nn]
-            vt, vs = dot(v0, pt), dot(v0, ps)
-            cv = cross(nn, v0)
-            tt = [vt * v0[i] + vs * cv[i] for i in range(3)]
             wl = 1.0 / max(dist, tiny)
             col = bilinear(lu + offsets[pl][0], lv + offsets[pl][1])
             terms.append((wl, pl, lu, lv, nn, tt))
@@ -562,20 +571,12 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
                 sv += wl * lv
                 sn = [sn[i] + wl * nn[i] for i in range(3)]
                 st = [st[i] + wl * tt[i] for i in range(3)]
-            norm = max(math.sqrt(dot(sn, sn)), tiny)
-            r = 1.0 / norm
-            n_f = [x * r for x in sn]
-            tn = dot(st, n_f)
-            t_f = [st[i] - tn * n_f[i] for i in range(3)]
-            norm = max(math.sqrt(dot(t_f, t_f)), tiny)
-            r = 1.0 / norm
-            t_f = [x * r for x in t_f]
+            n_f, s_f, t_f = _average_frame(sn, st)
             patch[f], uv[f] = best, [su / sw, sv / sw]
-            fn[f], fs[f], ft[f] = n_f, cross(t_f, n_f), t_f
+            fn[f], fs[f], ft[f] = n_f, s_f, t_f
         for q in nb[f]:
             if not coloured[q]:
-                key[q] += 1
-                top = requeue(q, top)
+                queue.raise_key(q)
     colours_f = np.asarray(colours)
     done = np.asarray(coloured)
     rest = np.flatnonzero(~done)
@@ -606,22 +607,7 @@ def match_coherent_reference(level, search, colours, coloured, source, rng, subt
     pos, nrm, s_ax, t_ax = (a.tolist() for a in (level.positions, level.normals, level.s_axis, level.t_axis))
     nb = level.neighbours.tolist()
     colours, coloured, source = colours.copy(), coloured.copy(), source.copy()
-    key = [0] * n
-    for i in np.flatnonzero(coloured).tolist():
-        for q in nb[i]:
-            key[q] += 1
-    slot = [-1] * n
-    lists: list[dict] = [dict() for _ in range(n_buckets)]
-
-    def requeue(q, top):
-        b = min(key[q], n_buckets - 1)
-        if slot[q] != b:
-            if slot[q] >= 0:
-                del lists[slot[q]][q]
-            lists[b][q] = None
-            slot[q] = b
-            top = max(top, b)
-        return top
+    queue = _FifoQueue.from_coloured(nb, coloured.tolist(), n_buckets)
 
     def dot(a, b):
         return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -629,19 +615,10 @@ def match_coherent_reference(level, search, colours, coloured, source, rng, subt
     def error(centre, rel, vals):
         return int(((flat[centre + rel] - vals) ** 2).sum())
 
-    top = 0
-    for i in range(n):
-        if not coloured[i] and key[i] > 0:
-            top = requeue(i, top)
     next_order = 0
     while True:
-        while top > 0 and not lists[top]:
-            top -= 1
-        if top > 0:
-            f = next(iter(lists[top]))
-            del lists[top][f]
-            slot[f] = -1
-        else:
+        f = queue.pop()
+        if f < 0:
             while next_order < n and coloured[order[next_order]]:
                 next_order += 1
             if next_order == n:
@@ -706,6 +683,5 @@ def match_coherent_reference(level, search, colours, coloured, source, rng, subt
         coloured[f] = True
         for q in nb[f]:
             if not coloured[q]:
-                key[q] += 1
-                top = requeue(q, top)
+                queue.raise_key(q)
     return colours, coloured, source

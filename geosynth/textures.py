@@ -152,6 +152,21 @@ def write_texture(path: str | os.PathLike, texture: np.ndarray, *, inputs=()) ->
 # ------------------------------------------------------------------ lookups
 
 
+def _taps(coord, size: int, wrap: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two texels of a bilinear lookup along one axis and the weight of the second:
+    (i0, i1 int64, fraction float64), wrapped or clamped to the edge."""
+    c = np.asarray(coord, np.float64)
+    if not wrap:
+        c = np.clip(c, 0, size - 1)
+    c0 = np.floor(c)
+    frac = c - c0
+    i0 = c0.astype(np.int64)
+    if wrap:
+        i0 = np.mod(i0, size)
+        return i0, np.mod(i0 + 1, size), frac
+    return i0, np.minimum(i0 + 1, size - 1), frac
+
+
 def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     """Bilinear texture lookup at continuous texel coordinates, in float64.
 
@@ -165,19 +180,9 @@ def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     """
     tex = np.asarray(texture, np.float64)
     h, w = tex.shape[:2]
-    y = np.asarray(y, np.float64)
-    x = np.asarray(x, np.float64)
-    if not wrap:
-        y = np.clip(y, 0, h - 1)
-        x = np.clip(x, 0, w - 1)
-    y0, x0 = np.floor(y), np.floor(x)
-    fy, fx = (y - y0)[..., None], (x - x0)[..., None]
-    y0, x0 = y0.astype(np.int64), x0.astype(np.int64)
-    if wrap:
-        y0, x0 = np.mod(y0, h), np.mod(x0, w)
-        y1, x1 = np.mod(y0 + 1, h), np.mod(x0 + 1, w)
-    else:
-        y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
+    y0, y1, fy = _taps(y, h, wrap)
+    x0, x1, fx = _taps(x, w, wrap)
+    fy, fx = fy[..., None], fx[..., None]
     top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
     bottom = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
     return top * (1 - fy) + bottom * fy
@@ -197,19 +202,9 @@ def sample_bilinear_grid(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     """
     tex = np.asarray(texture, np.float64)
     h, w = tex.shape[:2]
-    y = np.asarray(y, np.float64)
-    x = np.asarray(x, np.float64)
-    if not wrap:
-        y = np.clip(y, 0, h - 1)
-        x = np.clip(x, 0, w - 1)
-    y0, x0 = np.floor(y), np.floor(x)
-    fy, fx = (y - y0)[:, None, None], (x - x0)[None, :, None]
-    y0, x0 = y0.astype(np.int64), x0.astype(np.int64)
-    if wrap:
-        y0, x0 = np.mod(y0, h), np.mod(x0, w)
-        y1, x1 = np.mod(y0 + 1, h), np.mod(x0 + 1, w)
-    else:
-        y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
+    y0, y1, fy = _taps(y, h, wrap)
+    x0, x1, fx = _taps(x, w, wrap)
+    fy, fx = fy[:, None, None], fx[None, :, None]
     rows = tex[:, x0] * (1 - fx) + tex[:, x1] * fx  # (H, Nx, C): every texture row along x
     return rows[y0] * (1 - fy) + rows[y1] * fy
 

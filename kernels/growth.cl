@@ -124,6 +124,51 @@ GS_INLINE void queue_append(__global int* next, __global int* prev, __global int
     slot[i] = b;
 }
 
+// The first point of the highest non-empty list, taken out (-1 when all are empty);
+// *top follows the highest non-empty list down.
+GS_INLINE int queue_pop(__global int* next, __global int* prev, __global int* slot, __global int* head,
+                        __global int* tail, int* top)
+{
+    while (*top > 0 && head[*top] < 0) --*top;
+    if (*top == 0) return -1;
+    const int f = head[*top];
+    queue_unlink(next, prev, slot, head, tail, f);
+    return f;
+}
+
+// key[q] + 1, and q to the end of its new priority's list; returns the new top priority.
+GS_INLINE int queue_raise(__global int* key, __global int* next, __global int* prev, __global int* slot,
+                          __global int* head, __global int* tail, int n_buckets, int q, int top)
+{
+    key[q] += 1;
+    const int b = min(key[q], n_buckets - 1);
+    if (slot[q] == b) return top;
+    if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
+    queue_append(next, prev, slot, head, tail, q, b);
+    return max(top, b);
+}
+
+// The queue of the uncoloured points, in index order: key = the coloured points that have
+// the point among their k neighbours; returns the top priority (0: empty).
+GS_INLINE int queue_from_coloured(int n, int k, __global const int* nb, __global const int* coloured,
+                                  __global int* key, __global int* next, __global int* prev, __global int* slot,
+                                  __global int* head, __global int* tail, int n_buckets)
+{
+    for (int i = 0; i < n; ++i) { key[i] = 0; slot[i] = -1; }
+    for (int b = 0; b < n_buckets; ++b) { head[b] = -1; tail[b] = -1; }
+    for (int i = 0; i < n; ++i)
+        if (coloured[i])
+            for (int j = 0; j < k; ++j) key[nb[i * k + j]] += 1;
+    int top = 0;
+    for (int i = 0; i < n; ++i)
+        if (!coloured[i] && key[i] > 0) {
+            const int b = min(key[i], n_buckets - 1);
+            queue_append(next, prev, slot, head, tail, i, b);
+            top = max(top, b);
+        }
+    return top;
+}
+
 // One work-item (range (1,), local (1,)) grows every patch.
 // Inputs: n points, k neighbours each (nb: n*k int, self excluded); pos, nrm: n*3 double
 // (unit normals); order: n int, the seed order; dirs: the seed frames' directions (see
@@ -171,20 +216,12 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
                     const int q = nb[joined * k + j];
                     if (state[q] != G_FREE) continue;
                     if (key[q] == 0) touched[n_touched++] = q;
-                    key[q] += 1;
-                    const int b = min(key[q], n_buckets - 1);
-                    if (slot[q] != b) {  // to the end of its new priority's list
-                        if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
-                        queue_append(next, prev, slot, head, tail, q, b);
-                        top = max(top, b);
-                    }
+                    top = queue_raise(key, next, prev, slot, head, tail, n_buckets, q, top);
                 }
                 joined = -1;
             }
-            while (top > 0 && head[top] < 0) --top;
-            if (top == 0) break;
-            const int f = head[top];  // the next candidate: highest priority, first in
-            queue_unlink(next, prev, slot, head, tail, f);
+            const int f = queue_pop(next, prev, slot, head, tail, &top);  // highest priority, first in
+            if (f < 0) break;
             // Appendix A from every usable patch neighbour P
             const d3 pf = d3_at(pos, f), nf = d3_at(nrm, f);
             int used = 0;
@@ -245,6 +282,13 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
     counts[0] = n_patches;
 }
 
+// i modulo size, in [0, size).
+GS_INLINE long wrap_index(long i, long size)
+{
+    const long r = i % size;
+    return r < 0 ? r + size : r;
+}
+
 // Bilinear texture lookup at texel coordinates (x, y) (texel centres at integers), as
 // geosynth.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge.
 GS_INLINE void bilinear(__global const uchar* tex, int h, int w, int wrap, double x, double y, double* out)
@@ -254,8 +298,8 @@ GS_INLINE void bilinear(__global const uchar* tex, int h, int w, int wrap, doubl
     const double fy = y - yf, fx = x - xf;
     long y0 = (long)yf, x0 = (long)xf, y1, x1;
     if (wrap) {
-        y0 %= h; if (y0 < 0) y0 += h;
-        x0 %= w; if (x0 < 0) x0 += w;
+        y0 = wrap_index(y0, h);
+        x0 = wrap_index(x0, w);
         y1 = (y0 + 1) % h; x1 = (x0 + 1) % w;
     } else {
         y1 = min(y0 + 1, (long)(h - 1)); x1 = min(x0 + 1, (long)(w - 1));
@@ -294,7 +338,6 @@ __kernel void blend_gaps(const int n, const int k, __global const double* pos, _
     if (get_global_id(0) != 0) return;
     double col[3];
     for (int i = 0; i < n; ++i) {
-        key[i] = 0; slot[i] = -1;
         coloured[i] = state[i] == G_PATCH;
         col[0] = 0.0; col[1] = 0.0; col[2] = 0.0;
         if (coloured[i]) {
@@ -303,22 +346,10 @@ __kernel void blend_gaps(const int n, const int k, __global const double* pos, _
         }
         for (int c = 0; c < 3; ++c) colours[3 * i + c] = col[c];
     }
-    for (int b = 0; b < n_buckets; ++b) { head[b] = -1; tail[b] = -1; }
-    for (int i = 0; i < n; ++i)
-        if (coloured[i])
-            for (int j = 0; j < k; ++j) key[nb[i * k + j]] += 1;
-    int top = 0;
-    for (int i = 0; i < n; ++i)
-        if (!coloured[i] && key[i] > 0) {
-            const int b = min(key[i], n_buckets - 1);
-            queue_append(next, prev, slot, head, tail, i, b);
-            top = max(top, b);
-        }
+    int top = queue_from_coloured(n, k, nb, coloured, key, next, prev, slot, head, tail, n_buckets);
     while (1) {
-        while (top > 0 && head[top] < 0) --top;
-        if (top == 0) break;
-        const int f = head[top];
-        queue_unlink(next, prev, slot, head, tail, f);
+        const int f = queue_pop(next, prev, slot, head, tail, &top);
+        if (f < 0) break;
         const d3 pf = d3_at(pos, f), nf = d3_at(nrm, f);
         int used = 0, n_coloured = 0;
         double wsum = 0.0, plain[3] = {0.0, 0.0, 0.0}, blend[3] = {0.0, 0.0, 0.0};
@@ -376,14 +407,7 @@ __kernel void blend_gaps(const int n, const int k, __global const double* pos, _
         }
         for (int j = 0; j < k; ++j) {  // its uncoloured neighbours: one coloured point more
             const int q = nb[f * k + j];
-            if (coloured[q]) continue;
-            key[q] += 1;
-            const int b = min(key[q], n_buckets - 1);
-            if (slot[q] != b) {
-                if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
-                queue_append(next, prev, slot, head, tail, q, b);
-                top = max(top, b);
-            }
+            if (!coloured[q]) top = queue_raise(key, next, prev, slot, head, tail, n_buckets, q, top);
         }
     }
 }
@@ -434,27 +458,12 @@ __kernel void match_coherent(const int n, const int k, __global const double* po
                              __global int* rel, __global uchar* vals, __global int* cand)
 {
     if (get_global_id(0) != 0) return;
-    for (int i = 0; i < n; ++i) { key[i] = 0; slot[i] = -1; }
-    for (int b = 0; b < n_buckets; ++b) { head[b] = -1; tail[b] = -1; }
-    for (int i = 0; i < n; ++i)
-        if (coloured[i])
-            for (int j = 0; j < k; ++j) key[nb[i * k + j]] += 1;
-    int top = 0;
-    for (int i = 0; i < n; ++i)
-        if (!coloured[i] && key[i] > 0) {
-            const int b = min(key[i], n_buckets - 1);
-            queue_append(next, prev, slot, head, tail, i, b);
-            top = max(top, b);
-        }
+    int top = queue_from_coloured(n, k, nb, coloured, key, next, prev, slot, head, tail, n_buckets);
     const int half_m = m / 2;
     int next_order = 0;
     while (1) {
-        while (top > 0 && head[top] < 0) --top;
-        int f;
-        if (top > 0) {
-            f = head[top];
-            queue_unlink(next, prev, slot, head, tail, f);
-        } else {
+        int f = queue_pop(next, prev, slot, head, tail, &top);
+        if (f < 0) {
             while (next_order < n && coloured[order[next_order]]) ++next_order;
             if (next_order == n) break;
             f = order[next_order];
@@ -485,8 +494,8 @@ __kernel void match_coherent(const int n, const int k, __global const double* po
             if (src < 0) continue;
             int cy = src / w - (int)__builtin_rint((double)dy / m), cx = src % w - (int)__builtin_rint((double)dx / m);
             if (tileable) {
-                cy %= h; if (cy < 0) cy += h;
-                cx %= w; if (cx < 0) cx += w;
+                cy = (int)wrap_index(cy, h);
+                cx = (int)wrap_index(cx, w);
             } else if (cy < 0 || cy >= h || cx < 0 || cx >= w) {
                 continue;
             }
@@ -540,14 +549,7 @@ __kernel void match_coherent(const int n, const int k, __global const double* po
         coloured[f] = 1;
         for (int j = 0; j < k; ++j) {
             const int q = nb[f * k + j];
-            if (coloured[q]) continue;
-            key[q] += 1;
-            const int b = min(key[q], n_buckets - 1);
-            if (slot[q] != b) {
-                if (slot[q] >= 0) queue_unlink(next, prev, slot, head, tail, q);
-                queue_append(next, prev, slot, head, tail, q, b);
-                top = max(top, b);
-            }
+            if (!coloured[q]) top = queue_raise(key, next, prev, slot, head, tail, n_buckets, q, top);
         }
     }
 }

@@ -162,6 +162,63 @@ def _append(nxt: wp.array(dtype=wp.int32), prv: wp.array(dtype=wp.int32), slot: 
     slot[i] = b
 
 
+@wp.func
+def _pop(nxt: wp.array(dtype=wp.int32), prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
+         head: wp.array(dtype=wp.int32), tail: wp.array(dtype=wp.int32), top: int):
+    """The first point of the highest non-empty list, taken out: (point or -1, new top)."""
+    t = top
+    while t > 0 and head[t] < 0:
+        t -= 1
+    f = int(-1)
+    if t > 0:
+        f = head[t]
+        _unlink(nxt, prv, slot, head, tail, f)
+    return f, t
+
+
+@wp.func
+def _requeue(q: int, key: wp.array(dtype=wp.int32), n_buckets: int, nxt: wp.array(dtype=wp.int32),
+             prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), head: wp.array(dtype=wp.int32),
+             tail: wp.array(dtype=wp.int32), top: int):
+    """key[q] + 1, q to the end of its new priority's list; returns the new top priority."""
+    key[q] = key[q] + 1
+    b = wp.min(key[q], n_buckets - 1)
+    new_top = top
+    if slot[q] != b:
+        if slot[q] >= 0:
+            _unlink(nxt, prv, slot, head, tail, q)
+        _append(nxt, prv, slot, head, tail, q, b)
+        new_top = wp.max(top, b)
+    return new_top
+
+
+@wp.func
+def _queue_from_coloured(n: int, k: int, nb: wp.array(dtype=wp.int32), coloured: wp.array(dtype=wp.int32),
+                         key: wp.array(dtype=wp.int32), nxt: wp.array(dtype=wp.int32),
+                         prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
+                         head: wp.array(dtype=wp.int32), tail: wp.array(dtype=wp.int32), n_buckets: int):
+    """The queue of the uncoloured points, in index order (key = the coloured points that
+    have the point among their k neighbours); returns the top priority (0: empty)."""
+    for i in range(n):
+        key[i] = 0
+        slot[i] = -1
+    for b in range(n_buckets):
+        head[b] = -1
+        tail[b] = -1
+    for i in range(n):
+        if coloured[i] != 0:
+            for j in range(k):
+                q = nb[i * k + j]
+                key[q] = key[q] + 1
+    top = int(0)
+    for i in range(n):
+        if coloured[i] == 0 and key[i] > 0:
+            b = wp.min(key[i], n_buckets - 1)
+            _append(nxt, prv, slot, head, tail, i, b)
+            top = wp.max(top, b)
+    return top
+
+
 @wp.kernel
 def grow_patches_kernel(
     n: int,  # points
@@ -251,20 +308,11 @@ def grow_patches_kernel(
                         if key[q] == 0:
                             touched[n_touched] = q
                             n_touched += 1
-                        key[q] = key[q] + 1
-                        b = wp.min(key[q], n_buckets - 1)
-                        if slot[q] != b:
-                            if slot[q] >= 0:
-                                _unlink(nxt, prv, slot, head, tail, q)
-                            _append(nxt, prv, slot, head, tail, q, b)
-                            top = wp.max(top, b)
+                        top = _requeue(q, key, n_buckets, nxt, prv, slot, head, tail, top)
                 joined = -1
-            while top > 0 and head[top] < 0:
-                top -= 1
-            if top == 0:
+            f, top = _pop(nxt, prv, slot, head, tail, top)
+            if f < 0:
                 break
-            f = head[top]
-            _unlink(nxt, prv, slot, head, tail, f)
             pf = _at(pos, f)
             nf = _at(nrm, f)
             used = int(0)
@@ -358,6 +406,15 @@ def grow_patches_kernel(
 
 
 @wp.func
+def _wrap(i: int, size: int):
+    """i modulo size, in [0, size)."""
+    r = i % size
+    if r < 0:
+        r += size
+    return r
+
+
+@wp.func
 def _bilinear(tex: wp.array(dtype=wp.uint8), h: int, w: int, wrap: int, x: wp.float64, y: wp.float64):
     """Bilinear texture lookup at texel coordinates (x, y), as
     geosynth.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge."""
@@ -374,12 +431,8 @@ def _bilinear(tex: wp.array(dtype=wp.uint8), h: int, w: int, wrap: int, x: wp.fl
     y1 = int(0)
     x1 = int(0)
     if wrap != 0:
-        y0 = y0 % h
-        if y0 < 0:
-            y0 += h
-        x0 = x0 % w
-        if x0 < 0:
-            x0 += w
+        y0 = _wrap(y0, h)
+        x0 = _wrap(x0, w)
         y1 = (y0 + 1) % h
         x1 = (x0 + 1) % w
     else:
@@ -395,22 +448,6 @@ def _bilinear(tex: wp.array(dtype=wp.uint8), h: int, w: int, wrap: int, x: wp.fl
         bottom = t10 * (one - fx) + t11 * fx
         out[c] = top * (one - fy) + bottom * fy
     return out
-
-
-@wp.func
-def _requeue(q: int, key: wp.array(dtype=wp.int32), n_buckets: int, nxt: wp.array(dtype=wp.int32),
-             prv: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), head: wp.array(dtype=wp.int32),
-             tail: wp.array(dtype=wp.int32), top: int):
-    """key[q] + 1, q to the end of its new priority's list; returns the new top priority."""
-    key[q] = key[q] + 1
-    b = wp.min(key[q], n_buckets - 1)
-    new_top = top
-    if slot[q] != b:
-        if slot[q] >= 0:
-            _unlink(nxt, prv, slot, head, tail, q)
-        _append(nxt, prv, slot, head, tail, q, b)
-        new_top = wp.max(top, b)
-    return new_top
 
 
 @wp.kernel
@@ -447,8 +484,6 @@ def blend_gaps_kernel(
     blend_gaps for the rules; launch dim 1)."""
     zero = wp.float64(0.0)
     for i in range(n):
-        key[i] = 0
-        slot[i] = -1
         col = wp.vec3d(zero, zero, zero)
         if state[i] == G_PATCH:
             coloured[i] = 1
@@ -458,27 +493,11 @@ def blend_gaps_kernel(
             coloured[i] = 0
         for c in range(3):
             colours[3 * i + c] = col[c]
-    for b in range(n_buckets):
-        head[b] = -1
-        tail[b] = -1
-    for i in range(n):
-        if coloured[i] != 0:
-            for j in range(k):
-                q = nb[i * k + j]
-                key[q] = key[q] + 1
-    top = int(0)
-    for i in range(n):
-        if coloured[i] == 0 and key[i] > 0:
-            b = wp.min(key[i], n_buckets - 1)
-            _append(nxt, prv, slot, head, tail, i, b)
-            top = wp.max(top, b)
+    top = _queue_from_coloured(n, k, nb, coloured, key, nxt, prv, slot, head, tail, n_buckets)
     while True:
-        while top > 0 and head[top] < 0:
-            top -= 1
-        if top == 0:
+        f, top = _pop(nxt, prv, slot, head, tail, top)
+        if f < 0:
             break
-        f = head[top]
-        _unlink(nxt, prv, slot, head, tail, f)
         pf = _at(pos, f)
         nf = _at(nrm, f)
         used = int(0)
@@ -623,34 +642,13 @@ def match_coherent_kernel(
     """One thread colours every uncoloured point of a level (see growth.cl's
     match_coherent for the rules; launch dim 1)."""
     zero = wp.float64(0.0)
-    for i in range(n):
-        key[i] = 0
-        slot[i] = -1
-    for b in range(n_buckets):
-        head[b] = -1
-        tail[b] = -1
-    for i in range(n):
-        if coloured[i] != 0:
-            for j in range(k):
-                q = nb[i * k + j]
-                key[q] = key[q] + 1
-    top = int(0)
-    for i in range(n):
-        if coloured[i] == 0 and key[i] > 0:
-            b = wp.min(key[i], n_buckets - 1)
-            _append(nxt, prv, slot, head, tail, i, b)
-            top = wp.max(top, b)
+    top = _queue_from_coloured(n, k, nb, coloured, key, nxt, prv, slot, head, tail, n_buckets)
     half = m / 2
     big = int(2147483647)
     next_order = int(0)
     while True:
-        while top > 0 and head[top] < 0:
-            top -= 1
-        f = wp.int32(-1)
-        if top > 0:
-            f = head[top]
-            _unlink(nxt, prv, slot, head, tail, f)
-        else:
+        f, top = _pop(nxt, prv, slot, head, tail, top)
+        if f < 0:
             while next_order < n and coloured[order[next_order]] != 0:
                 next_order += 1
             if next_order == n:
@@ -691,12 +689,8 @@ def match_coherent_kernel(
             cy = src / w - int(wp.rint(wp.float64(dy) / wp.float64(m)))
             cx = src % w - int(wp.rint(wp.float64(dx) / wp.float64(m)))
             if tileable != 0:
-                cy = cy % h
-                if cy < 0:
-                    cy += h
-                cx = cx % w
-                if cx < 0:
-                    cx += w
+                cy = _wrap(cy, h)
+                cx = _wrap(cx, w)
             elif cy < 0 or cy >= h or cx < 0 or cx >= w:
                 continue
             t = cy * w + cx
