@@ -229,7 +229,7 @@ __kernel void grow_patches(const int n, const int k, __global const double* pos,
             d3 sn = {0.0, 0.0, 0.0}, st = {0.0, 0.0, 0.0};
             for (int j = 0; j < k; ++j) {
                 const int l = nb[f * k + j];
-                if (state[l] != G_PATCH || patch[l] != pid) continue;
+                if (patch[l] != pid) continue;  // (only patch points have a patch)
                 const d3 pn = d3_at(fn, l);
                 if (!(d3_dot(d3_at(nrm, l), nf) > 0.0)) continue;
                 double lu, lv, dist;

@@ -323,7 +323,7 @@ def grow_patches_kernel(
             st = wp.vec3d(zero, zero, zero)
             for j in range(k):
                 l = nb[f * k + j]
-                if state[l] != G_PATCH or patch[l] != pid:
+                if patch[l] != pid:  # (only patch points have a patch)
                     continue
                 pn = _at(fn, l)
                 if not (_dot(_at(nrm, l), nf) > zero):
