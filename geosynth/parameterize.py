@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -49,7 +50,7 @@ from geosynth.pointsets import PointSet
 from geosynth.textures import as_texture, sample_bilinear
 
 __all__ = [
-    "FREE", "GAP", "PATCH", "Parameterization", "colour_parameterization", "frames_from_up", "neighbourhood_offsets",
+    "FREE", "GAP", "PATCH", "CheckedModel", "Parameterization", "colour_parameterization", "frames_from_up", "neighbourhood_offsets",
     "growth_inputs", "parameterize_points", "patch_offsets", "propagate",
 ]
 
@@ -207,7 +208,17 @@ def neighbourhood_offsets(positions: np.ndarray, s_axis: np.ndarray, t_axis: np.
 # ------------------------------------------------------------------ growth
 
 
+class CheckedModel(NamedTuple):
+    """A point model that :func:`_as_model` has checked: (N, 3) float64 positions and
+    unit normals. The M3 stages accept it in place of a PointSet (no second check)."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+
+
 def _as_model(points) -> tuple[np.ndarray, np.ndarray]:
+    if isinstance(points, CheckedModel):
+        return points.positions, points.normals
     if not isinstance(points, PointSet):
         raise TypeError(f"points must be a geosynth PointSet (positions and normals), got {type(points).__name__}.")
     p = points.positions.astype(np.float64)
@@ -332,7 +343,7 @@ def parameterize_points(
     is its plain-Python twin.
 
     Args:
-        points: PointSet with positions and normals (N >= k + 1).
+        points: PointSet with positions and normals (N >= k + 1), or a CheckedModel.
         k: neighbours per point (>= 3).
         unit_scale: one texel = ``unit_scale`` x the mean nearest-neighbour distance.
         up: (3,) up vector for the seed frames, or None for a random tangent direction per patch.
@@ -428,7 +439,7 @@ def colour_parameterization(
     rules). Gap points with no coloured neighbour at all take a random texel.
 
     Args:
-        points: the PointSet that was parameterized.
+        points: the PointSet (or CheckedModel) that was parameterized.
         param: its :class:`Parameterization`.
         texture: (H, W, 3) uint8.
         tileable: wrap texture lookups (and place offsets anywhere).

@@ -259,7 +259,8 @@ def spatial_order(positions: np.ndarray) -> np.ndarray:
     p = np.asarray(positions, np.float64)
     index_bits = max(1, int(len(p) - 1).bit_length())
     bits = min(14, (64 - index_bits) // 3)  # the code and the index share one uint64: unique keys
-    lo, hi = p.min(0), p.max(0)
+    columns = np.ascontiguousarray(p.T)  # (3, N): NumPy reduces (N, 3) along axis 0 5x slower
+    lo, hi = columns.min(1), columns.max(1)
     q = ((p - lo) * ((2**bits - 1) / np.maximum(hi - lo, 1e-300))).astype(np.uint64)
     code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
     key = (code << np.uint64(index_bits)) | np.arange(len(p), dtype=np.uint64)

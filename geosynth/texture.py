@@ -62,7 +62,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geosynth.parameterize import (
-    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, _as_model, check_k, colour_parameterization, frames_from_up,
+    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, _as_model, check_k, colour_parameterization, frames_from_up,
     mean_spacing, neighbourhood_offsets, parameterize_points, propagate,
 )
 from geosynth.pointsets import PointSet
@@ -881,7 +881,7 @@ def texture_points(
     # neighbour reads); the colours go back to the given order at the end
     in_order = spatial_order(p)
     p, nrm = p[in_order], nrm[in_order]
-    model = PointSet(p, nrm)
+    model = CheckedModel(p, nrm)
     dist, nb = knn_table(p, k)
     sec["neighbours (kNN)"] = time.perf_counter() - t0
     rates["neighbours (kNN)"] = n_pts / max(sec["neighbours (kNN)"], 1e-9)
