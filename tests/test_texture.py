@@ -119,6 +119,19 @@ def test_point_models():
     assert (np.einsum("ij,ij->i", blob.normals, blob.positions) > 0).all()
 
 
+def test_knn_threads_sleep_when_idle_unless_the_user_chose(monkeypatch):
+    import os
+
+    from geosynth import pointmodels
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    pointmodels._passive_openmp_threads()
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    pointmodels._passive_openmp_threads()
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
 def test_knn_table_excludes_self():
     p = np.random.default_rng(0).random((500, 3))
     d, idx = knn_table(p, 8)
