@@ -73,7 +73,7 @@ class Parameterization:
         seeds: (P,) int64 seed point of every patch.
         distortion: (N,) float64 D(F) of every point when it was evaluated (0 for seeds,
             NaN for points with no usable patch neighbour).
-        neighbours: (N, k) int64 k-nearest-neighbour table used (self excluded).
+        neighbours: (N, k) int32 k-nearest-neighbour table used (self excluded).
         distances: (N, k) float64 distances to them.
         seconds: wall time of the growth.
     """
@@ -295,7 +295,7 @@ def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0,
 
     Returns:
         dict with ``pos`` (N, 3) float64, ``nrm`` (N, 3) float64, ``dist`` (N, k) float64,
-        ``nb`` (N, k) int64, ``unit`` float, ``order`` (N,) int64 (a seeded permutation:
+        ``nb`` (N, k) int32, ``unit`` float, ``order`` (N,) int64 (a seeded permutation:
         patches start at its first free point), ``dirs`` float64, the direction that a
         patch's seed frame starts from (kernels/growth.py): ``up`` as (1, 3), or (N, 3)
         random directions (one per point) when ``up`` is None.
@@ -474,7 +474,7 @@ def colour_parameterization(
     # else uploads of the host arrays
     owner, resident = param.extra.pop("device", (None, None))
     if owner is not backend:
-        resident = dict(pos=up(p), nrm=up(nrm), nb=up(param.neighbours.astype(i32)), state=up(param.state.astype(i32)),
+        resident = dict(pos=up(p), nrm=up(nrm), nb=up(param.neighbours.astype(i32, copy=False)), state=up(param.state.astype(i32)),
                         patch=up(param.patch.astype(i32)), uv=up(param.uv), fn=up(param.normal),
                         fs=up(param.s_axis), ft=up(param.t_axis))
     inputs = [resident[name] for name in ("pos", "nrm", "nb", "state")]

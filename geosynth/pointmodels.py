@@ -293,7 +293,8 @@ def knn_table(positions: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         k: neighbours per point.
 
     Returns:
-        (distances (N, k) float64 (possibly a view), indices (N, k) int64), nearest first.
+        (distances (N, k) float64 (possibly a view), indices (N, k) int32 (the kernels'
+        index type; N < 2^31)), nearest first.
     """
     _passive_openmp_threads()
     from pykdtree.kdtree import KDTree
@@ -303,11 +304,11 @@ def knn_table(positions: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     own = np.arange(len(p))
     if (idx[:, 0] == own).all():  # the usual case: each point first in its own list
         # (few new arrays: fresh pages cost ~1 ms per 4 MB here; the distances stay a view)
-        out = np.empty((len(p), k), np.int64)
+        out = np.empty((len(p), k), np.int32)
         out[:] = idx[:, 1:]
         return d[:, 1:], out
     # with duplicates the point itself may come later: drop it where it is
-    idx = idx.astype(np.int64)
+    idx = idx.astype(np.int32)
     self_col = idx == own[:, None]
     drop = np.where(self_col.any(1), np.argmax(self_col, 1), k)
     keep = np.ones(idx.shape, bool)

@@ -389,7 +389,7 @@ class PointLevel:
     Attributes:
         positions, normals: (n, 3) float64.
         s_axis, t_axis: (n, 3) float64 tangent frames (texture x and y directions).
-        neighbours: (n, k) int64 k-nearest neighbours (self excluded); distances likewise.
+        neighbours: (n, k) int32 k-nearest neighbours (self excluded); distances (n, k) float64.
         unit: world length of one texel of this level's texture.
         parent: (n,) int64 index of the coarser point each point was clustered into,
             or None on the coarsest level.
@@ -662,7 +662,7 @@ def _match_coherent_level(level: PointLevel, search: TexelSearch, colours: np.nd
     f64, i32 = np.float64, np.int32
     up = backend.to_device
     inputs = [up(np.ascontiguousarray(a, f64)) for a in (level.positions, level.normals, level.s_axis, level.t_axis)]
-    inputs.append(up(level.neighbours.astype(i32)))
+    inputs.append(up(level.neighbours.astype(i32, copy=False)))
     in_out = [up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32))]
     scratch = [backend.empty((n,), i32) for _ in range(4)] + [backend.empty((n_buckets,), i32) for _ in range(2)] + \
         [backend.empty((k,), i32), backend.empty((k * 3,), np.uint8), backend.empty((k,), i32)]
