@@ -76,6 +76,8 @@ class Parameterization:
         neighbours: (N, k) int32 k-nearest-neighbour table used (self excluded).
         distances: (N, k) float64 distances to them.
         seconds: wall time of the growth.
+        extra: ``"device"``: (backend, its arrays) of a device growth, which
+            :func:`colour_parameterization` on that device uses once instead of uploading.
     """
 
     state: np.ndarray
@@ -391,7 +393,8 @@ def parameterize_points(
 
 
 def growth_buckets(k: int) -> int:
-    """Priority levels of the growth queue: keys 1 .. 4k - 1 apart, larger ones share the top."""
+    """Priority levels of the growth queues: keys 1 .. 4k - 2 each have their own, larger
+    keys share the top one (4k - 1)."""
     return 4 * int(k)
 
 

@@ -16,8 +16,6 @@ spacing is nearly even (as in the scanned models of the paper). Normals are exac
 from __future__ import annotations
 
 import os
-
-import os
 from dataclasses import dataclass
 from typing import Callable
 
@@ -313,4 +311,4 @@ def knn_table(positions: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     drop = np.where(self_col.any(1), np.argmax(self_col, 1), k)
     keep = np.ones(idx.shape, bool)
     keep[own, drop] = False
-    return d[keep].reshape(len(p), k).astype(np.float64), idx[keep].reshape(len(p), k)
+    return d[keep].reshape(len(p), k), idx[keep].reshape(len(p), k)

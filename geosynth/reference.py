@@ -485,7 +485,7 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     ``kernels/growth.py`` (``blend_gaps``) as a plain-Python loop, same arithmetic in the
     same order."""
     from geosynth.parameterize import PATCH, _as_model, growth_buckets, patch_offsets
-    from geosynth.textures import as_texture
+    from geosynth.textures import as_texture, sample_bilinear
 
     p, nrm = _as_model(points)
     tex = as_texture(texture)
@@ -497,27 +497,11 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     pos, nrm_l, nb = p.tolist(), nrm.tolist(), param.neighbours.tolist()
     patch, uv = param.patch.tolist(), param.uv.tolist()
     fn, fs, ft = param.normal.tolist(), param.s_axis.tolist(), param.t_axis.tolist()
-    texl = tex.astype(np.float64).tolist()
 
     dot = _dot3
 
-    def bilinear(x, y):
-        if not tileable:
-            y, x = min(max(y, 0.0), float(h - 1)), min(max(x, 0.0), float(w - 1))
-        yf, xf = math.floor(y), math.floor(x)
-        fy, fx = y - yf, x - xf
-        y0, x0 = int(yf), int(xf)
-        if tileable:
-            y0, x0 = y0 % h, x0 % w
-            y1, x1 = (y0 + 1) % h, (x0 + 1) % w
-        else:
-            y1, x1 = min(y0 + 1, h - 1), min(x0 + 1, w - 1)
-        out = []
-        for c in range(3):
-            top = texl[y0][x0][c] * (1.0 - fx) + texl[y0][x1][c] * fx
-            bottom = texl[y1][x0][c] * (1.0 - fx) + texl[y1][x1][c] * fx
-            out.append(top * (1.0 - fy) + bottom * fy)
-        return out
+    def bilinear(x, y):  # the kernels' lookup is sample_bilinear's, operation for operation
+        return sample_bilinear(tex, y, x, tileable).tolist()
 
     coloured = [s == PATCH for s in param.state.tolist()]
     colours = [bilinear(uv[i][0] + offsets[patch[i]][0], uv[i][1] + offsets[patch[i]][1]) if coloured[i]
@@ -609,8 +593,7 @@ def match_coherent_reference(level, search, colours, coloured, source, rng, subt
     colours, coloured, source = colours.copy(), coloured.copy(), source.copy()
     queue = _FifoQueue.from_coloured(nb, coloured.tolist(), n_buckets)
 
-    def dot(a, b):
-        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    dot = _dot3
 
     def error(centre, rel, vals):
         return int(((flat[centre + rel] - vals) ** 2).sum())

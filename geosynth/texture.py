@@ -354,9 +354,9 @@ class TexelSearch:
         pick = best_shift(np.broadcast_to(dy1, (nq, len(dy1))), np.broadcast_to(dx1, (nq, len(dx1))))
         by, bx = dy1[pick], dx1[pick]
         if ring:
-            ring = np.array([(0, 0)] + [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)])
-            dy2 = np.clip(by[:, None] + ring[None, :, 0], -half, self.m - half - 1)
-            dx2 = np.clip(bx[:, None] + ring[None, :, 1], -half, self.m - half - 1)
+            cells = np.array([(0, 0)] + [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)])
+            dy2 = np.clip(by[:, None] + cells[None, :, 0], -half, self.m - half - 1)
+            dx2 = np.clip(bx[:, None] + cells[None, :, 1], -half, self.m - half - 1)
             pick = best_shift(dy2, dx2)
             by, bx = dy2[np.arange(nq), pick], dx2[np.arange(nq), pick]
         flat = self.host[0] if self.nd == 3 else self.host
