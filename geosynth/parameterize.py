@@ -51,7 +51,7 @@ from geosynth.textures import as_texture, sample_bilinear
 
 __all__ = [
     "FREE", "GAP", "PATCH", "CheckedModel", "Parameterization", "colour_parameterization", "frames_from_up", "neighbourhood_offsets",
-    "growth_inputs", "parameterize_points", "patch_offsets", "propagate",
+    "check_up", "growth_inputs", "parameterize_points", "patch_offsets", "propagate",
 ]
 
 FREE, PATCH, GAP = 0, 1, 2
@@ -157,6 +157,20 @@ def _orthonormal(n, t):
 # ------------------------------------------------------------------ frames
 
 
+def check_up(up) -> np.ndarray | None:
+    """The up vector as a (3,) float64 array (None stays None: random directions).
+
+    Raises:
+        ValueError: up is not a finite, non-zero 3-vector.
+    """
+    if up is None:
+        return None
+    u = np.asarray(up, np.float64)
+    if u.shape != (3,) or not np.isfinite(u).all() or not np.abs(u).max() > 0:
+        raise ValueError(f"up must be a non-zero 3-vector (x, y, z) or None, got {up!r}.")
+    return u
+
+
 def frames_from_up(normals: np.ndarray, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """Tangent frames from an up vector: T = up projected on the tangent plane, S = T x N.
 
@@ -169,9 +183,12 @@ def frames_from_up(normals: np.ndarray, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray,
 
     Returns:
         (S, T): two (N, 3) float64 unit tangent axes.
+
+    Raises:
+        ValueError: up is not a finite, non-zero 3-vector.
     """
     n = np.asarray(normals, np.float64)
-    u = np.asarray(up, np.float64)
+    u = check_up(up)
     u = u / np.linalg.norm(u)
     t = u[None, :] - (n @ u)[:, None] * n
     small = np.linalg.norm(t, axis=1) < 1e-3
@@ -317,9 +334,7 @@ def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0,
     unit = mean_spacing(dist) * float(unit_scale)
     order = rng.permutation(n_pts)
     if up is not None:
-        dirs = np.asarray(up, np.float64).reshape(1, 3)
-        if not (np.isfinite(dirs).all() and np.linalg.norm(dirs) > 0):
-            raise ValueError(f"up must be a non-zero 3-vector or None, got {up!r}.")
+        dirs = check_up(up).reshape(1, 3)
     else:
         dirs = rng.standard_normal((n_pts, 3))
     return dict(pos=p, nrm=nrm, dist=dist, nb=nb, unit=unit, order=order, dirs=dirs)

@@ -62,8 +62,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geosynth.parameterize import (
-    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, _as_model, check_k, colour_parameterization, frames_from_up,
-    mean_spacing, neighbourhood_offsets, parameterize_points, propagate,
+    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, _as_model, check_k, check_up, colour_parameterization,
+    frames_from_up, mean_spacing, neighbourhood_offsets, parameterize_points, propagate,
 )
 from geosynth.pointsets import PointSet
 from geosynth.textures import as_texture, sample_bilinear_grid, texture_pyramid
@@ -862,6 +862,7 @@ def texture_points(
     p, nrm = _as_model(points)
     n_pts = len(p)
     k, levels, m = _check_options(method, k, levels, m, n_pts, tex, coherent)
+    check_up(up)
     if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}.")
     if method == "param":

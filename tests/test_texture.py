@@ -493,6 +493,10 @@ def test_invalid_input(tmp_path):
         point_model("teapot")
     with pytest.raises(ValueError, match="threshold"):
         parameterize_points(ps, 8, threshold=-1)
+    for bad_up in ((0, 0, 0), (0, np.nan, 1), (1, 0)):  # a zero, NaN or 2-vector up, for every method
+        for method in ("match", "hybrid", "param"):
+            with pytest.raises(ValueError, match="up must be"):
+                texture_points(ps, tex[:16, :16], method=method, k=8, up=bad_up, quality=False, device="cpu")
 
 
 def test_texel_kernel_generic_layout(device, rng):
