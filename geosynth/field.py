@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth._atomic import atomic_write
+from geosynth.files import atomic_write
 
 __all__ = ["Field", "cubic_grid", "grid_points", "grid_resolution"]
 

@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from geosynth import _checks
-from geosynth._atomic import atomic_write
+from geosynth.files import atomic_write
 from geosynth.field import Field, cubic_grid
 
 __all__ = [

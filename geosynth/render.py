@@ -1,6 +1,6 @@
 """Pictures of results, written as PNG with no imaging dependency.
 
-- :func:`write_png`: an atomic PNG writer (zlib only).
+- :func:`write_png`: an atomic PNG or JPEG writer (Pillow).
 - :func:`render_mesh`: a shaded picture of a triangle mesh, by a z-buffer rasterizer
   in NumPy (no OpenGL, no display): perspective camera framing the object from a 3/4
   view, Lambert shading with a little ambient and a soft highlight under a light fixed
@@ -14,14 +14,12 @@
 from __future__ import annotations
 
 import os
-import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from geosynth._atomic import atomic_write
+from geosynth.files import write_image
 
 __all__ = [
     "View", "field_slices_image", "render_mesh", "render_mesh_png", "render_points", "render_points_png",
@@ -30,36 +28,9 @@ __all__ = [
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
-    """Write an 8-bit grey (H, W) or RGB (H, W, 3) image as PNG, atomically.
-
-    The file is written beside the target and renamed into place, so a failure never
-    leaves a half-written file.
-
-    Args:
-        path: the output file.
-        image: (H, W) or (H, W, 3) uint8 array.
-
-    Returns:
-        The path written.
-    """
-    img = np.asarray(image)
-    if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
-        raise ValueError(f"image must be (H, W) or (H, W, 3) uint8, got {img.shape} {img.dtype}.")
-    h, w = img.shape[:2]
-    colour_type = 0 if img.ndim == 2 else 2
-    rows = np.ascontiguousarray(img).reshape(h, -1)
-    raw = b"".join(b"\x00" + rows[i].tobytes() for i in range(h))
-
-    def chunk(tag: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
-
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, colour_type, 0, 0, 0))
-           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
-    def write(tmp: str) -> None:
-        with open(tmp, "wb") as f:
-            f.write(png)
-
-    return atomic_write(path, write)
+    """Write an 8-bit grey (H, W) or RGB (H, W, 3) image, atomically, as PNG or JPEG
+    by the suffix (:func:`geosynth.files.write_image`); returns the path."""
+    return write_image(path, image)
 
 
 def _bilinear(image: np.ndarray, factor: int) -> np.ndarray:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth._atomic import atomic_write
+from geosynth.files import atomic_write
 from geosynth.field import Field
 
 __all__ = ["MESH_SUFFIXES", "field_to_mesh", "save_mesh", "smooth_mesh"]
@@ -63,8 +63,7 @@ def field_to_mesh(field: Field, level: float | None = None, smooth: int = 0, met
 
     Example:
         >>> import numpy as np
-        >>> from geosynth._atomic import atomic_write
-from geosynth.field import Field
+        >>> from geosynth.field import Field
         >>> z, y, x = np.mgrid[:16, :16, :16]
         >>> f = Field(np.sqrt((x - 7.5) ** 2 + (y - 7.5) ** 2 + (z - 7.5) ** 2) - 5, (0, 0, 0), 1.0)
         >>> mesh = field_to_mesh(f)

@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from geosynth._atomic import atomic_write
+from geosynth.files import write_image
 
 __all__ = [
     "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",
@@ -135,18 +135,7 @@ def write_texture(path: str | os.PathLike, texture: np.ndarray, *, inputs=()) ->
     Returns:
         The path written.
     """
-    from PIL import Image
-
-    tex = as_texture(texture)
-    out = Path(path)
-    fmt = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(out.suffix.lower())
-    if fmt is None:
-        raise ValueError(f"textures are written as .png, .jpg or .jpeg; got {str(out)!r}.")
-
-    def write(tmp: str) -> None:
-        Image.fromarray(tex, "RGB").save(tmp, format=fmt, **({"quality": 95} if fmt == "JPEG" else {}))
-
-    return atomic_write(out, write, inputs=inputs)
+    return write_image(path, as_texture(texture), inputs=inputs)
 
 
 # ------------------------------------------------------------------ lookups

@@ -1,0 +1,200 @@
+"""Files in and out: the one output guard every command and writer goes through,
+atomic writes that never leave a partial or temporary file behind, and pictures
+written as their extension says.
+
+- :func:`note_input`: readers record each file they read; no writer of this process
+  may then replace it.
+- :func:`check_output`: refuse an output path before any work (an input of the run
+  after symlinks and ``..`` are resolved, a folder, a path under a file, an unwritable
+  folder, the wrong extension).
+- :func:`atomic_write`: fill a temporary file beside the target, then rename it into
+  place; on an exception, Ctrl-C or SIGTERM the temporary file is removed.
+- :func:`write_image`: an 8-bit grey or RGB picture as PNG or JPEG (Pillow), by suffix.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import tempfile
+import threading
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_output", "note_input", "write_image"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+_IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+
+# Every file a reader of this process opened, by resolved path: writers refuse them.
+_INPUTS: set[str] = set()
+
+
+def _resolved(path: str | os.PathLike) -> str:
+    return os.path.realpath(os.fspath(path))
+
+
+def note_input(path: str | os.PathLike) -> None:
+    """Record ``path`` as an input of this process: no writer here will replace it."""
+    _INPUTS.add(_resolved(path))
+
+
+def _is_input(out: str, inputs: Iterable[str | os.PathLike | None]) -> str | None:
+    """The input that ``out`` (resolved) names, or None."""
+    for item in list(inputs) + sorted(_INPUTS):
+        if item is None:
+            continue
+        real = _resolved(item)
+        if real == out:
+            return os.fspath(item)
+        try:  # hard links, bind mounts: the same file under another name
+            if os.path.exists(real) and os.path.exists(out) and os.path.samefile(real, out):
+                return os.fspath(item)
+        except OSError:
+            pass
+    return None
+
+
+def check_output(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike | None] = (),
+                 suffixes: Sequence[str] | None = None, what: str = "output") -> Path:
+    """Refuse an output path that would lose data or fail only after the work is done.
+
+    Args:
+        path: the file to be written.
+        inputs: the run's input files (None entries are skipped); the files readers of
+            this process recorded with :func:`note_input` are inputs too.
+        suffixes: the accepted extensions (lower case, with the dot), or None for any.
+        what: how error messages name the path (``"-o/--output"``, ``"--png"``, ...).
+
+    Returns:
+        ``path`` as a Path.
+
+    Raises:
+        ValueError: the path resolves (symlinks, ``..``, hard links) to an input, has
+            another extension, is a folder, lies under a file, or its folder cannot be
+            written.
+    """
+    out = Path(path)
+    if suffixes is not None and out.suffix.lower() not in suffixes:
+        raise ValueError(f"{what} {str(out)!r} must end in {', '.join(suffixes)}; got "
+                         f"{out.suffix or 'no extension'}.")
+    real = _resolved(out)
+    source = _is_input(real, inputs)
+    if source is not None:
+        raise ValueError(f"{what} {str(out)!r} is an input file ({source!r}); choose another name "
+                         "(inputs are never overwritten).")
+    if os.path.isdir(real):
+        raise ValueError(f"{what} {str(out)!r} is a folder; give a file name inside it.")
+    folder = os.path.dirname(real)
+    while not os.path.exists(folder):
+        folder = os.path.dirname(folder)
+    if not os.path.isdir(folder):
+        raise ValueError(f"{what} {str(out)!r} cannot be created: {folder!r} is a file, not a folder.")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} {str(out)!r} cannot be written: no write permission in {folder!r}.")
+    return out
+
+
+class _Terminated(BaseException):
+    """SIGTERM arrived during an atomic write (raised by the temporary handler)."""
+
+
+def _on_sigterm(signum, frame):  # pragma: no cover - exercised through a subprocess
+    raise _Terminated()
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[str], None], *,
+                 inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
+    """Call ``write(tmp_path)`` to fill a temporary file, then move it to ``path``.
+
+    A failure, Ctrl-C or SIGTERM while writing removes the temporary file and leaves
+    any existing ``path`` as it was. SIGTERM is then passed on as it would have
+    ended the process (the previous handler, or termination).
+
+    Args:
+        path: the output file; its folder is created.
+        write: writes the whole content to the path it is given (the temporary file
+            keeps ``path``'s suffix, for writers that pick the format from it).
+        inputs: files this output must never replace, besides those readers noted.
+
+    Returns:
+        The output path.
+
+    Raises:
+        ValueError: ``path`` fails :func:`check_output`.
+    """
+    out = check_output(path, inputs=inputs)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # SIGTERM's default action would skip the cleanup below: while writing, it raises.
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if main else None
+    if main:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=f".tmp{out.suffix}")
+        os.close(fd)
+        write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get the usual mode
+        os.replace(tmp, out)
+        tmp = None
+    except _Terminated:
+        _remove(tmp)
+        _pass_on_sigterm(previous)
+        raise
+    except BaseException:
+        _remove(tmp)
+        raise
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+    return out
+
+
+def _remove(tmp: str | None) -> None:
+    if tmp is not None and os.path.exists(tmp):
+        os.unlink(tmp)
+
+
+def _pass_on_sigterm(previous) -> None:
+    """After cleaning up, give SIGTERM to whoever would have had it."""
+    if callable(previous):
+        previous(signal.SIGTERM, None)
+    elif previous in (signal.SIG_DFL, None):
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+    # SIG_IGN: the signal was to be ignored; the write still failed, so raise.
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray, *,
+                inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
+    """Write an 8-bit grey (H, W) or RGB (H, W, 3) image, atomically, as the suffix says.
+
+    Args:
+        path: a .png, .jpg or .jpeg file (JPEG at quality 95).
+        image: (H, W) or (H, W, 3) uint8 array.
+        inputs: files never to overwrite.
+
+    Returns:
+        The path written.
+
+    Raises:
+        ValueError: another suffix, or an image of another shape or dtype.
+    """
+    from PIL import Image
+
+    out = check_output(path, inputs=inputs, suffixes=IMAGE_SUFFIXES, what="picture")
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ValueError(f"image must be (H, W) or (H, W, 3) uint8, got {img.shape} {img.dtype}.")
+    fmt = _IMAGE_FORMATS[out.suffix.lower()]
+    pil = Image.fromarray(np.ascontiguousarray(img), "L" if img.ndim == 2 else "RGB")
+
+    def write(tmp: str) -> None:
+        pil.save(tmp, format=fmt, **({"quality": 95} if fmt == "JPEG" else {}))
+
+    return atomic_write(out, write, inputs=inputs)
