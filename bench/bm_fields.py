@@ -15,6 +15,7 @@ Usage: python bench/bm_fields.py [--quick] [--devices cpu,opencl:0:0] [--out FIL
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -139,8 +140,13 @@ def mls_rows(devices, rng, count: int, resolution: int) -> list[Row]:
     return rows
 
 
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="small meshes and grids, for a smoke run")
+
+
 def main(argv=None) -> int:
-    args = parse_args(__doc__, argv, quick="small meshes and grids, for a smoke run")
+    args = options(argv)
     devices = start(args)
     rng = np.random.default_rng(0)
 

@@ -8,6 +8,7 @@ Usage: python bench/bm_main.py [--quick] [--devices cpu,opencl:0:0] [--out FOLDE
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -41,10 +42,15 @@ def _options(parser) -> None:
                         help="comma-separated benchmark names to run, e.g. fields,volume (default: all)")
 
 
-def main(argv=None) -> int:
-    args = parse_args(__doc__, argv, quick="every benchmark's --quick mode", extras=_options,
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="every benchmark's --quick mode", extras=_options,
                       out="the folder for the reports, logs and bm_main.md (default bench/out)",
                       default_out=str(HERE / "out"))
+
+
+def main(argv=None) -> int:
+    args = options(argv)
     scripts = benchmarks()
     if args.only:
         wanted = {name.strip().removeprefix("bm_").removesuffix(".py") for name in args.only.split(",")}

@@ -15,6 +15,7 @@ Usage: python bench/bm_scoring.py [--quick] [--devices cpu,opencl:0:0] [--out FI
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -198,9 +199,14 @@ def gather_texture_rows(devices, rng, size=128, factor=8, k=25) -> list[Row]:
     return rows
 
 
-def main(argv=None) -> int:
-    args = parse_args(__doc__, argv, quick="small sizes, for a smoke run", extras=lambda p: p.add_argument(
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="small sizes, for a smoke run", extras=lambda p: p.add_argument(
         "--no-slow-peers", action="store_true", help="skip NumPy direct for 64-query batches"))
+
+
+def main(argv=None) -> int:
+    args = options(argv)
     devices = start(args)
     rng = np.random.default_rng(0)
     print(f"'auto' resolves to: {geosynth.get_backend('auto').name}")

@@ -24,6 +24,7 @@ Usage: python bench/bm_texture.py [--quick] [--scale 0.1] [--devices cpu,opencl:
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -68,10 +69,15 @@ def _options(parser) -> None:
     parser.add_argument("--cases", default=None, help="comma-separated substrings of case names to run")
 
 
-def main(argv=None) -> int:
-    args = parse_args(__doc__, argv, extras=_options, default_out=str(Path(__file__).resolve().parent / "out" / "bm_texture.md"),
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, extras=_options, default_out=str(Path(__file__).resolve().parent / "out" / "bm_texture.md"),
                       quick=f"one case per method on {QUICK_POINTS:,} points and a 32^2 texture, for a smoke run",
                       out="write the Markdown report here (default bench/out/bm_texture.md)")
+
+
+def main(argv=None) -> int:
+    args = options(argv)
     table = QUICK_CASES if args.quick else CASES
     cases = [c for c in table if not args.cases or any(s in c[0] for s in args.cases.split(","))]
     if not cases:

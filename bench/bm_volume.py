@@ -253,8 +253,13 @@ def _sides(text: str) -> set[int]:
         raise argparse.ArgumentTypeError(f"{text!r}: give whole numbers separated by commas, e.g. 64,128") from None
 
 
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="small cases, for a smoke run", extras=_options)
+
+
 def main(argv=None) -> int:
-    args = parse_args(__doc__, argv, quick="small cases, for a smoke run", extras=_options)
+    args = options(argv)
     if args.quick:
         cases, n_queries, exemplars, size, res, cube = [(32, 8)], 4, ["terrain"], 64, 32, False
     else:

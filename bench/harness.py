@@ -184,13 +184,14 @@ def run_step(name: str, command: Sequence[str], *, timeout: float, log: Path,
              env: dict | None = None) -> Step:
     """Run ``command`` with its output in ``log``, killed (its whole process group) past
     ``timeout`` seconds. Returns the step's status and wall time."""
+    timeout = max(1.0, timeout)
     log.parent.mkdir(parents=True, exist_ok=True)
     print(f"== {name} (limit {timeout:.0f} s, log {log})", flush=True)
     t0 = time.perf_counter()
     with open(log, "w") as f:
         proc = subprocess.Popen(list(command), stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         try:
-            rc = proc.wait(timeout=max(1.0, timeout))
+            rc = proc.wait(timeout=timeout)
             status = "ok" if rc == 0 else f"failed (exit {rc})"
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
