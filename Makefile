@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 BENCH_STAMP := $(VENV)/.installed-bench
 PIP := $(BIN)/python -m pip --disable-pip-version-check --quiet
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench gpu-check clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,17 @@ test: $(STAMP)
 
 bench: $(BENCH_STAMP)
 	$(BIN)/python bench/bm_main.py
+
+# gpu-check: on a machine with an NVIDIA GPU, the suite on cuda (with cpu) and every
+# benchmark's --quick mode, in at most 8 minutes; summary in bench/out/gpu-check.md.
+# It installs nothing and deliberately does not depend on $(STAMP): the GPU machine has no
+# network, and the stamp rule reinstalls whenever pyproject.toml looks newer than the stamp,
+# which a copied checkout's timestamps can make it. It needs only a Python that imports this
+# checkout's geosynth: $(BIN)/python (from `make test`), or GPU_PYTHON=... on the command line.
+GPU_PYTHON ?= $(BIN)/python
+gpu-check:
+	@test -x $(GPU_PYTHON) || { echo "gpu-check: $(GPU_PYTHON) is missing: run make test first (it builds $(VENV)), or give GPU_PYTHON=..."; exit 2; }
+	@timeout -k 10 480 $(GPU_PYTHON) tools/gpu_check.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis demo_out

@@ -23,11 +23,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import Row, machine, table, time_call  # noqa: E402
+from harness import Row, finish, parse_args, start, table, time_call  # noqa: E402
 
-import geosynth  # noqa: E402
 from geosynth import reference  # noqa: E402
-from geosynth.backend import describe_devices  # noqa: E402
 from geosynth.examples import chainmail_mesh, torus_mesh  # noqa: E402
 from geosynth.field import cubic_grid  # noqa: E402
 from geosynth.meshes import mesh_distance, prepare_mesh  # noqa: E402
@@ -142,17 +140,15 @@ def mls_rows(devices, rng, count: int, resolution: int) -> list[Row]:
     return rows
 
 
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="small meshes and grids, for a smoke run")
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="small meshes and grids, for a smoke run")
-    parser.add_argument("--devices", default=None, help="comma-separated devices (default: every present one)")
-    parser.add_argument("--out", default=None, help="also write the Markdown report here")
-    args = parser.parse_args(argv)
-    devices = args.devices.split(",") if args.devices else geosynth.devices()
+    args = options(argv)
+    devices = start(args)
     rng = np.random.default_rng(0)
-    print(f"Machine: {machine()}")
-    for name, desc in describe_devices():
-        print(f"  {name}: {desc}")
 
     if args.quick:
         meshes = [("torus", torus_mesh(1.0, 0.35, 40, 20)), ("chainmail", chainmail_mesh(2, major_sections=16, minor_sections=8))]
@@ -166,14 +162,7 @@ def main(argv=None) -> int:
         for res in grids:
             rows += mesh_rows(name, mesh, res, devices, rng, sample if len(mesh.faces) < 100_000 else sample // 4)
     rows += mls_rows(devices, rng, *mls)
-
-    report = f"Machine: {machine()}\n\n" + table(rows).replace("| elements/s |", "| points/s |")
-    print()
-    print(report)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(report + "\n")
-    return 0
+    return finish(table(rows).replace("| elements/s |", "| points/s |"), args)
 
 
 if __name__ == "__main__":

@@ -22,10 +22,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import Row, machine, table, time_call  # noqa: E402
+from harness import Row, finish, parse_args, start, table, time_call  # noqa: E402
 
 import geosynth  # noqa: E402
-from geosynth.backend import describe_devices  # noqa: E402
 from geosynth.scoring import GatherScorer  # noqa: E402
 
 try:
@@ -200,19 +199,16 @@ def gather_texture_rows(devices, rng, size=128, factor=8, k=25) -> list[Row]:
     return rows
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
-    parser.add_argument("--devices", default=None, help="comma-separated devices (default: every present one)")
-    parser.add_argument("--no-slow-peers", action="store_true", help="skip NumPy direct for 64-query batches")
-    parser.add_argument("--out", default=None, help="also write the Markdown report here")
-    args = parser.parse_args(argv)
-    devices = args.devices.split(",") if args.devices else geosynth.devices()
-    rng = np.random.default_rng(0)
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="small sizes, for a smoke run", extras=lambda p: p.add_argument(
+        "--no-slow-peers", action="store_true", help="skip NumPy direct for 64-query batches"))
 
-    print(f"Machine: {machine()}")
-    for name, desc in describe_devices():
-        print(f"  {name}: {desc}")
+
+def main(argv=None) -> int:
+    args = options(argv)
+    devices = start(args)
+    rng = np.random.default_rng(0)
     print(f"'auto' resolves to: {geosynth.get_backend('auto').name}")
     if faiss is None:
         print(f"faiss is not available ({FAISS_ERROR}); its rows are left out. `make bench` installs faiss-cpu.")
@@ -227,14 +223,7 @@ def main(argv=None) -> int:
                 rows += dense_rows(devices, n, d, b, dtype, rng, slow_peers=not args.no_slow_peers)
     rows += gather_blocks_rows(devices, rng, size=32 if args.quick else 64, block=8 if args.quick else 16)
     rows += gather_texture_rows(devices, rng, size=32 if args.quick else 128)
-
-    report = f"Machine: {machine()}\n\n" + table(rows)
-    print()
-    print(report)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(report + "\n")
-    return 0
+    return finish(table(rows), args)
 
 
 if __name__ == "__main__":

@@ -15,8 +15,11 @@ paper's row measures (total time of the method, everything included) and the rat
 the stages inside it. Quality numbers are off (they are not timed by the paper). Cases
 that take under 2 s run 3 times and report the best pass (listing all).
 
-Usage: python bench/bm_texture.py [--scale 0.1] [--devices cpu,opencl:0:0] [--out FILE]
-       (default out: bench/out/bm_texture.md)
+With ``--quick``: one case per method (parameterization, exhaustive and coherent
+matching, hybrid) on 2,000 points and a 32^2 texture, a smoke run.
+
+Usage: python bench/bm_texture.py [--quick] [--scale 0.1] [--devices cpu,opencl:0:0] [--out FILE]
+       [--cases SUBSTRINGS]   (default out: bench/out/bm_texture.md)
 """
 
 from __future__ import annotations
@@ -27,9 +30,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import machine  # noqa: E402
+from harness import finish, parse_args, start  # noqa: E402
 
-import geosynth  # noqa: E402
 from geosynth.pointmodels import point_model  # noqa: E402
 from geosynth.texture import texture_points  # noqa: E402
 from geosynth.textures import texture_example  # noqa: E402
@@ -52,25 +54,42 @@ CASES = [
     ("hybrid Santa 64^2 k25 L3", "hybrid", "torus", 75_781, 64, 25, 3, False, 3_203),
     ("hybrid Santa 128^2 k25 L3", "hybrid", "torus", 75_781, 128, 25, 3, False, 920),
 ]
+# --quick: one case per method, few points and a small texture; 'vs paper' means little there.
+QUICK_POINTS = 2_000
+QUICK_CASES = [
+    ("param sphere", "param", "sphere", QUICK_POINTS, 32, 25, 1, False, 54_620),
+    ("match 32^2 k25 L1", "match", "blob", QUICK_POINTS, 32, 25, 1, False, 839),
+    ("match coherent 32^2 k25", "match", "blob", QUICK_POINTS, 32, 25, 1, True, 31_012),
+    ("hybrid bunny 32^2 k25 L1", "hybrid", "blob", QUICK_POINTS, 32, 25, 1, False, 4_254),
+]
+
+
+def _options(parser) -> None:
+    parser.add_argument("--scale", type=float, default=1.0, help="fraction of the paper's point counts (default 1)")
+    parser.add_argument("--cases", default=None, help="comma-separated substrings of case names to run")
+
+
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, extras=_options, default_out=str(Path(__file__).resolve().parent / "out" / "bm_texture.md"),
+                      quick=f"one case per method on {QUICK_POINTS:,} points and a 32^2 texture, for a smoke run",
+                      out="write the Markdown report here (default bench/out/bm_texture.md)")
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scale", type=float, default=1.0, help="fraction of the paper's point counts (default 1)")
-    parser.add_argument("--devices", default=None, help="comma-separated devices (default: every present one)")
-    parser.add_argument("--cases", default=None, help="comma-separated substrings of case names to run")
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "out" / "bm_texture.md"))
-    args = parser.parse_args(argv)
-    devices = args.devices.split(",") if args.devices else geosynth.devices()
-    cases = [c for c in CASES if not args.cases or any(s in c[0] for s in args.cases.split(","))]
-    lines = [f"# bm_texture: M3 texturing speed (scale {args.scale:g} of the paper's point counts)", "",
-             f"Machine: {machine()}", "",
-             "| case | points | device | total s | points/s | paper points/s | vs paper | stages (points/s) | "
+    args = options(argv)
+    table = QUICK_CASES if args.quick else CASES
+    cases = [c for c in table if not args.cases or any(s in c[0] for s in args.cases.split(","))]
+    if not cases:
+        args.parser.error(f"--cases {args.cases}: no case name contains it; names: {', '.join(c[0] for c in table)}")
+    devices = start(args)
+    scale = "--quick" if args.quick else f"scale {args.scale:g} of the paper's point counts"
+    lines = [f"| case | points | device | total s | points/s | paper points/s | vs paper | stages (points/s) | "
              "searches (ms each) |",
              "|---|---:|---|---:|---:|---:|---:|---|---|"]
     models: dict = {}
     for name, method, model, count, size, k, levels, coherent, paper in cases:
-        n = max(2_000, int(round(count * args.scale)))
+        n = count if args.quick else max(2_000, int(round(count * args.scale)))
         if (model, n) not in models:
             models[(model, n)] = point_model(model, n, seed=0)
         ps = models[(model, n)]
@@ -99,11 +118,7 @@ def main(argv=None) -> int:
     lines += ["", "points/s = points of the model / total wall time of the method (kNN, parameterization, "
               "hierarchy, matching; no quality numbers). 'vs paper' = our rate / the paper's (P4 2.53 GHz). "
               f"Cases under {QUICK_SECONDS:g} s ran {QUICK_PASSES} times: the best pass is reported, all are listed."]
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print(f"written {out}")
-    return 0
+    return finish("\n".join(lines), args, title=f"# bm_texture: M3 texturing speed ({scale})")
 
 
 if __name__ == "__main__":

@@ -28,10 +28,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import machine  # noqa: E402
+from harness import finish, parse_args, start  # noqa: E402
 
 import geosynth  # noqa: E402
-from geosynth.backend import describe_devices  # noqa: E402
 from geosynth.examples import EXEMPLARS, spheres_field  # noqa: E402 (the end-to-end cube)
 from geosynth.scoring import GatherScorer  # noqa: E402
 from geosynth.search import BlockSearch, CascadeSearch, block_offsets  # noqa: E402
@@ -240,41 +239,42 @@ def end_to_end(devices, exemplars, size, source_resolution, cube) -> list[str]:
     return lines
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="small cases, for a smoke run")
-    parser.add_argument("--devices", default=None, help="comma-separated devices (default: every present one)")
+def _options(parser) -> None:
     parser.add_argument("--budget", type=float, default=20.0, help="seconds per search and case (at least one query)")
     parser.add_argument("--part", choices=["all", "matching", "end-to-end"], default="all")
-    parser.add_argument("--cases", default=None,
+    parser.add_argument("--cases", default=None, type=_sides,
                         help="comma-separated matching source sides, e.g. 64,128 (default: 64,128,256)")
-    parser.add_argument("--out", default=None, help="also write the Markdown report here")
-    args = parser.parse_args(argv)
-    devices = args.devices.split(",") if args.devices else geosynth.devices()
-    print(f"Machine: {machine()}")
-    for name, desc in describe_devices():
-        print(f"  {name}: {desc}")
+
+
+def _sides(text: str) -> set[int]:
+    try:
+        return {int(side) for side in text.split(",")}
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give whole numbers separated by commas, e.g. 64,128") from None
+
+
+def options(argv=None) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="small cases, for a smoke run", extras=_options)
+
+
+def main(argv=None) -> int:
+    args = options(argv)
     if args.quick:
         cases, n_queries, exemplars, size, res, cube = [(32, 8)], 4, ["terrain"], 64, 32, False
     else:
         cases, n_queries, exemplars, size, res, cube = [(64, 8), (128, 16), (256, 32)], 50, list(EXEMPLARS), 128, 64, True
     if args.cases:
-        sides = {int(side) for side in args.cases.split(",")}
-        cases = [case for case in cases if case[0] in sides]
+        cases = [case for case in cases if case[0] in args.cases]
         if not cases:
-            parser.error(f"--cases {args.cases}: choose among 32 (with --quick), 64, 128, 256")
-    lines = [f"Machine: {machine()}", ""]
+            args.parser.error(f"--cases {','.join(map(str, sorted(args.cases)))}: choose among 32 (with --quick), 64, 128, 256")
+    devices = start(args)
+    lines = []
     if args.part in ("all", "matching"):
         lines += matching(devices, cases, n_queries, args.budget) + [""]
     if args.part in ("all", "end-to-end"):
         lines += end_to_end(devices, exemplars, size, res, cube)
-    report = "\n".join(lines)
-    print()
-    print(report)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(report + "\n")
-    return 0
+    return finish("\n".join(lines), args)
 
 
 if __name__ == "__main__":
