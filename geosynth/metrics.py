@@ -242,15 +242,22 @@ def _element_scores(ex_values, ex_spacing, out_values, out_spacing, periodic, fa
     h = float(ex_spacing.max())
     threshold = 0.5 * h  # half a sample of the exemplar's grid, in world units
     if factor is None:
-        factor = pick_refinement(ex_values, threshold)
-    if ex_cores is None:
+        factor = pick_refinement(ex_values, threshold, max_samples=MAX_REFINED_SAMPLES)
+    picked = factor
+
+    def out_factor_of(f: int) -> int:
+        return max(1, int(round(f * float(out_spacing.max()) / h)))
+
+    while factor > 1 and np.prod([(n - 1) * out_factor_of(factor) + 1 for n in out_values.shape]) > MAX_REFINED_SAMPLES:
+        factor -= 1  # the output is too large for that grid: both sides go coarser together
+    if ex_cores is None or factor != picked:
         ex_cores = _exemplar_cores(ex_values, threshold, factor)
     ex_cell = float(np.prod(ex_spacing)) / factor**3
     ex_volume = ex_cores.counts * ex_cell
     ex_euler = np.array([ex_cores.euler(k) if not ex_cores.cut[k] else 0 for k in range(len(ex_cores))], np.int64)
     reference = ~ex_cores.cut
 
-    out_factor = max(1, int(round(factor * float(out_spacing.max()) / h)))
+    out_factor = out_factor_of(factor)
     per = _periodic_axes(periodic)
     fine_spacing = out_spacing / out_factor
     # a margin that holds the longest exemplar core, in the output's fine samples
@@ -262,14 +269,23 @@ def _element_scores(ex_values, ex_spacing, out_values, out_spacing, periodic, fa
     result = {"score": float("nan"), "exemplar_cores": len(ex_cores), "reference_cores": int(reference.sum()),
               "output_cores": len(out_cores), "whole_cores": 0, "cut_left_out": 0, "merged_cut": 0,
               "factor": int(factor), "threshold": threshold}
+    notes = []
+    if factor != picked:
+        notes.append(f"the output is too large for the refinement the exemplar needs ({picked}); "
+                     f"refined by {factor} only, so thin pieces may come out broken")
     # a cut core larger than any exemplar piece could be is a merge, not a piece cut short: it counts, as not whole
     largest = float(ex_volume.max()) * (1 + ELEMENT_VOLUME_TOLERANCE) if len(ex_cores) else 0.0
     merged = out_cores.cut & (volume > largest)
     counted = ~out_cores.cut | merged
     result["cut_left_out"] = int((out_cores.cut & ~merged).sum())
     result["merged_cut"] = int(merged.sum())
+    if not len(ex_cores):
+        notes.append("the exemplar has no core (no sample half a sample inside): no piece to compare with")
+    elif not reference.any():
+        notes.append("every exemplar core is cut by the exemplar's box: no whole piece to compare with")
+    if notes:
+        result["note"] = "; ".join(notes)
     if not reference.any():
-        result["note"] = "every exemplar core is cut by the exemplar's box: no whole piece to compare with"
         return result
     ref_volume, ref_euler = ex_volume[reference], ex_euler[reference]
     whole = np.zeros(len(out_cores), bool)
@@ -306,11 +322,13 @@ def element_wholeness(exemplar_distance, output_distance, spacing=1.0, *, period
 
     Returns:
         dict: ``score`` (float in [0, 1]: output core volume in whole cores / output
-        core volume counted; 1 = every piece whole; NaN when the exemplar has no uncut
-        core, with a ``note``), ``exemplar_cores``, ``reference_cores`` (the uncut
+        core volume counted; 1 = every piece whole; 0 when no output core counts; NaN
+        when the exemplar has no uncut core, with a ``note``), ``exemplar_cores``, ``reference_cores`` (the uncut
         ones), ``output_cores``, ``whole_cores``, ``cut_left_out``, ``merged_cut``
-        (ints), ``factor`` (the refinement, int) and ``threshold`` (the core depth,
-        world units).
+        (ints), ``factor`` (the refinement, int), ``threshold`` (the core depth,
+        world units) and, when something limits the result, a ``note`` (str). The
+        refinement is lowered for both sides when the refined output would exceed
+        ``MAX_REFINED_SAMPLES`` samples (the note says so).
 
     Raises:
         ValueError, TypeError: a field that is not (Z, Y, X) float with at least 2

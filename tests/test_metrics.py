@@ -106,6 +106,14 @@ def test_exemplar_cores_cut_by_its_box_are_no_reference():
     assert everything_cut["reference_cores"] == 0 and np.isnan(everything_cut["score"]) and "note" in everything_cut
 
 
+def test_no_cores():
+    d = tori()
+    empty = np.ones(TORI_SHAPE, np.float32)
+    assert element_wholeness(d, empty)["score"] == 0.0  # nothing of the output is whole
+    r = element_wholeness(empty, d)
+    assert np.isnan(r["score"]) and r["exemplar_cores"] == 0 and "no core" in r["note"]
+
+
 def test_thin_wire_needs_a_finer_grid():
     # a wire of radius 1 sample: its core (0.5 sample deep) breaks into bits on the given grid
     shape = (16, 40, 40)
@@ -225,3 +233,53 @@ def test_bad_inputs_are_clear_errors():
         element_wholeness(d, d, spacing=0)
     with pytest.raises(ValueError, match="output: no surface"):
         surface_structure(d, np.ones(TORI_SHAPE, np.float32))
+
+
+def test_refinement_lowered_for_a_large_output(monkeypatch):
+    from geosynth import metrics
+
+    shape = (16, 40, 40)
+    d = np.minimum(torus(shape, (8, 10.3, 10.6), 7, 1.0), torus(shape, (8, 29.2, 28.7), 7, 1.0)).astype(np.float32)
+    big = np.tile(d, (1, 2, 2))  # 8 thin tori
+    assert element_wholeness(d, big)["score"] == 1.0  # refined by 2: every ring whole
+    monkeypatch.setattr(metrics, "MAX_REFINED_SAMPLES", 400_000)  # the exemplar fits at 2, the output does not
+    r = element_wholeness(d, big)
+    assert r["factor"] == 1 and "refined by 1 only" in r["note"]
+    assert r["exemplar_cores"] > 2  # on the given grid the thin rings are bits: what the note warns of
+
+
+def test_periodic_output_on_a_refined_grid():
+    shape = (16, 40, 40)
+    d = np.minimum(torus(shape, (8, 10.3, 10.6), 7, 1.0), torus(shape, (8, 29.2, 28.7), 7, 1.0)).astype(np.float32)
+    big = np.roll(np.tile(d, (1, 2, 2)), (7, 9), axis=(1, 2))  # 8 thin tori, some across the y and x faces
+    boxed = element_wholeness(d, big)
+    assert boxed["factor"] == 2 and boxed["cut_left_out"] > 0 and boxed["whole_cores"] < 8
+    wrapped = element_wholeness(d, big, periodic=(False, True, True))
+    assert wrapped["whole_cores"] == wrapped["output_cores"] == 8 and wrapped["score"] == 1.0
+
+
+# ------------------------------------------------------------------ built-in exemplars
+
+
+def test_builtin_balls_and_terrain_against_random_tiling():
+    from geosynth.examples import balls_field, terrain_heights
+    from geosynth.volume import synthesize_volume
+
+    ex = balls_field(resolution=48)  # the exact distance of the "balls" exemplar, 29 x 48 x 48
+    h = float(ex.spacing[0])
+    z = ex.shape[0] // 2 * 2
+    tiled = synthesize_volume(ex.values[:z] / np.float32(h), (z, 64, 64), levels=2, block=8, seed=0,
+                              progress=False, baseline=True, spacing=h)
+    self_report = structure_report(ex, ex)
+    assert self_report["kind"] == "elements" and self_report["elements"]["score"] == 1.0
+    assert self_report["elements"]["reference_cores"] == 40
+    assert structure_report(ex, tiled.field)["elements"]["score"] < 0.6
+
+    heights = terrain_heights(48, seed=0)
+    d = (np.arange(24)[:, None, None] - (4 + 14 * heights.T[None])).astype(np.float32)  # z up, heights [x, y]
+    tiled = synthesize_volume(d, (24, 64, 64), levels=2, block=8, seed=0, progress=False, baseline=True)
+    itself, against = structure_report(d, d), structure_report(d, tiled.field)
+    assert itself["kind"] == against["kind"] == "surface"
+    assert itself["surface"]["slopes"]["score"] == 1.0 and itself["surface"]["debris"]["output"] == 0.0
+    assert against["surface"]["slopes"]["score"] < 0.5
+    assert against["surface"]["overhangs"]["output"] > itself["surface"]["overhangs"]["output"] + 0.3
