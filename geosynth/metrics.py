@@ -153,7 +153,8 @@ class _Cores:
     Along a periodic axis the mask is padded by ``margin`` samples of its own wrap on
     both sides and labelled there: each piece then appears whole at least once; the
     copy whose first sample lies in the original box is kept, and a piece reaching the
-    padded faces (longer than the margin, or wrapping onto itself) counts as cut.
+    padded faces (longer than the margin, or wrapping onto itself) counts as cut; one
+    that spans the padded box (wraps onto itself) is kept once, as cut.
     """
 
     def __init__(self, mask: np.ndarray, periodic=(False, False, False), margin=(0, 0, 0)):
@@ -174,8 +175,10 @@ class _Cores:
         keep = np.ones(count, bool)
         for axis, m in enumerate(margin):
             if m:  # one copy of each piece: the one that starts inside the original box
-                start = np.array([s[axis].start for s in self.slices])
-                keep &= (start >= m) & (start < m + mask.shape[axis] - 2 * m)
+                start = np.array([s[axis].start for s in self.slices], np.int64)
+                stop = np.array([s[axis].stop for s in self.slices], np.int64)
+                spans = (start == 0) & (stop == mask.shape[axis])  # wraps onto itself: one label, kept (as cut)
+                keep &= ((start >= m) & (start < mask.shape[axis] - m)) | spans
         self.index = np.flatnonzero(keep)  # label - 1 of the cores kept
         self.counts = counts[self.index]
         self.cut = cut[self.index]

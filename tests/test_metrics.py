@@ -95,6 +95,11 @@ def test_cores_cut_by_the_box_left_out_unless_periodic():
     assert wrapped["score"] == 1.0 and wrapped["whole_cores"] == 4 and wrapped["cut_left_out"] == 0
     # a piece crossing a periodic face is found once, not once per side
     assert wrapped["output_cores"] == 4
+    # a bar across the whole periodic box (every torus threaded on it) is one merged core, counted as not whole
+    z, y, x = grid(TORI_SHAPE)
+    bar = np.maximum(np.abs(z - 12) - 2, np.abs(y - 14) - 2).astype(np.float32)
+    threaded = element_wholeness(d, np.minimum(d, bar), periodic=True)
+    assert threaded["merged_cut"] == 1 and threaded["whole_cores"] == 2 and threaded["score"] < 0.35
 
 
 def test_exemplar_cores_cut_by_its_box_are_no_reference():
