@@ -404,7 +404,8 @@ def surface_structure(exemplar, output, up_axis: int = 0, spacing=1.0) -> dict:
     """Debris, slopes and overhangs of a one-surface output (terrain, slabs) against its exemplar.
 
     Both zero surfaces are meshed the same way (marching cubes, no smoothing, the box
-    closed and its caps left out of the areas).
+    closed and its caps left out of the areas). Every other face counts, a slab's flat
+    bottom too; the box is never taken as periodic.
 
     - debris: the share of surface area outside the largest connected piece of the
       surface (mesh components by shared edges, ``trimesh.graph``); 0 for one piece.
@@ -490,8 +491,10 @@ def format_structure(report: dict) -> str:
         score = "n/a" if np.isnan(e["score"]) else f"{e['score']:.2f}"
         return (f"elements {score} ({e['whole_cores']} of {e['output_cores']} cores whole, "
                 f"{e['cut_left_out']} cut by the box left out, {e['merged_cut']} merged; "
-                f"exemplar {e['reference_cores']} whole of {e['exemplar_cores']})")
+                f"exemplar {e['exemplar_cores']} cores, {e['reference_cores']} uncut)")
     s = report["surface"]
-    return (f"debris {100 * s['debris']['output']:.1f}% (exemplar {100 * s['debris']['exemplar']:.1f}%), "
+    n = s["pieces"]["output"]
+    return (f"debris {100 * s['debris']['output']:.1f}% in {n} piece{'' if n == 1 else 's'} "
+            f"(exemplar {100 * s['debris']['exemplar']:.1f}% in {s['pieces']['exemplar']}), "
             f"slopes {s['slopes']['score']:.2f} (W1 {s['slopes']['w1']:.3f}), "
             f"overhangs {100 * s['overhangs']['output']:.1f}% (exemplar {100 * s['overhangs']['exemplar']:.1f}%)")

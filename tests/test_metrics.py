@@ -215,7 +215,7 @@ def test_structure_report_picks_the_kind():
     r = structure_report(flat, step_solid(PLANE_SHAPE))
     assert r["kind"] == "surface" and r["surface"]["slopes"]["w1"] > 0.1
     line = format_structure(r)
-    assert line.startswith("debris 0.0%") and "slopes" in line and "overhangs" in line
+    assert line.startswith("debris 0.0% in 1 piece (exemplar 0.0% in 1)") and "slopes" in line and "overhangs" in line
     forced = structure_report(d, d, kind="surface")
     assert forced["kind"] == "surface" and forced["surface"]["debris"]["exemplar"] > 0.5  # four pieces
 
