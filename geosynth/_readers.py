@@ -145,6 +145,11 @@ def read_ply(p: Path, faces: bool = True) -> Geometry:
             ply = PlyData.read(str(p))  # not all triangles: the slow path (and its error, if any)
     except Exception as exc:  # plyfile raises PlyParseError, ValueError, UnicodeDecodeError, MemoryError, ...
         raise _ply_error(p, reason(exc)) from exc
+    with np.errstate(invalid="ignore", over="ignore"):  # signalling NaNs, huge doubles: refused later
+        return _ply_content(p, ply, faces)
+
+
+def _ply_content(p: Path, ply, faces: bool) -> Geometry:
     names = [e.name for e in ply.elements]
     if "vertex" not in names:
         raise _ply_error(p, f"it has no vertex element (its elements: {', '.join(names) or 'none'})")
@@ -241,30 +246,37 @@ def read_with_trimesh(p: Path) -> Geometry:
                          f"here ({', '.join(MESH_SUFFIXES)}); convert it or rename it if it is one of them.")
     kind = suffix[1:].upper()
     try:
-        if suffix in _TEXT_FORMATS:
-            raw = p.read_bytes()
-            try:
-                text = raw.decode("utf-8")
-            except UnicodeDecodeError:
-                text = raw.decode("latin-1")  # never fails; the parser judges the content
-            geom = trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
-                                resolver=trimesh.resolvers.FilePathResolver(str(p)))
-        else:
-            geom = trimesh.load(str(p), process=False)
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge values are refused later
+            geom = _trimesh_load(trimesh, p, suffix)
         parts = list(geom.dump()) if isinstance(geom, trimesh.Scene) else [geom]
         meshes = [g for g in parts if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         if meshes:
             mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
             return Geometry(np.asarray(mesh.vertices, np.float64), faces=np.asarray(mesh.faces, np.int64))
-        points = [np.asarray(g.vertices, np.float64) for g in parts if len(getattr(g, "vertices", ()))]
+        points = [np.asarray(g.vertices, np.float64) for g in parts
+                  if isinstance(g, (trimesh.Trimesh, trimesh.PointCloud)) and len(g.vertices)]
         if any(v.ndim != 2 or v.shape[1] != 3 for v in points):
             raise ValueError(f"its vertices have shape {[v.shape for v in points]}, not (N, 3)")
     except Exception as exc:  # trimesh raises many kinds (IndexError, ValueError, KeyError, ...) on bad files
         raise ValueError(f"{_name(p)} is not a readable {kind} file: {reason(exc)}; give a complete {kind} file."
                          ) from exc
     if not points:
-        raise ValueError(f"{_name(p)} holds no vertices: trimesh read no geometry from this {kind} file.")
+        found = ", ".join(sorted({type(g).__name__ for g in parts})) or "nothing"
+        raise ValueError(f"{_name(p)} holds no vertices: trimesh read no mesh or points from this {kind} file "
+                         f"(it read: {found}).")
     return Geometry(np.concatenate(points))
+
+
+def _trimesh_load(trimesh, p: Path, suffix: str):
+    if suffix not in _TEXT_FORMATS:
+        return trimesh.load(str(p), process=False)
+    raw = p.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")  # never fails; the parser judges the content
+    return trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
+                        resolver=trimesh.resolvers.FilePathResolver(str(p)))
 
 
 # ------------------------------------------------------------------ checks
@@ -273,8 +285,8 @@ def read_with_trimesh(p: Path) -> Geometry:
 def _first_bad(p: Path, rows: np.ndarray, one: str, many: str) -> None:
     bad = np.flatnonzero(~rows)
     if len(bad):
-        raise ValueError(f"{_name(p)} has {len(bad)} {one if len(bad) == 1 else many} with NaN or inf coordinates (the first: index {bad[0]}, "
-                         "counting from 0); every one must be finite: fix or remove them.")
+        raise ValueError(f"{_name(p)} has {len(bad)} {one if len(bad) == 1 else many} with NaN or inf coordinates "
+                         f"(the first: index {bad[0]}, counting from 0); every one must be finite: fix or remove them.")
 
 
 def _finite32(a: np.ndarray) -> np.ndarray:

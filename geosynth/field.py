@@ -122,7 +122,11 @@ class Field:
                 one without values, origin and spacing of the right shapes.
         """
         p = check_input(path, "field")
-        with open(p, "rb") as fh:  # ours to close: np.load leaks its own on a corrupt archive
+        try:
+            fh = open(p, "rb")  # ours to close: np.load leaks its own on a corrupt archive
+        except OSError as exc:  # no read permission, ...
+            raise _unreadable_field(p, exc) from exc
+        with fh:
             try:
                 data = np.load(fh, allow_pickle=False)
             except Exception as exc:  # ValueError (pickled or unknown data), BadZipFile, EOFError, ...

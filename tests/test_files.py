@@ -186,6 +186,12 @@ def test_ply_triangle_mesh_matches_the_source(tmp_path):
     # trimesh's own PLY export (uchar/int face lists) reads too
     src.export(tmp_path / "t.ply")
     assert load_mesh(tmp_path / "t.ply").faces.shape == (320, 3)
+    # a point model sampled from it (load_point_model reads through read_geometry)
+    model = load_point_model(path, count=500)
+    assert len(model) == 500 and np.allclose(np.linalg.norm(model.positions, axis=1), 1, atol=0.02)
+    flat = _write_ply(tmp_path / "flat.ply", np.zeros((3, 3), np.float32), faces=[[0, 1, 2]])
+    with pytest.raises(ValueError, match="zero total area"):
+        load_point_model(flat, count=100)
 
 
 @pytest.mark.parametrize("suffix,vertices", [(".obj", 162), (".stl", 960), (".off", 162), (".glb", 162)])
