@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -112,8 +113,8 @@ def _check_ply_size(p: Path, header) -> None:
                          f"bytes) but only {body:,} bytes follow it; the file is truncated or its header is wrong.")
 
 
-def _ply_error(p: Path, what: str) -> ValueError:
-    return ValueError(f"{_name(p)} is not a readable PLY file: {what}; give {_PLY_HINT}.")
+def _ply_error(p: Path, what: str, fix: str = f"give {_PLY_HINT}") -> ValueError:
+    return ValueError(f"{_name(p)} is not a readable PLY file: {what}; {fix}.")
 
 
 def read_ply(p: Path, faces: bool = True) -> Geometry:
@@ -137,12 +138,15 @@ def read_ply(p: Path, faces: bool = True) -> Geometry:
         known = {name: {lst: 3 for lst in lists if lst in _FACE_LISTS} for name, _, _, lists, _ in header[1]
                  if name == "face" and lists}
     try:
-        try:
-            ply = PlyData.read(str(p), known_list_len=known)
-        except Exception:
-            if not known:
-                raise
-            ply = PlyData.read(str(p))  # not all triangles: the slow path (and its error, if any)
+        with warnings.catch_warnings():
+            # an empty list in an ASCII file (a face with no corners) warns through NumPy; refused below
+            warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
+            try:
+                ply = PlyData.read(str(p), known_list_len=known)
+            except Exception:
+                if not known:
+                    raise
+                ply = PlyData.read(str(p))  # not all triangles: the slow path (and its error, if any)
     except Exception as exc:  # plyfile raises PlyParseError, ValueError, UnicodeDecodeError, MemoryError, ...
         raise _ply_error(p, reason(exc)) from exc
     with np.errstate(invalid="ignore", over="ignore"):  # signalling NaNs, huge doubles: refused later
@@ -213,7 +217,7 @@ def _ply_faces(p: Path, face) -> np.ndarray:
     short = np.flatnonzero(lengths < 3)
     if len(short):
         raise _ply_error(p, f"{len(short)} face(s) have fewer than 3 corners (the first: face {short[0]}, "
-                            f"with {lengths[short[0]]})")
+                            f"with {lengths[short[0]]})", "remove those faces")
     flat = np.concatenate(list(col))
     if flat.dtype.kind not in "iu":
         raise _ply_error(p, f"its face {name} must be lists of integer vertex indices, not {flat.dtype}")

@@ -251,6 +251,14 @@ def test_faces_out_of_range_and_short_faces(tmp_path):
     path = _write_ply(tmp_path / "short.ply", v, faces=[[0, 1, 2], [0, 1]])
     with pytest.raises(ValueError, match="fewer than 3 corners"):
         read_geometry(path)
+    empty_list = tmp_path / "empty_list.ply"  # ASCII, a face with no corners
+    empty_list.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                          "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                          "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n0\n")
+    with pytest.raises(ValueError, match=r"1 face\(s\) have fewer than 3 corners \(the first: face 1, with 0\); "
+                                         "remove those faces"):
+        load_mesh(empty_list)
+    assert len(read_point_set(empty_list)) == 3  # the vertices are fine
     obj = tmp_path / "oor.obj"
     obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
     with pytest.raises(ValueError, match="oor.obj' is not a readable OBJ file"):
