@@ -25,6 +25,7 @@ _TEXT_FORMATS = {".obj": "obj", ".off": "off"}  # decoded here: trimesh needs ch
 _PLY_HINT = ("a complete PLY file (ASCII or binary) whose vertex element has x, y, z properties")
 _NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
 _COLOR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+_COLOR_FIX = "store colours as uchar 0..255 or float 0..1, or drop the red, green, blue properties"
 _FACE_LISTS = ("vertex_indices", "vertex_index")
 # bytes of each PLY scalar type (the header check below)
 _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
@@ -43,7 +44,7 @@ def _name(p: Path) -> str:
 
 @dataclass
 class Geometry:
-    """What a geometry file holds: (N, 3) float64 positions, (N, 3) float32 normals or
+    """What a geometry file holds: (N, 3) float64 positions, (N, 3) float64 normals or
     None, (N, 3) uint8 colours or None, (F, 3) int64 triangles or None (no faces)."""
 
     positions: np.ndarray
@@ -168,7 +169,8 @@ def _ply_content(p: Path, ply, faces: bool) -> Geometry:
 
     missing = [c for c in "xyz" if c not in fields]
     if missing:
-        raise _ply_error(p, f"its vertex element lacks {', '.join(missing)} (it has: {', '.join(fields) or 'nothing'})")
+        have = ", ".join(fields) or "nothing"
+        raise _ply_error(p, f"its vertex element lacks {', '.join(missing)} (it has: {have})")
     out = Geometry(columns("xyz", "positions").astype(np.float64))
     group = next((g for g in _NORMAL_NAMES if set(g) <= set(fields)), None)
     if group is not None:
@@ -188,16 +190,17 @@ def _colors(p: Path, c: np.ndarray) -> np.ndarray:
         return c.astype(np.uint8)
     if c.dtype.kind == "f":
         if not np.isfinite(c).all():
-            raise _ply_error(p, "its vertex colours contain NaN or inf")
+            raise _ply_error(p, "its vertex colours contain NaN or inf", _COLOR_FIX)
         lo, hi = float(c.min()), float(c.max())
         if lo < 0 or hi > 255:
-            raise _ply_error(p, f"its float vertex colours lie in [{lo:.4g}, {hi:.4g}], neither in [0, 1] nor in [0, 255]")
+            raise _ply_error(p, f"its float vertex colours lie in [{lo:.4g}, {hi:.4g}], neither in [0, 1] nor in "
+                                "[0, 255]", _COLOR_FIX)
         return np.rint(c * (255.0 if hi <= 1.0 else 1.0)).astype(np.uint8)
     lo, hi = int(c.min()), int(c.max())
     if c.dtype == np.uint16 and hi > 255:
         return np.rint(c / 257.0).astype(np.uint8)
     if lo < 0 or hi > 255:
-        raise _ply_error(p, f"its vertex colours lie in {lo}..{hi}, not in 0..255")
+        raise _ply_error(p, f"its vertex colours lie in {lo}..{hi}, not in 0..255", _COLOR_FIX)
     return c.astype(np.uint8)
 
 

@@ -118,6 +118,38 @@ def test_ascii_ply_with_normals_the_reported_file(tmp_path):
     assert len(model) == 500 and np.array_equal(model.normals, n)
 
 
+def _ascii_ply(path, props, rows):
+    """An ASCII PLY written by hand: ``props`` is [(type, name)], ``rows`` the values."""
+    head = "".join(f"property {t} {n}\n" for t, n in props)
+    body = "".join(" ".join(str(v) for v in row) + "\n" for row in rows)
+    path.write_text(f"ply\nformat ascii 1.0\nelement vertex {len(rows)}\n{head}end_header\n{body}")
+    return path
+
+
+def test_ply_other_property_names_and_colour_types(tmp_path):
+    xyz = [("float", c) for c in "xyz"]
+    pcl = _ascii_ply(tmp_path / "pcl.ply", xyz + [("float", f"normal_{c}") for c in "xyz"]
+                     + [("uchar", c) for c in "rgb"], [[0, 0, 0, 0, 0, 1, 10, 20, 30], [1, 0, 0, 1, 0, 0, 0, 0, 255]])
+    ps = read_point_set(pcl)
+    np.testing.assert_array_equal(ps.normals, [[0, 0, 1], [1, 0, 0]])
+    np.testing.assert_array_equal(ps.colors, [[10, 20, 30], [0, 0, 255]])
+    rgb = [("float", c) for c in ("red", "green", "blue")]
+    wide = _ascii_ply(tmp_path / "f255.ply", xyz + rgb, [[0, 0, 0, 0.0, 128.0, 255.0]])  # floats beyond 1: 0..255
+    np.testing.assert_array_equal(read_point_set(wide).colors, [[0, 128, 255]])
+    short = _ascii_ply(tmp_path / "u16.ply", xyz + [("ushort", c) for c in ("red", "green", "blue")],
+                       [[0, 0, 0, 0, 257 * 128, 65535]])
+    np.testing.assert_array_equal(read_point_set(short).colors, [[0, 128, 255]])
+    for name, row in (("neg.ply", [0, 0, 0, -0.5, 0, 0]), ("over.ply", [0, 0, 0, 300.0, 0, 0]),
+                      ("nan.ply", [0, 0, 0, "nan", 0, 0])):
+        with pytest.raises(ValueError, match=rf"{name}' is not a readable PLY file: its .*vertex colours .*; "
+                                             "store colours as uchar 0..255 or float 0..1"):
+            read_point_set(_ascii_ply(tmp_path / name, xyz + rgb, [row]))
+    nanormal = _ascii_ply(tmp_path / "nn.ply", xyz + [("float", c) for c in ("nx", "ny", "nz")],
+                          [[0, 0, 0, 0, 0, 1], [1, 1, 1, "nan", 0, 0]])
+    with pytest.raises(ValueError, match=r"nn.ply' has 1 normal with NaN or inf coordinates \(the first: index 1"):
+        read_point_set(nanormal)
+
+
 def test_ply_double_positions_and_faces_ignored_by_the_point_reader(tmp_path):
     p, _, _ = _cloud(10)
     path = _write_ply(tmp_path / "d.ply", p.astype(np.float64) + 0.1, double=True, faces=[[0, 1, 2], [2, 3, 4]])
