@@ -230,8 +230,8 @@ def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0
     ps = geom
     if ps.normals is None:
         if len(ps) < max(3, k_normals):
-            raise ValueError(f"{str(path)!r} has no normals and only {len(ps)} points: estimating normals needs at least "
-                             f"{max(3, k_normals)} neighbours; give normals in the file or more points.")
+            raise ValueError(f"{str(path)!r} has no normals and only {len(ps)} points: estimating normals needs at "
+                             f"least {max(3, k_normals)} neighbours; give normals in the file or more points.")
         ps.normals = estimate_normals(ps.positions, k=k_normals)
     return ps
 

@@ -482,7 +482,9 @@ def _mangle(data: bytes, mutation) -> bytes:
 
 
 @pytest.mark.parametrize("source", ["ascii point set", "binary point set", "binary mesh", "ascii mesh", "obj"])
-@settings(max_examples=int(os.environ.get("GEOSYNTH_MANGLE_EXAMPLES", 70)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# GEOSYNTH_MANGLE_EXAMPLES=2000 for a longer hunt; 70 per source keeps the suite fast (~1 s in all)
+@settings(max_examples=int(os.environ.get("GEOSYNTH_MANGLE_EXAMPLES", 70)), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(mutation=_mutations())
 def test_mangled_files_give_a_clear_error_or_a_valid_result(mangle_sources, source, mutation):
     folder, sources = mangle_sources
