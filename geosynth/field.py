@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.files import atomic_write
+from geosynth.files import atomic_write, check_input
 
 __all__ = ["Field", "cubic_grid", "grid_points", "grid_resolution"]
 
@@ -108,12 +108,51 @@ class Field:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Field":
-        """Read a field written by :meth:`save`."""
-        with np.load(path) as data:
-            missing = {"values", "origin", "spacing"} - set(data.files)
-            if missing:
-                raise ValueError(f"{path} is not a geosynth field: it lacks {sorted(missing)}.")
-            return cls(data["values"], data["origin"], data["spacing"])
+        """Read a field written by :meth:`save` (a .npz with values, origin, spacing).
+
+        The file is noted as an input (:func:`geosynth.files.note_input`).
+
+        Returns:
+            The Field.
+
+        Raises:
+            FileNotFoundError: ``"field file 'X' does not exist."``
+            ValueError: one line naming the file: a folder, an empty file, not a readable
+                .npz (``"'X' is not a readable geosynth field file: <reason>; ..."``), or
+                one without values, origin and spacing of the right shapes.
+        """
+        p = check_input(path, "field")
+        try:
+            fh = open(p, "rb")  # ours to close: np.load leaks its own on a corrupt archive
+        except OSError as exc:  # no read permission, ...
+            raise _unreadable_field(p, exc) from exc
+        with fh:
+            try:
+                data = np.load(fh, allow_pickle=False)
+            except Exception as exc:  # ValueError (pickled or unknown data), BadZipFile, EOFError, ...
+                raise _unreadable_field(p, exc) from exc
+            if not isinstance(data, np.lib.npyio.NpzFile):
+                raise ValueError(f"{str(p)!r} is not a geosynth field file: it holds one array, not the values, "
+                                 "origin and spacing that Field.save writes.")
+            with data:
+                missing = {"values", "origin", "spacing"} - set(data.files)
+                if missing:
+                    raise ValueError(f"{str(p)!r} is not a geosynth field: it lacks {', '.join(sorted(missing))}.")
+                try:
+                    values, origin, spacing = data["values"], data["origin"], data["spacing"]
+                except Exception as exc:  # a corrupt member: zlib.error, BadZipFile (CRC), ValueError, ...
+                    raise _unreadable_field(p, exc) from exc
+        try:
+            return cls(values, origin, spacing)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{str(p)!r} is not a valid geosynth field: {exc}") from exc
+
+
+def _unreadable_field(p: Path, exc: BaseException) -> ValueError:
+    from geosynth._readers import reason
+
+    return ValueError(f"{str(p)!r} is not a readable geosynth field file: {reason(exc)}; give a .npz written by "
+                      "Field.save (or the field command).")
 
 
 def grid_resolution(resolution) -> np.ndarray:

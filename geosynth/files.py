@@ -4,6 +4,8 @@ written as their extension says.
 
 - :func:`note_input`: readers record each file they read; no writer of this process
   may then replace it.
+- :func:`check_input`: what every reader does first: the file exists, is a file and
+  not a folder, is not empty; it is noted as an input.
 - :func:`check_output`: refuse an output path before any work (an input of the run
   after symlinks and ``..`` are resolved, a folder, a path under a file, an unwritable
   folder, the wrong extension).
@@ -23,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_output", "note_input", "write_image"]
+__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_input", "check_output", "note_input", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
@@ -39,6 +41,33 @@ def _resolved(path: str | os.PathLike) -> str:
 def note_input(path: str | os.PathLike) -> None:
     """Record ``path`` as an input of this process: no writer here will replace it."""
     _INPUTS.add(_resolved(path))
+
+
+def check_input(path: str | os.PathLike, what: str) -> Path:
+    """Check a file a reader is about to open, and note it as an input (:func:`note_input`).
+
+    Args:
+        path: the file.
+        what: how messages name it (``"mesh"``, ``"point set"``, ``"texture image"``, ...).
+
+    Returns:
+        ``path`` as a Path.
+
+    Raises:
+        FileNotFoundError: ``"<what> file 'X' does not exist."`` (a dangling symlink too).
+        ValueError: it is a folder, not a regular file, or empty (0 bytes).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{what} file {str(p)!r} does not exist.")
+    if p.is_dir():
+        raise ValueError(f"{what} file {str(p)!r} is a folder, not a file; give a file inside it.")
+    if not p.is_file():
+        raise ValueError(f"{what} file {str(p)!r} is not a regular file (a device, pipe or socket).")
+    note_input(p)
+    if p.stat().st_size == 0:
+        raise ValueError(f"{what} file {str(p)!r} is empty (0 bytes).")
+    return p
 
 
 def _is_input(out: str, inputs: Iterable[str | os.PathLike | None]) -> str | None:

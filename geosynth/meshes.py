@@ -15,8 +15,9 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
-from geosynth import _checks
+from geosynth import _checks, _readers
 from geosynth.field import Field, cubic_grid
+from geosynth.files import check_input
 
 __all__ = ["MeshBVH", "build_bvh", "check_mesh", "load_mesh", "mesh_distance", "orient_faces"]
 
@@ -37,32 +38,29 @@ _DEGENERATE_REL = 1e-12
 
 
 def load_mesh(path: str | os.PathLike):
-    """Read a mesh file with trimesh (OBJ, PLY, STL, OFF, GLB, ... anything it reads).
+    """Read a triangle mesh: PLY through plyfile, OBJ, STL, OFF, GLB and GLTF through
+    trimesh without processing (nothing merged or dropped before the checks here).
 
-    Scenes with several geometries are concatenated into one mesh.
+    Scenes with several meshes are concatenated (their transforms applied); PLY polygons
+    are split into triangle fans. The file is noted as an input
+    (:func:`geosynth.files.note_input`): no writer of this process replaces it.
 
     Args:
         path: the file.
 
     Returns:
-        A ``trimesh.Trimesh``.
+        A ``trimesh.Trimesh`` (float64 vertices, int64 faces), vertices as the file has them.
 
     Raises:
-        FileNotFoundError: no such file.
-        ValueError: trimesh cannot read a triangle mesh from it.
+        FileNotFoundError: ``"mesh file 'X' does not exist."``
+        ValueError: one line naming the file: a folder, an empty file, another
+            extension, an unreadable file (``"'X' is not a readable OBJ file: <reason>;
+            ..."``), no faces, NaN/inf vertices (``"'X' has 1 vertex with NaN or inf
+            coordinates (the first: index 5, counting from 0); ..."``), face indices out
+            of range.
     """
-    import trimesh
-
-    p = os.fspath(path)
-    if not os.path.exists(p):
-        raise FileNotFoundError(f"mesh file {p!r} does not exist.")
-    try:
-        mesh = trimesh.load(p, force="mesh")
-    except Exception as exc:  # trimesh raises many kinds for unreadable files
-        raise ValueError(f"could not read a mesh from {p!r}: {exc}") from exc
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"{p!r} holds no triangle mesh (trimesh read a {type(mesh).__name__}).")
-    return mesh
+    p = check_input(path, "mesh")
+    return _readers.checked_mesh(p, _readers.read_any(p))
 
 
 def _as_trimesh(mesh, name: str):

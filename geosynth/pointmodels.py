@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from geosynth.pointsets import PointSet, estimate_normals, read_point_set
+from geosynth.pointsets import PointSet, estimate_normals, read_geometry
 
 __all__ = [
     "POINT_MODELS", "PointModelExample", "knn_table", "load_point_model", "point_model", "sample_mesh_points",
@@ -183,50 +183,55 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
     """Points sampled uniformly by area on a mesh, with the normals of their faces.
 
     Args:
-        mesh: a ``trimesh.Trimesh`` (or a path trimesh loads as one).
+        mesh: a ``trimesh.Trimesh`` (or a mesh file, read with
+            :func:`geosynth.meshes.load_mesh`).
         count: number of points, >= 16.
         seed: seed of the sampling.
 
     Returns:
-        PointSet with positions and unit normals.
+        PointSet with (count, 3) float32 positions and unit normals.
+
+    Raises:
+        ValueError: no faces, faces of zero total area, count < 16.
     """
     import trimesh
 
     if isinstance(mesh, (str, os.PathLike)):
-        mesh = trimesh.load(str(mesh), force="mesh")
+        from geosynth.meshes import load_mesh
+
+        mesh = load_mesh(mesh)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError("mesh must be a trimesh.Trimesh with faces (or a mesh file trimesh reads).")
+        raise ValueError("mesh must be a trimesh.Trimesh with faces (or a mesh file).")
     if not isinstance(count, (int, np.integer)) or count < 16:
         raise ValueError(f"count must be an integer >= 16, got {count!r}.")
+    if not float(mesh.area) > 0:
+        raise ValueError(f"the mesh's {len(mesh.faces)} faces have zero total area: there is no surface to sample.")
     points, face = trimesh.sample.sample_surface(mesh, int(count), seed=seed)
     return PointSet(np.asarray(points, np.float32), np.asarray(mesh.face_normals[face], np.float32))
 
 
 def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0, k_normals: int = 16) -> PointSet:
-    """A point model from a file: a PLY point set as it is, or points sampled from a mesh.
+    """A point model from a file: a point set as it is, or points sampled from a mesh.
 
-    A file whose vertices have faces is read as a mesh and sampled (``count`` points);
-    one without faces is read as a point set. Missing normals are estimated (PCA over
-    ``k_normals`` neighbours, oriented consistently).
+    The file is read with :func:`geosynth.pointsets.read_geometry`: one with faces is a
+    mesh and is sampled (``count`` points), one without is a point set. Missing normals
+    are estimated (PCA over ``k_normals`` neighbours, oriented consistently).
+
+    Returns:
+        PointSet with positions and normals (and the file's colours, if any).
 
     Raises:
-        ValueError: too few points to estimate normals from, NaN positions.
+        FileNotFoundError, ValueError: see :func:`~geosynth.pointsets.read_geometry`;
+            also too few points to estimate normals from.
     """
-    import trimesh
-
-    geom = trimesh.load(str(path), process=False)
-    if isinstance(geom, trimesh.Scene):
-        geom = geom.to_geometry() if hasattr(geom, "to_geometry") else geom.dump(concatenate=True)
-    if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
+    geom = read_geometry(path)
+    if not isinstance(geom, PointSet):
         return sample_mesh_points(geom, count, seed)
-    ps = read_point_set(path)
-    if not np.isfinite(ps.positions).all():
-        bad = int(np.count_nonzero(~np.isfinite(ps.positions).all(1)))
-        raise ValueError(f"{path} has {bad} point(s) with NaN or inf positions; remove them first.")
+    ps = geom
     if ps.normals is None:
         if len(ps) < max(3, k_normals):
-            raise ValueError(f"{path} has no normals and only {len(ps)} points: estimating normals needs at least "
-                             f"{max(3, k_normals)} neighbours; give normals in the file or more points.")
+            raise ValueError(f"{str(path)!r} has no normals and only {len(ps)} points: estimating normals needs at "
+                             f"least {max(3, k_normals)} neighbours; give normals in the file or more points.")
         ps.normals = estimate_normals(ps.positions, k=k_normals)
     return ps
 

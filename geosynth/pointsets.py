@@ -1,4 +1,5 @@
-"""Oriented point sets: PLY input/output, normal estimation, and the MLS distance field.
+"""Oriented point sets: PLY input/output (and :func:`read_geometry`, which reads a mesh
+or a point set), normal estimation, and the MLS distance field.
 
 The distance field of a point set is the one of method M2 (METHODS.md, "Metric";
 seed 000, Sec. 5.1): grid points are projected onto the MLS point-set surface of
@@ -51,8 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth import _checks
-from geosynth.files import atomic_write
+from geosynth import _checks, _readers
+from geosynth.files import atomic_write, check_input
 from geosynth.field import Field, cubic_grid
 
 __all__ = [
@@ -65,6 +66,7 @@ __all__ = [
     "estimate_normals",
     "pointset_distance",
     "project_points",
+    "read_geometry",
     "read_point_set",
     "write_point_set",
 ]
@@ -129,42 +131,77 @@ def _as_points(name: str, array) -> np.ndarray:
 
 
 def read_point_set(path: str | os.PathLike) -> PointSet:
-    """Read a point set from a PLY file (through trimesh).
+    """Read a point set from a PLY file (ASCII or binary, either byte order, through plyfile).
 
-    Reads the vertex element: x, y, z; nx, ny, nz when present; red, green, blue when
-    present. Faces, if any, are ignored.
+    Reads the vertex element: x, y, z; nx, ny, nz (or normal_x, ...) when present; red,
+    green, blue (or r, g, b, or diffuse_red, ...) when present: integer colours 0..255 as
+    they are, 16-bit ones scaled, float colours in [0, 1] times 255 (floats beyond 1 are
+    taken as 0..255). Other properties and faces are ignored. The file is noted as an
+    input (:func:`geosynth.files.note_input`): no writer of this process replaces it.
 
     Args:
         path: the .ply file.
 
     Returns:
-        The PointSet, with ``source`` set to the path.
+        The PointSet ((N, 3) float32 positions, (N, 3) float32 normals or None, (N, 3)
+        uint8 colours or None), with ``source`` set to the path.
 
     Raises:
-        ValueError: the file holds no vertices.
+        FileNotFoundError: ``"point set file 'X' does not exist."``
+        ValueError: one line naming the file: a folder, an empty file, not .ply, not a
+            readable PLY file (``"'X' is not a readable PLY file: <reason>; give ..."``),
+            no vertices, or NaN/inf positions or normals (their count and the first index).
     """
-    import trimesh
+    p = check_input(path, "point set")
+    if p.suffix.lower() != ".ply":
+        raise ValueError(f"point sets are read from PLY files; {str(p)!r} is not .ply (read meshes and other "
+                         "formats with geosynth.pointsets.read_geometry).")
+    return _point_set(p, _readers.read_ply(p, faces=False))
 
-    p = Path(path)
-    geom = trimesh.load(str(p), process=False)
-    raw = getattr(geom, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    names = set(raw.dtype.names or ()) if raw is not None else set()
-    positions = np.asarray(geom.vertices, np.float32)
-    if len(positions) == 0:
-        raise ValueError(f"{p} holds no vertices: not a point set.")
-    normals = colors = None
-    if {"nx", "ny", "nz"} <= names:
-        normals = np.stack([raw["nx"], raw["ny"], raw["nz"]], 1).astype(np.float32)
-    if {"red", "green", "blue"} <= names:
-        colors = np.stack([raw["red"], raw["green"], raw["blue"]], 1).astype(np.uint8)
-    return PointSet(positions, normals, colors, source=p)
+
+def _point_set(p: Path, g) -> PointSet:
+    positions, normals = _readers.checked_points(p, g)
+    return PointSet(positions, normals, g.colors, source=p)
+
+
+def read_geometry(path: str | os.PathLike):
+    """Read a mesh or a point set: a mesh when the file has faces, else a point set.
+
+    PLY files (ASCII or binary, with or without faces) are read through plyfile as
+    :func:`read_point_set` reads them; OBJ, STL, OFF, GLB and GLTF through trimesh,
+    without processing (nothing is merged or dropped). Meshes are checked: every vertex
+    finite, face indices in range. The file is noted as an input.
+
+    Args:
+        path: a .ply, .obj, .stl, .off, .glb or .gltf file.
+
+    Returns:
+        A ``trimesh.Trimesh`` (float64 vertices, int64 triangle faces; PLY polygons are
+        split into triangle fans) when the file has faces, else a :class:`PointSet`
+        (positions; normals and colours from PLY files).
+
+    Raises:
+        FileNotFoundError: ``"mesh or point-set file 'X' does not exist."``
+        ValueError: one line naming the file: a folder, an empty file, another extension,
+            an unreadable file (``"'X' is not a readable PLY file: <reason>; ..."``,
+            ``"'X' is not a readable OBJ file: <reason>; ..."``), NaN/inf vertices
+            (``"'X' has 1 vertex with NaN or inf coordinates (the first: index 5,
+            counting from 0); ..."``), face indices out of range.
+    """
+    p = check_input(path, "mesh or point-set")
+    g = _readers.read_any(p)
+    if g.faces is not None and len(g.faces):
+        return _readers.checked_mesh(p, g)
+    return _point_set(p, g)
 
 
 def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
-    """Write a point set as binary PLY (through trimesh), atomically.
+    """Write a point set as binary little-endian PLY (through plyfile), atomically.
 
-    The file is written to a temporary name beside ``path`` and then renamed over it,
-    so a reader never sees a partial file.
+    The vertex element holds x, y, z (float32), then nx, ny, nz (float32) when the set
+    has normals and red, green, blue (uchar) when it has colours. The file is written to
+    a temporary name beside ``path`` and then renamed over it, so a reader never sees a
+    partial file (:func:`geosynth.files.atomic_write`).
 
     Args:
         path: the .ply file to write.
@@ -174,11 +211,10 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
         The path written.
 
     Raises:
-        ValueError: ``path`` is not .ply, or is the file ``ps`` was read from (inputs are
-            never overwritten).
+        ValueError: ``path`` is not .ply, or is the file ``ps`` was read from or another
+            input of this process (inputs are never overwritten).
     """
-    import trimesh
-    from trimesh.exchange.ply import export_ply
+    from plyfile import PlyData, PlyElement
 
     out = Path(path)
     if out.suffix.lower() != ".ply":
@@ -188,19 +224,27 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
     src = ps.source
     if src is not None and out.exists() and Path(src).exists() and os.path.samefile(out, src):
         raise ValueError(f"refusing to overwrite the input {str(src)!r}; write the point set to another path.")
-    kwargs = {}
+    layout = [(c, "<f4") for c in "xyz"]
     if ps.normals is not None:
-        kwargs["vertex_normals"] = ps.normals
+        layout += [(c, "<f4") for c in ("nx", "ny", "nz")]
     if ps.colors is not None:
-        kwargs["vertex_colors"] = ps.colors
-    mesh = trimesh.Trimesh(vertices=ps.positions, faces=np.zeros((0, 3), np.int64), process=False, **kwargs)
-    data = export_ply(mesh, encoding="binary", vertex_normal=ps.normals is not None)
+        layout += [(c, "u1") for c in ("red", "green", "blue")]
+    vertex = np.empty(len(ps), dtype=layout)
+    for i, c in enumerate("xyz"):
+        vertex[c] = ps.positions[:, i]
+    if ps.normals is not None:
+        for i, c in enumerate(("nx", "ny", "nz")):
+            vertex[c] = ps.normals[:, i]
+    if ps.colors is not None:
+        for i, c in enumerate(("red", "green", "blue")):
+            vertex[c] = ps.colors[:, i]
+    data = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<")
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as fh:
-            fh.write(data)
+            data.write(fh)
 
-    return atomic_write(out, write)
+    return atomic_write(out, write, inputs=(src,))
 
 
 # ------------------------------------------------------------------------- normals

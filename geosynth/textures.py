@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from geosynth.files import write_image
+from geosynth.files import check_input, write_image
 
 __all__ = [
     "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",
@@ -88,7 +88,7 @@ def read_texture(path: str | os.PathLike) -> np.ndarray:
 
     Grey (L, I;16, ...) and palette images are converted to RGB; an RGBA (or LA, or a
     palette with transparency) image is accepted only if fully opaque, see
-    :func:`as_texture`.
+    :func:`as_texture`. The file is noted as an input (:func:`geosynth.files.note_input`).
 
     Args:
         path: the image file.
@@ -98,30 +98,74 @@ def read_texture(path: str | os.PathLike) -> np.ndarray:
 
     Raises:
         ImportError: Pillow is missing.
-        FileNotFoundError: no such file.
-        ValueError: an unreadable image, or transparent texels.
+        FileNotFoundError: ``"texture image file 'X' does not exist."``
+        ValueError: one line naming the file: a folder, an empty file, more pixels than
+            Pillow's limit (``"texture image 'X' has 400,000,000 pixels (20000 x 20000),
+            more than Pillow's limit of 89,478,485 ..."``), an unreadable or truncated
+            image (``"'X' is not a readable image: <reason>; ..."``), or transparent texels.
     """
+    import warnings
+
     try:
         from PIL import Image
     except ImportError as exc:  # pragma: no cover - pillow is a dependency
         raise ImportError("reading texture images needs Pillow: pip install pillow") from exc
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"texture image {str(p)!r} does not exist.")
+    from geosynth._readers import reason
+
+    p = check_input(path, "texture image")
+    name = f"texture {p.name}"
     try:
-        with Image.open(p) as img:
-            img.load()
-            mode = img.mode
-            if mode in ("RGBA", "LA", "PA") or (mode == "P" and "transparency" in img.info):
-                rgba = np.asarray(img.convert("RGBA"))
-                return as_texture(rgba, f"texture {p.name}")
-            if mode.startswith("I;16") or mode == "I":
-                grey = np.asarray(img, dtype=np.float64)
-                top = 65535.0 if grey.max() > 255 else 255.0
-                return as_texture(np.rint(grey / top * 255).astype(np.uint8), f"texture {p.name}")
-            return as_texture(np.asarray(img.convert("RGB")), f"texture {p.name}")
-    except OSError as exc:
-        raise ValueError(f"cannot read {str(p)!r} as an image: {exc}") from exc
+        with warnings.catch_warnings():
+            # Pillow warns beyond MAX_IMAGE_PIXELS (checked below, with the size at hand) and
+            # raises beyond twice that: both are refused
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(p) as img:
+                _check_pixels(p, img.size, Image.MAX_IMAGE_PIXELS)
+                img.load()
+                mode = img.mode
+                if mode in ("RGBA", "LA", "PA") or (mode == "P" and "transparency" in img.info):
+                    kind, pixels = "rgba", np.asarray(img.convert("RGBA"))
+                elif mode.startswith("I;16") or mode == "I":
+                    kind, pixels = "wide", np.asarray(img, dtype=np.float64)
+                else:
+                    kind, pixels = "rgb", np.asarray(img.convert("RGB"))
+    except Image.DecompressionBombError as exc:
+        _check_pixels(p, None, Image.MAX_IMAGE_PIXELS, str(exc))
+        raise  # pragma: no cover - _check_pixels raised
+    except ValueError as exc:
+        if str(exc).startswith(f"texture image {str(p)!r}"):
+            raise
+        raise _unreadable_image(p, reason(exc)) from exc
+    except Exception as exc:  # OSError (truncated, unidentified), SyntaxError, EOFError, zlib.error, ...
+        raise _unreadable_image(p, reason(exc)) from exc
+    if kind == "wide":
+        top = 65535.0 if pixels.max(initial=0) > 255 else 255.0
+        pixels = np.rint(pixels / top * 255).astype(np.uint8)
+    return as_texture(pixels, name)
+
+
+def _unreadable_image(p: Path, why: str) -> ValueError:
+    return ValueError(f"{str(p)!r} is not a readable image: {why}; give a complete PNG or JPEG file "
+                      "(or another format Pillow reads).")
+
+
+def _check_pixels(p: Path, size, limit, message: str | None = None) -> None:
+    """Refuse an image with more pixels than Pillow's limit (``PIL.Image.MAX_IMAGE_PIXELS``)."""
+    import re
+
+    if limit is None:
+        return
+    if size is not None:
+        count, shape = int(size[0]) * int(size[1]), f" ({size[0]} x {size[1]})"
+        if count <= limit:
+            return
+    else:  # Pillow refused it while opening: its message has the pixel count
+        found = re.search(r"\((\d+) pixels\)", message or "")
+        count, shape = (int(found.group(1)) if found else None), ""
+    has = f"has {count:,} pixels{shape}" if count is not None else "has too many pixels"
+    raise ValueError(f"texture image {str(p)!r} {has}, more than Pillow's limit of {int(limit):,} "
+                     "(PIL.Image.MAX_IMAGE_PIXELS, a guard against decompression bombs); use a smaller image, or "
+                     "raise that limit if you trust the file.")
 
 
 def write_texture(path: str | os.PathLike, texture: np.ndarray, *, inputs=()) -> Path:

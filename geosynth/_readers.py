@@ -1,0 +1,335 @@
+"""Reading geometry files, for :func:`geosynth.pointsets.read_point_set`,
+:func:`geosynth.pointsets.read_geometry` and :func:`geosynth.meshes.load_mesh`.
+
+- PLY (ASCII, binary little- and big-endian; with or without normals, colours, faces)
+  through plyfile.
+- OBJ, STL, OFF, GLB/GLTF through trimesh, loaded with ``process=False`` so that
+  nothing (NaN vertices, the faces that use them) is dropped before the checks here.
+
+Every failure is a one-line ValueError that names the file and says what is wrong;
+the callers check first that the file exists (:func:`geosynth.files.check_input`).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
+_TEXT_FORMATS = {".obj": "obj", ".off": "off"}  # decoded here: trimesh needs charset_normalizer otherwise
+_PLY_HINT = ("a complete PLY file (ASCII or binary) whose vertex element has x, y, z properties")
+_NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
+_COLOR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+_COLOR_FIX = "store colours as uchar 0..255 or float 0..1, or drop the red, green, blue properties"
+_FACE_LISTS = ("vertex_indices", "vertex_index")
+# bytes of each PLY scalar type (the header check below)
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def reason(exc: BaseException) -> str:
+    """An exception's message on one line (its type's name when it has none), at most 240 characters."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 240 else text[:237] + "..."
+
+
+def _name(p: Path) -> str:
+    return repr(str(p))
+
+
+@dataclass
+class Geometry:
+    """What a geometry file holds: (N, 3) float64 positions, (N, 3) float64 normals or
+    None, (N, 3) uint8 colours or None, (F, 3) int64 triangles or None (no faces)."""
+
+    positions: np.ndarray
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    faces: np.ndarray | None = None
+
+
+def read_any(p: Path, faces: bool = True) -> Geometry:
+    """Read a geometry file by its extension: PLY through plyfile, the others through trimesh."""
+    if p.suffix.lower() == ".ply":
+        return read_ply(p, faces=faces)
+    return read_with_trimesh(p)
+
+
+# ------------------------------------------------------------------ PLY
+
+
+def _ply_header(p: Path):
+    """(format, [(element, count, binary bytes, list property names, scalar count)], header
+    bytes) from a PLY header, or None when it is not one this check understands (plyfile
+    then words the error)."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    nl = head.find(b"\n", end) if end >= 0 else -1
+    if not head.startswith(b"ply") or nl < 0:
+        return None
+    fmt, elements = None, []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        w = line.split()
+        if not w:
+            continue
+        if w[0] == "format" and len(w) >= 2:
+            fmt = w[1]
+        elif w[0] == "element" and len(w) == 3:
+            if not w[2].isdigit():
+                return None
+            elements.append([w[1], int(w[2]), 0, [], 0])
+        elif w[0] == "property" and elements:
+            if len(w) == 5 and w[1] == "list":
+                size = _PLY_SIZES.get(w[2])  # the length only: lists may be empty
+                elements[-1][3].append(w[4])
+            elif len(w) == 3:
+                size = _PLY_SIZES.get(w[1])
+            else:
+                return None
+            if size is None:
+                return None
+            elements[-1][2] += size
+            elements[-1][4] += 1
+    return fmt, elements, nl + 1
+
+
+def _check_ply_size(p: Path, header) -> None:
+    """Refuse a header that promises more data than the file holds, before any memory is
+    allocated for it (a corrupt count could ask for gigabytes)."""
+    fmt, elements, start = header
+    body = os.path.getsize(p) - start
+    if fmt == "ascii":  # a value and a separator per property at least
+        need = sum(count * 2 * props for _, count, _, _, props in elements) - 1
+    else:
+        need = sum(count * size for _, count, size, _, _ in elements)
+    if need > body:
+        counts = ", ".join(f"{count:,} {name}" for name, count, *_ in elements)
+        raise ValueError(f"{_name(p)} is not a readable PLY file: its header announces {counts} (at least {need:,} "
+                         f"bytes) but only {body:,} bytes follow it; the file is truncated or its header is wrong.")
+
+
+def _ply_error(p: Path, what: str, fix: str = f"give {_PLY_HINT}") -> ValueError:
+    return ValueError(f"{_name(p)} is not a readable PLY file: {what}; {fix}.")
+
+
+def read_ply(p: Path, faces: bool = True) -> Geometry:
+    """Read a PLY file's vertices (positions, normals, colours) and, when ``faces``, its
+    faces (polygons split into triangle fans).
+
+    Raises:
+        ValueError: the file is not a readable PLY file, lacks x, y, z, or has colours
+            out of range or faces with fewer than 3 corners; the message names it.
+    """
+    from plyfile import PlyData
+
+    try:
+        header = _ply_header(p)
+    except OSError as exc:
+        raise _ply_error(p, reason(exc)) from exc
+    known = {}
+    if header is not None:
+        _check_ply_size(p, header)
+        # fixed-length triangle lists let plyfile map the faces instead of parsing them one by one
+        known = {name: {lst: 3 for lst in lists if lst in _FACE_LISTS} for name, _, _, lists, _ in header[1]
+                 if name == "face" and lists}
+    try:
+        with warnings.catch_warnings():
+            # an empty list in an ASCII file (a face with no corners) warns through NumPy; refused below
+            warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
+            try:
+                ply = PlyData.read(str(p), known_list_len=known)
+            except Exception:
+                if not known:
+                    raise
+                ply = PlyData.read(str(p))  # not all triangles: the slow path (and its error, if any)
+    except Exception as exc:  # plyfile raises PlyParseError, ValueError, UnicodeDecodeError, MemoryError, ...
+        raise _ply_error(p, reason(exc)) from exc
+    with np.errstate(invalid="ignore", over="ignore"):  # signalling NaNs, huge doubles: refused later
+        return _ply_content(p, ply, faces)
+
+
+def _ply_content(p: Path, ply, faces: bool) -> Geometry:
+    names = [e.name for e in ply.elements]
+    if "vertex" not in names:
+        raise _ply_error(p, f"it has no vertex element (its elements: {', '.join(names) or 'none'})")
+    vertex = ply["vertex"].data
+    fields = vertex.dtype.names or ()
+
+    def columns(group, kind):
+        cols = [np.asarray(vertex[n]) for n in group]
+        if any(c.dtype.kind not in "iuf" or c.ndim != 1 for c in cols):
+            raise _ply_error(p, f"its vertex {kind} {', '.join(group)} must be numbers, not lists")
+        return np.stack(cols, 1)
+
+    missing = [c for c in "xyz" if c not in fields]
+    if missing:
+        have = ", ".join(fields) or "nothing"
+        raise _ply_error(p, f"its vertex element lacks {', '.join(missing)} (it has: {have})")
+    out = Geometry(columns("xyz", "positions").astype(np.float64))
+    group = next((g for g in _NORMAL_NAMES if set(g) <= set(fields)), None)
+    if group is not None:
+        out.normals = columns(group, "normals").astype(np.float64)
+    group = next((g for g in _COLOR_NAMES if set(g) <= set(fields)), None)
+    if group is not None:
+        out.colors = _colors(p, columns(group, "colours"))
+    if faces and "face" in names and ply["face"].count > 0:
+        out.faces = _ply_faces(p, ply["face"].data)
+    return out
+
+
+def _colors(p: Path, c: np.ndarray) -> np.ndarray:
+    """uint8 colours: integers 0..255 as they are, 16-bit ones scaled, floats in [0, 1]
+    times 255 (floats beyond 1 are taken as 0..255)."""
+    if c.size == 0:
+        return c.astype(np.uint8)
+    if c.dtype.kind == "f":
+        if not np.isfinite(c).all():
+            raise _ply_error(p, "its vertex colours contain NaN or inf", _COLOR_FIX)
+        lo, hi = float(c.min()), float(c.max())
+        if lo < 0 or hi > 255:
+            raise _ply_error(p, f"its float vertex colours lie in [{lo:.4g}, {hi:.4g}], neither in [0, 1] nor in "
+                                "[0, 255]", _COLOR_FIX)
+        return np.rint(c * (255.0 if hi <= 1.0 else 1.0)).astype(np.uint8)
+    lo, hi = int(c.min()), int(c.max())
+    if c.dtype == np.uint16 and hi > 255:
+        return np.rint(c / 257.0).astype(np.uint8)
+    if lo < 0 or hi > 255:
+        raise _ply_error(p, f"its vertex colours lie in {lo}..{hi}, not in 0..255", _COLOR_FIX)
+    return c.astype(np.uint8)
+
+
+def _ply_faces(p: Path, face) -> np.ndarray:
+    """(F, 3) int64 triangles from a PLY face element (polygons as triangle fans)."""
+    fields = face.dtype.names or ()
+    name = next((n for n in _FACE_LISTS if n in fields), None)
+    if name is None:
+        raise _ply_error(p, f"its face element has no vertex_indices list (it has: {', '.join(fields)})")
+    col = face[name]
+    if col.dtype != object:  # mapped with a known length of 3
+        tri = np.asarray(col)
+        if tri.ndim != 2 or tri.dtype.kind not in "iu":
+            raise _ply_error(p, f"its face {name} must be lists of integer vertex indices")
+        return tri.astype(np.int64)
+    lengths = np.fromiter((len(a) for a in col), np.int64, len(col))
+    short = np.flatnonzero(lengths < 3)
+    if len(short):
+        raise _ply_error(p, f"{len(short)} face(s) have fewer than 3 corners (the first: face {short[0]}, "
+                            f"with {lengths[short[0]]})", "remove those faces")
+    flat = np.concatenate(list(col))
+    if flat.dtype.kind not in "iu":
+        raise _ply_error(p, f"its face {name} must be lists of integer vertex indices, not {flat.dtype}")
+    flat = flat.astype(np.int64)
+    if (lengths == 3).all():
+        return flat.reshape(-1, 3)
+    # triangle fans (c0, cj, cj+1), j = 1 .. L-2, in the faces' order
+    ntri = lengths - 2
+    start = np.cumsum(lengths) - lengths
+    owner = np.repeat(np.arange(len(col)), ntri)
+    j = np.arange(int(ntri.sum())) - np.repeat(np.cumsum(ntri) - ntri, ntri) + 1
+    s = start[owner]
+    return np.stack([flat[s], flat[s + j], flat[s + j + 1]], 1)
+
+
+# ------------------------------------------------------------------ trimesh formats
+
+
+def read_with_trimesh(p: Path) -> Geometry:
+    """Read an OBJ, STL, OFF, GLB or GLTF file with trimesh, without processing.
+
+    Scenes are flattened (their transforms applied) and their meshes concatenated; a
+    file without faces gives its vertices as positions.
+    """
+    import trimesh
+
+    suffix = p.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise ValueError(f"{_name(p)} has the extension {suffix or '(none)'}, not one of the geometry formats read "
+                         f"here ({', '.join(MESH_SUFFIXES)}); convert it or rename it if it is one of them.")
+    kind = suffix[1:].upper()
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge values are refused later
+            geom = _trimesh_load(trimesh, p, suffix)
+        parts = list(geom.dump()) if isinstance(geom, trimesh.Scene) else [geom]
+        meshes = [g for g in parts if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        if meshes:
+            mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
+            return Geometry(np.asarray(mesh.vertices, np.float64), faces=np.asarray(mesh.faces, np.int64))
+        points = [np.asarray(g.vertices, np.float64) for g in parts
+                  if isinstance(g, (trimesh.Trimesh, trimesh.PointCloud)) and len(g.vertices)]
+        if any(v.ndim != 2 or v.shape[1] != 3 for v in points):
+            raise ValueError(f"its vertices have shape {[v.shape for v in points]}, not (N, 3)")
+    except Exception as exc:  # trimesh raises many kinds (IndexError, ValueError, KeyError, ...) on bad files
+        raise ValueError(f"{_name(p)} is not a readable {kind} file: {reason(exc)}; give a complete {kind} file."
+                         ) from exc
+    if not points:
+        found = ", ".join(sorted({type(g).__name__ for g in parts})) or "nothing"
+        raise ValueError(f"{_name(p)} holds no vertices: trimesh read no mesh or points from this {kind} file "
+                         f"(it read: {found}).")
+    return Geometry(np.concatenate(points))
+
+
+def _trimesh_load(trimesh, p: Path, suffix: str):
+    if suffix not in _TEXT_FORMATS:
+        return trimesh.load(str(p), process=False)
+    raw = p.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")  # never fails; the parser judges the content
+    return trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
+                        resolver=trimesh.resolvers.FilePathResolver(str(p)))
+
+
+# ------------------------------------------------------------------ checks
+
+
+def _first_bad(p: Path, rows: np.ndarray, one: str, many: str) -> None:
+    bad = np.flatnonzero(~rows)
+    if len(bad):
+        raise ValueError(f"{_name(p)} has {len(bad)} {one if len(bad) == 1 else many} with NaN or inf coordinates "
+                         f"(the first: index {bad[0]}, counting from 0); every one must be finite: fix or remove them.")
+
+
+def _finite32(a: np.ndarray) -> np.ndarray:
+    """float32 copy of ``a``; values beyond float32's range become inf (and are refused)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def checked_points(p: Path, g: Geometry) -> tuple[np.ndarray, np.ndarray | None]:
+    """(N, 3) float32 positions and normals (or None), all finite; ValueError naming ``p`` otherwise."""
+    if len(g.positions) == 0:
+        raise ValueError(f"{_name(p)} holds no vertices: not a point set.")
+    pos = _finite32(g.positions)
+    _first_bad(p, np.isfinite(pos).all(1), "point", "points")
+    normals = None
+    if g.normals is not None:
+        normals = _finite32(g.normals)
+        _first_bad(p, np.isfinite(normals).all(1), "normal", "normals")
+    return pos, normals
+
+
+def checked_mesh(p: Path, g: Geometry):
+    """A ``trimesh.Trimesh`` (float64 vertices, int64 faces, unprocessed) from what a file
+    holds, after checking: faces present, every vertex finite, face indices in range."""
+    import trimesh
+
+    if g.faces is None or len(g.faces) == 0:
+        raise ValueError(f"{_name(p)} holds no faces: it is a point set, not a mesh "
+                         "(geosynth.pointsets.read_geometry reads either).")
+    if len(g.positions) == 0:
+        raise ValueError(f"{_name(p)} has faces but no vertices.")
+    _first_bad(p, np.isfinite(_finite32(g.positions)).all(1), "vertex", "vertices")
+    f = g.faces
+    v_count = len(g.positions)
+    out = np.flatnonzero(((f < 0) | (f >= v_count)).any(1))
+    if len(out):
+        raise ValueError(f"{_name(p)} has {len(out)} face(s) with vertex indices out of range [0, {v_count}) (the "
+                         f"first: face {out[0]}, {f[out[0]].tolist()}); fix the file.")
+    return trimesh.Trimesh(vertices=g.positions, faces=f, process=False, validate=False)
