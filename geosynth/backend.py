@@ -421,6 +421,25 @@ class DeviceArray:
         self.shape = tuple(int(s) for s in shape)
         self.dtype = np.dtype(dtype)
         self._derived: dict[Any, DeviceArray] = {}
+        self._stats: tuple[int, float, float] | None = None  # see value_stats
+
+    def value_stats(self) -> tuple[int, float, float] | None:
+        """For float data: (how many values are NaN or inf, min and max of the finite ones);
+        None for other dtypes.
+
+        Recorded from the host copy by :func:`to_device`; for arrays made otherwise, read
+        back once and kept (DeviceArrays are never modified in place). The public
+        operations use it to refuse NaN/inf and data whose float32 scores could overflow.
+        """
+        if self.dtype.kind != "f":
+            return None
+        if self._stats is None:
+            self._stats = float_stats(self.numpy())
+        return self._stats
+
+    def known_stats(self) -> tuple[int, float, float] | None:
+        """:meth:`value_stats` if already known (no read back), else None."""
+        return self._stats
 
     @property
     def device(self) -> str:
@@ -460,6 +479,10 @@ class DeviceArray:
 def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceArray:
     """Upload a NumPy array to a device once, to reuse across operations.
 
+    For float arrays, how many values are NaN or inf and the range of the others are
+    recorded with it (see :meth:`DeviceArray.value_stats`), so that operations can check
+    it without reading it back.
+
     Args:
         array: any NumPy array of a dtype geosynth uses (float32, uint8, int32,
             uint32); a DeviceArray already on ``device`` is returned as is.
@@ -476,4 +499,19 @@ def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceAr
         if array.backend is not backend:
             raise RuntimeError(f"inputs live on different devices ({array.device} vs {backend.name}).")
         return array
-    return backend.to_device(np.ascontiguousarray(array))
+    host = np.ascontiguousarray(array)
+    out = backend.to_device(host)
+    if host.dtype.kind == "f":
+        out._stats = float_stats(host)
+    return out
+
+
+def float_stats(host: np.ndarray) -> tuple[int, float, float]:
+    """(how many values are NaN or inf, min, max of the finite values) of a float array;
+    min and max are 0 when no value is finite."""
+    finite = np.isfinite(host)
+    bad = int(host.size - np.count_nonzero(finite))
+    values = host[finite] if bad else host
+    if values.size == 0:
+        return bad, 0.0, 0.0
+    return bad, float(values.min()), float(values.max())
