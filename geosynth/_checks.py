@@ -63,6 +63,13 @@ def as_data(name: str, array, ndims: tuple[int, ...]):
     return array
 
 
+def check_bool(name: str, value) -> bool:
+    """A flag must be a bool: a string such as "no" would otherwise count as True."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}.")
+    return bool(value)
+
+
 def check_finite(name: str, array) -> None:
     """Refuse NaN or inf in float data: a host array, or a DeviceArray (its recorded
     value stats, see :meth:`geosynth.DeviceArray.value_stats`)."""

@@ -169,12 +169,6 @@ def _check_int(name: str, value, minimum: int, maximum: int | None = None, why: 
     return int(value)
 
 
-def _check_bool(name: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False, got {value!r}.")
-    return bool(value)
-
-
 # band and spacing scale float32 fields (distance = value * band * spacing): within these
 # bounds every product stays a normal float32 number.
 _SCALE_RANGE = (1e-15, 1e15)
@@ -211,8 +205,8 @@ def _check_common(levels, max_levels: int, levels_why: str, block, tileable, see
     """The options synthesize_volume and synthesize_geometry share, checked before any work."""
     _check_int("levels", levels, 1, max_levels, levels_why)
     _check_block(block)
-    _check_bool("tileable", tileable)
-    _check_bool("progress", progress)
+    _checks.check_bool("tileable", tileable)
+    _checks.check_bool("progress", progress)
     if seed is not None:
         _check_int("seed", seed, 0)
     if device is not None:
@@ -440,7 +434,7 @@ def synthesize_volume(
     if band is not None:
         _check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
     _check_scale("spacing", spacing, "the world size of one sample")
-    _check_bool("baseline", baseline)
+    _checks.check_bool("baseline", baseline)
     blocks = _level_blocks(levels, block)
     if band is None:
         band = blocks[-1] / 2
