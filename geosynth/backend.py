@@ -217,7 +217,8 @@ def _probe_key(platform, dev) -> str:
                ("vendor_id", "cpu family", "model", "model name", "flags")]
     except OSError:
         pass
-    env = sorted((k, v) for k, v in os.environ.items() if k.startswith("POCL_") and k != "POCL_CACHE_DIR")
+    unrelated = ("POCL_CACHE_DIR", "POCL_AFFINITY", "POCL_SIGFPE_HANDLER")  # where it caches, how it runs
+    env = sorted((k, v) for k, v in os.environ.items() if k.startswith("POCL_") and k not in unrelated)
     parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:32]
 

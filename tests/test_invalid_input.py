@@ -359,15 +359,15 @@ def test_pocl_cache_does_not_grow_on_a_second_run(tmp_path):
     env = {"POCL_CACHE_DIR": str(tmp_path / "pocl"), "XDG_CACHE_HOME": str(tmp_path / "xdg")}
     code = QUIET_RUN.replace('("auto", "cpu")', '("opencl",)')
 
-    def files() -> int:
-        return sum(1 for f in (tmp_path / "pocl").rglob("*") if f.is_file())
+    def files() -> set[str]:
+        return {str(f.relative_to(tmp_path)) for f in (tmp_path / "pocl").rglob("*") if f.is_file()}
 
-    counts = []
+    seen = []
     for _ in range(3):
         r = _run_python(code, env)
         assert r.returncode == 0, r.stderr
-        counts.append(files())
-    assert counts[0] > 0  # the kernels were built and cached there
-    assert counts[1] == counts[0] and counts[2] == counts[0], counts
+        seen.append(files())
+    assert seen[0]  # the kernels were built and cached there
+    assert seen[1] == seen[0] and seen[2] == seen[0], f"new files: {sorted((seen[1] | seen[2]) - seen[0])}"
     if geosynth.backend.unusable_devices():  # a failed probe is remembered, not rebuilt
         assert (tmp_path / "xdg" / "geosynth" / "opencl-unusable.json").is_file()
