@@ -560,7 +560,8 @@ def mesh_distance(
     """
     _checks.check_bool("signed", signed)
     _checks.check_bool("drop_degenerate", drop_degenerate)
-    if band is not None and (isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, float, np.integer, np.floating))):
+    numeric = isinstance(band, (int, float, np.integer, np.floating)) and not isinstance(band, (bool, np.bool_))
+    if band is not None and not numeric:
         raise TypeError(f"band must be a number (the distance to clamp at) or None, got {band!r}.")
     bvh = prepare_mesh(mesh, "mesh", drop_degenerate=drop_degenerate)
     if band is not None:

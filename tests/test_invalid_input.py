@@ -44,7 +44,8 @@ def test_score_dense_invalid_input(device):
         geosynth.score_dense(X.astype(np.uint8), Q.astype(np.uint8), np.full(4, 20_000), device=device)
     # float32 scores that could overflow to inf: refused, host or DeviceArray inputs alike
     big = RNG.random((10, 4)).astype(np.float32) * np.float32(1e30)
-    overflow = r"candidates and queries span values from .* could reach .* beyond float32's largest value .* divide it by 1e\+12"
+    overflow = (r"candidates and queries span values from .* could reach .* beyond float32's largest value "
+                r".* divide it by 1e\+12")
     with pytest.raises(ValueError, match=overflow):
         geosynth.score_dense(big, Q, device=device)
     with pytest.raises(ValueError, match=overflow):
