@@ -3,9 +3,11 @@ what was expected and what was given."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from geosynth.backend import DeviceArray, get_backend
+from geosynth.backend import DeviceArray, float_stats, get_backend
 
 # uint8 data is scored in uint32: the largest possible score must fit.
 UINT32_MAX = np.iinfo(np.uint32).max
@@ -61,11 +63,71 @@ def as_data(name: str, array, ndims: tuple[int, ...]):
     return array
 
 
+def check_bool(name: str, value) -> bool:
+    """A flag must be a bool: a string such as "no" would otherwise count as True."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}.")
+    return bool(value)
+
+
 def check_finite(name: str, array) -> None:
-    """Refuse NaN or inf in a float host array (DeviceArrays are not read back)."""
-    if isinstance(array, np.ndarray) and array.dtype.kind == "f" and not np.isfinite(array).all():
-        bad = int(np.count_nonzero(~np.isfinite(array)))
+    """Refuse NaN or inf in float data: a host array, or a DeviceArray (its recorded
+    value stats, see :meth:`geosynth.DeviceArray.value_stats`)."""
+    finite_range(name, array)
+
+
+def finite_range(name: str, array) -> tuple[float, float] | None:
+    """The (min, max) of float data after refusing NaN or inf; None for other dtypes.
+
+    Raises:
+        ValueError: some value is NaN or inf (the message says how many).
+    """
+    if isinstance(array, DeviceArray):
+        stats = array.value_stats()
+    elif isinstance(array, np.ndarray) and array.dtype.kind == "f":
+        stats = float_stats(array)
+    else:
+        return None
+    if stats is None:
+        return None
+    bad, lo, hi = stats
+    if bad:
         raise ValueError(f"{name} contains {bad} NaN or inf value(s); every value must be finite.")
+    return lo, hi
+
+
+# float32 sums of squares stay below half of float32's largest value: room for rounding.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+_FLOAT32_SCORE_LIMIT = FLOAT32_MAX / 2
+
+
+def check_float_scores(names: str, data_range, query_range, total_weight: float) -> None:
+    """Refuse float data whose scores could overflow float32 to inf.
+
+    A score is ``sum_k w_k (x_k - q_k)^2``; with every value in [lo, hi] it is at most
+    ``(hi - lo)^2 * sum_k w_k``, which must stay below half of float32's largest value.
+
+    Args:
+        names: the arguments, for the message ("candidates and queries").
+        data_range, query_range: (min, max) of each, as :func:`finite_range` returns.
+        total_weight: sum of the weights over one score's terms (the term count if unweighted).
+
+    Raises:
+        ValueError: naming the arguments, the largest possible score and how far to scale.
+    """
+    lo = min(data_range[0], query_range[0])
+    hi = max(data_range[1], query_range[1])
+    span, weight = float(hi) - float(lo), float(total_weight)
+    worst = span * span * weight
+    if worst <= _FLOAT32_SCORE_LIMIT:
+        return
+    limit = math.sqrt(_FLOAT32_SCORE_LIMIT / weight)
+    factor = 10.0 ** math.ceil(math.log10(span / limit))
+    raise ValueError(
+        f"{names} span values from {lo:.6g} to {hi:.6g}: a score (a sum of squared differences with total "
+        f"weight {weight:g}) could reach {worst:.3g}, beyond float32's largest value {FLOAT32_MAX:.3g}; "
+        f"scale the data to span at most {limit:.3g} (e.g. divide it by {factor:.0e}), or use smaller weights."
+    )
 
 
 def same_kind(name: str, array, reference_name: str, reference) -> np.ndarray | DeviceArray:

@@ -27,8 +27,13 @@ fallback from one device to another.
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
 import os
+import platform as _platform
 import re
+import sys
+import tempfile
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,17 +88,60 @@ def parse_device(device: str) -> DeviceSpec:
 # Optional runtimes, imported lazily; their import errors surface only when asked for.
 
 
+def verbose() -> bool:
+    """Whether the environment asks for the runtimes' own messages (``GEOSYNTH_VERBOSE=1``;
+    the CLI sets it for ``--verbose``)."""
+    return os.environ.get("GEOSYNTH_VERBOSE", "").strip().lower() not in ("", "0", "false", "no")
+
+
+# Lines that Warp's native init wrote to stderr and that were held back (the missing CUDA
+# driver on a machine without a GPU); asking for a CUDA device shows them in its error.
+_warp_init_notes: list[str] = []
+
+
+def _capture_native_stderr(fn) -> str:
+    """Run ``fn()`` with file descriptor 2 sent to a temporary file; return what it got.
+
+    Warp's native init prints with C ``fprintf(stderr)``, which no Python setting silences.
+    """
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no usable fd 2: nothing to capture
+        fn()
+        return ""
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            fn()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        tmp.seek(0)
+        return tmp.read().decode("utf-8", "replace")
+
+
 @functools.lru_cache(maxsize=1)
 def _warp_status() -> tuple[Any, Exception | None]:
     try:
         import warp as wp
 
+        if verbose():
+            wp.init()
+            return wp, None
         # Warp 1.19 replaced `config.quiet` with `config.log_level`; keep both quiet.
         if hasattr(wp, "LOG_WARNING"):
             wp.config.log_level = wp.LOG_WARNING
         else:
             wp.config.quiet = True
-        wp.init()
+        said = _capture_native_stderr(wp.init)
+        # Without a GPU, the CUDA driver probe's warning is expected: hold it back. Anything
+        # else Warp says at init is passed on.
+        for line in said.splitlines():
+            if "NVIDIA CUDA driver" in line:
+                _warp_init_notes.append(line.strip())
+            elif line.strip():
+                print(line, file=sys.stderr)
         return wp, None
     except Exception as exc:  # ImportError, or a broken install
         return None, exc
@@ -116,10 +164,22 @@ def _pin_pocl_threads() -> None:
         os.environ.setdefault("POCL_AFFINITY", "1")
 
 
+def _quiet_pocl_cache() -> None:
+    """Keep PoCL from leaving a file in its kernel cache on every start, unless the user
+    chose otherwise. PoCL 3.0/3.1 install a SIGFPE handler (it skips integer divisions by
+    zero in kernels) and, to order LLVM's signal handlers first, create an empty
+    ``tempfile_XXXXXX`` in the cache folder that is never removed: one per PoCL library
+    per process. geosynth's kernels only divide by sizes the API has checked (>= 1), and
+    Warp's CPU kernels run without such a handler too, so ``POCL_SIGFPE_HANDLER=0``.
+    """
+    os.environ.setdefault("POCL_SIGFPE_HANDLER", "0")
+
+
 @functools.lru_cache(maxsize=1)
 def _opencl_status() -> tuple[Any, Exception | None]:
     try:
         _pin_pocl_threads()
+        _quiet_pocl_cache()
         import pyopencl as cl
 
         cl.get_platforms()
@@ -138,16 +198,70 @@ def _warp_device_names() -> list[str]:
 _PROBE_SOURCE = "__kernel void geosynth_probe(__global int *out) { out[get_global_id(0)] = 1; }"
 
 
+def _cache_dir() -> str:
+    return os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geosynth")
+
+
+def _probe_memo_path() -> str:
+    return os.path.join(_cache_dir(), "opencl-unusable.json")
+
+
+def _probe_key(platform, dev) -> str:
+    """What decides whether a device's compiler works: the driver, the device, this CPU,
+    and PoCL's settings (not where it caches)."""
+    cpu = _platform.processor()
+    try:
+        with open("/proc/cpuinfo") as fh:  # the first processor's identity and features
+            first = fh.read().split("\n\n", 1)[0]
+        cpu = [ln for ln in first.splitlines() if ln.split(":", 1)[0].strip() in
+               ("vendor_id", "cpu family", "model", "model name", "flags")]
+    except OSError:
+        pass
+    unrelated = ("POCL_CACHE_DIR", "POCL_AFFINITY", "POCL_SIGFPE_HANDLER")  # where it caches, how it runs
+    env = sorted((k, v) for k, v in os.environ.items() if k.startswith("POCL_") and k not in unrelated)
+    parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env]
+    return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:32]
+
+
+def _read_probe_memo() -> dict[str, str]:
+    try:
+        with open(_probe_memo_path()) as fh:
+            memo = json.load(fh)
+        return {str(k): str(v) for k, v in memo.items()} if isinstance(memo, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _write_probe_memo(memo: dict[str, str]) -> None:
+    """Best effort: a cache that cannot be written only means probing again next run."""
+    try:
+        os.makedirs(_cache_dir(), exist_ok=True)
+        tmp = f"{_probe_memo_path()}.{os.getpid()}.tmp"
+        with open(tmp, "w") as fh:
+            json.dump(memo, fh)
+        os.replace(tmp, _probe_memo_path())
+    except OSError:
+        pass
+
+
 @functools.lru_cache(maxsize=1)
 def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
     """Every OpenCL device as ``(name, description, why_unusable or None)``.
 
     Each platform's devices must build a one-line kernel to count as usable: an ICD
     can list a CPU that its compiler cannot target, and every kernel call would fail.
+    A usable device's probe hits its compiler's own cache (PoCL keys it by source and
+    options, both constant). A failed build is not cached by PoCL and leaves three
+    temporary files in its cache folder every time, so a device whose compiler failed
+    is remembered per machine (``~/.cache/geosynth/opencl-unusable.json``, keyed by
+    driver, device, CPU and PoCL settings) and not built again; delete that file to
+    probe it anew.
     """
     cl, _ = _opencl_status()
     if cl is None:
         return ()
+    memo = _read_probe_memo()
+    memo_changed = False
     out = []
     for p, platform in enumerate(cl.get_platforms()):
         try:
@@ -157,13 +271,19 @@ def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
         version = platform.version.strip().split("  ")[0]  # "OpenCL 3.0 PoCL 3.1+debian"
         for i, dev in enumerate(devs):
             desc = f"{platform.name.strip()} ({version}): {dev.name.strip()}, {dev.max_compute_units} compute units"
-            why = None
-            try:
-                cl.Program(cl.Context([dev]), _PROBE_SOURCE).build()
-            except Exception as exc:
-                lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower() and ln.strip()]
-                why = (lines[-1] if lines else str(exc).strip().splitlines()[0])[:200]
+            key = _probe_key(platform, dev)
+            why = memo.get(key)
+            if why is None:
+                try:
+                    cl.Program(cl.Context([dev]), _PROBE_SOURCE).build()
+                except Exception as exc:
+                    lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower() and ln.strip()]
+                    why = (lines[-1] if lines else str(exc).strip().splitlines()[0])[:200]
+                    memo[key] = why
+                    memo_changed = True
             out.append((f"opencl:{p}:{i}", desc, why))
+    if memo_changed:
+        _write_probe_memo(memo)
     return tuple(out)
 
 
@@ -232,7 +352,7 @@ def resolve_device(device: str) -> str:
             raise _absent(device, f"Warp failed to load: {err}; install it with `pip install warp-lang`")
         name = "cpu" if spec.kind == "cpu" else f"cuda:{spec.index}"
         if name not in _warp_device_names():
-            raise _absent(device)
+            raise _absent(device, "; ".join(_warp_init_notes) if spec.kind == "cuda" else "")
         return name
     cl, err = _opencl_status()
     if cl is None:
@@ -302,6 +422,25 @@ class DeviceArray:
         self.shape = tuple(int(s) for s in shape)
         self.dtype = np.dtype(dtype)
         self._derived: dict[Any, DeviceArray] = {}
+        self._stats: tuple[int, float, float] | None = None  # see value_stats
+
+    def value_stats(self) -> tuple[int, float, float] | None:
+        """For float data: (how many values are NaN or inf, min and max of the finite ones);
+        None for other dtypes.
+
+        Recorded from the host copy by :func:`to_device`; for arrays made otherwise, read
+        back once and kept (DeviceArrays are never modified in place). The public
+        operations use it to refuse NaN/inf and data whose float32 scores could overflow.
+        """
+        if self.dtype.kind != "f":
+            return None
+        if self._stats is None:
+            self._stats = float_stats(self.numpy())
+        return self._stats
+
+    def known_stats(self) -> tuple[int, float, float] | None:
+        """:meth:`value_stats` if already known (no read back), else None."""
+        return self._stats
 
     @property
     def device(self) -> str:
@@ -341,6 +480,10 @@ class DeviceArray:
 def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceArray:
     """Upload a NumPy array to a device once, to reuse across operations.
 
+    For float arrays, how many values are NaN or inf and the range of the others are
+    recorded with it (see :meth:`DeviceArray.value_stats`), so that operations can check
+    it without reading it back.
+
     Args:
         array: any NumPy array of a dtype geosynth uses (float32, uint8, int32,
             uint32); a DeviceArray already on ``device`` is returned as is.
@@ -357,4 +500,19 @@ def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceAr
         if array.backend is not backend:
             raise RuntimeError(f"inputs live on different devices ({array.device} vs {backend.name}).")
         return array
-    return backend.to_device(np.ascontiguousarray(array))
+    host = np.ascontiguousarray(array)
+    out = backend.to_device(host)
+    if host.dtype.kind == "f":
+        out._stats = float_stats(host)
+    return out
+
+
+def float_stats(host: np.ndarray) -> tuple[int, float, float]:
+    """(how many values are NaN or inf, min, max of the finite values) of a float array;
+    min and max are 0 when no value is finite."""
+    finite = np.isfinite(host)
+    bad = int(host.size - np.count_nonzero(finite))
+    values = host[finite] if bad else host
+    if values.size == 0:
+        return bad, 0.0, 0.0
+    return bad, float(values.min()), float(values.max())

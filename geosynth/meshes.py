@@ -549,12 +549,18 @@ def mesh_distance(
         :class:`~geosynth.field.Field` on the requested grid.
 
     Raises:
-        TypeError: ``mesh`` is not a mesh or path; ``field`` is not a Field.
+        TypeError: ``mesh`` is not a mesh or path; ``field`` is not a Field; ``signed``
+            or ``drop_degenerate`` not a bool; ``band`` not a number.
         ValueError: an empty mesh, NaN/inf vertices, out-of-range or degenerate
             faces, points not (M, 3) or not finite, resolution < 2, bounds of zero
             extent, a band that is not > 0, or points together with a grid.
         RuntimeError: the device is not present.
     """
+    _checks.check_bool("signed", signed)
+    _checks.check_bool("drop_degenerate", drop_degenerate)
+    numeric = isinstance(band, (int, float, np.integer, np.floating)) and not isinstance(band, (bool, np.bool_))
+    if band is not None and not numeric:
+        raise TypeError(f"band must be a number (the distance to clamp at) or None, got {band!r}.")
     bvh = prepare_mesh(mesh, "mesh", drop_degenerate=drop_degenerate)
     if band is not None:
         band = float(band)

@@ -46,6 +46,7 @@ so both backends visit the same points in the same order and agree to a few ulps
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
@@ -259,6 +260,10 @@ def _kdtree(points: np.ndarray, balanced: bool = True):
     return cKDTree(points) if balanced else cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
+# eigh's second eigenvalue below this fraction of the largest: rank < 2, to rounding.
+_PLANE_TOLERANCE = 1e-12
+
+
 def estimate_normals(points, k: int = 16) -> np.ndarray:
     """Unit normals of a point set: PCA over k nearest neighbours, oriented consistently.
 
@@ -283,7 +288,9 @@ def estimate_normals(points, k: int = 16) -> np.ndarray:
         (N, 3) float32 unit normals.
 
     Raises:
-        ValueError: wrong shape, fewer than 3 points, NaN/inf, k < 3.
+        ValueError: wrong shape, fewer than 3 points, NaN/inf, k < 3, points whose k
+            nearest neighbours do not span a plane (coincident or collinear: the message
+            says how many).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
@@ -304,8 +311,19 @@ def estimate_normals(points, k: int = 16) -> np.ndarray:
     nb = p[idx]  # (N, k, 3)
     centred = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", centred, centred)
-    _, vecs = np.linalg.eigh(cov)
+    vals, vecs = np.linalg.eigh(cov)
     normals = vecs[:, :, 0]  # smallest eigenvalue first
+    # A neighbourhood that does not span a plane (all its points coincide, or lie on one
+    # line) has no normal: the eigenvector would be arbitrary.
+    flat = np.flatnonzero(vals[:, 1] <= _PLANE_TOLERANCE * vals[:, 2])
+    if flat.size:
+        if flat.size == n and not (p.max(axis=0) - p.min(axis=0)).any():
+            raise ValueError(f"points: all {n} points coincide, so no point has a defined normal.")
+        raise ValueError(
+            f"points: {flat.size} of {n} points have no defined normal (first at index {int(flat[0])}): "
+            f"their k={k} nearest neighbours (itself included) coincide or lie on one line, fewer than 3 "
+            "distinct points spanning a plane; remove duplicate points or raise k."
+        )
 
     # 2. Minimum spanning tree of the Riemannian graph.
     rows = np.repeat(np.arange(n), k - 1)
@@ -401,6 +419,19 @@ def _prepare(points, normals) -> tuple[np.ndarray, np.ndarray]:
     return p, (nrm / length[:, None]).astype(np.float32)
 
 
+# The kernels hold coordinates relative to the points' box centre in float32, which
+# resolves about extent * 2^-24; a kernel width below extent * 2^-16 (256 times that) is
+# lost in rounding, and its cell grid would need more cells than int64 counts.
+_RADIUS_RESOLUTION = 2.0**-16
+
+
+def smallest_radius(points: np.ndarray) -> float:
+    """The smallest kernel width h that :func:`pointset_distance` accepts for these
+    points: their largest box extent times 2^-16 (0 for a single point)."""
+    p = np.asarray(points, np.float64)
+    return float((p.max(axis=0) - p.min(axis=0)).max()) * _RADIUS_RESOLUTION if len(p) else 0.0
+
+
 def _as_radius(radius, points: np.ndarray) -> float:
     if radius is None:
         return default_radius(points)
@@ -409,6 +440,13 @@ def _as_radius(radius, points: np.ndarray) -> float:
     h = float(radius)
     if not (np.isfinite(h) and h > 0):
         raise ValueError(f"radius must be a finite number > 0 (the kernel width h), got {radius!r}.")
+    smallest = smallest_radius(points)
+    if h < smallest:
+        raise ValueError(
+            f"radius {radius!r} is too small for points spanning {smallest / _RADIUS_RESOLUTION:.6g}: float32 "
+            f"coordinates cannot resolve it; the smallest radius that works is {smallest:.6g} (omit radius= "
+            "for the default, twice the mean point spacing)."
+        )
     return h
 
 
@@ -429,7 +467,7 @@ class _CellGrid:
         cap = max(_MAX_CELLS_PER_POINT * len(points), _MIN_CELL_CAP)
         while True:
             dims = np.floor((hi - self.shift - lo) / cell).astype(np.int64) + 1
-            if int(np.prod(dims)) <= cap:
+            if math.prod(int(v) for v in dims) <= cap:  # Python ints: no int64 overflow
                 break
             cell *= 1.25
         keys3 = np.minimum(np.floor((rel - lo) / cell).astype(np.int64), dims - 1)
@@ -555,7 +593,8 @@ def pointset_distance(
         TypeError: non-numeric arrays, a radius that is not a number, a field that is not a Field.
         ValueError: no normals, zero-length normals, NaN/inf, mismatched shapes, an empty
             point set or query, no sampling given (or more than one), resolution < 2,
-            bounds with zero extent, radius <= 0.
+            bounds with zero extent, radius <= 0 or below :func:`smallest_radius` (the
+            points' extent times 2^-16, which float32 coordinates cannot resolve).
         RuntimeError: the device is absent.
 
     Example:

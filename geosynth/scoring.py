@@ -66,7 +66,9 @@ def score_dense(
     Raises:
         TypeError: unsupported dtype, or dtypes that do not match.
         ValueError: wrong shapes, empty inputs, NaN/inf, negative weights, a uint8
-            score range beyond uint32.
+            score range beyond uint32, float data whose scores could overflow float32
+            (``(max - min)^2 * total weight`` above half of float32's largest value, over
+            both inputs' values; DeviceArray inputs are checked by their recorded range).
         RuntimeError: the device is absent, or inputs on different devices.
     """
     candidates = _checks.as_data("candidates", candidates, (2,))
@@ -77,18 +79,21 @@ def score_dense(
         raise ValueError("candidates has rows of length 0: D must be at least 1.")
     queries = _checks.same_kind("queries", queries, "candidates", candidates)
     single = queries.ndim == 1
-    if single and not isinstance(queries, DeviceArray):
-        queries = queries.reshape(1, -1)
+    if single:
+        queries = _as_row(queries)
     if queries.ndim != 2 or queries.shape[1] != d:
         raise ValueError(f"queries must have shape (B, {d}) or ({d},) to match candidates (N, {d}), got {queries.shape}.")
     b = queries.shape[0]
     if b == 0:
         raise ValueError("queries is empty: pass at least one query row.")
-    _checks.check_finite("queries", queries)
-    _checks.check_finite("candidates", candidates)
+    q_range = _checks.finite_range("queries", queries)
+    c_range = _checks.finite_range("candidates", candidates)
     w = None if weights is None else _checks.as_weights("weights", weights, d, candidates.dtype)
     if candidates.dtype == np.uint8:
         _checks.check_uint32_range(d if w is None else int(w.astype(np.uint64).sum()), "this query")
+    else:
+        _checks.check_float_scores("candidates and queries", c_range, q_range,
+                                   d if w is None else float(w.astype(np.float64).sum()))
     if n * d > _INT32_LIMIT or n * b > _INT32_LIMIT:
         raise ValueError(f"candidates ({n} x {d}) or scores ({b} x {n}) exceed 2^31 elements; split the call.")
 
@@ -101,6 +106,15 @@ def score_dense(
     if single:
         out.shape = (n,)
     return out if keep_on_device else out.numpy()
+
+
+def _as_row(queries):
+    """A 1-D query as one row (B = 1); a DeviceArray is viewed, not copied."""
+    if not isinstance(queries, DeviceArray):
+        return queries.reshape(1, -1)
+    row = DeviceArray(queries.data, queries.backend, (1,) + queries.shape, queries.dtype)
+    row._stats = queries.known_stats()
+    return row
 
 
 def _as_offsets(offsets) -> np.ndarray:
@@ -233,7 +247,9 @@ def score_gather(
     Raises:
         TypeError: unsupported or mismatched dtypes, non-integer offsets or origins.
         ValueError: wrong shapes, NaN/inf, no valid candidate, an origin whose
-            window reaches outside the grid, a uint8 score range beyond uint32.
+            window reaches outside the grid, a uint8 score range beyond uint32, float
+            data whose scores could overflow float32 (``(max - min)^2 * total weight *
+            channels`` above half of float32's largest value, over grid and values).
         RuntimeError: the device is absent, or inputs on different devices.
     """
     scorer = GatherScorer(grid, offsets, weights, stride=stride, wrap=wrap, device=device)
@@ -285,8 +301,9 @@ class GatherScorer:
             raise ValueError(f"grid is empty (shape {grid.shape}).")
         self._grid_dtype = grid.dtype
         self._k, self._nd, self._channels = k, nd, channels
-        _checks.check_finite("grid", grid)
+        self._grid_range = _checks.finite_range("grid", grid)
         w = None if weights is None else _checks.as_weights("weights", weights, k, grid.dtype)
+        self._total_weight = (k if w is None else float(w.astype(np.float64).sum())) * channels
         if grid.dtype == np.uint8:
             total = k * channels if w is None else int(w.astype(np.uint64).sum()) * channels
             _checks.check_uint32_range(total, "this query")
@@ -435,7 +452,9 @@ class GatherScorer:
         if vals.shape not in ((k, channels),) + (((k,),) if channels == 1 else ()):
             want = f"({k}, {channels})" + (f" or ({k},)" if channels == 1 else "")
             raise ValueError(f"values must have shape {want} to match {k} offsets and {channels} channel(s), got {vals.shape}.")
-        _checks.check_finite("values", vals)
+        vals_range = _checks.finite_range("values", vals)
+        if vals_range is not None:
+            _checks.check_float_scores("grid and values", self._grid_range, vals_range, self._total_weight)
         thr = None
         if threshold is not None:
             if not (np.isscalar(threshold) and np.isfinite(threshold) and threshold >= 0):

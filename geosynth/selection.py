@@ -15,8 +15,10 @@ import math
 import numpy as np
 
 from geosynth import _checks
-from geosynth._backends.base import SELECT_EQ, SELECT_LEQ, SELECT_LT
+from geosynth._backends.base import NONFINITE_SCORES, SELECT_EQ, SELECT_LEQ, SELECT_LT
 from geosynth.backend import DeviceArray
+
+_FLOAT32_MAX = np.finfo(np.float32).max
 
 __all__ = ["argmin", "best_fraction", "random_pick", "tolerance_threshold", "within_tolerance"]
 
@@ -31,8 +33,14 @@ def _as_scores(scores, device):
             else:
                 raise TypeError(f"scores has dtype {scores.dtype}: expected float32 or uint32 (as scoring returns).")
         if scores.dtype == np.float32 and not np.isfinite(scores).all():
-            raise ValueError("scores contains NaN or inf; every score must be finite.")
+            raise ValueError(NONFINITE_SCORES)
         if scores.dtype == np.float32 and scores.size and scores.min() < 0:
+            raise ValueError("scores must be non-negative (sums of squared differences).")
+    elif scores.known_stats() is not None:  # uploaded by to_device: checked like host scores
+        bad, lo, _ = scores.known_stats()
+        if bad:
+            raise ValueError(NONFINITE_SCORES)
+        if lo < 0:
             raise ValueError("scores must be non-negative (sums of squared differences).")
     if not (scores.ndim == 1 or (scores.ndim == 2 and scores.shape[0] == 1)):
         raise ValueError(f"scores must be 1-D (or (1, N)) for one query, got shape {scores.shape}; select per row.")
@@ -68,6 +76,12 @@ def argmin(scores: np.ndarray | DeviceArray, *, device: str | None = None) -> in
 
     Returns:
         The index, an int in [0, N).
+
+    Raises:
+        ValueError: empty or wrongly shaped scores, negative scores, or a NaN or inf
+            score: NumPy scores are checked on the host, device scores by the reduction
+            itself (the same message either way; no index is returned for them).
+        TypeError: a dtype other than float32 or uint32.
     """
     scores, backend = _as_scores(scores, device)
     return backend.argmin(scores)[0]
@@ -108,8 +122,11 @@ def best_fraction(scores: np.ndarray | DeviceArray, fraction: float, *, device: 
     """
     if not (isinstance(fraction, (int, float, np.floating, np.integer)) and 0 < fraction <= 1):
         raise ValueError(f"fraction must be in (0, 1], got {fraction!r}.")
+    unchecked = isinstance(scores, DeviceArray) and scores.known_stats() is None
     scores, backend = _as_scores(scores, device)
     n = scores.size
+    if unchecked and scores.dtype == np.float32 and backend.count(scores, _FLOAT32_MAX, SELECT_LEQ) != n:
+        raise ValueError(NONFINITE_SCORES)  # device scores: the NaN or inf ones are not <= max
     k = max(1, math.ceil(fraction * n))
     bits = np.uint32 if scores.dtype == np.uint32 else np.float32
 

@@ -151,6 +151,72 @@ class VolumeResult:
 SEARCHES = ("cascade", "tree", "linear")
 
 
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _check_int(name: str, value, minimum: int, maximum: int | None = None, why: str = "") -> int:
+    """``value`` as an int in [minimum, maximum]; TypeError for a non-integer (floats are
+    not truncated), ValueError out of range. ``why`` ends the range message."""
+    if maximum is None:
+        want = f"an integer >= {minimum}"
+    else:
+        want = f"an integer from {minimum} to {maximum}"
+    if not _is_int(value):
+        raise TypeError(f"{name} must be {want}, got {value!r}.")
+    if value < minimum or (maximum is not None and value > maximum):
+        raise ValueError(f"{name} must be {want}{why}, got {value}.")
+    return int(value)
+
+
+# band and spacing scale float32 fields (distance = value * band * spacing): within these
+# bounds every product stays a normal float32 number.
+_SCALE_RANGE = (1e-15, 1e15)
+
+
+def _check_scale(name: str, value, what: str) -> float:
+    """A real number in _SCALE_RANGE (``what`` says what it measures)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number ({what}), got {value!r}.")
+    lo, hi = _SCALE_RANGE
+    if not (math.isfinite(float(value)) and lo <= value <= hi):
+        raise ValueError(f"{name} must be a finite number from {lo:g} to {hi:g} ({what}), got {value!r}.")
+    return float(value)
+
+
+def _check_size(size) -> None:
+    """One positive integer or three (z, y, x); floats are refused, not truncated."""
+    values = [size] if np.ndim(size) == 0 else list(np.asarray(size, dtype=object).reshape(-1))
+    if np.ndim(size) > 1 or len(values) not in (1, 3) or not all(_is_int(v) for v in values):
+        raise TypeError(f"size must be a positive integer or three of them (z, y, x), got {size!r}.")
+    if any(v < 1 for v in values):
+        raise ValueError(f"size must be a positive integer or three of them (z, y, x), got {size!r}.")
+
+
+def _check_block(block) -> None:
+    """Integers only (a power-of-two check and the per-level count follow in _level_blocks)."""
+    values = [block] if np.ndim(block) == 0 else list(np.asarray(block, dtype=object).reshape(-1))
+    if np.ndim(block) > 1 or not values or not all(_is_int(v) for v in values):
+        raise TypeError(f"block must be an integer (a power of two >= 2) or one per level, got {block!r}.")
+
+
+def _check_common(levels, max_levels: int, levels_why: str, block, tileable, seed, device, search,
+                  progress) -> None:
+    """The options synthesize_volume and synthesize_geometry share, checked before any work."""
+    _check_int("levels", levels, 1, max_levels, levels_why)
+    _check_block(block)
+    _checks.check_bool("tileable", tileable)
+    _checks.check_bool("progress", progress)
+    if seed is not None:
+        _check_int("seed", seed, 0)
+    if device is not None:
+        from geosynth.backend import parse_device
+
+        parse_device(device)  # a malformed string now; absence is found when the search starts
+    if not isinstance(search, str) or search not in SEARCHES:
+        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}.")
+
+
 def _as_shape(name: str, size) -> tuple[int, int, int]:
     s = np.asarray(size)
     if s.ndim == 0:
@@ -346,18 +412,29 @@ def synthesize_volume(
         VolumeResult (uint8 and float fields, per-level reports, timings).
 
     Raises:
-        ValueError: bad sizes, block not a power of two, block larger than the source
-            at some level, target smaller than a block, NaN in the source, a memory
-            estimate beyond what is available.
+        TypeError: a non-integer size, levels, block or seed (never truncated), a
+            non-bool flag, a non-numeric band or spacing, a source of another dtype.
+        ValueError: bad sizes, levels < 1 or more than the source can halve, a negative
+            seed, band or spacing not finite in [1e-15, 1e15], block not a power of two, block
+            larger than the source at some level, target smaller than a block, NaN in the
+            source, an unknown search or malformed device string, a memory estimate
+            beyond what is available.
     """
     t_start = time.perf_counter()
     src = np.asarray(source)
     if src.ndim != 3:
         raise ValueError(f"source must be a (Z, Y, X) volume, got shape {src.shape}.")
-    if levels < 1:
-        raise ValueError(f"levels must be >= 1, got {levels}.")
-    if search not in SEARCHES:
-        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}.")
+    if src.size == 0:
+        raise ValueError(f"source is empty (shape {src.shape}).")
+    _check_size(size)
+    # Each level halves the source: beyond log2 of its smallest side, no block fits.
+    max_levels = max(1, int(min(src.shape)).bit_length() - 1)
+    _check_common(levels, max_levels, f" (each level halves the source {src.shape})", block, tileable, seed,
+                  device, search, progress)
+    if band is not None:
+        _check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
+    _check_scale("spacing", spacing, "the world size of one sample")
+    _checks.check_bool("baseline", baseline)
     blocks = _level_blocks(levels, block)
     if band is None:
         band = blocks[-1] / 2
@@ -484,7 +561,21 @@ def synthesize_geometry(
 
     Returns:
         GeometryResult.
+
+    Raises:
+        TypeError: a non-integer size, source_resolution, levels, block, seed, smooth or
+            quality_samples (never truncated), a non-bool flag.
+        ValueError: as :func:`synthesize_volume`, plus source_resolution < 8, levels
+            beyond log2(source_resolution), negative smooth or quality_samples, an
+            exemplar that is neither a file nor a built-in name, a bad mesh.
     """
+    _check_size(size)
+    resolution = _check_int("source_resolution", source_resolution, 8)
+    _check_common(levels, max(1, resolution.bit_length() - 1),
+                  f" (each level halves the source of source_resolution={resolution} samples)",
+                  block, tileable, seed, device, search, progress)
+    _check_int("smooth", smooth, 0)
+    _check_int("quality_samples", quality_samples, 0)
     from geosynth.meshes import check_mesh, mesh_distance
     from geosynth.metrics import bidirectional_block_distance
     from geosynth.surface import field_to_mesh
@@ -499,6 +590,9 @@ def synthesize_geometry(
                                    device=device)
     timings["exemplar distance field"] = time.perf_counter() - t0
     spacing = float(exemplar_field.spacing[0])
+    if not _SCALE_RANGE[0] <= spacing <= _SCALE_RANGE[1]:
+        raise ValueError(f"the exemplar's samples would lie {spacing:g} apart, outside [{_SCALE_RANGE[0]:g}, "
+                         f"{_SCALE_RANGE[1]:g}] world units; scale the exemplar mesh.")
     distance_in_samples = exemplar_field.values / np.float32(spacing)
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,

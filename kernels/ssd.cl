@@ -281,6 +281,14 @@ __kernel void ssd_gather_x16(__global const T* grid, __global const int* bases, 
 // Selection. Ranges: round_up(g, 64), local 64; work-items t >= g do nothing.
 
 // Work-item t scans t, t+g, t+2g, ... ascending, so a strict < keeps the lowest index.
+// A share holding a NaN or inf score reports index -2 (the host refuses such scores).
+#ifdef GS_U8
+#define SCORE_OK(s) 1
+#define SCORE_OK16(v) ((int16)(-1))
+#else
+#define SCORE_OK(s) ((s) <= FLT_MAX)  // false for NaN and +inf
+#define SCORE_OK16(v) ((v) <= (S16)(FLT_MAX))
+#endif
 // The same partial minima over contiguous chunks, 16 lanes at a time: work-item t owns
 // [t*chunk, (t+1)*chunk) (chunk a multiple of 16). Each lane keeps its first minimum
 // (strict <), the lanes' minimum with the lowest index among equals is the chunk's.
@@ -296,15 +304,19 @@ __kernel void argmin_chunks(__global const S* scores, const int n, const int chu
     const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     S best = scores[lo];
     int best_idx = lo;
+    int ok = 1;
     if (hi16 > lo) {
         S16 vbest = LOADS16(scores + lo);
         int16 vidx = lane + lo;
+        int16 vok = SCORE_OK16(vbest);
         for (int i = lo + 16; i < hi16; i += 16) {
             const S16 v = LOADS16(scores + i);
             const int16 less = v < vbest;
+            vok &= SCORE_OK16(v);
             vbest = less ? v : vbest;
             vidx = less ? lane + i : vidx;
         }
+        ok = all(vok);
         S lv[16];
         int li[16];
         vstore16(vbest, 0, lv);
@@ -317,10 +329,11 @@ __kernel void argmin_chunks(__global const S* scores, const int n, const int chu
     }
     for (int i = hi16; i < hi; ++i) {
         const S s = scores[i];
+        ok &= SCORE_OK(s);
         if (s < best) { best = s; best_idx = i; }
     }
     part_val[t] = best;
-    part_idx[t] = best_idx;
+    part_idx[t] = ok ? best_idx : -2;
 }
 
 __kernel void argmin_partials(__global const S* scores, const int n,
@@ -330,12 +343,14 @@ __kernel void argmin_partials(__global const S* scores, const int n,
     if (t >= g) return;
     int best_idx = -1;
     S best = 0;
+    int ok = 1;
     for (int i = t; i < n; i += g) {
         const S s = scores[i];
+        ok &= SCORE_OK(s);
         if (best_idx < 0 || s < best) { best = s; best_idx = i; }
     }
     part_val[t] = best;
-    part_idx[t] = best_idx;
+    part_idx[t] = ok ? best_idx : -2;
 }
 
 // Work-item t owns [t*chunk, (t+1)*chunk) and counts the scores the threshold selects.

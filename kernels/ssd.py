@@ -113,27 +113,43 @@ def ssd_gather_kernel(
     out[cand] = acc
 
 
+@wp.func
+def score_ok(s: wp.float32) -> bool:
+    return wp.isfinite(s)
+
+
+@wp.func
+def score_ok(s: wp.uint32) -> bool:  # noqa: F811 (overload by type)
+    return True
+
+
 @wp.kernel
 def argmin_partials_kernel(
     scores: wp.array(dtype=Any),  # (n,)
     n: int,
     part_val: wp.array(dtype=Any),  # (g,) per-thread minimum
-    part_idx: wp.array(dtype=wp.int32),  # (g,) lowest index reaching it, -1 if none
+    part_idx: wp.array(dtype=wp.int32),  # (g,) lowest index reaching it, -1 if none, -2 if NaN/inf seen
     g: int,  # threads launched
 ):
     """Thread t scans t, t+g, t+2g, ... ascending, so a strict < keeps the lowest index."""
     t = wp.tid()
     best_idx = int(-1)
     best = part_val.dtype(0)
+    ok = bool(True)
     i = t
     while i < n:
         s = scores[i]
+        if not score_ok(s):
+            ok = False
         if best_idx < 0 or s < best:
             best = s
             best_idx = i
         i += g
     part_val[t] = best
-    part_idx[t] = best_idx
+    if ok:
+        part_idx[t] = best_idx
+    else:
+        part_idx[t] = -2
 
 
 @wp.func

@@ -18,6 +18,12 @@ from geosynth.backend import DeviceArray
 # Selection modes, shared with the kernels (SELECT_LEQ, SELECT_LT, SELECT_EQ).
 SELECT_LEQ, SELECT_LT, SELECT_EQ = 0, 1, 2
 
+# The one refusal of float scores that are not finite, from the host and the device paths.
+NONFINITE_SCORES = (
+    "scores contains NaN or inf; every score must be finite (float data whose squared differences "
+    "overflow float32 score inf: scale the data down)."
+)
+
 
 class Backend(ABC):
     """One device. Methods take and return DeviceArrays of this backend.
@@ -92,7 +98,8 @@ class Backend(ABC):
 
     @abstractmethod
     def argmin_partials(self, scores, n, part_val, part_idx) -> None:
-        """Per-thread minimum and its lowest index, over a strided share of scores."""
+        """Per-thread minimum and its lowest index, over a share of scores (index -1 for an
+        empty share, -2 for a share holding a NaN or inf score)."""
 
     @abstractmethod
     def count_selected(self, scores, n, chunk, thr, mode, counts) -> None:
@@ -104,10 +111,16 @@ class Backend(ABC):
 
     # -- host-side steps shared by both backends ------------------------------------
     def argmin(self, scores: DeviceArray) -> tuple[int, np.generic]:
-        """Index of the smallest score (the lowest index on ties) and that score."""
+        """Index of the smallest score (the lowest index on ties) and that score.
+
+        Raises:
+            ValueError: a float score is NaN or inf (no index is returned for them).
+        """
         n = scores.size
         if n <= self.host_reduce_below:  # one read beats a kernel plus a read
             host = self.to_host(scores).reshape(-1)
+            if host.dtype.kind == "f" and not np.isfinite(host).all():
+                raise ValueError(NONFINITE_SCORES)
             i = int(np.argmin(host))  # the first minimum: the lowest index on ties
             return i, host[i]
         g = max(1, min(n, self.partial_threads))
@@ -116,6 +129,8 @@ class Backend(ABC):
         self.argmin_partials(scores, n, part_val, part_idx)
         # sync: the orchestrator needs the index now; g values come back, not n.
         vals, idx = self.to_host_all((part_val, part_idx))
+        if (idx == -2).any():  # a share saw a NaN or inf score
+            raise ValueError(NONFINITE_SCORES)
         valid = idx >= 0
         vals, idx = vals[valid], idx[valid]
         best = vals.min()
