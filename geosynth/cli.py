@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -34,8 +35,8 @@ FIELD_OUT = (".npz",)
 MAX_LEVELS = 8
 MAX_SMOOTH = 1000
 DEMO_MAX_SIZE = 256  # the demo's spheres field costs size^6 / 6500 operations
-# Flags that name a fix the library's messages give as a keyword argument.
-_KEYWORD_FLAGS = {"drop_degenerate=True": "--drop-degenerate"}
+# Fixes the library's messages give as keyword arguments, and the flags that give them here.
+_KEYWORD_FLAGS = {r"\bdrop_degenerate(?:=True)?\b": "--drop-degenerate"}
 
 
 # ------------------------------------------------------------------ argument types
@@ -672,8 +673,9 @@ def _message(exc: BaseException, command: str) -> str:
                                         if largest is not None else f" (lower {flag})")
         elif command in _MEMORY_FLAGS:
             text = f"{text.rstrip('.')}; on the command line: lower {_MEMORY_FLAGS[command]}."
-    for keyword, flag in _KEYWORD_FLAGS.items():
-        text = text.replace(keyword, flag)
+    if command in ("volume", "field"):  # the commands with --drop-degenerate
+        for keyword, flag in _KEYWORD_FLAGS.items():
+            text = re.sub(keyword, flag, text)
     return " ".join(text.split())  # one line
 
 
