@@ -35,8 +35,12 @@ FIELD_OUT = (".npz",)
 MAX_LEVELS = 8
 MAX_SMOOTH = 1000
 DEMO_MAX_SIZE = 256  # the demo's spheres field costs size^6 / 6500 operations
-# Fixes the library's messages give as keyword arguments, and the flags that give them here.
-_KEYWORD_FLAGS = {r"\bdrop_degenerate(?:=True)?\b": "--drop-degenerate"}
+# The library's messages name its parameters; per command, the flags that set them here.
+_PARAMETER_FLAGS = {
+    "volume": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
+    "field": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
+    "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels")],
+}
 
 
 # ------------------------------------------------------------------ argument types
@@ -673,9 +677,8 @@ def _message(exc: BaseException, command: str) -> str:
                                         if largest is not None else f" (lower {flag})")
         elif command in _MEMORY_FLAGS:
             text = f"{text.rstrip('.')}; on the command line: lower {_MEMORY_FLAGS[command]}."
-    if command in ("volume", "field"):  # the commands with --drop-degenerate
-        for keyword, flag in _KEYWORD_FLAGS.items():
-            text = re.sub(keyword, flag, text)
+    for parameter, flag in _PARAMETER_FLAGS.get(command, []):
+        text = re.sub(parameter, flag, text)
     return " ".join(text.split())  # one line
 
 

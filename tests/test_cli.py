@@ -51,6 +51,7 @@ def files(tmp_path_factory) -> Path:
     f = np.vstack([torus.faces, [[n, n + 1, n + 2]]])
     trimesh.Trimesh(v, f, process=False).export(d / "degen.ply")
     write_point_set(d / "model.ply", point_model("torus", 400))
+    write_point_set(d / "few.ply", point_model("sphere", 20))
     write_texture(d / "tex.png", texture_example("noise", 32))
     (d / "bomb.png").write_bytes(_png_header(20_000, 20_000))
     (d / "adir.ply").mkdir()
@@ -191,6 +192,8 @@ CASES = {
     "--device absent": (["field", "--example", "torus", "-o", "{d}/f.npz", "--device", "cuda:7"],
                         "--device cuda:7: Device 'cuda:7' is not present"),
     # failures found while working: named by the flag that fixes them
+    "-k >= the file's points": (["texture", "{d}/few.ply", "--texture-example", "noise", "-o", "{d}/t.ply", "-k", "25",
+                                 "--quiet", "--device", "cpu"], "-k 25 needs more than 25 points"),
     "zero-area faces, volume": (["volume", "{d}/degen.ply", "-o", "{d}/x.ply", *TINY, "--device", "cpu"],
                                 "--drop-degenerate"),
     "zero-area faces, field": (["field", "{d}/degen.ply", "-o", "{d}/f.npz", "--resolution", "8", "--quiet",
