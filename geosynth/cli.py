@@ -1,19 +1,208 @@
-"""The ``geosynth`` command line."""
+"""The ``geosynth`` command line.
+
+Every command checks its arguments before any work: each number against the range
+the library accepts (at parse time), each input file for existence, each output path
+with :func:`geosynth.files.check_output` (never an input, a folder, a path under a
+file, an unwritable folder or the wrong extension; two outputs of one run never the
+same file). An expected failure is one line on stderr, ``geosynth <command>:
+<message>``, exit code 2 (``--debug``: the traceback instead); Ctrl-C exits 130 and
+SIGTERM 143, quietly. ``--verbose`` lets the libraries' warnings through (it sets
+``GEOSYNTH_VERBOSE=1`` before any backend loads).
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+import re
+import signal
 import sys
+import threading
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 import geosynth
-from geosynth.backend import describe_devices
+from geosynth.examples import EXEMPLARS
+from geosynth.files import IMAGE_SUFFIXES, check_output
+
+MESH_OUT = (".ply", ".obj", ".stl")
+POINTS_OUT = (".ply",)
+FIELD_OUT = (".npz",)
+MAX_LEVELS = 8
+MAX_SMOOTH = 1000
+DEMO_MAX_SIZE = 256  # the demo's spheres field costs size^6 / 6500 operations
+# The library's messages name its parameters; per command, the flags that set them here.
+_PARAMETER_FLAGS = {
+    "volume": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
+    "field": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
+    "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels")],
+}
+
+
+# ------------------------------------------------------------------ argument types
+
+
+def _int_type(low: int, high: int | None = None, *, power_of_two: bool = False,
+              each: bool = False) -> Callable[[str], int]:
+    """An argparse ``type=``: an integer in [low, high] (a power of two if asked)."""
+    allowed = ("a power of two" if power_of_two else "an integer") + (
+        f" >= {low}" if high is None else f" from {low} to {high}")
+    lead = "each number must be" if each else "must be"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{lead} {allowed}, got {text!r}") from None
+        if value < low or (high is not None and value > high) or (power_of_two and value & (value - 1)):
+            raise argparse.ArgumentTypeError(f"{lead} {allowed}, got {value}")
+        return value
+
+    return parse
+
+
+def _float_type(low: float, *, inclusive: bool) -> Callable[[str], float]:
+    """An argparse ``type=``: a finite number > low (>= low when ``inclusive``)."""
+    allowed = f"a finite number {'>=' if inclusive else '>'} {low:g}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}") from None
+        if not math.isfinite(value) or value < low or (value == low and not inclusive):
+            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text}")
+        return value
+
+    return parse
+
+
+def _device_type(allow_all: bool = False) -> Callable[[str], str]:
+    """An argparse ``type=``: a well-formed device string (presence is checked later)."""
+
+    def parse(text: str) -> str:
+        from geosynth.backend import parse_device
+
+        if allow_all and text == "all":
+            return text
+        try:
+            parse_device(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc).rstrip(".")
+                                             + (" (or 'all')" if allow_all else "")) from None
+        return text
+
+    return parse
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``geosynth volume: argument --seed: ...``, exit 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (see '{self.prog} --help')\n")
+
+
+# ------------------------------------------------------------------ checks before the work
+
+
+def _check_input(path: str, what: str, fix: str) -> str:
+    """Refuse an input that is missing, a folder or unreadable; returns ``path``."""
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"{what} {path!r} does not exist; {fix}.")
+    if p.is_dir():
+        raise ValueError(f"{what} {path!r} is a folder; {fix}.")
+    if not os.access(p, os.R_OK):
+        raise ValueError(f"{what} {path!r} cannot be read (no read permission).")
+    return path
+
+
+def _check_outputs(outputs: Sequence[tuple[str | os.PathLike, Sequence[str], str]],
+                   inputs: Sequence[str]) -> None:
+    """``check_output`` for every (path, suffixes, what) of a run, and no two the same file."""
+    seen: dict[str, str] = {}
+    for path, suffixes, what in outputs:
+        out = check_output(path, inputs=inputs, suffixes=suffixes, what=what)
+        real = os.path.realpath(out)
+        if real in seen:
+            raise ValueError(f"{what} {str(path)!r} is the same file as {seen[real]}; give each output its own name.")
+        seen[real] = f"{what} {str(path)!r}"
+
+
+def _picture_path(args: argparse.Namespace) -> tuple[Path, str]:
+    """The picture's path and how messages name it (``--png``, or its default)."""
+    if args.png:
+        return Path(args.png), "--png"
+    return Path(args.output).with_suffix(".png"), "the default --png (OUTPUT with .png)"
+
+
+def _check_device(device: str | None) -> None:
+    """Refuse an absent device now, not after loading the inputs."""
+    from geosynth.backend import resolve_device
+
+    try:
+        resolve_device(device or "auto")
+    except (ValueError, RuntimeError) as exc:
+        raise type(exc)(f"--device {device or 'auto'}: {exc}") from exc
+
+
+def _typed(values: Sequence[int]) -> str:
+    return " ".join(str(v) for v in values)
+
+
+def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int], int | list[int]]:
+    """--size/--block/--levels/--source-resolution checked together, in the user's x y z order.
+
+    Returns:
+        (size for synthesize_geometry: one int or (z, y, x); block: one int or a list).
+    """
+    sizes, blocks, levels = list(args.size), list(args.block), args.levels
+    if len(sizes) not in (1, 3):
+        raise ValueError(f"--size takes one number (x = y; z follows the exemplar) or three (x y z), "
+                         f"got {len(sizes)}: {_typed(sizes)}.")
+    if len(blocks) not in (1, levels):
+        raise ValueError(f"--block takes one size (the finest level's) or one per level, coarsest first "
+                         f"({levels} with --levels {levels}), got {len(blocks)}: {_typed(blocks)}.")
+    factor = 2 ** (levels - 1)
+    if any(s % factor for s in sizes):
+        up = _typed([-(-s // factor) * factor for s in sizes])
+        raise ValueError(f"--size {_typed(sizes)}: with --levels {levels} every number must be a multiple of "
+                         f"2^(levels-1) = {factor}; try --size {up} or fewer --levels.")
+    axes = "xyz" if len(sizes) == 3 else "xy"
+    smallest = min(sizes)
+    axis = axes[sizes.index(smallest)] if len(sizes) == 3 else "x and y"
+    if len(blocks) == 1:
+        if blocks[0] > smallest:
+            raise ValueError(f"--block {blocks[0]} is larger than --size {_typed(sizes)} along {axis}; "
+                             f"use --block {1 << (smallest.bit_length() - 1)} or less, or a larger --size.")
+        if levels > 1 and smallest // factor < 2:
+            raise ValueError(f"--size {_typed(sizes)} with --levels {levels}: the coarsest level would be "
+                             f"{smallest // factor} sample(s) along {axis}; use a larger --size or fewer --levels.")
+    else:
+        for lvl, b in enumerate(blocks):
+            target = [s // 2 ** (levels - 1 - lvl) for s in sizes]
+            if b > min(target):
+                raise ValueError(f"--block {_typed(blocks)}: level {lvl + 1}'s block {b} is larger than the target "
+                                 f"there ({' x '.join(map(str, target))} samples, {' '.join(axes)}); use a smaller "
+                                 "block or a larger --size.")
+    finest = blocks[-1]
+    if args.source_resolution < finest:
+        raise ValueError(f"--source-resolution {args.source_resolution} is smaller than the finest block {finest}: "
+                         f"the exemplar must hold a whole block; use --source-resolution {max(8, finest)} or more.")
+    size = tuple(sizes[::-1]) if len(sizes) == 3 else sizes[0]  # the library's (z, y, x)
+    return size, (blocks if len(blocks) > 1 else blocks[0])
+
+
+# ------------------------------------------------------------------ commands
 
 
 def _cmd_devices(args: argparse.Namespace) -> int:
+    from geosynth.backend import describe_devices
+
     for name, desc in describe_devices():
         print(f"  {name:<14} {desc}")
     print(f"  'auto' picks: {geosynth.get_backend('auto').name}")
@@ -29,8 +218,21 @@ def _outline(image: np.ndarray, y0: int, x0: int, size: int, colour, width: int 
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    size, block = args.size, args.block
+    if block > size:
+        raise ValueError(f"--block {block} is larger than --size {size}; use --block {size} or less.")
+    folder = Path(args.output)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"-o/--output {args.output!r} is a file; demo writes its picture into a folder: "
+                         "give a folder name (it is created).")
+    picture = folder / "nearest_block.png"
+    _check_outputs([(picture, IMAGE_SUFFIXES, "the picture in -o/--output")], [])
+    if args.device != "all":
+        _check_device(args.device)
+
+    from geosynth.backend import describe_devices
     from geosynth.examples import quantize_distance, spheres_field
-    from geosynth.render import write_png
+    from geosynth.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     say("geosynth demo: nearest-block search (M1's linear search) on a generated field\n")
@@ -38,7 +240,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     for name, desc in describe_devices():
         say(f"  {name:<14} {desc}")
 
-    size, block = args.size, args.block
     rng = np.random.default_rng(args.seed)
     field = quantize_distance(spheres_field(size, count=max(1, size**3 // 6500), seed=args.seed), band=4.0)
     offsets = np.stack(np.meshgrid(*[np.arange(block)] * 3, indexing="ij"), -1).reshape(-1, 3)
@@ -84,7 +285,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     image = np.stack([grey] * 3, -1)
     _outline(image, origin[1] * scale, origin[2] * scale, block * scale, (0, 220, 0))
     _outline(image, found[1] * scale + 3, found[2] * scale + 3, block * scale - 6, (230, 0, 0))
-    out = write_png(Path(args.output) / "nearest_block.png", image)
+    out = write_image(picture, image)
     say(f"Picture: {out} (slice z={zc}; green: the query's true block, red: the best match)")
     return 0 if (agree and hit) else 1
 
@@ -99,20 +300,26 @@ def _example_mesh(name: str):
 
 
 def _cmd_field(args: argparse.Namespace) -> int:
+    if (args.input is None) == (args.example is None):
+        raise ValueError(f"give an INPUT mesh or point-set file, or --example NAME ({', '.join(MESH_EXAMPLES)}), "
+                         "not both or neither.")
+    inputs = []
+    if args.input is not None:
+        inputs.append(_check_input(args.input, "INPUT", "give a mesh or PLY point-set file, or --example NAME"))
+    out = Path(args.output)
+    png, png_what = _picture_path(args)
+    _check_outputs([(out, FIELD_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    if out.suffix != ".npz":  # Field.save takes the lower-case suffix only
+        raise ValueError(f"-o/--output {args.output!r} must end in .npz (lower case).")
+    _check_device(args.device)
+
     import trimesh
 
+    from geosynth.files import write_image
     from geosynth.fields import mesh_distance, pointset_distance
-    from geosynth.render import field_slices_image, write_png
+    from geosynth.render import field_slices_image
 
     say = (lambda *a, **k: None) if args.quiet else print
-    out = Path(args.output)
-    if out.suffix != ".npz":
-        raise ValueError(f"-o/--output must end in .npz, got {str(out)!r}.")
-    if args.input is None and args.example is None:
-        raise ValueError("give an INPUT mesh or point-set file, or --example NAME (torus, chainmail).")
-    if args.input is not None and out.resolve() == Path(args.input).resolve():
-        raise ValueError(f"-o/--output {str(out)!r} is the input file; choose another name (inputs are never overwritten).")
-
     t0 = time.perf_counter()
     if args.example is not None:
         source, label = _example_mesh(args.example), f"example {args.example}"
@@ -153,39 +360,44 @@ def _cmd_field(args: argparse.Namespace) -> int:
         f"{n:,} samples in {t_field:.2f} s ({n / t_field:,.0f} samples/s; loading {t_load:.2f} s) on "
         f"{geosynth.get_backend(args.device or 'auto').name}")
     say(f"written {out}" + (" (channels: distance, gradient x, y, z)" if field.values.ndim == 4 else ""))
-    png = Path(args.png) if args.png else out.with_suffix(".png")
-    write_png(png, field_slices_image(distance.values, count=3))
+    write_image(png, field_slices_image(distance.values, count=3), inputs=inputs)
     say(f"picture: {png} (three z slices; blue inside, orange outside, black: the zero level)")
     return 0
 
 
 def _cmd_volume(args: argparse.Namespace) -> int:
-    from geosynth.examples import EXEMPLARS
-    from geosynth.render import render_mesh, side_by_side, write_png
+    exemplar, example = args.exemplar, args.example
+    if exemplar is not None and example is None and exemplar in EXEMPLARS and not Path(exemplar).exists():
+        exemplar, example = None, exemplar  # a built-in name given as EXEMPLAR
+    if (exemplar is None) == (example is None):
+        raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), "
+                         "not both or neither.")
+    inputs = []
+    if exemplar is not None:
+        inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
+                                   f"NAME ({', '.join(EXEMPLARS)})"))
+    size, block = _volume_shape(args)
+    out = Path(args.output)
+    png, png_what = _picture_path(args)
+    _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    _check_device(args.device)
+
+    from geosynth.files import write_image
+    from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume import _exemplar_mesh, synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
-    if (args.exemplar is None) == (args.example is None):
-        raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), not both or neither.")
-    out = Path(args.output)
-    inputs = [args.exemplar] if args.exemplar else []
-    if args.exemplar and out.resolve() == Path(args.exemplar).resolve():
-        raise ValueError(f"-o/--output {str(out)!r} is the exemplar file; choose another name (inputs are never overwritten).")
-    if len(args.size) not in (1, 3) or len(args.block) not in (1, args.levels):
-        raise ValueError("--size takes one or three numbers (x y z); --block one or one per level.")
-    size = tuple(args.size[::-1]) if len(args.size) == 3 else args.size[0]  # (z, y, x) or one number
-    block = args.block if len(args.block) > 1 else args.block[0]
-    label = args.example or args.exemplar
+    label = example or exemplar
     shape_text = (f"{args.size[0]} x {args.size[1]} x {args.size[2]}" if len(args.size) == 3
                   else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
     say(f"geosynth volume: {label} -> {shape_text} samples, {args.levels} levels, "
         f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
     result = synthesize_geometry(
-        args.example or args.exemplar, size,
+        example or exemplar, size,
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
         seed=args.seed, device=args.device, search=args.search, smooth=args.smooth,
-        quality_samples=args.quality_samples, progress=not args.quiet,
+        quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
     )
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
@@ -204,24 +416,38 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         for k, q in result.quality.items():
             say(f"  {k:<14} output->exemplar {q['output_to_exemplar']:9.1f}   exemplar->output {q['exemplar_to_output']:9.1f}"
                 f"   mean {q['mean']:9.1f}")
-    png = Path(args.png) if args.png else out.with_suffix(".png")
-    from geosynth.volume import _exemplar_mesh
-
-    exemplar_mesh = _exemplar_mesh(args.example or args.exemplar, args.seed)
+    exemplar_mesh = _exemplar_mesh(example or exemplar, args.seed)
     picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)], labels=["exemplar", "synthesized"])
-    write_png(png, picture)
+    write_image(png, picture, inputs=inputs)
     say(f"picture: {png} (exemplar left, result right)")
     return 0
 
 
-def _cmd_texture(args: argparse.Namespace) -> int:
-    from geosynth.pointmodels import POINT_MODELS, load_point_model, point_model
-    from geosynth.pointsets import write_point_set
-    from geosynth.render import render_points, side_by_side, write_png
-    from geosynth.texture import texture_points
-    from geosynth.textures import TEXTURES, read_texture, texture_example
+def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
+    """--texture-size, --count, -k and --levels checked against each other where known now."""
+    name, size = args.texture_example, args.texture_size
+    if name == "bricks" and size % 16:
+        raise ValueError(f"--texture-size {size}: the bricks texture tiles at multiples of 16 texels; "
+                         f"use --texture-size {max(16, size // 16 * 16)} or {(size // 16 + 1) * 16}.")
+    if name == "checker" and size < 24:
+        raise ValueError(f"--texture-size {size}: the checker texture needs at least 24 texels (6 cells of 4).")
+    if model_is_sampled and args.k >= args.count:
+        raise ValueError(f"-k {args.k} needs more than {args.k} points but --count is {args.count}; "
+                         "use a smaller -k or a larger --count.")
+    if name is not None and args.method != "param":
+        side = math.ceil(math.sqrt(args.k + 1))  # the texels a k-neighbourhood spans, as texture_points checks
+        coarsest = size >> (args.levels - 1)
+        if coarsest < side:
+            raise ValueError(f"--texture-size {size} is smaller than the neighbourhood of -k {args.k} (about {side} x "
+                             f"{side} texels)" + (f" on the coarsest of --levels {args.levels} ({coarsest} texels)"
+                                                  if args.levels > 1 else "")
+                             + "; use a larger --texture-size, a smaller -k or fewer --levels.")
 
-    say = (lambda *a, **k: None) if args.quiet else print
+
+def _cmd_texture(args: argparse.Namespace) -> int:
+    from geosynth.pointmodels import POINT_MODELS
+    from geosynth.textures import TEXTURES
+
     inputs = list(args.inputs)
     model_path = None if args.example else (inputs.pop(0) if inputs else None)
     texture_path = None if args.texture_example else (inputs.pop(0) if inputs else None)
@@ -231,16 +457,27 @@ def _cmd_texture(args: argparse.Namespace) -> int:
         raise ValueError(f"give a MODEL file (PLY point set or any mesh) or --example NAME ({', '.join(POINT_MODELS)}).")
     if texture_path is None and args.texture_example is None:
         raise ValueError(f"give a TEXTURE image (PNG/JPEG) or --texture-example NAME ({', '.join(TEXTURES)}).")
+    used = []
+    if model_path is not None:
+        used.append(_check_input(model_path, "MODEL", "give a PLY point set or a mesh file, or --example NAME "
+                                 f"({', '.join(POINT_MODELS)})"))
+    if texture_path is not None:
+        used.append(_check_input(texture_path, "TEXTURE", "give a PNG or JPEG image, or --texture-example NAME "
+                                 f"({', '.join(TEXTURES)})"))
+    _texture_sizes(args, model_is_sampled=args.example is not None)
     out = Path(args.output)
-    if out.suffix.lower() != ".ply":
-        raise ValueError(f"-o/--output must end in .ply, got {str(out)!r}.")
-    png = Path(args.png) if args.png else out.with_suffix(".png")
-    inputs_used = [p for p in (model_path, texture_path) if p]
-    for target in (out, png):
-        for src in inputs_used:
-            if target.resolve() == Path(src).resolve():
-                raise ValueError(f"the output {str(target)!r} is an input file; choose another name (inputs are never overwritten).")
+    png, png_what = _picture_path(args)
+    _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], used)
+    _check_device(args.device)
 
+    from geosynth.files import write_image
+    from geosynth.pointmodels import load_point_model, point_model
+    from geosynth.pointsets import write_point_set
+    from geosynth.render import render_points, side_by_side
+    from geosynth.texture import texture_points
+    from geosynth.textures import read_texture, texture_example
+
+    say = (lambda *a, **k: None) if args.quiet else print
     if args.example:
         model, model_label = point_model(args.example, args.count, seed=args.seed), f"example {args.example}"
     else:
@@ -248,129 +485,237 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     if texture_path:
         texture, tex_label = read_texture(texture_path), Path(texture_path).name
         tileable = bool(args.tileable)
-        pattern = args.pattern_size
     else:
         texture = texture_example(args.texture_example, args.texture_size, seed=args.seed)
         tex_label = f"{args.texture_example} {args.texture_size}x{args.texture_size}"
         tileable = args.tileable is not False
-        pattern = args.pattern_size
     say(f"geosynth texture: {model_label} ({len(model):,} points) with {tex_label} "
         f"({texture.shape[1]} x {texture.shape[0]}, {'tileable' if tileable else 'not tileable'}), method {args.method}")
     coloured, report = texture_points(
         model, texture, method=args.method, k=args.k, levels=args.levels, coherent=args.coherent, m=args.m,
         unit_scale=args.unit_scale, up=None if args.random_orientation else (0.0, 1.0, 0.0), tileable=tileable,
-        threshold=args.threshold, pattern_size=pattern, quality=not args.no_quality,
-        quality_samples=args.quality_samples, device=args.device, seed=args.seed, progress=not args.quiet,
+        threshold=args.threshold, pattern_size=args.pattern_size,
+        quality=not args.no_quality and args.quality_samples > 0,
+        quality_samples=max(1, args.quality_samples), device=args.device, seed=args.seed, progress=not args.quiet,
     )
     write_point_set(out, coloured)
     for line in report.lines():
         say(line)
     say(f"written {out}")
-    azimuths = (-60, 60, 180, -150)[:max(1, min(4, args.views))]
+    azimuths = (-60, 60, 180, -150)[:args.views]
     views = [render_points(coloured.positions, coloured.normals, coloured.colors, size=(360, 320), view=(az, 25))
              for az in azimuths]
     scale = max(1, 256 // max(texture.shape[:2]))
     tex_big = np.repeat(np.repeat(texture, scale, 0), scale, 1)
     labels = ["texture"] + [f"view {i + 1}" for i in range(len(views))]
-    write_png(png, side_by_side([tex_big] + views, labels=labels))
+    write_image(png, side_by_side([tex_big] + views, labels=labels), inputs=used)
     say(f"picture: {png} (the texture, then {len(views)} view(s))")
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="geosynth", description="Example-based geometry synthesis.")
-    parser.add_argument("--version", action="version", version=f"geosynth {geosynth.__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+# ------------------------------------------------------------------ the parser
 
-    p = sub.add_parser("devices", help="list the devices present")
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``geosynth`` parser; every number is range-checked here (one-line errors, exit 2)."""
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
+    common.add_argument("--verbose", action="store_true",
+                        help="show the libraries' warnings (e.g. Warp's notice that no CUDA driver is present)")
+
+    parser = _Parser(prog="geosynth", description="Example-based geometry synthesis.")
+    parser.add_argument("--version", action="version", version=f"geosynth {geosynth.__version__}")
+    parser.add_argument("--debug", dest="global_debug", action="store_true", help="as each command's --debug")
+    parser.add_argument("--verbose", dest="global_verbose", action="store_true", help="as each command's --verbose")
+    sub = parser.add_subparsers(dest="command", required=True)
+    seed = dict(type=_int_type(0), default=0, help="seed of every random choice, an integer >= 0 (default 0)")
+    device = dict(type=_device_type(), default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")
+
+    p = sub.add_parser("devices", parents=[common], help="list the devices present")
     p.set_defaults(func=_cmd_devices)
 
-    p = sub.add_parser("volume", help="M1: synthesize a larger piece of geometry from an exemplar mesh")
+    p = sub.add_parser("volume", parents=[common],
+                       help="M1: synthesize a larger piece of geometry from an exemplar mesh")
     p.add_argument("exemplar", nargs="?", help="an exemplar mesh file (any format trimesh reads)")
-    p.add_argument("--example", help="a built-in exemplar instead: chainmail, balls, grid, fibers, terrain")
+    p.add_argument("--example", choices=list(EXEMPLARS), help="a built-in exemplar instead")
     p.add_argument("-o", "--output", required=True, help="the output mesh (.ply, .obj or .stl)")
-    p.add_argument("--size", type=int, nargs="+", default=[128], help="target samples along x and y (z keeps the exemplar's thickness), or x y z (default 128)")
-    p.add_argument("--levels", type=int, default=3, help="resolution levels (default 3)")
-    p.add_argument("--block", type=int, nargs="+", default=[16], help="finest block size, or one per level (default 16)")
-    p.add_argument("--source-resolution", type=int, default=64, help="exemplar samples along its longest side (default 64)")
+    p.add_argument("--size", type=_int_type(8, each=True), nargs="+", default=[128], metavar="N",
+                   help="target samples along x and y (z keeps the exemplar's thickness), or x y z; each >= 8 and a "
+                        "multiple of 2^(levels-1) (default 128)")
+    p.add_argument("--levels", type=_int_type(1, MAX_LEVELS), default=3,
+                   help=f"resolution levels, 1 to {MAX_LEVELS} (default 3)")
+    p.add_argument("--block", type=_int_type(2, power_of_two=True, each=True), nargs="+", default=[16], metavar="B",
+                   help="finest block size, or one per level (coarsest first); powers of two >= 2 (default 16)")
+    p.add_argument("--source-resolution", type=_int_type(8), default=64,
+                   help="exemplar samples along its longest side, >= 8 (default 64)")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
     p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
-    p.add_argument("--smooth", type=int, default=10, help="Taubin smoothing iterations (default 10)")
-    p.add_argument("--quality-samples", type=int, default=100, help="blocks per direction for the quality numbers (0: skip)")
-    p.add_argument("--device", default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--png", default=None, help="picture of exemplar and result (default: OUTPUT with .png)")
+    p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
+                   help=f"Taubin smoothing iterations, 0 to {MAX_SMOOTH} (default 10)")
+    p.add_argument("--quality-samples", type=_int_type(0), default=100,
+                   help="blocks per direction for the quality numbers, >= 0 (0: skip; default 100)")
+    p.add_argument("--drop-degenerate", action="store_true",
+                   help="drop the exemplar's zero-area faces instead of refusing the mesh")
+    p.add_argument("--device", **device)
+    p.add_argument("--seed", **seed)
+    p.add_argument("--png", default=None, help="picture of exemplar and result, .png or .jpg "
+                                               "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_volume)
 
-    p = sub.add_parser("texture", help="M3: colour a point model from a sample texture (parameterization, matching, hybrid)")
+    p = sub.add_parser("texture", parents=[common],
+                       help="M3: colour a point model from a sample texture (parameterization, matching, hybrid)")
     p.add_argument("inputs", nargs="*", metavar="[MODEL] [TEXTURE]",
                    help="a point model (PLY point set, or a mesh to sample) and a texture image (PNG/JPEG)")
     p.add_argument("--example", choices=["sphere", "torus", "blob"], help="a built-in point model instead of MODEL")
-    p.add_argument("--count", type=int, default=20_000, help="points of a built-in model or sampled from a mesh (default 20000)")
+    p.add_argument("--count", type=_int_type(16), default=20_000,
+                   help="points of a built-in model or sampled from a mesh, >= 16 (default 20000)")
     p.add_argument("--texture-example", choices=["bricks", "checker", "noise"], help="a built-in texture instead of TEXTURE")
-    p.add_argument("--texture-size", type=int, default=64, help="size of a built-in texture (default 64)")
+    p.add_argument("--texture-size", type=_int_type(8), default=64,
+                   help="size of a built-in texture, >= 8 (bricks: a multiple of 16; checker: >= 24; default 64)")
     p.add_argument("-o", "--output", required=True, help="the coloured point set, .ply")
     p.add_argument("--method", choices=["param", "match", "hybrid"], default="hybrid", help="default hybrid")
-    p.add_argument("-k", type=int, default=25, help="neighbours per point (default 25)")
-    p.add_argument("--levels", type=int, default=1, help="multiresolution levels of matching (default 1)")
+    p.add_argument("-k", type=_int_type(3), default=25, help="neighbours per point, >= 3 and < the points (default 25)")
+    p.add_argument("--levels", type=_int_type(1, MAX_LEVELS), default=1,
+                   help=f"multiresolution levels of matching, 1 to {MAX_LEVELS} (default 1)")
     p.add_argument("--coherent", action="store_true", help="coherent matching (candidates near the neighbours' sources)")
-    p.add_argument("--m", type=int, default=8, help="texture supersampling of the texel search (default 8)")
-    p.add_argument("--unit-scale", type=float, default=1.0, help="one texel = this x the mean point spacing (default 1)")
+    p.add_argument("--m", type=_int_type(1, 32), default=8,
+                   help="texture supersampling of the texel search, 1 to 32 (default 8)")
+    p.add_argument("--unit-scale", type=_float_type(0, inclusive=False), default=1.0,
+                   help="one texel = this x the mean point spacing, > 0 (default 1)")
     p.add_argument("--random-orientation", action="store_true", help="random texture direction instead of the up vector (0, 1, 0)")
     p.add_argument("--tileable", action=argparse.BooleanOptionalAction, default=None,
                    help="the texture tiles (default: yes for built-ins, no for images)")
-    p.add_argument("--threshold", type=float, default=1.6, help="distortion threshold of the parameterization (default 1.6)")
-    p.add_argument("--pattern-size", type=float, default=None, help="texture pattern size in texels, for the hybrid's gap widening")
-    p.add_argument("--quality-samples", type=int, default=200, help="points whose neighbourhoods the quality numbers use (default 200)")
+    p.add_argument("--threshold", type=_float_type(0, inclusive=False), default=1.6,
+                   help="distortion threshold of the parameterization, > 0 (default 1.6)")
+    p.add_argument("--pattern-size", type=_float_type(0, inclusive=False), default=None,
+                   help="texture pattern size in texels (> 0), for the hybrid's gap widening")
+    p.add_argument("--quality-samples", type=_int_type(0), default=200,
+                   help="points whose neighbourhoods the quality numbers use, >= 0 (0: skip; default 200)")
     p.add_argument("--no-quality", action="store_true", help="skip the quality numbers")
-    p.add_argument("--device", default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--png", default=None, help="picture: the texture and the views (default: OUTPUT with .png)")
-    p.add_argument("--views", type=int, default=3, help="views of the result in the picture, 1 to 4 (default 3)")
+    p.add_argument("--device", **device)
+    p.add_argument("--seed", **seed)
+    p.add_argument("--png", default=None, help="picture: the texture and the views, .png or .jpg "
+                                               "(default: OUTPUT with .png)")
+    p.add_argument("--views", type=_int_type(1, 4), default=3, help="views of the result in the picture, 1 to 4 (default 3)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_texture)
 
-    p = sub.add_parser("field", help="sample the signed distance of a mesh or an oriented point set on a grid")
+    p = sub.add_parser("field", parents=[common],
+                       help="sample the signed distance of a mesh or an oriented point set on a grid")
     p.add_argument("input", nargs="?", help="a mesh (any format trimesh reads) or a PLY point set with normals")
     p.add_argument("--example", choices=MESH_EXAMPLES, help="a built-in mesh instead of INPUT")
     p.add_argument("-o", "--output", required=True, help="the field, .npz")
-    p.add_argument("--resolution", type=int, default=64, help="samples along the longest axis (default 64)")
-    p.add_argument("--padding", type=float, default=0.1, help="grid margin, a fraction of the largest extent (default 0.1)")
-    p.add_argument("--band", type=float, default=None, help="clamp distances to [-W, W]")
+    p.add_argument("--resolution", type=_int_type(2), default=64, help="samples along the longest axis, >= 2 (default 64)")
+    p.add_argument("--padding", type=_float_type(0, inclusive=True), default=0.1,
+                   help="grid margin, a fraction (>= 0) of the largest extent (default 0.1)")
+    p.add_argument("--band", type=_float_type(0, inclusive=False), default=None, help="clamp distances to [-W, W], W > 0")
     p.add_argument("--unsigned", action="store_true", help="unsigned distance (meshes)")
     p.add_argument("--drop-degenerate", action="store_true", help="drop zero-area faces instead of refusing the mesh")
-    p.add_argument("--radius", type=float, default=None, help="MLS Gaussian width for point sets (default: from the spacing)")
+    p.add_argument("--radius", type=_float_type(0, inclusive=False), default=None,
+                   help="MLS Gaussian width for point sets, > 0 (default: from the spacing)")
     p.add_argument("--estimate-normals", action="store_true", help="estimate missing point normals")
-    p.add_argument("--device", default=None, help="cpu, cuda[:N], opencl[:P:D] or auto (default)")
-    p.add_argument("--png", default=None, help="picture of the slices (default: OUTPUT with .png)")
+    p.add_argument("--device", **device)
+    p.add_argument("--png", default=None, help="picture of the slices, .png or .jpg (default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_field)
 
-    p = sub.add_parser("demo", help="nearest-block search on a generated field, on every device")
-    p.add_argument("--device", default="all", help="a device string, or 'all' (default) for every present device")
-    p.add_argument("--size", type=int, default=64, help="source field size (default 64)")
-    p.add_argument("--block", type=int, default=16, help="block size (default 16)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--repeat", type=int, default=3, help="timed repetitions per device (best is shown)")
+    p = sub.add_parser("demo", parents=[common], help="nearest-block search on a generated field, on every device")
+    p.add_argument("--device", type=_device_type(allow_all=True), default="all",
+                   help="a device string, or 'all' (default) for every present device")
+    p.add_argument("--size", type=_int_type(4, DEMO_MAX_SIZE), default=64,
+                   help=f"source field size, 4 to {DEMO_MAX_SIZE} (default 64)")
+    p.add_argument("--block", type=_int_type(2), default=16, help="block size, 2 to --size (default 16)")
+    p.add_argument("--seed", **seed)
+    p.add_argument("--repeat", type=_int_type(1, 1000), default=3,
+                   help="timed repetitions per device, 1 to 1000 (best is shown; default 3)")
     p.add_argument("-o", "--output", default="demo_out", help="folder for the picture (default demo_out)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)
     return parser
 
 
+# ------------------------------------------------------------------ errors, signals, main
+
+# What each command's memory can be lowered with, when an estimate names no option.
+_MEMORY_FLAGS = {"volume": "--size or --source-resolution", "texture": "--count or --texture-size",
+                 "field": "--resolution", "demo": "--size"}
+
+
+class _Terminated(BaseException):
+    """SIGTERM arrived (raised by main's handler, so that cleanups run)."""
+
+
+def _on_sigterm(signum, frame):  # pragma: no cover - exercised through a subprocess
+    raise _Terminated()
+
+
+def _expected() -> tuple[type[BaseException], ...]:
+    """The exception types bad input or a bad environment raise: one line, exit 2."""
+    kinds: list[type[BaseException]] = [ValueError, TypeError, RuntimeError, OSError, MemoryError, ImportError]
+    pil = sys.modules.get("PIL.Image")
+    if pil is not None and hasattr(pil, "DecompressionBombError"):
+        kinds.append(pil.DecompressionBombError)
+    return tuple(kinds)
+
+
+def _message(exc: BaseException, command: str) -> str:
+    """One line saying what failed and how to fix it, in the command line's terms."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename:
+        text = f"{exc.filename}: {exc.strerror}"
+    else:
+        text = str(exc) or type(exc).__name__
+    if isinstance(exc, MemoryError):
+        option = getattr(exc, "option", None)
+        if option:
+            flag = "--" + str(option).replace("_", "-")
+            largest = getattr(exc, "largest", None)
+            if isinstance(largest, (tuple, list)):  # the library's (z, y, x) -> the user's x y z
+                largest = " ".join(str(v) for v in largest[::-1])
+            text = f"{flag}: {text}" + (f" (lower {flag}; the largest that fits: {largest})"
+                                        if largest is not None else f" (lower {flag})")
+        elif command in _MEMORY_FLAGS:
+            text = f"{text.rstrip('.')}; on the command line: lower {_MEMORY_FLAGS[command]}."
+    for parameter, flag in _PARAMETER_FLAGS.get(command, []):
+        text = re.sub(parameter, flag, text)
+    return " ".join(text.split())  # one line
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 done, 1 a failed demo check or an
+    unexpected internal error, 2 bad input, 130 Ctrl-C, 143 SIGTERM)."""
     args = build_parser().parse_args(argv)
-    if getattr(args, "command", None) == "demo" and not (2 <= args.block <= args.size):
-        print(f"geosynth demo: --block must be between 2 and --size ({args.size}), got {args.block}.", file=sys.stderr)
-        return 2
+    debug = args.debug or args.global_debug
+    if args.verbose or args.global_verbose:
+        os.environ["GEOSYNTH_VERBOSE"] = "1"  # read when the backends load
+    name = f"geosynth {args.command}"
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
+    line = None
     try:
         return args.func(args)
-    except (ValueError, RuntimeError, TypeError) as exc:
-        print(f"geosynth {args.command}: {exc}", file=sys.stderr)
-        return 2
-
+    except _Terminated:
+        return 143
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        code, line = 130, f"{name}: interrupted"
+    except Exception as exc:
+        if debug:
+            raise
+        if isinstance(exc, _expected()):
+            code, line = 2, f"{name}: {_message(exc, args.command)}"
+        else:
+            code, line = 1, (f"{name}: unexpected {type(exc).__name__}: {_message(exc, args.command)} "
+                             "(rerun with --debug for the traceback, and please report it)")
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+    # Printed once the failed work's frames are gone: its progress bars have closed.
+    sys.stdout.flush()
+    print(line, file=sys.stderr)
+    return code
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -536,6 +536,7 @@ def synthesize_geometry(
     smooth: int = 10,
     quality_samples: int = 100,
     progress: bool = True,
+    drop_degenerate: bool = False,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -558,6 +559,8 @@ def synthesize_geometry(
             :func:`exemplar_grid`).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
         quality_samples: blocks sampled each way for the quality numbers.
+        drop_degenerate: drop the exemplar's zero-area faces instead of refusing it
+            (:func:`geosynth.meshes.check_mesh`).
 
     Returns:
         GeometryResult.
@@ -583,11 +586,11 @@ def synthesize_geometry(
     timings = {}
     t0 = time.perf_counter()
     mesh = _exemplar_mesh(exemplar, seed)
-    check_mesh(mesh, "exemplar")  # empty, NaN or degenerate meshes: a clear error now
+    check_mesh(mesh, "exemplar", drop_degenerate=drop_degenerate)  # empty, NaN or degenerate meshes: a clear error now
     timings["exemplar"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
-                                   device=device)
+                                   drop_degenerate=drop_degenerate, device=device)
     timings["exemplar distance field"] = time.perf_counter() - t0
     spacing = float(exemplar_field.spacing[0])
     if not _SCALE_RANGE[0] <= spacing <= _SCALE_RANGE[1]:
