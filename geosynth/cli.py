@@ -317,6 +317,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
 
     from geosynth.files import write_image
     from geosynth.fields import mesh_distance, pointset_distance
+    from geosynth.pointsets import read_geometry
     from geosynth.render import field_slices_image
 
     say = (lambda *a, **k: None) if args.quiet else print
@@ -324,9 +325,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
     if args.example is not None:
         source, label = _example_mesh(args.example), f"example {args.example}"
     else:
-        source, label = trimesh.load(args.input), args.input
-    if isinstance(source, trimesh.Scene):
-        source = source.to_geometry() if hasattr(source, "to_geometry") else source.dump(concatenate=True)
+        source, label = read_geometry(args.input), args.input  # a mesh when the file has faces, else a PointSet
     t_load = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -336,9 +335,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
                               band=args.band, drop_degenerate=args.drop_degenerate, device=args.device)
         distance = field
     else:
-        from geosynth.pointsets import read_point_set
-
-        points = read_point_set(args.input)
+        points = source
         say(f"{label}: point set of {len(points.positions):,} points"
             + ("" if points.normals is not None else " without normals"))
         if points.normals is None:
