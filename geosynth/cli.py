@@ -709,10 +709,19 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
-    # Printed once the failed work's frames are gone: its progress bars have closed.
+    _close_progress_bars()
     sys.stdout.flush()
     print(line, file=sys.stderr)
     return code
+
+
+def _close_progress_bars() -> None:
+    """Close the bars an interrupted or failed run left open, so the message that follows
+    starts on a line of its own (a bar's frame may outlive the exception)."""
+    module = sys.modules.get("tqdm")
+    if module is not None:
+        for bar in list(getattr(module.tqdm, "_instances", ())):
+            bar.close()
 
 if __name__ == "__main__":
     sys.exit(main())
