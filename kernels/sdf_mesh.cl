@@ -19,7 +19,7 @@
 // correctly rounded division and sqrt (-cl-fp32-correctly-rounded-divide-sqrt).
 //
 // BVH layout (geosynth.meshes.MeshBVH; node 0 unused, root = node 1):
-//   sbox   (N * 8) float: search box min xyz, 0, max xyz, 0 (grown by MeshBVH.box_slack);
+//   sbox   (N * 8) float: search box min xyz, 0, max xyz, 0 (grown by geosynth.meshes.BOX_SLACK);
 //          the two children of a node are adjacent
 //   child  (N * 2) int:   internal (first child, 0) | leaf (first triangle, count > 0)
 //   dipole (N * 8) float: centroid xyz, (beta r)^2, area-weighted normal sum xyz, 0
