@@ -4,7 +4,11 @@ Cases (issue 3): meshes a ~20k-face torus, a ~20k-face chainmail of linked tori 
 ~200k-face torus; grids 64^3 and 128^3 over the bounds plus 10%. Reported: points/s,
 the maximum error against the exact oracle (brute force over all faces, winding-number
 sign) on a sample of the grid points, the sign errors there, and the ratio to the
-fastest peer. Then MLS samples/s for a 100k-point set on a 64^3 grid.
+fastest peer. Then point queries (issue 15 item 11): mesh_distance(mesh, points) at the
+64^3 grid's sample positions of the ~20k-face torus, once in grid order and once
+shuffled, against pysdf on the same points; these rows give the median of repeated
+calls and the spread (the machine is shared), and check that every device returns the
+grid path's values bit for bit. Then MLS samples/s for a 100k-point set on a 64^3 grid.
 
 geosynth rows time mesh_distance on a mesh already prepared (its BVH is built once per
 mesh and cached; the build time is reported separately), peers their query call after
@@ -121,6 +125,48 @@ def mesh_rows(name, mesh, resolution, devices, rng, sample: int) -> list[Row]:
     return rows
 
 
+def median_call(fn, repeats: int = 9) -> tuple[float, float, float]:
+    """(median, min, max) wall seconds of ``fn()`` over ``repeats`` calls after one warm-up."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), min(times), max(times)
+
+
+def point_query_rows(name, mesh, resolution, devices, rng, repeats: int) -> list[Row]:
+    """mesh_distance at the grid's sample positions as points, grid order and shuffled."""
+    grid = mesh_distance(mesh, field=cubic_grid(mesh.bounds, resolution, 0.1), device=devices[0])
+    nz, ny, nx = grid.shape
+    o, sp = grid.origin.astype(np.float32), grid.spacing.astype(np.float32)
+    axes = [o[a] + sp[a] * np.arange(n, dtype=np.float32) for a, n in enumerate((nx, ny, nz))]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    points = np.stack([x, y, z], -1).reshape(-1, 3)  # the kernels' float32 sample positions
+    want = grid.values.reshape(-1)
+    perm = rng.permutation(len(points))
+    sdf_cls, _ = _peer("pysdf")
+    sdf = None
+    if sdf_cls is not None:
+        sdf = sdf_cls(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32))
+    rows = []
+    for order, pts, ref in (("grid order", points, want), ("shuffled", points[perm], want[perm])):
+        case = f"{name} ({len(mesh.faces):,} faces), {len(pts):,} points ({resolution}^3 grid positions, {order})"
+        print(f"  {case}", flush=True)
+        for dev in devices:
+            same = mesh_distance(mesh, pts, device=dev).tobytes() == ref.tobytes()
+            med, lo, hi = median_call(lambda dev=dev, pts=pts: mesh_distance(mesh, pts, device=dev), repeats)
+            rows.append(Row(case, f"geosynth {dev}", med, len(pts), 0, False,
+                            f"median of {repeats}, spread {lo * 1e3:.1f}-{hi * 1e3:.1f} ms; "
+                            f"{'bit-identical to' if same else 'DIFFERS from'} the grid path"))
+        if sdf is not None:
+            med, lo, hi = median_call(lambda pts=pts: sdf(pts), repeats)
+            rows.append(Row(case, "pysdf", med, len(pts), 0, True,
+                            f"median of {repeats}, spread {lo * 1e3:.1f}-{hi * 1e3:.1f} ms"))
+    return rows
+
+
 def mls_rows(devices, rng, count: int, resolution: int) -> list[Row]:
     import trimesh
 
@@ -161,6 +207,7 @@ def main(argv=None) -> int:
     for name, mesh in meshes:
         for res in grids:
             rows += mesh_rows(name, mesh, res, devices, rng, sample if len(mesh.faces) < 100_000 else sample // 4)
+    rows += point_query_rows(*meshes[0], grids[0], devices, rng, 5 if args.quick else 9)
     rows += mls_rows(devices, rng, *mls)
     return finish(table(rows).replace("| elements/s |", "| points/s |"), args)
 

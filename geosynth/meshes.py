@@ -32,6 +32,11 @@ GRID_RUN = 8
 # A face is degenerate when twice its area is below this fraction of the squared
 # bounding-box diagonal (zero-area faces, collinear or repeated corners).
 _DEGENERATE_REL = 1e-12
+# The closest-point searches of every kernel use boxes grown by this fraction of the
+# mesh's bounding-box diagonal (MeshBVH.sbox): far beyond the rounding of the float32
+# box and triangle distances, so no node that holds the minimum is ever pruned and the
+# result is the same minimum on every device, whatever the visiting order.
+BOX_SLACK = 2.0**-12
 
 
 # ------------------------------------------------------------------ input
@@ -258,6 +263,8 @@ class MeshBVH:
         vertices: (V, 3) float32, as checked.
         faces: (F, 3) int32, oriented (:func:`orient_faces`) and in leaf order.
         bbox: (N, 8) float32 per node: min x, y, z, 0, max x, y, z, 0.
+        sbox: (N, 8) float32: the search boxes of the kernels, ``bbox`` grown by
+            ``BOX_SLACK`` times the root box's diagonal on every side.
         child: (N, 2) int32 per node: (first child, 0) for an internal node,
             (first triangle, count) for a leaf.
         dipole: (N, 8) float32 per node for the fast winding number: area-weighted
@@ -280,6 +287,7 @@ class MeshBVH:
     tris: np.ndarray
     depth: int
     tri_lanes: np.ndarray
+    sbox: np.ndarray
     device_cache: dict = dc_field(default_factory=dict, repr=False)
 
     @property
@@ -425,6 +433,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZ
     )
     return MeshBVH(
         tri_lanes=_tri_lanes(tri),
+        sbox=_search_boxes(bbox),
         vertices=v.astype(np.float32),
         faces=np.ascontiguousarray(f, dtype=np.int32),
         bbox=np.ascontiguousarray(bbox, dtype=np.float32),
@@ -433,6 +442,17 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZ
         tris=np.ascontiguousarray(tris, dtype=np.float32),
         depth=depth,
     )
+
+
+def _search_boxes(bbox: np.ndarray) -> np.ndarray:
+    """(N, 8) float32 boxes grown by BOX_SLACK times the root's diagonal, rounded outward."""
+    slack = BOX_SLACK * float(np.linalg.norm(bbox[1, 4:7] - bbox[1, 0:3]))
+    out = np.zeros(bbox.shape, np.float32)
+    lo, hi = bbox[:, 0:3] - slack, bbox[:, 4:7] + slack
+    out[:, 0:3] = np.nextafter(lo.astype(np.float32), np.float32(-np.inf))
+    out[:, 4:7] = np.nextafter(hi.astype(np.float32), np.float32(np.inf))
+    out[0] = 0.0
+    return np.ascontiguousarray(out)
 
 
 def _tri_lanes(tri: np.ndarray) -> np.ndarray:
@@ -482,6 +502,25 @@ def prepare_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False) -> 
     return bvh
 
 
+# bit b of a 10-bit integer moved to bit 3 b (the Morton interleave, by table)
+_SPREAD10 = np.zeros(1024, np.uint64)
+for _b in range(10):
+    _SPREAD10 |= ((np.arange(1024, dtype=np.uint64) >> np.uint64(_b)) & np.uint64(1)) << np.uint64(3 * _b)
+
+
+def _query_order(points: np.ndarray) -> np.ndarray:
+    """(M,) permutation putting (M, 3) query points in Morton order (1024 cells per side
+    over their bounding box, ties by index): consecutive points are near each other, so
+    the kernels' SIMD tiles and seeded searches stay tight. Results do not depend on it."""
+    columns = np.ascontiguousarray(points.T, dtype=np.float64)  # NumPy reduces (M, 3) along axis 0 slowly
+    lo, hi = columns.min(axis=1), columns.max(axis=1)
+    scale = 1023.0 / np.where(hi > lo, hi - lo, 1.0)
+    q = np.clip(((columns - lo[:, None]) * scale[:, None]).astype(np.int64), 0, 1023)
+    code = _SPREAD10[q[0]] | (_SPREAD10[q[1]] << np.uint64(1)) | (_SPREAD10[q[2]] << np.uint64(2))
+    index_bits = max(1, int(len(points) - 1).bit_length())
+    return np.argsort((code << np.uint64(index_bits)) | np.arange(len(points), dtype=np.uint64))  # unique keys
+
+
 # ------------------------------------------------------------------ public API
 
 
@@ -500,16 +539,19 @@ def mesh_distance(
 ):
     """Distance from points, or from every sample of a grid, to a triangle mesh.
 
-    The distance is exact: the closest point over all triangles, found by a bounding
-    volume hierarchy traversal with the exact point-triangle distance (Warp:
-    ``wp.Mesh`` closest-point queries; OpenCL: a Morton-ordered BVH built once on the
-    host, cached, and traversed nearest-child-first with a stack in the kernel). On
-    OpenCL, grids are processed in tiles of 4 x 2 x 2 samples that share one traversal
-    as the 16 lanes of SIMD vectors: a node is entered while it may hold a closer
-    triangle for any lane, and triangles are tested against all lanes at once
-    (branch-free); each lane still gets its own exact closest distance. Elsewhere grid
-    rows go a few points at a time, each search starting from the previous point's
-    closest triangle as an upper bound (exact, only faster).
+    The distance is exact: the closest point over all triangles, found by a traversal
+    of a Morton-ordered bounding volume hierarchy (BVH) built once on the host and
+    cached. On OpenCL, queries go in tiles of 16 (grids: 4 x 2 x 2 samples; points: 16
+    consecutive points after sorting them in Morton order) that share one traversal as
+    the lanes of SIMD vectors: a node is entered while it may hold a closer triangle for
+    any lane, and triangles are tested against all lanes at once (branch-free). On Warp,
+    a few nearby queries go per thread, each search starting from the previous one's
+    closest triangle as an upper bound. Every path returns the same float32 bits on
+    every device: each distance is the minimum over all triangles of one float
+    expression, computed with the same operations in the same order (no FMA
+    contraction), and the search prunes with a margin beyond any rounding, so neither
+    the tiles, nor the visiting order, nor the device change a result; point queries
+    at grid positions equal the grid's values.
 
     The sign is negative inside. Inside means a generalized winding number above 1/2
     (Jacobson et al. 2013), computed with the fast approximation of Barill et al. 2018
@@ -526,7 +568,7 @@ def mesh_distance(
     order).
 
     Degenerate (zero-area) faces are refused, or removed with ``drop_degenerate``:
-    they carry no area, and Warp's ``wp.Mesh`` skips them in its closest-point search.
+    they carry no area and no normal.
 
     Args:
         mesh: a ``trimesh.Trimesh`` or a path to a mesh file (any format trimesh reads).
@@ -582,9 +624,13 @@ def mesh_distance(
         m = pts.shape[0]
         if m == 0:
             return np.zeros(0, np.float32)
+        order = _query_order(pts)  # tiles of nearby points; each result is order-free
         out = backend.empty((m,), np.float32)
-        backend.mesh_distance_points(backend.mesh_handle(bvh), backend.to_device(pts), m, bool(signed), band_arg, out)
-        return backend.to_host(out)  # sync: the distances are the answer
+        backend.mesh_distance_points(backend.mesh_handle(bvh), backend.to_device(pts[order]), m, bool(signed),
+                                     band_arg, out)
+        result = np.empty(m, np.float32)
+        result[order] = backend.to_host(out)  # sync: the distances are the answer
+        return result
 
     if field is not None:
         if not isinstance(field, Field):

@@ -1,229 +1,45 @@
 // Distance-field kernels (mesh): OpenCL. The twin of sdf_mesh.py.
 //
 // Both kernels compute, per query point p, the exact distance to the mesh (closest
-// point over all triangles, by a nearest-child-first BVH traversal with a stack) and,
-// when `is_signed`, its sign from the fast generalized winding number (Barill et al.
-// 2018) on the same BVH: negative where the winding number exceeds 1/2.
+// point over all triangles, by a BVH traversal with a stack) and, when `is_signed`,
+// its sign from the fast generalized winding number (Barill et al. 2018) on the same
+// BVH: negative where the winding number exceeds 1/2. They take tiles of 16 points as
+// the lanes of SIMD vectors (below): mesh_distance_grid 4 x 2 x 2 grid samples,
+// mesh_distance_points 16 consecutive points (the host sorts them in Morton order).
+//
+// One result on every device (issue 16): each lane's distance is the minimum over ALL
+// triangles of one per-triangle float expression (tri_min_dist2_v; sdf_mesh.py has the
+// same operations in the same order), found by a search whose pruning keeps a safety
+// margin larger than any rounding (search boxes grown on the host, and a node is left
+// out only when its box is farther than PRUNE_REL times the best so far). The minimum
+// of the same floats does not depend on the visiting order, so the tile shape, the
+// traversal and the device do not change the result. The winding number adds the same
+// terms in the same order as the per-point traversal of sdf_mesh.py, with the same
+// atan2 polynomial. No contraction into FMAs (pragma below; Warp: fuse_fp off) and
+// correctly rounded division and sqrt (-cl-fp32-correctly-rounded-divide-sqrt).
 //
 // BVH layout (geosynth.meshes.MeshBVH; node 0 unused, root = node 1):
-//   bbox   (N * 8) float: min xyz, 0, max xyz, 0; the two children of a node are adjacent
+//   sbox   (N * 8) float: search box min xyz, 0, max xyz, 0 (grown by geosynth.meshes.BOX_SLACK);
+//          the two children of a node are adjacent
 //   child  (N * 2) int:   internal (first child, 0) | leaf (first triangle, count > 0)
 //   dipole (N * 8) float: centroid xyz, (beta r)^2, area-weighted normal sum xyz, 0
 //   tris   (F * 12) float: a, b - a, c - a, |b-a|^2, |c-a|^2, (b-a).(c-a)
 // `band` > 0 clamps the result to [-band, band] and prunes the search beyond it;
-// band <= 0 means no band. mesh_distance_points processes `run` points per work-item,
-// each search seeded with the previous point's closest triangle (an exact upper
-// bound); mesh_distance_grid processes tiles of 16 samples as SIMD lanes (below).
+// band <= 0 means no band.
 //
 // PoCL note (common.h): builtins are calls there, so the hot paths use plain operators
-// and clang's __builtin_sqrtf (one instruction); atan2 remains a call, once per exact
-// solid angle.
+// and clang's sqrt builtins (one instruction each).
+#pragma OPENCL FP_CONTRACT OFF
 #include "common.h"
 
 #define STACK_SIZE 64
 #define INV_4PI 0.0795774715459476678f
+// A node is searched while its box is nearer than PRUNE_REL * best (squared): slack
+// for the rounding of the box and triangle distances of far points (near ones are
+// covered by the grown boxes).
+#define PRUNE_REL 1.0009765625f
 
-// Squared distance from (px, py, pz) to triangle t (Ericson, Real-Time Collision
-// Detection 5.1.5, with the edge products precomputed).
-inline float tri_dist2(const __global float* t, float px, float py, float pz)
-{
-    const float apx = px - t[0], apy = py - t[1], apz = pz - t[2];
-    const float abx = t[3], aby = t[4], abz = t[5];
-    const float acx = t[6], acy = t[7], acz = t[8];
-    const float d1 = abx * apx + aby * apy + abz * apz;
-    const float d2 = acx * apx + acy * apy + acz * apz;
-    float s, w;
-    if (d1 <= 0.0f && d2 <= 0.0f) {
-        s = 0.0f; w = 0.0f;
-    } else {
-        const float d3 = d1 - t[9];
-        const float d4 = d2 - t[11];
-        const float d5 = d1 - t[11];
-        const float d6 = d2 - t[10];
-        if (d3 >= 0.0f && d4 <= d3) {
-            s = 1.0f; w = 0.0f;
-        } else if (d6 >= 0.0f && d5 <= d6) {
-            s = 0.0f; w = 1.0f;
-        } else {
-            const float vc = d1 * d4 - d3 * d2;
-            const float vb = d5 * d2 - d1 * d6;
-            const float va = d3 * d6 - d5 * d4;
-            if (vc <= 0.0f && d1 >= 0.0f && d3 <= 0.0f) {
-                s = d1 / (d1 - d3); w = 0.0f;
-            } else if (vb <= 0.0f && d2 >= 0.0f && d6 <= 0.0f) {
-                s = 0.0f; w = d2 / (d2 - d6);
-            } else if (va <= 0.0f && (d4 - d3) >= 0.0f && (d5 - d6) >= 0.0f) {
-                w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-                s = 1.0f - w;
-            } else {
-                const float inv = 1.0f / (va + vb + vc);
-                s = vb * inv; w = vc * inv;
-            }
-        }
-    }
-    const float ex = apx - abx * s - acx * w;
-    const float ey = apy - aby * s - acy * w;
-    const float ez = apz - abz * s - acz * w;
-    return ex * ex + ey * ey + ez * ez;
-}
-
-// Squared distance from a point to box k (0 inside).
-inline float box_dist2(const __global float* bbox, int k, float px, float py, float pz)
-{
-    const __global float* b = bbox + 8 * k;
-    const float dx = px < b[0] ? b[0] - px : (px > b[4] ? px - b[4] : 0.0f);
-    const float dy = py < b[1] ? b[1] - py : (py > b[5] ? py - b[5] : 0.0f);
-    const float dz = pz < b[2] ? b[2] - pz : (pz > b[6] ? pz - b[6] : 0.0f);
-    return dx * dx + dy * dy + dz * dz;
-}
-
-// Smallest squared distance below `best` (else `best`), its triangle in *best_tri.
-inline float closest_dist2(
-    const __global float* bbox, const __global int* child, const __global float* tris,
-    float px, float py, float pz, float best, int* best_tri)
-{
-    int stack[STACK_SIZE];
-    float stack_d[STACK_SIZE];
-    int sp = 0;
-    int node = 1;
-    if (box_dist2(bbox, 1, px, py, pz) >= best)
-        return best;
-    for (;;) {
-        const int a = child[2 * node];
-        const int cnt = child[2 * node + 1];
-        int descend = 0;
-        if (cnt > 0) {
-            for (int i = a; i < a + cnt; ++i) {
-                const float d = tri_dist2(tris + 12 * i, px, py, pz);
-                if (d < best) { best = d; *best_tri = i; }
-            }
-        } else {
-            const float d0 = box_dist2(bbox, a, px, py, pz);
-            const float d1 = box_dist2(bbox, a + 1, px, py, pz);
-            const int near_first = d0 <= d1;
-            const float dn = near_first ? d0 : d1;
-            const float df = near_first ? d1 : d0;
-            if (dn < best) {
-                if (df < best) {
-                    stack[sp] = near_first ? a + 1 : a;
-                    stack_d[sp] = df;
-                    ++sp;
-                }
-                node = near_first ? a : a + 1;
-                descend = 1;
-            }
-        }
-        if (descend)
-            continue;
-        // pop the next subtree still closer than the best so far
-        int found = 0;
-        while (sp > 0) {
-            --sp;
-            if (stack_d[sp] < best) { node = stack[sp]; found = 1; break; }
-        }
-        if (!found)
-            return best;
-    }
-}
-
-// Solid angle of triangle t seen from p (van Oosterom-Strackee), positive when p is
-// on the side its normal points away from.
-inline float tri_solid_angle(const __global float* t, float px, float py, float pz)
-{
-    const float ax = t[0] - px, ay = t[1] - py, az = t[2] - pz;
-    const float bx = ax + t[3], by = ay + t[4], bz = az + t[5];
-    const float cx = ax + t[6], cy = ay + t[7], cz = az + t[8];
-    const float la = __builtin_sqrtf(ax * ax + ay * ay + az * az);
-    const float lb = __builtin_sqrtf(bx * bx + by * by + bz * bz);
-    const float lc = __builtin_sqrtf(cx * cx + cy * cy + cz * cz);
-    const float det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx);
-    const float den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc
-        + (ax * cx + ay * cy + az * cz) * lb + (bx * cx + by * cy + bz * cz) * la;
-    return 2.0f * atan2(det, den);
-}
-
-// Fast generalized winding number at p: dipoles for far nodes, exact near leaves.
-inline float winding_number(
-    const __global float* dipole, const __global int* child, const __global float* tris,
-    float px, float py, float pz)
-{
-    int stack[STACK_SIZE];
-    int sp = 0;
-    int node = 1;
-    float acc = 0.0f;
-    for (;;) {
-        const __global float* q = dipole + 8 * node;
-        const float dx = q[0] - px, dy = q[1] - py, dz = q[2] - pz;
-        const float d2 = dx * dx + dy * dy + dz * dz;
-        int next = -1;
-        if (d2 > q[3]) {
-            acc += (q[4] * dx + q[5] * dy + q[6] * dz) / (d2 * __builtin_sqrtf(d2));
-        } else {
-            const int a = child[2 * node];
-            const int cnt = child[2 * node + 1];
-            if (cnt > 0) {
-                for (int i = a; i < a + cnt; ++i)
-                    acc += tri_solid_angle(tris + 12 * i, px, py, pz);
-            } else {
-                stack[sp++] = a + 1;
-                next = a;
-            }
-        }
-        if (next >= 0) {
-            node = next;
-        } else if (sp > 0) {
-            node = stack[--sp];
-        } else {
-            break;
-        }
-    }
-    return acc * INV_4PI;
-}
-
-// Signed / unsigned, banded distance at p; *seed is the previous closest triangle
-// (or -1) on entry and this point's on exit.
-inline float mesh_distance_at(
-    const __global float* bbox, const __global int* child, const __global float* tris,
-    const __global float* dipole, int is_signed, float band,
-    float px, float py, float pz, int* seed)
-{
-    float best = band > 0.0f ? band * band : INFINITY;
-    int best_tri = -1;
-    if (*seed >= 0) {
-        const float d = tri_dist2(tris + 12 * (*seed), px, py, pz);
-        if (d < best) { best = d; best_tri = *seed; }
-    }
-    best = closest_dist2(bbox, child, tris, px, py, pz, best, &best_tri);
-    *seed = best_tri;
-    float dist = best_tri >= 0 ? __builtin_sqrtf(best) : band;
-    if (band > 0.0f && dist > band)
-        dist = band;
-    if (is_signed && winding_number(dipole, child, tris, px, py, pz) > 0.5f)
-        dist = -dist;
-    return dist;
-}
-
-// out[i] <- distance at points[i] (xyz), for i < n; work-item g handles run points
-// from g * run.
-__kernel void mesh_distance_points(
-    const __global float* points, int n, int run,
-    const __global float* bbox, const __global int* child, const __global float* tris,
-    const __global float* dipole, int is_signed, float band,
-    __global float* out)
-{
-    const int g = get_global_id(0);
-    const int start = g * run;
-    if (start >= n)
-        return;
-    const int stop = MIN_INT(start + run, n);
-    int seed = -1;
-    for (int i = start; i < stop; ++i) {
-        out[i] = mesh_distance_at(bbox, child, tris, dipole, is_signed, band,
-                                  points[3 * i], points[3 * i + 1], points[3 * i + 2], &seed);
-    }
-}
-
-// ------------------------------------------------------------------ grid tiles
+// ------------------------------------------------------------------ tiles
 //
 // The grid kernel below evaluates TILE_X x TILE_Y x TILE_Z = 16 neighbouring grid
 // samples per work-item as the 16 lanes of float16 vectors (one AVX-512 register):
@@ -302,15 +118,18 @@ inline vf box_dist2_v(const __global float* b, vf px, vf py, vf pz)
     return dx * dx + dy * dy + dz * dz;
 }
 
-// Per lane: the smallest squared distance below best (else best).
+// Per lane: the smallest squared distance below best (else best): the minimum of
+// tri_min_dist2_v over every triangle whose distance can be below it. A node is
+// entered while its search box is nearer than PRUNE_REL * best for ANY lane.
 inline vf closest_dist2_v(
-    const __global float* bbox, const __global int* child, const __global float* tl,
+    const __global float* sbox, const __global int* child, const __global float* tl,
     vf px, vf py, vf pz, vf best)
 {
     int stack[STACK_SIZE];
     int sp = 0;
     int node = 1;
-    if (!ANY(box_dist2_v(bbox + 8, px, py, pz) < best))
+    vf bound = best * PRUNE_REL;
+    if (!ANY(box_dist2_v(sbox + 8, px, py, pz) < bound))
         return best;
     for (;;) {
         const int a = child[2 * node];
@@ -319,10 +138,11 @@ inline vf closest_dist2_v(
             for (int i = a; i < a + cnt; ++i) {
                 best = tri_min_dist2_v(tl + TRI_LANES * i, px, py, pz, best);
             }
+            bound = best * PRUNE_REL;
         } else {
-            const vf d0 = box_dist2_v(bbox + 8 * a, px, py, pz);
-            const vf d1 = box_dist2_v(bbox + 8 * (a + 1), px, py, pz);
-            const int h0 = ANY(d0 < best), h1 = ANY(d1 < best);
+            const vf d0 = box_dist2_v(sbox + 8 * a, px, py, pz);
+            const vf d1 = box_dist2_v(sbox + 8 * (a + 1), px, py, pz);
+            const int h0 = ANY(d0 < bound), h1 = ANY(d1 < bound);
             if (h0 && h1) {
                 const int near_first = __builtin_reduce_min(d0) <= __builtin_reduce_min(d1);
                 stack[sp++] = near_first ? a + 1 : a;
@@ -337,15 +157,16 @@ inline vf closest_dist2_v(
         int found = 0;
         while (sp > 0) {
             const int n = stack[--sp];
-            if (ANY(box_dist2_v(bbox + 8 * n, px, py, pz) < best)) { node = n; found = 1; break; }
+            if (ANY(box_dist2_v(sbox + 8 * n, px, py, pz) < bound)) { node = n; found = 1; break; }
         }
         if (!found)
             return best;
     }
 }
 
-// atan2(y, x) per lane, inline (PoCL calls its builtin): reduction to [0, 1] and the
-// minimax polynomial of SLEEF's atanf (about 3 ulp).
+// atan2(y, x) per lane, inline (PoCL calls its builtin; and one polynomial on every
+// device): reduction to [0, 1] and the minimax polynomial of SLEEF's atanf (about 3
+// ulp). sdf_mesh.py's atan2_poly is the same, operation for operation.
 inline vf atan2_v(vf y, vf x)
 {
     const vf ax = VMAX(x, -x), ay = VMAX(y, -y);
@@ -367,7 +188,8 @@ inline vf atan2_v(vf y, vf x)
     return y < 0.0f ? -r : r;
 }
 
-// Solid angles of triangle t (tris layout) seen from 16 points, as tri_solid_angle.
+// Solid angles of triangle t (tris layout) seen from 16 points (van Oosterom-Strackee),
+// positive when p is on the side its normal points away from; as tri_solid_angle in sdf_mesh.py.
 inline vf tri_solid_angle_v(const __global float* t, vf px, vf py, vf pz)
 {
     const vf ax = t[0] - px, ay = t[1] - py, az = t[2] - pz;
@@ -382,7 +204,8 @@ inline vf tri_solid_angle_v(const __global float* t, vf px, vf py, vf pz)
     return 2.0f * atan2_v(det, den);
 }
 
-// Per lane: the fast winding number of winding_number(), lanes as a descent mask.
+// Per lane: the fast winding number (dipoles for far nodes, exact near leaves) of
+// winding_number() in sdf_mesh.py, lanes as a descent mask.
 inline vf winding_number_v(
     const __global float* dipole, const __global int* child, const __global float* tris,
     vf px, vf py, vf pz)
@@ -434,12 +257,30 @@ inline vf winding_number_v(
     return acc * INV_4PI;
 }
 
+// Per lane: the signed / unsigned, banded distance at (px, py, pz).
+inline vf mesh_distance_v(
+    const __global float* sbox, const __global int* child, const __global float* tri_lanes,
+    const __global float* tris, const __global float* dipole, int is_signed, float band,
+    vf px, vf py, vf pz)
+{
+    const vf init = (vf)(band > 0.0f ? band * band : INFINITY);
+    const vf best = closest_dist2_v(sbox, child, tri_lanes, px, py, pz, init);
+    vf dist = best < init ? VSQRT(best) : (vf)band;
+    if (band > 0.0f)
+        dist = VMIN(dist, (vf)band);
+    if (is_signed) {
+        const vf w = winding_number_v(dipole, child, tris, px, py, pz);
+        dist = w > 0.5f ? -dist : dist;
+    }
+    return dist;
+}
+
 // out[(k * ny + j) * nx + i] <- distance at origin + spacing * (i, j, k); work-item
 // (ti, tj, tk) handles the tile of samples i = TILE_X ti ..., j = TILE_Y tj ...,
 // k = TILE_Z tk ... (lanes past the grid's end repeat its last sample, unwritten).
 __kernel void mesh_distance_grid(
     float ox, float oy, float oz, float sx, float sy, float sz, int nx, int ny, int nz,
-    const __global float* bbox, const __global int* child, const __global float* tri_lanes,
+    const __global float* sbox, const __global int* child, const __global float* tri_lanes,
     const __global float* tris, const __global float* dipole, int is_signed, float band,
     __global float* out)
 {
@@ -457,15 +298,7 @@ __kernel void mesh_distance_grid(
     const vf px = ox + sx * __builtin_convertvector(ii, vf);
     const vf py = oy + sy * __builtin_convertvector(jj, vf);
     const vf pz = oz + sz * __builtin_convertvector(kk, vf);
-    const vf init = (vf)(band > 0.0f ? band * band : INFINITY);
-    const vf best = closest_dist2_v(bbox, child, tri_lanes, px, py, pz, init);
-    vf dist = best < init ? VSQRT(best) : (vf)band;
-    if (band > 0.0f)
-        dist = VMIN(dist, (vf)band);
-    if (is_signed) {
-        const vf w = winding_number_v(dipole, child, tris, px, py, pz);
-        dist = w > 0.5f ? -dist : dist;
-    }
+    const vf dist = mesh_distance_v(sbox, child, tri_lanes, tris, dipole, is_signed, band, px, py, pz);
     float res[16];
     *(f32x16u*)res = dist;
     const int mi = MIN_INT(TILE_X, nx - i0), mj = MIN_INT(TILE_Y, ny - j0), mk = MIN_INT(TILE_Z, nz - k0);
@@ -475,4 +308,32 @@ __kernel void mesh_distance_grid(
             for (int a = 0; a < mi; ++a)
                 out[row + a] = res[(c * TILE_Y + b) * TILE_X + a];
         }
+}
+
+// out[i] <- distance at points[i] (xyz), for i < n; work-item g handles the 16 points
+// from 16 g as one tile (lanes past n repeat the last point, unwritten). Nearby points
+// in consecutive slots make tight tiles: the host passes them in Morton order.
+__kernel void mesh_distance_points(
+    const __global float* points, int n,
+    const __global float* sbox, const __global int* child, const __global float* tri_lanes,
+    const __global float* tris, const __global float* dipole, int is_signed, float band,
+    __global float* out)
+{
+    const int i0 = get_global_id(0) * 16;
+    if (i0 >= n)
+        return;
+    float xs[16], ys[16], zs[16];
+    for (int l = 0; l < 16; ++l) {
+        const int i = MIN_INT(i0 + l, n - 1);
+        xs[l] = points[3 * i];
+        ys[l] = points[3 * i + 1];
+        zs[l] = points[3 * i + 2];
+    }
+    const vf px = *(f32x16u*)xs, py = *(f32x16u*)ys, pz = *(f32x16u*)zs;
+    const vf dist = mesh_distance_v(sbox, child, tri_lanes, tris, dipole, is_signed, band, px, py, pz);
+    float res[16];
+    *(f32x16u*)res = dist;
+    const int m = MIN_INT(16, n - i0);
+    for (int l = 0; l < m; ++l)
+        out[i0 + l] = res[l];
 }

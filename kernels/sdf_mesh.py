@@ -3,82 +3,142 @@
 Both kernels compute, per query point p, the exact distance to the mesh and, when
 ``is_signed``, its sign from the fast generalized winding number (Barill et al.
 2018): negative where the winding number exceeds 1/2. Same kernel names (with the
-``_kernel`` suffix) and arguments in the same order as sdf_mesh.cl, except that the
-closest-point search runs on a ``wp.Mesh`` (its id stands where sdf_mesh.cl takes the
-BVH boxes ``bbox``); the winding number traverses the same BVH arrays as sdf_mesh.cl
-(geosynth.meshes.MeshBVH: ``child``, ``tris``, ``dipole``) in the same order, so the
-two backends agree on the sign. The wp.Mesh is built over the triangles in the same
-(leaf) order as ``tris``, so its face indices are ``tris`` rows.
+``_kernel`` suffix) as sdf_mesh.cl; both traverse the BVH arrays of
+geosynth.meshes.MeshBVH (``sbox``, ``child``, ``tri_lanes``, ``tris``, ``dipole``).
+
+One result on every device (issue 16): the distance is the minimum over all triangles
+of ``tri_min_dist2``, the operations of sdf_mesh.cl's ``tri_min_dist2_v`` in the same
+order, found by a search that prunes a node only when its (grown) search box is
+farther than PRUNE_REL times the best so far: a margin beyond any rounding, so the
+minimum of the same floats comes out whatever the visiting order (sdf_mesh.cl visits
+for 16 lanes at once). The winding number adds the same terms in the same order as
+sdf_mesh.cl, with the same atan2 polynomial. The module is compiled without FMA
+contraction (``fuse_fp`` off); Warp's division and sqrt are correctly rounded on CPU
+and CUDA.
 
 ``band`` > 0 clamps the result to [-band, band] and limits the search to it; <= 0
 means no band. Points are processed ``run`` at a time per thread, each search bounded
-by the distance to the previous point's closest triangle (exact, only faster). The
-OpenCL grid kernel differs in its launch: it takes tiles of 16 samples as SIMD lanes
-(no ``run``; the lane triangles ``tri_lanes`` before ``tris``), with per lane the same
-closest distance and the same winding-number terms in the same order as here.
+by the previous point's closest triangle (the result is unchanged, only faster).
 Host wrappers live in ``geosynth._backends.warp_mesh``; nothing here validates.
 """
 
 import warp as wp
 
+wp.set_module_options({"fuse_fp": False})
+
 STACK_SIZE = 64
 vec64i = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
+vec64f = wp.types.vector(length=STACK_SIZE, dtype=wp.float32)
 INV_4PI = wp.constant(0.0795774715459476678)
-BIG = wp.constant(1.0e30)
+PRUNE_REL = wp.constant(1.0009765625)
+TRI_LANES = wp.constant(32)
 
 
 @wp.func
-def tri_dist2(tris: wp.array(dtype=wp.float32), i: int, p: wp.vec3) -> float:
-    """Squared distance from p to triangle i (Ericson 5.1.5, as tri_dist2 in sdf_mesh.cl)."""
-    o = 12 * i
-    apx = p[0] - tris[o]
-    apy = p[1] - tris[o + 1]
-    apz = p[2] - tris[o + 2]
-    abx = tris[o + 3]
-    aby = tris[o + 4]
-    abz = tris[o + 5]
-    acx = tris[o + 6]
-    acy = tris[o + 7]
-    acz = tris[o + 8]
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
+def fmax2(a: float, b: float) -> float:
+    """a > b ? a : b (VMAX of sdf_mesh.cl)."""
+    if a > b:
+        return a
+    return b
+
+
+@wp.func
+def fmin2(a: float, b: float) -> float:
+    """a < b ? a : b (VMIN of sdf_mesh.cl)."""
+    if a < b:
+        return a
+    return b
+
+
+@wp.func
+def tri_min_dist2(tl: wp.array(dtype=wp.float32), i: int, p: wp.vec3, best: float) -> float:
+    """min(best, squared distance from p to triangle i), lane layout (tri_min_dist2_v)."""
+    o = TRI_LANES * i
+    apx = p[0] - tl[o]
+    apy = p[1] - tl[o + 1]
+    apz = p[2] - tl[o + 2]
+    # edge ab
+    s = (apx * tl[o + 3] + apy * tl[o + 4] + apz * tl[o + 5]) * tl[o + 21]
+    s = fmin2(fmax2(s, 0.0), 1.0)
+    ex = apx - s * tl[o + 3]
+    ey = apy - s * tl[o + 4]
+    ez = apz - s * tl[o + 5]
+    d = ex * ex + ey * ey + ez * ez
+    # edge ac
+    s = (apx * tl[o + 6] + apy * tl[o + 7] + apz * tl[o + 8]) * tl[o + 22]
+    s = fmin2(fmax2(s, 0.0), 1.0)
+    ex = apx - s * tl[o + 6]
+    ey = apy - s * tl[o + 7]
+    ez = apz - s * tl[o + 8]
+    e = ex * ex + ey * ey + ez * ez
+    d = fmin2(d, e)
+    # edge bc, from b
+    bpx = apx - tl[o + 3]
+    bpy = apy - tl[o + 4]
+    bpz = apz - tl[o + 5]
+    s = (bpx * tl[o + 12] + bpy * tl[o + 13] + bpz * tl[o + 14]) * tl[o + 23]
+    s = fmin2(fmax2(s, 0.0), 1.0)
+    ex = bpx - s * tl[o + 12]
+    ey = bpy - s * tl[o + 13]
+    ez = bpz - s * tl[o + 14]
+    e = ex * ex + ey * ey + ez * ez
+    d = fmin2(d, e)
+    # face: the projection is inside when it is on the inner side of every edge
+    thr = tl[o + 28]
+    if (apx * tl[o + 15] + apy * tl[o + 16] + apz * tl[o + 17]) >= thr:
+        if (bpx * tl[o + 18] + bpy * tl[o + 19] + bpz * tl[o + 20]) >= thr:
+            if (apx * tl[o + 24] + apy * tl[o + 25] + apz * tl[o + 26]) >= thr:
+                h = apx * tl[o + 9] + apy * tl[o + 10] + apz * tl[o + 11]
+                d = h * h * tl[o + 27]
+    return fmin2(d, best)
+
+
+@wp.func
+def box_dist2(sbox: wp.array(dtype=wp.float32), k: int, p: wp.vec3) -> float:
+    """Squared distance from p to search box k (0 inside), as box_dist2_v."""
+    o = 8 * k
+    dx = fmax2(fmax2(sbox[o] - p[0], p[0] - sbox[o + 4]), 0.0)
+    dy = fmax2(fmax2(sbox[o + 1] - p[1], p[1] - sbox[o + 5]), 0.0)
+    dz = fmax2(fmax2(sbox[o + 2] - p[2], p[2] - sbox[o + 6]), 0.0)
+    return dx * dx + dy * dy + dz * dz
+
+
+@wp.func
+def atan2_poly(y: float, x: float) -> float:
+    """atan2(y, x): the polynomial of atan2_v in sdf_mesh.cl, operation for operation."""
+    ax = fmax2(x, -x)
+    ay = fmax2(y, -y)
+    num = ay
+    den = ax
+    swap = ay > ax
+    if swap:
+        num = ax
+        den = ay
     s = float(0.0)
-    w = float(0.0)
-    if d1 <= 0.0 and d2 <= 0.0:
-        s = 0.0
-    else:
-        d3 = d1 - tris[o + 9]
-        d4 = d2 - tris[o + 11]
-        d5 = d1 - tris[o + 11]
-        d6 = d2 - tris[o + 10]
-        if d3 >= 0.0 and d4 <= d3:
-            s = 1.0
-        elif d6 >= 0.0 and d5 <= d6:
-            w = 1.0
-        else:
-            vc = d1 * d4 - d3 * d2
-            vb = d5 * d2 - d1 * d6
-            va = d3 * d6 - d5 * d4
-            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-                s = d1 / (d1 - d3)
-            elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                w = d2 / (d2 - d6)
-            elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                s = 1.0 - w
-            else:
-                inv = 1.0 / (va + vb + vc)
-                s = vb * inv
-                w = vc * inv
-    ex = apx - abx * s - acx * w
-    ey = apy - aby * s - acy * w
-    ez = apz - abz * s - acz * w
-    return ex * ex + ey * ey + ez * ez
+    if den > 0.0:
+        s = num / den
+    t = s * s
+    u = float(0.00282363896258175373077393)
+    u = u * t - 0.0159569028764963150024414
+    u = u * t + 0.0425049886107444763183594
+    u = u * t - 0.0748900920152664184570312
+    u = u * t + 0.106347933411598205566406
+    u = u * t - 0.142027363181114196777344
+    u = u * t + 0.199926957488059997558594
+    u = u * t - 0.333331018686294555664062
+    r = s + s * t * u
+    if swap:
+        r = 1.57079632679489661923 - r
+    if x < 0.0:
+        r = 3.14159265358979323846 - r
+    if y < 0.0:
+        r = -r
+    return r
 
 
 @wp.func
 def tri_solid_angle(tris: wp.array(dtype=wp.float32), i: int, p: wp.vec3) -> float:
-    """Solid angle of triangle i seen from p (van Oosterom-Strackee), as in sdf_mesh.cl."""
+    """Solid angle of triangle i seen from p (van Oosterom-Strackee), as tri_solid_angle_v."""
     o = 12 * i
     ax = tris[o] - p[0]
     ay = tris[o + 1] - p[1]
@@ -94,7 +154,7 @@ def tri_solid_angle(tris: wp.array(dtype=wp.float32), i: int, p: wp.vec3) -> flo
     lc = wp.sqrt(cx * cx + cy * cy + cz * cz)
     det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
     den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb + (bx * cx + by * cy + bz * cz) * la
-    return 2.0 * wp.atan2(det, den)
+    return 2.0 * atan2_poly(det, den)
 
 
 @wp.func
@@ -137,8 +197,9 @@ def winding_number(
 
 @wp.func
 def mesh_distance_at(
-    mesh: wp.uint64,
+    sbox: wp.array(dtype=wp.float32),
     child: wp.array(dtype=wp.int32),
+    tri_lanes: wp.array(dtype=wp.float32),
     tris: wp.array(dtype=wp.float32),
     dipole: wp.array(dtype=wp.float32),
     is_signed: int,
@@ -148,27 +209,69 @@ def mesh_distance_at(
     out: wp.array(dtype=wp.float32),
     idx: int,
 ) -> int:
-    """out[idx] <- distance at p, the search bounded by triangle ``seed``; returns the
-    closest triangle (or -1 when none is within the band)."""
-    best = BIG
+    """out[idx] <- distance at p, the search bounded by triangle ``seed`` (or -1);
+    returns p's closest triangle (or -1 when none is within the band)."""
+    init = float(wp.inf)
     if band > 0.0:
-        best = band
+        init = band * band
+    best = float(init)
     best_tri = int(-1)
     if seed >= 0:
-        d = wp.sqrt(tri_dist2(tris, seed, p))
+        d = tri_min_dist2(tri_lanes, seed, p, init)
         if d < best:
             best = d
             best_tri = seed
-    q = wp.mesh_query_point_no_sign(mesh, p, best)
-    if q.result:
-        c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
-        d = wp.length(c - p)
-        if d < best or best_tri < 0:
-            best = d
-            best_tri = q.face
-    dist = best
-    if best_tri < 0 or (band > 0.0 and dist > band):
-        dist = band
+    bound = float(best * PRUNE_REL)
+    stack = vec64i()
+    stack_d = vec64f()
+    sp = int(0)
+    node = int(1)
+    go = int(0)
+    if box_dist2(sbox, 1, p) < bound:
+        go = int(1)
+    while go != 0:
+        a = child[2 * node]
+        cnt = child[2 * node + 1]
+        descend = int(0)
+        if cnt > 0:
+            for i in range(a, a + cnt):
+                d = tri_min_dist2(tri_lanes, i, p, best)
+                if d < best:
+                    best = d
+                    best_tri = i
+            bound = best * PRUNE_REL
+        else:
+            d0 = box_dist2(sbox, a, p)
+            d1 = box_dist2(sbox, a + 1, p)
+            near = a
+            far = a + 1
+            dn = d0
+            df = d1
+            if d1 < d0:
+                near = a + 1
+                far = a
+                dn = d1
+                df = d0
+            if dn < bound:
+                if df < bound:
+                    stack[sp] = far
+                    stack_d[sp] = df
+                    sp += 1
+                node = near
+                descend = int(1)
+        if descend == 0:
+            go = int(0)
+            while sp > 0:
+                sp -= 1
+                if stack_d[sp] < bound:
+                    node = stack[sp]
+                    go = int(1)
+                    break
+    dist = float(band)
+    if best < init:
+        dist = wp.sqrt(best)
+    if band > 0.0:
+        dist = fmin2(dist, band)
     if is_signed != 0:
         if winding_number(dipole, child, tris, p) > 0.5:
             dist = -dist
@@ -181,8 +284,9 @@ def mesh_distance_points_kernel(
     points: wp.array(dtype=wp.float32),  # (n * 3,) xyz
     n: int,
     run: int,
-    mesh: wp.uint64,
+    sbox: wp.array(dtype=wp.float32),
     child: wp.array(dtype=wp.int32),
+    tri_lanes: wp.array(dtype=wp.float32),
     tris: wp.array(dtype=wp.float32),
     dipole: wp.array(dtype=wp.float32),
     is_signed: int,
@@ -196,7 +300,7 @@ def mesh_distance_points_kernel(
     seed = int(-1)
     for i in range(start, stop):
         p = wp.vec3(points[3 * i], points[3 * i + 1], points[3 * i + 2])
-        seed = mesh_distance_at(mesh, child, tris, dipole, is_signed, band, p, seed, out, i)
+        seed = mesh_distance_at(sbox, child, tri_lanes, tris, dipole, is_signed, band, p, seed, out, i)
 
 
 @wp.kernel
@@ -211,8 +315,9 @@ def mesh_distance_grid_kernel(
     ny: int,
     nz: int,
     run: int,
-    mesh: wp.uint64,
+    sbox: wp.array(dtype=wp.float32),
     child: wp.array(dtype=wp.int32),
+    tri_lanes: wp.array(dtype=wp.float32),
     tris: wp.array(dtype=wp.float32),
     dipole: wp.array(dtype=wp.float32),
     is_signed: int,
@@ -230,4 +335,4 @@ def mesh_distance_grid_kernel(
     seed = int(-1)
     for i in range(start, stop):
         p = wp.vec3(ox + sx * float(i), py, pz)
-        seed = mesh_distance_at(mesh, child, tris, dipole, is_signed, band, p, seed, out, row + i)
+        seed = mesh_distance_at(sbox, child, tri_lanes, tris, dipole, is_signed, band, p, seed, out, row + i)

@@ -8,7 +8,9 @@ import pytest
 import trimesh
 
 import geosynth
+from conftest import TEST_DEVICES
 from geosynth import reference
+from geosynth.examples import chainmail_mesh
 from geosynth.field import Field, cubic_grid
 from geosynth.fields import mesh_distance
 from geosynth.meshes import check_mesh, load_mesh, orient_faces
@@ -313,3 +315,161 @@ def test_tri_lanes_layout():
     inside = np.array([0.5, 0.25, 0.0])  # the three edge tests of a point inside are >= 0
     assert (inside @ t[15:18] >= 0) and ((inside - [2, 0, 0]) @ t[18:21] >= 0) and (inside @ t[24:27] >= 0)
     assert t[28] == 0 and lanes[1, 28] == np.inf  # a normal lost in float32: never "inside"
+
+
+# ------------------------------------------------------------------ one result on every device (issue 16)
+
+
+def _device_pairs():
+    """(first, other) for every other present test device; a skip when there is one."""
+    if len(TEST_DEVICES) < 2:
+        pytest.skip(f"needs two devices to compare, only {TEST_DEVICES} present")
+    return [(TEST_DEVICES[0], d) for d in TEST_DEVICES[1:]]
+
+
+def _kernel_grid_points(field: Field) -> np.ndarray:
+    """(Z * Y * X, 3) float32 sample positions as the kernels compute them:
+    float32 origin + float32 spacing * float32 index, one rounding per operation."""
+    nz, ny, nx = field.shape
+    o, s = field.origin.astype(np.float32), field.spacing.astype(np.float32)
+    axes = [o[a] + s[a] * np.arange(n, dtype=np.float32) for a, n in enumerate((nx, ny, nz))]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    return np.stack([x, y, z], -1).reshape(-1, 3)
+
+
+def _mesh_cases(rng):
+    chain = chainmail_mesh(2, major_sections=24, minor_sections=12)
+    return {"chainmail": chain, "holed": _hole_mesh(), "flipped": _flipped_mesh(rng)}
+
+
+def test_mesh_distance_bit_identical_across_devices(rng):
+    # every path (grid tiles, point tiles, banded, unsigned) gives the same float32 bits
+    # on every device: same arithmetic, no FMA contraction, order-free minimum
+    pairs = _device_pairs()
+    for name, mesh in _mesh_cases(rng).items():
+        pts = _points(mesh, rng)
+        scale = float(np.abs(mesh.bounds).max())
+        calls = {
+            "grid": lambda d: mesh_distance(mesh, resolution=23, device=d).values,
+            "grid banded": lambda d: mesh_distance(mesh, resolution=17, band=0.05 * scale, device=d).values,
+            "points": lambda d: mesh_distance(mesh, pts, device=d),
+            "points unsigned": lambda d: mesh_distance(mesh, pts, signed=False, device=d),
+        }
+        for what, call in calls.items():
+            for first, other in pairs:
+                a, b = call(first), call(other)
+                assert a.tobytes() == b.tobytes(), (
+                    f"{name} {what}: {first} and {other} differ at {int((a != b).sum())} of {a.size} "
+                    f"samples (max {np.abs(a - b).max():.3g})"
+                )
+
+
+def test_points_equal_grid_values(device, rng):
+    # point queries in any order return exactly the grid path's value at grid points
+    for name, mesh in _mesh_cases(rng).items():
+        for band in (None, 0.1):
+            f = mesh_distance(mesh, resolution=21, band=band, device=device)
+            pts = _kernel_grid_points(f)
+            perm = rng.permutation(len(pts))
+            got = mesh_distance(mesh, pts[perm], band=band, device=device)
+            want = f.values.reshape(-1)[perm]
+            assert got.tobytes() == want.tobytes(), (
+                f"{name} band={band}: {int((got != want).sum())} of {got.size} points differ from the grid"
+            )
+            in_order = mesh_distance(mesh, pts, band=band, device=device)
+            assert in_order.tobytes() == f.values.reshape(-1).tobytes()
+
+
+def test_points_order_and_duplicates(device, rng):
+    # results come back in the caller's order, whatever the internal (Morton) order;
+    # repeated and single points, and counts that end in a partial tile of 16
+    mesh = _torus()
+    pts = _points(mesh, rng)[:37]
+    want = reference.mesh_distance_naive(mesh, pts)
+    got = mesh_distance(mesh, pts, device=device)
+    np.testing.assert_allclose(got, want, atol=ATOL * 10, rtol=2e-6)
+    rev = mesh_distance(mesh, pts[::-1].copy(), device=device)
+    assert rev[::-1].tobytes() == got.tobytes()
+    dup = mesh_distance(mesh, np.repeat(pts[:3], 7, axis=0), device=device)
+    assert dup.tobytes() == np.repeat(got[:3], 7).tobytes()
+    one = mesh_distance(mesh, pts[5:6], device=device)
+    assert one.tobytes() == got[5:6].tobytes()
+
+
+def test_synthesize_geometry_same_file_on_every_device(tmp_path):
+    # end to end from a mesh: the same exemplar and seed write byte-identical PLY files
+    from geosynth.surface import save_mesh
+    from geosynth.volume import synthesize_geometry
+
+    pairs = _device_pairs()
+    mesh = chainmail_mesh(2, major_sections=24, minor_sections=12)
+
+    def run(dev):
+        r = synthesize_geometry(mesh, 32, source_resolution=32, levels=2, block=8, seed=7, device=dev,
+                                quality_samples=0, progress=False)
+        return r, save_mesh(r.mesh, tmp_path / f"out-{dev.replace(':', '_')}.ply").read_bytes()
+
+    first, data = run(pairs[0][0])
+    assert len(first.mesh.faces) > 0
+    for _, other in pairs:
+        r, other_data = run(other)
+        assert r.exemplar_field.values.tobytes() == first.exemplar_field.values.tobytes()
+        assert other_data == data, f"{other} wrote a different mesh than {pairs[0][0]}"
+
+
+def _lane_min_dist2(lanes: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(P,) float32 minimum over every triangle of the kernels' per-triangle squared
+    distance (tri_min_dist2 in kernels/sdf_mesh.*), emulated in NumPy float32 with the
+    same operations in the same order (NumPy rounds each one, as the kernels do)."""
+    t = [lanes[None, :, k] for k in range(29)]  # (1, F) each
+    px, py, pz = (p[:, k : k + 1] for k in range(3))  # (P, 1) each
+    zero, one = np.float32(0), np.float32(1)
+
+    def clamp01(s):
+        s = np.where(s > zero, s, zero)
+        return np.where(s < one, s, one)
+
+    def vmin(a, b):
+        return np.where(a < b, a, b)
+
+    apx, apy, apz = px - t[0], py - t[1], pz - t[2]
+    s = clamp01((apx * t[3] + apy * t[4] + apz * t[5]) * t[21])
+    ex, ey, ez = apx - s * t[3], apy - s * t[4], apz - s * t[5]
+    d = ex * ex + ey * ey + ez * ez
+    s = clamp01((apx * t[6] + apy * t[7] + apz * t[8]) * t[22])
+    ex, ey, ez = apx - s * t[6], apy - s * t[7], apz - s * t[8]
+    d = vmin(d, ex * ex + ey * ey + ez * ez)
+    bpx, bpy, bpz = apx - t[3], apy - t[4], apz - t[5]
+    s = clamp01((bpx * t[12] + bpy * t[13] + bpz * t[14]) * t[23])
+    ex, ey, ez = bpx - s * t[12], bpy - s * t[13], bpz - s * t[14]
+    d = vmin(d, ex * ex + ey * ey + ez * ez)
+    inside = ((apx * t[15] + apy * t[16] + apz * t[17]) >= t[28]) & ((bpx * t[18] + bpy * t[19] + bpz * t[20]) >= t[28]) \
+        & ((apx * t[24] + apy * t[25] + apz * t[26]) >= t[28])
+    h = apx * t[9] + apy * t[10] + apz * t[11]
+    d = np.where(inside, h * h * t[27], d)
+    return d.min(axis=1)
+
+
+@pytest.mark.parametrize("name", ["box", "torus", "chainmail"])
+def test_distance_is_the_minimum_over_every_triangle(device, rng, name):
+    # the pruned searches (per point on Warp, 16 lanes at once on OpenCL) never miss the
+    # triangle with the smallest float32 distance: the result is that minimum, bit for
+    # bit, also on symmetric grids full of ties, and for points 10^3 extents away
+    from geosynth.meshes import prepare_mesh
+
+    mesh = chainmail_mesh(2, major_sections=16, minor_sections=8) if name == "chainmail" else SMALL_MESHES[name]()
+    bvh = prepare_mesh(mesh)
+    ext = float((mesh.bounds[1] - mesh.bounds[0]).max())
+    far = rng.normal(0, 1, (40, 3))
+    far = far / np.linalg.norm(far, axis=1, keepdims=True) * rng.uniform(10, 1000, (40, 1)) * ext
+    f = Field(np.zeros((7, 9, 11), np.float32), mesh.bounds[0] - 0.25 * ext, np.full(3, 0.125 * ext))  # ties: symmetric samples
+    pts = np.concatenate([_points(mesh, rng, 150, 150, 10), far.astype(np.float32), _kernel_grid_points(f)])
+    m = _lane_min_dist2(bvh.tri_lanes, pts)
+    got = mesh_distance(mesh, pts, signed=False, device=device)
+    assert got.tobytes() == np.sqrt(m).tobytes(), f"{int((got != np.sqrt(m)).sum())} of {len(pts)} points differ"
+    grid = mesh_distance(mesh, field=f, signed=False, device=device).values.reshape(-1)
+    assert grid.tobytes() == np.sqrt(m[-grid.size:]).tobytes()
+    band = np.float32(0.05 * ext)
+    banded = mesh_distance(mesh, pts, signed=False, band=float(band), device=device)
+    want = np.where(m < band * band, np.sqrt(m), band)
+    assert banded.tobytes() == np.where(want < band, want, band).tobytes()

@@ -49,6 +49,11 @@ def _scalar_arg_dtypes(kernel: cl.Kernel) -> list:
     return types
 
 
+# Extra build options per kernel family. sdf_mesh: the same float results as the Warp
+# kernels (correctly rounded division and sqrt, as on every Warp device).
+_FAMILY_OPTIONS = {"sdf_mesh": ["-cl-fp32-correctly-rounded-divide-sqrt"]}
+
+
 def _kernel_dir() -> str:
     return str(resources.files("geosynth.kernels"))
 
@@ -94,6 +99,7 @@ class OpenCLBackend(OpenCLGrowthOps, OpenCLMeshOps, OpenCLPointsOps, OpenCLPyram
             program = self._programs.get(pkey)
             if program is None:
                 options = ["-I", _kernel_dir(), f"-DDENSE_ROWS={_DENSE_ROWS[u8]}", "-cl-kernel-arg-info"]
+                options += _FAMILY_OPTIONS.get(family, [])
                 program = cl.Program(self.context, _read_source(f"{family}.cl")).build(
                     options=options + (["-DGS_U8"] if u8 else []))
                 self._programs[pkey] = program

@@ -12,10 +12,12 @@ import numpy as np
 
 # Work-group shapes: small groups, so that PoCL spreads the work over every core
 # (the cost per point varies a lot with its distance to the mesh).
-_LOCAL_POINTS = 8
-# The grid kernel's tile of samples per work-item (TILE_X, TILE_Y, TILE_Z in sdf_mesh.cl).
+# The grid kernel's tile of samples per work-item (TILE_X, TILE_Y, TILE_Z in sdf_mesh.cl);
+# the points kernel takes 16 consecutive points per work-item.
 _TILE = (4, 2, 2)
 _LOCAL_TILES = (1, 4, 1)
+_POINT_TILE = 16
+_LOCAL_POINT_TILES = 4
 
 
 def _round_up(value: int, multiple: int) -> int:
@@ -26,7 +28,7 @@ class OpenCLMeshHandle:
     """A mesh on an OpenCL device: the BVH arrays of geosynth.meshes.MeshBVH."""
 
     def __init__(self, bvh, backend):
-        self.bbox = backend.to_device(bvh.bbox)
+        self.sbox = backend.to_device(bvh.sbox)
         self.child = backend.to_device(bvh.child)
         self.tris = backend.to_device(bvh.tris)
         self.dipole = backend.to_device(bvh.dipole)
@@ -43,14 +45,15 @@ class OpenCLMeshOps:
             handle = bvh.device_cache[self.name] = OpenCLMeshHandle(bvh, self)
         return handle
 
-    def mesh_distance_points(self, mesh, points, n, signed, band, out, run: int = 1) -> None:
-        """out (n,) <- distance at points (n, 3); see kernels/sdf_mesh.cl."""
+    def mesh_distance_points(self, mesh, points, n, signed, band, out) -> None:
+        """out (n,) <- distance at points (n, 3), 16 consecutive points per SIMD tile
+        (pass them in a spatial order); see kernels/sdf_mesh.cl."""
         kernel = self._kernel("sdf_mesh", "mesh_distance_points", np.float32)
-        g = -(-n // run)
+        g = -(-n // _POINT_TILE)
         kernel(
-            self.queue, (_round_up(g, _LOCAL_POINTS),), (_LOCAL_POINTS,),
-            points.data, np.int32(n), np.int32(run),
-            mesh.bbox.data, mesh.child.data, mesh.tris.data, mesh.dipole.data,
+            self.queue, (_round_up(g, _LOCAL_POINT_TILES),), (_LOCAL_POINT_TILES,),
+            points.data, np.int32(n),
+            mesh.sbox.data, mesh.child.data, mesh.tri_lanes.data, mesh.tris.data, mesh.dipole.data,
             np.int32(bool(signed)), np.float32(band), out.data,
         )
 
@@ -64,6 +67,6 @@ class OpenCLMeshOps:
             self.queue, gsize, _LOCAL_TILES,
             *(np.float32(v) for v in origin), *(np.float32(v) for v in spacing),
             np.int32(nx), np.int32(ny), np.int32(nz),
-            mesh.bbox.data, mesh.child.data, mesh.tri_lanes.data, mesh.tris.data, mesh.dipole.data,
+            mesh.sbox.data, mesh.child.data, mesh.tri_lanes.data, mesh.tris.data, mesh.dipole.data,
             np.int32(bool(signed)), np.float32(band), out.data,
         )

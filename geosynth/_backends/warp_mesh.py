@@ -13,17 +13,17 @@ from geosynth.kernels import sdf_mesh as sdf_kernels
 
 
 class WarpMeshHandle:
-    """A mesh on a Warp device: the wp.Mesh (closest points) and the BVH arrays
-    of geosynth.meshes.MeshBVH (winding number)."""
+    """A mesh on a Warp device: the BVH arrays of geosynth.meshes.MeshBVH."""
 
     def __init__(self, bvh, device):
-        # the wp.Mesh gets the triangles in leaf order, so its face indices are rows of bvh.tris
-        self.points = wp.array(bvh.vertices, dtype=wp.vec3, device=device)
-        self.indices = wp.array(bvh.faces.reshape(-1), dtype=wp.int32, device=device)
-        self.mesh = wp.Mesh(points=self.points, indices=self.indices)
+        self.sbox = wp.array(bvh.sbox.reshape(-1), dtype=wp.float32, device=device)
         self.child = wp.array(bvh.child.reshape(-1), dtype=wp.int32, device=device)
+        self.tri_lanes = wp.array(bvh.tri_lanes.reshape(-1), dtype=wp.float32, device=device)
         self.tris = wp.array(bvh.tris.reshape(-1), dtype=wp.float32, device=device)
         self.dipole = wp.array(bvh.dipole.reshape(-1), dtype=wp.float32, device=device)
+
+    def arrays(self) -> list:
+        return [self.sbox, self.child, self.tri_lanes, self.tris, self.dipole]
 
 
 class WarpMeshOps:
@@ -36,12 +36,14 @@ class WarpMeshOps:
             handle = bvh.device_cache[self.name] = WarpMeshHandle(bvh, self.device)
         return handle
 
-    def mesh_distance_points(self, mesh, points, n, signed, band, out, run: int = 1) -> None:
-        """out (n,) <- distance at points (n, 3); see kernels/sdf_mesh.py."""
+    def mesh_distance_points(self, mesh, points, n, signed, band, out, run: int = 8) -> None:
+        """out (n,) <- distance at points (n, 3), run points per thread (pass them in a
+        spatial order: each search starts from the previous point's closest triangle);
+        see kernels/sdf_mesh.py."""
         self._launch(
             sdf_kernels.mesh_distance_points_kernel,
             -(-n // run),
-            [points.data, n, run, mesh.mesh.id, mesh.child, mesh.tris, mesh.dipole, int(signed), float(band), out.data],
+            [points.data, n, run, *mesh.arrays(), int(signed), float(band), out.data],
         )
 
     def mesh_distance_grid(self, mesh, origin, spacing, shape, signed, band, out, run: int = 8) -> None:
@@ -51,5 +53,5 @@ class WarpMeshOps:
             sdf_kernels.mesh_distance_grid_kernel,
             (nz, ny, -(-nx // run)),
             [*(float(v) for v in origin), *(float(v) for v in spacing), nx, ny, nz, run,
-             mesh.mesh.id, mesh.child, mesh.tris, mesh.dipole, int(signed), float(band), out.data],
+             *mesh.arrays(), int(signed), float(band), out.data],
         )
