@@ -404,10 +404,12 @@ class _CellGrid:
         self.dims = dims
 
 
-def _run_mls(p, nrm, h, device, queries=None, lattice=None, want_proj=False):
-    """Project the queries ((M, 3) float32) or the lattice ((origin, spacing, shape ZYX))."""
+def _run_mls(p, nrm, h, device, queries=None, lattice=None, want_proj=False, grid=None):
+    """Project the queries ((M, 3) float32) or the lattice ((origin, spacing, shape ZYX));
+    ``grid``: the points' _CellGrid for this reach, when already built."""
     reach = MLS_REACH * h
-    grid = _CellGrid(p, nrm, reach)
+    if grid is None:
+        grid = _CellGrid(p, nrm, reach)
     backend = _checks.resolve_backend(device)
     if queries is not None:
         m = len(queries)
@@ -437,7 +439,7 @@ def _run_mls(p, nrm, h, device, queries=None, lattice=None, want_proj=False):
     return out_d, out_g, out_p
 
 
-_FAR_CHUNK = 1 << 17  # far queries filled per pass: bounds that pass's memory (~160 B each, 21 MiB)
+_FAR_CHUNK = 1 << 16  # far queries filled per pass: bounds that pass's memory (~160 B each, 10 MiB)
 
 
 def _fill_far(p, nrm, h, device, coords, d, g) -> None:
@@ -450,12 +452,13 @@ def _fill_far(p, nrm, h, device, coords, d, g) -> None:
     if far.size == 0:
         return
     tree = _kdtree(p, balanced=False)
+    cells = _CellGrid(p, nrm, MLS_REACH * h)  # built once for every pass
     for start in range(0, far.size, _FAR_CHUNK):
         idx = far[start:start + _FAR_CHUNK]
         x = coords(idx)
         _, nearest = tree.query(x, k=1, workers=-1)
         used, inverse = np.unique(nearest, return_inverse=True)  # many queries share a point
-        _, normal, proj = _run_mls(p, nrm, h, device, queries=p[used], want_proj=True)
+        _, normal, proj = _run_mls(p, nrm, h, device, queries=p[used], want_proj=True, grid=cells)
         y, n = proj[inverse].astype(np.float64), normal[inverse].astype(np.float64)
         v = x.astype(np.float64) - y
         side = np.where(np.einsum("ij,ij->i", v, n) < 0, -1.0, 1.0)

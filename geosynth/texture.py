@@ -812,13 +812,14 @@ def _check_options(method, k, levels, m, n_pts, texture, coherent):
     return k, int(levels), int(m)
 
 
-# Peak bytes per point and neighbour (k) of the point work of texture_points, per method
-# (RSS high-water delta, Warp CPU, 5k-40k-point blobs, k 9-49): the kNN tables and frames,
-# the parameterization's patch growth, and for matching the per-query neighbourhood offsets
-# and tangent-plane mappings ((M, k, 3) float64 temporaries). param 42, hybrid 87-112 (the
-# gaps are matched), match 240 with one level and 406 with two (the clustering's Python
-# neighbour lists, ~36 B per entry, and the hierarchy).
-_POINT_NEIGHBOUR_BYTES = {"param": 45, "hybrid": 100, "match": 250}
+# Peak bytes per point and neighbour (k) of the point work of texture_points, per method:
+# the kNN tables and frames, the parameterization's patch growth, and for matching the
+# per-query neighbourhood offsets and tangent-plane mappings ((M, k, 3) float64
+# temporaries). Measured (RSS high-water delta, Warp CPU, blobs of 4k, 16k and 64k points,
+# k = 25): param 33.7-34, match 266-270, hybrid 75-149 (it matches the gaps only, and their
+# share varies with the model); with levels > 1 matching adds ~155 (the clustering's
+# Python neighbour lists, ~36 B per entry, and the hierarchy).
+_POINT_NEIGHBOUR_BYTES = {"param": 34, "hybrid": 105, "match": 268}
 _LEVELS_NEIGHBOUR_BYTES = 155  # more per point and neighbour with levels > 1 (matching)
 
 
@@ -831,10 +832,11 @@ def texture_bytes(n_points: int, height: int, width: int, *, method: str = "hybr
     neighbour for the method, plus ``_LEVELS_NEIGHBOUR_BYTES`` with a hierarchy), and
     the texel search's supersampled texture while the points' tables (16 B per point
     and neighbour + 40) stay alive: per supersampled pixel (m^2 per texel) 96 B per
-    z-slice (the bilinear resampling's float64 (mH, mW, 3) taps, their stack, rounding
-    and clipping; two slices on the finest of several levels) and 9 B per slice of the
-    padded uint8 grid, its device copy and the batched kernel's phase-plane copy (pad
-    2 sqrt(k) + 3 texels a side). 2 MiB of small buffers. Measured (RSS, Warp CPU):
+    z-slice while a search is built (the bilinear resampling's float64 (mH, mW, 3) taps,
+    their stack, rounding and clipping; two slices on the finest of several levels), and
+    while the quality numbers' search is built, the matching's padded uint8 grid, its
+    device copy and the batched kernel's phase-plane copy (9 B per pixel and slice; pad
+    2 sqrt(k) + 3 texels a side). 512 KiB of small buffers. Measured (RSS, Warp CPU):
     6,055-6,134 B per texel at m = 8 for 64^2-256^2 textures.
     """
     n, h, w, k, m = int(n_points), int(height), int(width), int(k), int(m)
@@ -843,8 +845,11 @@ def texture_bytes(n_points: int, height: int, width: int, *, method: str = "hybr
     searching = method != "param" or quality
     z = 2 if levels > 1 and method != "param" else 1
     pad = 2 * math.isqrt(k) + 3
-    texture_stage = z * m * m * (96 * h * w + 9 * (h + 2 * pad) * (w + 2 * pad)) if searching else 0
-    return max(points_stage, texture_stage + (16 * k + 40) * n) + (2 << 20)
+    # the build's float64 taps (99 B per pixel and slice, uint8 result included), while the
+    # matching's search (its uint8 copies, 9 B) is alive when the quality search is built
+    kept = 9 * z * (h + 2 * pad) * (w + 2 * pad) if method != "param" and quality else 0
+    texture_stage = m * m * (99 * z * h * w + kept) if searching else 0
+    return max(points_stage, texture_stage + (16 * k + 40) * n) + (512 << 10)
 
 
 def texture_points(
