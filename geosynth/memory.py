@@ -87,7 +87,8 @@ def _cgroup_headroom() -> int | None:
             rel = path.strip("/")
             while True:
                 base = os.path.join("/sys/fs/cgroup", rel)
-                limit, usage = _read_int(os.path.join(base, "memory.max")), _read_int(os.path.join(base, "memory.current"))
+                limit = _read_int(os.path.join(base, "memory.max"))
+                usage = _read_int(os.path.join(base, "memory.current"))
                 if limit is not None and usage is not None:
                     room.append(limit - usage)
                 if not rel:

@@ -567,6 +567,8 @@ def mesh_distance(
             faces, points not (M, 3) or not finite, resolution < 2, bounds of zero
             extent, a band that is not > 0, or points together with a grid.
         RuntimeError: the device is not present.
+        MemoryBudgetError: the grid's estimate (:func:`grid_distance_bytes`) exceeds the
+            memory available, before allocating (option ``"resolution"``, or ``"field"``).
     """
     bvh = prepare_mesh(mesh, "mesh", drop_degenerate=drop_degenerate)
     if band is not None:

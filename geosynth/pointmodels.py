@@ -172,6 +172,8 @@ def point_model(name: str, count: int = 20_000, seed: int = 0) -> PointSet:
 
     Raises:
         ValueError: an unknown name or count < 16.
+        MemoryBudgetError: ``count`` points would not fit in memory (option ``"count"``),
+            refused before sampling.
 
     Example:
         >>> len(point_model("sphere", 1000))
@@ -202,6 +204,10 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
 
     Returns:
         PointSet with positions and unit normals.
+
+    Raises:
+        ValueError: not a mesh with faces, count < 16.
+        MemoryBudgetError: ``count`` points would not fit in memory (option ``"count"``).
     """
     import trimesh
 
@@ -213,8 +219,9 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
         raise ValueError(f"count must be an integer >= 16, got {count!r}.")
     faces_part = _MESH_FACE_BYTES * len(mesh.faces)
     avail = available_memory()
+    fits = (avail - faces_part) // _MESH_SAMPLE_BYTES
     require(_MESH_SAMPLE_BYTES * int(count) + faces_part, option="count", value=count, available=avail,
-            largest=(avail - faces_part) // _MESH_SAMPLE_BYTES if avail - faces_part >= 16 * _MESH_SAMPLE_BYTES else None,
+            largest=fits if fits >= 16 else None,
             what=f"{int(count):,} points sampled from a {len(mesh.faces):,}-face mesh")
     points, face = trimesh.sample.sample_surface(mesh, int(count), seed=seed)
     return PointSet(np.asarray(points, np.float32), np.asarray(mesh.face_normals[face], np.float32))
@@ -229,6 +236,8 @@ def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0
 
     Raises:
         ValueError: too few points to estimate normals from, NaN positions.
+        MemoryBudgetError: sampling ``count`` points from a mesh would not fit in memory
+            (option ``"count"``; see :func:`sample_mesh_points`).
     """
     import trimesh
 

@@ -560,6 +560,8 @@ def pointset_distance(
             point set or query, no sampling given (or more than one), resolution < 2,
             bounds with zero extent, radius <= 0.
         RuntimeError: the device is absent.
+        MemoryBudgetError: a grid's estimate (:func:`grid_mls_bytes`) exceeds the memory
+            available, before allocating (option ``"resolution"``, or ``"field"``).
 
     Example:
         >>> import numpy as np

@@ -22,7 +22,6 @@ gives the same field bit for bit on every device.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field as dc_field
