@@ -10,7 +10,7 @@ import numpy as np
 
 from geosynth.files import atomic_write, check_input
 
-__all__ = ["Field", "cubic_grid", "grid_points", "grid_resolution"]
+__all__ = ["Field", "cubic_grid", "cubic_grid_geometry", "grid_points", "grid_resolution"]
 
 
 def _as_xyz(name: str, value, *, positive: bool = False) -> np.ndarray:
@@ -173,21 +173,12 @@ def grid_points(origin, spacing, shape) -> np.ndarray:
     return (np.asarray(origin) + np.asarray(spacing) * idx).astype(np.float32)
 
 
-def cubic_grid(bounds, resolution: int, padding: float = 0.1, channels: int | None = None) -> Field:
-    """An all-zero float32 Field with cubic cells around ``bounds``.
+def cubic_grid_geometry(bounds, resolution: int, padding: float = 0.1) -> tuple[np.ndarray, float, tuple[int, int, int]]:
+    """The geometry of :func:`cubic_grid` without allocating it: (origin (3,) float64
+    world (x, y, z) of the first sample, spacing (world units), shape (Z, Y, X)).
 
-    The box is grown by ``padding`` times its largest extent on every side; its
-    longest axis gets ``resolution`` samples and the others as many as the same
-    spacing needs (at least 2), centred on the box.
-
-    Args:
-        bounds: (2, 3) (x, y, z) minimum and maximum corner, e.g. ``mesh.bounds``.
-        resolution: samples along the longest axis, >= 2.
-        padding: fraction of the largest extent added on each side, >= 0.
-        channels: None for scalar values, else the channel count.
-
-    Returns:
-        The Field (values zero); fill ``values`` from ``points()``.
+    Raises:
+        ValueError: as :func:`cubic_grid`.
     """
     res = int(grid_resolution(resolution)[0]) if np.ndim(resolution) == 0 else None
     if res is None:
@@ -205,5 +196,25 @@ def cubic_grid(bounds, resolution: int, padding: float = 0.1, channels: int | No
     counts = np.maximum(2, np.ceil(size / spacing - 1e-9).astype(np.int64) + 1)
     centre = (b[0] + b[1]) / 2
     origin = centre - spacing * (counts - 1) / 2
-    shape = tuple(int(c) for c in counts[::-1]) + (() if channels is None else (int(channels),))
+    return origin, float(spacing), (int(counts[2]), int(counts[1]), int(counts[0]))
+
+
+def cubic_grid(bounds, resolution: int, padding: float = 0.1, channels: int | None = None) -> Field:
+    """An all-zero float32 Field with cubic cells around ``bounds``.
+
+    The box is grown by ``padding`` times its largest extent on every side; its
+    longest axis gets ``resolution`` samples and the others as many as the same
+    spacing needs (at least 2), centred on the box.
+
+    Args:
+        bounds: (2, 3) (x, y, z) minimum and maximum corner, e.g. ``mesh.bounds``.
+        resolution: samples along the longest axis, >= 2.
+        padding: fraction of the largest extent added on each side, >= 0.
+        channels: None for scalar values, else the channel count.
+
+    Returns:
+        The Field (values zero); fill ``values`` from ``points()``.
+    """
+    origin, spacing, shape = cubic_grid_geometry(bounds, resolution, padding)
+    shape = shape + (() if channels is None else (int(channels),))
     return Field(np.zeros(shape, np.float32), origin, np.full(3, spacing))

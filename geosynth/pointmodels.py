@@ -21,6 +21,7 @@ from typing import Callable
 
 import numpy as np
 
+from geosynth.memory import available_memory, require
 from geosynth.pointsets import PointSet, estimate_normals, read_geometry
 
 __all__ = [
@@ -142,13 +143,20 @@ class PointModelExample:
     name: str
     summary: str
     shape: Callable[[], object]
+    bytes_per_point: int = 1200  # peak bytes per point of point_model (see POINT_MODELS)
 
 
+# bytes_per_point: the peak RSS high-water delta per point measured at 50k and 200k points
+# (sphere 896, torus 873-875, blob 1158-1160; tracemalloc sees 640 / 640 / 1033 of it, the
+# rest is scipy's cKDTree): the relaxation's (n, 6, 3) float64 neighbour differences and
+# their weighted sums, the kNN answers, the tree, and the blob's finite-difference normals.
 POINT_MODELS: dict[str, PointModelExample] = {
-    "sphere": PointModelExample("sphere", "the unit sphere", _Sphere),
-    "torus": PointModelExample("torus", "a torus, radii 1 and 0.4", _Torus),
-    "blob": PointModelExample("blob", "a bumpy closed blob with dents (concave parts), radius about 1", _Blob),
+    "sphere": PointModelExample("sphere", "the unit sphere", _Sphere, 900),
+    "torus": PointModelExample("torus", "a torus, radii 1 and 0.4", _Torus, 900),
+    "blob": PointModelExample("blob", "a bumpy closed blob with dents (concave parts), radius about 1", _Blob, 1160),
 }
+_MESH_SAMPLE_BYTES = 190  # peak bytes per point of sample_mesh_points (RSS, 50k and 200k points: 188-189)
+_MESH_FACE_BYTES = 64  # and per face (trimesh's area weights, their cumulative sum, the face choice)
 
 
 def point_model(name: str, count: int = 20_000, seed: int = 0) -> PointSet:
@@ -164,6 +172,8 @@ def point_model(name: str, count: int = 20_000, seed: int = 0) -> PointSet:
 
     Raises:
         ValueError: an unknown name or count < 16.
+        MemoryBudgetError: ``count`` points would not fit in memory (option ``"count"``),
+            refused before sampling.
 
     Example:
         >>> len(point_model("sphere", 1000))
@@ -173,6 +183,11 @@ def point_model(name: str, count: int = 20_000, seed: int = 0) -> PointSet:
         raise ValueError(f"unknown point model {name!r}; the built-in models are: {', '.join(POINT_MODELS)}.")
     if not isinstance(count, (int, np.integer)) or count < 16:
         raise ValueError(f"count must be an integer >= 16, got {count!r}.")
+    per_point = POINT_MODELS[name].bytes_per_point
+    avail = available_memory()
+    require(per_point * int(count), option="count", value=count, available=avail,
+            largest=avail // per_point if avail >= 16 * per_point else None,
+            what=f"{int(count):,} points of the {name} model")
     shape = POINT_MODELS[name].shape()
     rng = np.random.default_rng(seed)
     p = _relax(shape, shape.sample(rng, int(count)))
@@ -193,6 +208,7 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
 
     Raises:
         ValueError: no faces, faces of zero total area, count < 16.
+        MemoryBudgetError: ``count`` points would not fit in memory (option ``"count"``).
     """
     import trimesh
 
@@ -206,6 +222,12 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
         raise ValueError(f"count must be an integer >= 16, got {count!r}.")
     if not float(mesh.area) > 0:
         raise ValueError(f"the mesh's {len(mesh.faces)} faces have zero total area: there is no surface to sample.")
+    faces_part = _MESH_FACE_BYTES * len(mesh.faces)
+    avail = available_memory()
+    fits = (avail - faces_part) // _MESH_SAMPLE_BYTES
+    require(_MESH_SAMPLE_BYTES * int(count) + faces_part, option="count", value=count, available=avail,
+            largest=fits if fits >= 16 else None,
+            what=f"{int(count):,} points sampled from a {len(mesh.faces):,}-face mesh")
     points, face = trimesh.sample.sample_surface(mesh, int(count), seed=seed)
     return PointSet(np.asarray(points, np.float32), np.asarray(mesh.face_normals[face], np.float32))
 
@@ -223,6 +245,8 @@ def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0
     Raises:
         FileNotFoundError, ValueError: see :func:`~geosynth.pointsets.read_geometry`;
             also too few points to estimate normals from.
+        MemoryBudgetError: sampling ``count`` points from a mesh would not fit in memory
+            (option ``"count"``; see :func:`sample_mesh_points`).
     """
     geom = read_geometry(path)
     if not isinstance(geom, PointSet):

@@ -34,7 +34,6 @@ Since c^3 is a power of two, the search keeps every bound as an exact integer
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field as dc_field
 
 import numpy as np
@@ -56,34 +55,31 @@ _INT32_LIMIT = 2**31 - 1024  # flat indices stay int32 in the kernels
 
 
 def available_memory() -> int:
-    """Bytes of memory available now (``MemAvailable`` of /proc/meminfo, else sysconf).
+    """Bytes this process may still allocate (:func:`geosynth.memory.available_memory`:
+    MemAvailable, the cgroup and RLIMIT_AS headroom, ``GEOSYNTH_MEMORY_LIMIT``).
 
     Tests monkeypatch this to check the refusal of oversized inputs.
     """
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return 1 << 62  # unknown: do not refuse
+    from geosynth import memory
+
+    return memory.available_memory()
 
 
 def check_memory(estimate: int, what: str) -> None:
     """Refuse, before allocating, work whose memory estimate exceeds what is available.
 
     Raises:
-        MemoryError: with the estimate and the available memory in the message.
+        MemoryBudgetError (a MemoryError): with the estimate and the available memory in
+            the message; its option is ``"block"`` (a smaller block or source helps).
     """
+    from geosynth.memory import MemoryBudgetError
+
     avail = available_memory()
     if estimate > avail:
-        raise MemoryError(
+        raise MemoryBudgetError(
             f"{what} needs an estimated {estimate / 2**20:.1f} MiB but only {avail / 2**20:.1f} MiB of memory "
-            "is available; use a smaller source field or block."
+            "is available; use a smaller source field or block.",
+            option="block", largest=None, estimate=estimate, available=avail,
         )
 
 

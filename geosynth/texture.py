@@ -769,6 +769,30 @@ class TextureReport:
         return out
 
 
+def _require_texture(n_pts: int, h: int, w: int, method: str, k: int, levels: int, m: int, quality: bool) -> None:
+    """Refuse, before any allocation, a texture_points run whose estimate
+    (:func:`texture_bytes`) exceeds the memory available: option ``"texture_size"`` (the
+    texture's side; largest: a square that fits) when the texture search alone does not
+    fit, else ``"count"`` (the point count; largest by bisection)."""
+    from geosynth.memory import available_memory, largest_fitting, require
+
+    def est(n, hh, ww):
+        return texture_bytes(n, hh, ww, method=method, k=k, levels=levels, m=m, quality=quality)
+
+    need = est(n_pts, h, w)
+    avail = available_memory()
+    if need <= avail:
+        return
+    what = f"texturing {n_pts:,} points (k = {k}) from a {w:,} x {h:,} texture (m = {m})"
+    if est(k + 1, h, w) > avail:  # the texture search alone is too large
+        side = max(h, w)
+        smallest = max(2, math.ceil(math.sqrt(k + 1))) << (levels - 1)
+        best = largest_fitting(lambda s_: est(n_pts, s_, s_), avail, smallest, side)
+        require(need, option="texture_size", value=side, largest=best, available=avail, what=what)
+    best = largest_fitting(lambda n: est(n, h, w), avail, k + 1, n_pts)
+    require(need, option="count", value=n_pts, largest=best, available=avail, what=what)
+
+
 def _check_options(method, k, levels, m, n_pts, texture, coherent):
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
@@ -786,6 +810,46 @@ def _check_options(method, k, levels, m, n_pts, texture, coherent):
             + "; use a larger texture, a smaller k or fewer levels."
         )
     return k, int(levels), int(m)
+
+
+# Peak bytes per point and neighbour (k) of the point work of texture_points, per method:
+# the kNN tables and frames, the parameterization's patch growth, and for matching the
+# per-query neighbourhood offsets and tangent-plane mappings ((M, k, 3) float64
+# temporaries). Measured (RSS high-water delta, Warp CPU, blobs of 4k, 16k and 64k points,
+# k = 25): param 33.7-34, match 266-270, hybrid 75-149 (it matches the gaps only, and their
+# share varies with the model); with levels > 1 matching adds ~155 (the clustering's
+# Python neighbour lists, ~36 B per entry, and the hierarchy).
+_POINT_NEIGHBOUR_BYTES = {"param": 34, "hybrid": 105, "match": 268}
+_LEVELS_NEIGHBOUR_BYTES = 155  # more per point and neighbour with levels > 1 (matching)
+
+
+def texture_bytes(n_points: int, height: int, width: int, *, method: str = "hybrid", k: int = 25, levels: int = 1,
+                  m: int = DEFAULT_M, quality: bool = True) -> int:
+    """Estimated peak bytes of :func:`texture_points` for ``n_points`` points and an
+    ``height`` x ``width`` texture.
+
+    The larger of two stages: the point work (``_POINT_NEIGHBOUR_BYTES`` per point and
+    neighbour for the method, plus ``_LEVELS_NEIGHBOUR_BYTES`` with a hierarchy), and
+    the texel search's supersampled texture while the points' tables (16 B per point
+    and neighbour + 40) stay alive: per supersampled pixel (m^2 per texel) 96 B per
+    z-slice while a search is built (the bilinear resampling's float64 (mH, mW, 3) taps,
+    their stack, rounding and clipping; two slices on the finest of several levels), and
+    while the quality numbers' search is built, the matching's padded uint8 grid, its
+    device copy and the batched kernel's phase-plane copy (9 B per pixel and slice; pad
+    2 sqrt(k) + 3 texels a side). 512 KiB of small buffers. Measured (RSS, Warp CPU):
+    6,055-6,134 B per texel at m = 8 for 64^2-256^2 textures.
+    """
+    n, h, w, k, m = int(n_points), int(height), int(width), int(k), int(m)
+    per_nb = _POINT_NEIGHBOUR_BYTES[method] + (_LEVELS_NEIGHBOUR_BYTES if levels > 1 and method != "param" else 0)
+    points_stage = per_nb * k * n
+    searching = method != "param" or quality
+    z = 2 if levels > 1 and method != "param" else 1
+    pad = 2 * math.isqrt(k) + 3
+    # the build's float64 taps (99 B per pixel and slice, uint8 result included), while the
+    # matching's search (its uint8 copies, 9 B) is alive when the quality search is built
+    kept = 9 * z * (h + 2 * pad) * (w + 2 * pad) if method != "param" and quality else 0
+    texture_stage = m * m * (99 * z * h * w + kept) if searching else 0
+    return max(points_stage, texture_stage + (16 * k + 40) * n) + (512 << 10)
 
 
 def texture_points(
@@ -855,6 +919,9 @@ def texture_points(
         ValueError: no normals, NaN positions, k < 3 or >= the point count, a texture
             smaller than the neighbourhood, transparent texels, bad options.
         RuntimeError: the device is absent.
+        MemoryBudgetError: the estimate (:func:`texture_bytes`) exceeds the memory
+            available, before anything is allocated: option ``"texture_size"`` when the
+            texture search alone is too large, else ``"count"`` (the points).
     """
     import geosynth
 
@@ -867,6 +934,7 @@ def texture_points(
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}.")
     if method == "param":
         levels = 1
+    _require_texture(n_pts, tex.shape[0], tex.shape[1], method, k, levels, m, quality)
     rng = np.random.default_rng(seed)
     h, w = tex.shape[:2]
     if max_patch is None and not tileable:

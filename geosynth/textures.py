@@ -407,12 +407,21 @@ class TextureExample:
     regular: bool
     tileable: bool = True
     pattern_size: int = 8  # the texture's pattern size in texels at size 64 (hybrid gap widening)
+    bytes_per_texel: int = 120  # peak bytes per texel of build (tracemalloc, sizes 256-1024)
+    smallest: int = 8  # the smallest valid size
+    size_step: int = 1  # valid sizes are multiples of it
 
 
+# bytes_per_texel, measured peak (tracemalloc) at sizes 256, 512, 1024: bricks 113.2 (float64
+# colours, noise and index grids), checker 35.0 (int64 parity, int64 colour choice), noise
+# 80.1-81.1 (complex spectra); the estimate adds 64 KiB.
 TEXTURES: dict[str, TextureExample] = {
-    "bricks": TextureExample("bricks", bricks_texture, "staggered bricks (regular)", True, pattern_size=16),
-    "checker": TextureExample("checker", checker_texture, "checker of varying cells (regular)", True, pattern_size=11),
-    "noise": TextureExample("noise", noise_texture, "filtered noise, moss and stone (stochastic)", False, pattern_size=8),
+    "bricks": TextureExample("bricks", bricks_texture, "staggered bricks (regular)", True, pattern_size=16,
+                             bytes_per_texel=114, smallest=16, size_step=16),
+    "checker": TextureExample("checker", checker_texture, "checker of varying cells (regular)", True, pattern_size=11,
+                              bytes_per_texel=36, smallest=24),
+    "noise": TextureExample("noise", noise_texture, "filtered noise, moss and stone (stochastic)", False, pattern_size=8,
+                            bytes_per_texel=81, smallest=8),
 }
 
 
@@ -420,8 +429,22 @@ def texture_example(name: str, size: int = 64, seed: int = 0) -> np.ndarray:
     """A built-in procedural texture by name (bricks, checker, noise), (size, size, 3) uint8.
 
     Raises:
-        ValueError: an unknown name (the message lists the built-in ones).
+        ValueError: an unknown name (the message lists the built-in ones), a size that
+            is not a positive integer or does not suit the texture.
+        MemoryBudgetError: the texture would not fit in memory (option ``"texture_size"``,
+            the CLI's ``--texture-size``; refused before allocating).
     """
+    from geosynth.memory import require
+
     if name not in TEXTURES:
         raise ValueError(f"unknown texture example {name!r}; the built-in textures are: {', '.join(TEXTURES)}.")
-    return TEXTURES[name].build(size=size, seed=seed)
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
+        raise ValueError(f"size must be a positive integer (texels per side), got {size!r}.")
+    ex = TEXTURES[name]
+
+    def estimate(s: int) -> int:
+        return ex.bytes_per_texel * int(s) ** 2 + (64 << 10)
+
+    require(estimate(size), option="texture_size", value=size, largest_fn=estimate, smallest=ex.smallest,
+            step=ex.size_step, what=f"the {size:,} x {size:,} {name} texture")
+    return ex.build(size=size, seed=seed)

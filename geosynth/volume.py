@@ -31,7 +31,7 @@ import numpy as np
 
 from geosynth import _checks
 from geosynth.field import Field
-from geosynth.pyramid import check_memory
+from geosynth.memory import require
 from geosynth.search import block_offsets
 
 __all__ = [
@@ -365,6 +365,120 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
     return len(positions), ssd_sum / max(1, len(positions)) / block**3
 
 
+# Per-block bookkeeping of a level's scan (Python objects): the position tuple and its
+# ints in the scan list, the matched origin (a small ndarray) and its dict entry.
+_BYTES_PER_BLOCK = 500
+
+
+def _matcher_bytes(shape, block: int, search: str) -> int:
+    """Bytes of one level's search structure on a uint8 source of ``shape`` (device
+    buffers included: host memory on Warp CPU and PoCL)."""
+    total = int(np.prod(shape, dtype=object))
+    n_blocks = int(np.prod([max(0, int(s) - block + 1) for s in shape], dtype=object))
+    if search == "tree":
+        from geosynth.search import BlockSearch
+
+        return BlockSearch.memory_estimate(tuple(int(v) for v in shape), int(block))
+    if search == "cascade":  # the field, up to two float32 bound grids and their box sums; per block 40 B
+        return total * 25 + n_blocks * 40
+    return 2 * total + n_blocks * 40  # linear: the field on the device, origins (24 B) and scores per block
+
+
+def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", float_source: bool = False,
+                 baseline: bool = False) -> int:
+    """Estimated peak bytes of :func:`synthesize_volume` (beyond its input), for a
+    target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first).
+
+    What it counts: the uint8 source pyramid (alive throughout; 13 B per source sample
+    more while a float source is quantized); then the largest of the stages, per level
+    with n samples and B blocks: the first level's random start (an int64 index per
+    sample and the target, 9 n), a finer level's trilinear upsampling (float32 input,
+    two float32 taps, their rounded and clipped copies and the uint8 result: 15 n measured, plus
+    the previous level's target and search), the scan (target and mask 2 n, 400 B per
+    block of Python bookkeeping, the level's search) and the result (uint8 target and
+    float32 field, 5 n); 128 KiB of small buffers (the matcher's objects, the levels' reports).
+    Measured (tracemalloc; RSS agrees): see tests/test_memory.py.
+    """
+    levels = len(blocks)
+    sources = [tuple(int(v) for v in source_shape)]
+    for _ in range(levels - 1):
+        sources.insert(0, tuple(v // 2 for v in sources[0]))
+    pyramid = sum(int(np.prod(sh, dtype=object)) for sh in sources)
+    stages = [13 * int(np.prod(source_shape, dtype=object)) if float_source else 0]
+    prev_n, prev_m = 0, 0
+    for lvl, (sh, b) in enumerate(zip(sources, blocks)):
+        shape = [int(v) // 2 ** (levels - 1 - lvl) for v in target_shape]
+        n = int(np.prod(shape, dtype=object))
+        n_blocks = int(np.prod([len(range(0, v, max(1, b // 2))) for v in shape], dtype=object))
+        m = 0 if baseline else _matcher_bytes(sh, b, search)
+        stages.append(9 * n if lvl == 0 else 15 * n + prev_n + prev_m)
+        stages.append(2 * n + _BYTES_PER_BLOCK * n_blocks + m)
+        prev_n, prev_m = n, m
+    stages.append(5 * prev_n + prev_m)
+    return pyramid + max(stages) + (128 << 10)
+
+
+def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int]) -> list[int]:
+    """The block of each level (coarsest first) for a source and target (Z, Y, X):
+    ``blocks`` (from :func:`_level_blocks`) with the default scheme's coarse blocks
+    shrunk to fit a thin source or target there (a slab exemplar; sizes given per
+    level are taken as they are). Only shapes are used: nothing is allocated.
+
+    Raises:
+        ValueError: a block larger than the source or the target at its level.
+    """
+    blocks = list(blocks)
+    # the source pyramid's shapes (downsample halves each side, dropping an odd sample)
+    source_shapes = [tuple(int(v) for v in source_shape)]
+    for _ in range(levels - 1):
+        source_shapes.insert(0, tuple(v // 2 for v in source_shapes[0]))
+    if np.ndim(block) == 0:
+        for lvl, s in enumerate(source_shapes):
+            t = [n // 2 ** (levels - 1 - lvl) for n in target_shape]
+            fit = 1 << (int(min(min(s), min(t))).bit_length() - 1)
+            if lvl < levels - 1 and fit >= 2:
+                blocks[lvl] = min(blocks[lvl], fit)
+    for lvl, (s, b) in enumerate(zip(source_shapes, blocks)):
+        t = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
+        if b > min(s):
+            raise ValueError(
+                f"block {b} at level {lvl + 1} is larger than the source there {s}; "
+                "use a smaller block, fewer levels or a larger source."
+            )
+        if b > min(t):
+            raise ValueError(f"the target at level {lvl + 1} {t} is smaller than its block {b}; use a larger size.")
+    return blocks
+
+
+def _require_size(size, target_shape, levels: int, estimate, option: str = "size") -> None:
+    """Refuse a target whose estimate exceeds the memory available. The largest size
+    that fits keeps the form given: one number that made a cube, a cube; one number of
+    :func:`synthesize_geometry` (x = y = size, z the source's), that; three numbers
+    (z, y, x), z kept and y, x scaled together (multiples of the level factor)."""
+    from geosynth.memory import available_memory, largest_fitting
+
+    factor = 2 ** (levels - 1)
+    z, y, x = target_shape
+    if estimate(target_shape) <= (avail := available_memory()):
+        return
+    side = max(x, y)
+
+    def scaled(s):
+        return (z, max(factor, y * s // side // factor * factor), max(factor, x * s // side // factor * factor))
+
+    if np.ndim(size) == 0 and (z, y, x) == (int(size),) * 3:
+        def shape_at(s):
+            return (s, s, s)
+    elif np.ndim(size) == 0:
+        def shape_at(s):
+            return (z, s, s)
+    else:
+        shape_at = scaled
+    best = largest_fitting(lambda s: estimate(shape_at(s)), avail, factor, side, factor)
+    largest = best if best is None or np.ndim(size) == 0 else shape_at(best)
+    require(estimate(target_shape), option=option, value=size, largest=largest, available=avail,
+            what=f"{option} {x:,} x {y:,} x {z:,} (x y z)")
+
 def synthesize_volume(
     source: np.ndarray,
     size=128,
@@ -417,8 +531,9 @@ def synthesize_volume(
         ValueError: bad sizes, levels < 1 or more than the source can halve, a negative
             seed, band or spacing not finite in [1e-15, 1e15], block not a power of two, block
             larger than the source at some level, target smaller than a block, NaN in the
-            source, an unknown search or malformed device string, a memory estimate
-            beyond what is available.
+            source, an unknown search or malformed device string.
+        MemoryBudgetError: the estimate (:func:`volume_bytes`) exceeds the memory
+            available (option ``"size"``), before anything is allocated.
     """
     t_start = time.perf_counter()
     src = np.asarray(source)
@@ -438,44 +553,28 @@ def synthesize_volume(
     blocks = _level_blocks(levels, block)
     if band is None:
         band = blocks[-1] / 2
-    if src.dtype != np.uint8:
+    float_source = src.dtype != np.uint8
+    if float_source:
         if not np.issubdtype(src.dtype, np.floating):
             raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
         _checks.check_finite("source", src)
-        src = quantize_field(src, band)
     target_shape = _as_shape("size", size)
     factor = 2 ** (levels - 1)
     if any(s % factor for s in target_shape):
         raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
 
+    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks)
+
+    def estimate(shape) -> int:
+        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline)
+
+    _require_size(size, target_shape, levels, estimate, "size")
+
+    if float_source:
+        src = quantize_field(src, band)
     sources = [src]
     for _ in range(levels - 1):
         sources.insert(0, downsample(sources[0]))
-    if np.ndim(block) == 0:
-        # The default scheme shrinks a coarse level's block to fit a thin source or
-        # target there (a slab exemplar); sizes given per level are taken as they are.
-        for lvl, s in enumerate(sources):
-            t = [n // 2 ** (levels - 1 - lvl) for n in target_shape]
-            fit = 1 << (int(min(min(s.shape), min(t))).bit_length() - 1)
-            if lvl < levels - 1 and fit >= 2:
-                blocks[lvl] = min(blocks[lvl], fit)
-    for lvl, (s, b) in enumerate(zip(sources, blocks)):
-        t = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
-        if b > min(s.shape):
-            raise ValueError(
-                f"block {b} at level {lvl + 1} is larger than the source there {s.shape}; "
-                "use a smaller block, fewer levels or a larger source."
-            )
-        if b > min(t):
-            raise ValueError(f"the target at level {lvl + 1} {t} is smaller than its block {b}; use a larger size.")
-    # Memory: the target, its mask and the search structures (about 24 bytes per
-    # source sample per pyramid level for the tree; the linear search holds the source).
-    estimate = 3 * int(np.prod(target_shape)) + sum(
-        int(np.prod(s.shape)) * (24 * (int(math.log2(b)) + 1) if search == "tree" else 8)
-        for s, b in zip(sources, blocks)
-    )
-    check_memory(estimate, f"synthesis of a {target_shape[2]} x {target_shape[1]} x {target_shape[0]} target")
-
     rng = np.random.default_rng(seed)
     reports: list[LevelReport] = []
     target = None
@@ -571,6 +670,9 @@ def synthesize_geometry(
         ValueError: as :func:`synthesize_volume`, plus source_resolution < 8, levels
             beyond log2(source_resolution), negative smooth or quality_samples, an
             exemplar that is neither a file nor a built-in name, a bad mesh.
+        MemoryBudgetError: the estimate (:func:`geometry_bytes`) exceeds the memory
+            available, before anything is allocated: option ``"size"`` when a smaller
+            size fits at this source resolution, else ``"source_resolution"``.
     """
     _check_size(size)
     resolution = _check_int("source_resolution", source_resolution, 8)
@@ -588,6 +690,7 @@ def synthesize_geometry(
     mesh = _exemplar_mesh(exemplar, seed)
     check_mesh(mesh, "exemplar", drop_degenerate=drop_degenerate)  # empty, NaN or degenerate meshes: a clear error now
     timings["exemplar"] = time.perf_counter() - t0
+    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples)
     t0 = time.perf_counter()
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
                                    drop_degenerate=drop_degenerate, device=device)
@@ -618,6 +721,94 @@ def synthesize_geometry(
     return GeometryResult(out_mesh, vol, exemplar_field, quality, timings)
 
 
+# Marching cubes faces per sample of the synthesized field, per exemplar surface area in
+# cells (area / spacing^2 / samples): measured 2.2-4.2 on the five built-in exemplars at
+# source resolutions 24 and 32, targets 64 and 128 (the synthesis roughens the surface
+# and the caps of a closed slab grow with its side, not its area); 3.1 keeps every case
+# within 1.4x. Peak bytes per face of field_to_mesh (close=True): 96-105 without
+# smoothing, 258-268 with Taubin smoothing.
+_FACES_PER_AREA_CELL = 3.1
+_MESH_FACE_BYTES = (105, 270)
+
+
+def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks, search: str = "cascade",
+                   smooth: int = 10, quality_samples: int = 100) -> int:
+    """Estimated peak bytes of :func:`synthesize_geometry` (beyond the exemplar mesh and
+    its BVH), for the exemplar grid (Z, Y, X) of ``spacing``, the exemplar's surface
+    ``area`` (world units^2) and the target (Z, Y, X).
+
+    What it counts: the exemplar's field and its copy in samples (8 B per grid sample,
+    alive throughout) plus the largest stage: the exemplar's distance field
+    (:func:`geosynth.meshes.grid_distance_bytes`), the synthesis (:func:`volume_bytes`,
+    float source), the surface (the result's uint8 and float32 fields, 5 B per target
+    sample, and field_to_mesh's peak per marching-cubes face; faces estimated from the
+    exemplar's area per sample) and the random-tiling baseline of the quality numbers
+    (the result, its mesh at ~60 B per face, and a baseline synthesis); 1 MiB of
+    small buffers.
+    """
+    from geosynth.meshes import grid_distance_bytes
+
+    g = int(np.prod(grid_shape, dtype=object))
+    n = int(np.prod(target_shape, dtype=object))
+    faces = int(_FACES_PER_AREA_CELL * area / spacing**2 / max(g, 1) * n)
+    stages = [
+        grid_distance_bytes(grid_shape),
+        volume_bytes(target_shape, grid_shape, blocks, search, float_source=True),
+        5 * n + _MESH_FACE_BYTES[smooth > 0] * faces,
+    ]
+    if quality_samples:
+        stages.append(5 * n + 60 * faces + volume_bytes(target_shape, grid_shape, blocks, search, True, baseline=True))
+    return 8 * g + max(stages) + (1 << 20)
+
+
+def _require_geometry(mesh, size, source_resolution, levels: int, block, search: str, smooth: int,
+                      quality_samples: int) -> None:
+    """Refuse a synthesize_geometry whose estimate exceeds the memory available, naming
+    ``size`` when a smaller one fits at this source resolution, else ``source_resolution``."""
+    from geosynth.memory import available_memory, largest_fitting
+
+    if levels < 1:
+        raise ValueError(f"levels must be >= 1, got {levels}.")
+    factor = 2 ** (levels - 1)
+    area = float(mesh.area)
+    base_blocks = _level_blocks(levels, block)
+
+    def estimate(sz, res) -> int:
+        shape, _, spacing = _exemplar_grid_geometry(mesh, res, multiple=factor)
+        target = target_size(sz, shape, levels)
+        try:
+            blocks = _plan_blocks(shape, target, levels, block, base_blocks)
+        except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
+            blocks = base_blocks
+        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples)
+
+    shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
+    target = target_size(size, shape, levels)
+    if any(v % factor for v in target):
+        return  # synthesize_volume says what is wrong with the size
+    need = estimate(size, source_resolution)
+    avail = available_memory()
+    if need <= avail:
+        return
+    z, y, x = target
+    what = f"size {x:,} x {y:,} x {z:,} (x y z) from source_resolution {int(source_resolution):,}"
+    smallest = max(factor, base_blocks[-1])
+    if np.ndim(size) == 0:
+        best = largest_fitting(lambda s: estimate(s, source_resolution), avail, smallest, int(size), factor)
+    else:  # (z, y, x): z kept, y and x scaled together
+        side = max(x, y)
+
+        def scaled(s):
+            return (z, max(factor, y * s // side // factor * factor), max(factor, x * s // side // factor * factor))
+
+        best = largest_fitting(lambda s: estimate(scaled(s), source_resolution), avail, smallest, side, factor)
+        best = None if best is None else scaled(best)
+    if best is not None:
+        require(need, option="size", value=size, largest=best, available=avail, what=what)
+    best = largest_fitting(lambda r: estimate(size, r), avail, 8, int(source_resolution))
+    require(need, option="source_resolution", value=source_resolution, largest=best, available=avail, what=what)
+
+
 def exemplar_grid(mesh, resolution: int = 64, margin: int = 2, multiple: int = 1) -> Field:
     """The grid an exemplar mesh is sampled on for synthesis (values zero).
 
@@ -637,6 +828,12 @@ def exemplar_grid(mesh, resolution: int = 64, margin: int = 2, multiple: int = 1
     Returns:
         a float32 Field of shape (Z, Y, X).
     """
+    shape, origin, spacing = _exemplar_grid_geometry(mesh, resolution, margin, multiple)
+    return Field(np.zeros(shape, np.float32), origin, np.full(3, spacing))
+
+
+def _exemplar_grid_geometry(mesh, resolution: int, margin: int = 2, multiple: int = 1):
+    """(shape (Z, Y, X), origin (3,), spacing) of :func:`exemplar_grid`, nothing allocated."""
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
         raise ValueError(f"source_resolution must be an integer >= 8, got {resolution!r}.")
     lo, hi = np.asarray(mesh.bounds, np.float64)
@@ -648,7 +845,7 @@ def exemplar_grid(mesh, resolution: int = 64, margin: int = 2, multiple: int = 1
     counts[2] += extra
     origin[2] -= (extra // 2) * spacing
     shape = (int(counts[2]), int(counts[1]), int(counts[0]))
-    return Field(np.zeros(shape, np.float32), origin, np.full(3, spacing))
+    return shape, origin, spacing
 
 
 def target_size(size, source_shape, levels: int) -> tuple[int, int, int]:
