@@ -666,12 +666,9 @@ def _message(exc: BaseException, command: str) -> str:
     if isinstance(exc, MemoryError):
         option = getattr(exc, "option", None)
         if option:
+            # The library names its parameter ("lower size to at most ..."): say the flag.
             flag = "--" + str(option).replace("_", "-")
-            largest = getattr(exc, "largest", None)
-            if isinstance(largest, (tuple, list)):  # the library's (z, y, x) -> the user's x y z
-                largest = " ".join(str(v) for v in largest[::-1])
-            text = f"{flag}: {text}" + (f" (lower {flag}; the largest that fits: {largest})"
-                                        if largest is not None else f" (lower {flag})")
+            text = f"{flag}: " + re.sub(rf"\b(lower|smallest) {re.escape(str(option))}\b", rf"\1 {flag}", text)
         elif command in _MEMORY_FLAGS:
             text = f"{text.rstrip('.')}; on the command line: lower {_MEMORY_FLAGS[command]}."
     for parameter, flag in _PARAMETER_FLAGS.get(command, []):

@@ -161,8 +161,8 @@ def format_bytes(n: float) -> str:
 
 
 def _format_value(v) -> str:
-    if isinstance(v, (tuple, list)):
-        return "(" + ", ".join(_format_value(x) for x in v) + ")"
+    if isinstance(v, (tuple, list)):  # a (z, y, x) shape, shown in the user's x y z order
+        return " x ".join(_format_value(x) for x in v[::-1]) + " (x y z)"
     try:
         return f"{int(v):,}" if int(v) == v else str(v)
     except (TypeError, ValueError):

@@ -260,13 +260,18 @@ def test_debug_shows_the_traceback(files):
 
 
 def test_memory_refusal_names_the_flag():
-    err = MemoryError("size = 100000 needs an estimated 9 GiB but 1 GiB is available")
-    err.option, err.largest = "texture_size", 512
-    text = cli._message(err, "texture")
-    assert text.startswith("--texture-size: ") and "--texture-size" in text and "512" in text
-    # a size given back in the library's (z, y, x) order is shown as x y z
-    err.option, err.largest = "size", (16, 64, 128)
-    assert "the largest that fits: 128 64 16" in cli._message(err, "volume")
+    from geosynth.memory import MemoryBudgetError, require
+
+    with pytest.raises(MemoryBudgetError) as info:
+        require(9 << 30, option="texture_size", value=4096, largest=512, what="a 4096^2 texture", available=1 << 30)
+    text = cli._message(info.value, "texture")
+    assert text.startswith("--texture-size: ") and "lower --texture-size to at most 512" in text
+    assert "lower texture_size" not in text
+    # a (z, y, x) size is shown in the user's x y z order
+    with pytest.raises(MemoryBudgetError) as info:
+        require(9 << 30, option="size", value=(16, 640, 1280), largest=(16, 64, 128), what="size 1280 x 640 x 16",
+                available=1 << 30)
+    assert "lower --size to at most 128 x 64 x 16 (x y z)" in cli._message(info.value, "volume")
     plain = cli._message(MemoryError("needs 9 GiB"), "field")
     assert "--resolution" in plain
 
