@@ -35,7 +35,9 @@ from geosynth.pyramid import check_memory
 from geosynth.search import block_offsets
 
 __all__ = [
+    "DEFAULT_METHOD",
     "LevelReport",
+    "METHODS",
     "VolumeResult",
     "block_offsets",
     "downsample",
@@ -43,6 +45,12 @@ __all__ = [
     "scan_positions",
     "synthesize_volume",
 ]
+
+# How each level is made from its matches: "paper" (scan-order copying, already
+# synthesized samples kept), "graphcut" (the same scan, pasted along a minimum-error
+# cut, geosynth.graphcut), "optimize" (texture optimization, geosynth.optimize).
+METHODS = ("paper", "graphcut", "optimize")
+DEFAULT_METHOD = "optimize"
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -116,6 +124,7 @@ class LevelReport:
         seconds: wall time of the level.
         search: what the search was: the tree's size (nodes per level, branching
             factor) or the cascade's stages and mean blocks alive after each.
+        iterations: texture-optimization iterations (1 for the scan methods).
     """
 
     source_shape: tuple[int, int, int]
@@ -125,6 +134,7 @@ class LevelReport:
     mean_match_distance: float
     seconds: float
     search: str = ""
+    iterations: int = 1
 
 
 @dataclass
@@ -138,6 +148,7 @@ class VolumeResult:
         levels: one LevelReport per level, coarsest first.
         band: the distance band of the quantization.
         timings: seconds per stage.
+        method: the method that made it (:data:`METHODS`), or "random tiling".
     """
 
     quantized: np.ndarray
@@ -146,6 +157,7 @@ class VolumeResult:
     levels: list[LevelReport]
     band: float
     timings: dict = dc_field(default_factory=dict)
+    method: str = DEFAULT_METHOD
 
 
 SEARCHES = ("cascade", "tree", "linear")
@@ -216,6 +228,15 @@ class _Matcher:
             return f"cascade: every one of {self.engine.n_blocks:,} blocks scored in one launch (small search)"
         return "linear"
 
+    def nearest_batch(self, queries: np.ndarray, thresholds=None) -> tuple[np.ndarray, np.ndarray, list]:
+        """Exact nearest blocks of (Q, N, N, N) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
+        if self.search == "cascade":
+            origins, ssds, alive = self.engine.nearest_batch(queries, thresholds)
+            self.alive.extend(alive)
+            return origins, ssds, alive
+        got = [self.nearest(q, None if thresholds is None else int(thresholds[i])) for i, q in enumerate(queries)]
+        return (np.array([g[0] for g in got], np.int64).reshape(-1, 3), np.array([g[1] for g in got], np.int64), [])
+
     def nearest(self, query: np.ndarray, threshold: int | None = None,
                 order: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Exact nearest block (lowest source index on ties) and its SSD.
@@ -243,7 +264,7 @@ class _Matcher:
         return self.origins[best], int(scores.numpy()[best])
 
 
-def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles):
+def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False):
     shape = target.shape
     done = np.zeros(shape, bool)
     axes = [scan_positions(n, block, wrap) for n in shape]
@@ -288,6 +309,10 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
             origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
             matched[pos] = np.asarray(origin)
         piece = piece_at(origin)
+        if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
+            from geosynth.graphcut import min_cut, must_keep
+
+            fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
         query[fresh] = piece[fresh]
         target[box] = query
         done[box] = True
@@ -313,6 +338,8 @@ def synthesize_volume(
     spacing: float = 1.0,
     progress: bool = True,
     baseline: bool = False,
+    method: str = DEFAULT_METHOD,
+    iterations: int = 8,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -340,7 +367,18 @@ def synthesize_volume(
         spacing: world size of one finest-level sample, for the returned Field.
         progress: show a progress bar per level.
         baseline: tile randomly chosen source blocks instead of matching (the naive
-            baseline of the quality numbers; same scan and overwrite rule).
+            baseline of the quality numbers; same scan and overwrite rule, whatever
+            the method).
+        method: how a level is made from the matches (:data:`METHODS`): "paper" (the
+            scan-order copying above), "graphcut" (the same scan, each block pasted
+            along a minimum-error cut through the overlap,
+            :func:`geosynth.graphcut.min_cut`) or "optimize" (texture optimization,
+            :func:`geosynth.optimize.optimize_level`: the coarsest level starts from
+            random source blocks, every level iterates exact matches of blocks on a
+            stride-N/4 lattice and a robust vote, until under 1% of the matches
+            change or ``iterations``). The default is the one that scores best on the
+            built-in exemplars' structure metrics.
+        iterations: the most texture-optimization iterations per level ("optimize").
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -399,6 +437,9 @@ def synthesize_volume(
     )
     check_memory(estimate, f"synthesis of a {target_shape[2]} x {target_shape[1]} x {target_shape[0]} target")
 
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
+    optimizing = method == "optimize" and not baseline
     rng = np.random.default_rng(seed)
     reports: list[LevelReport] = []
     target = None
@@ -406,23 +447,36 @@ def synthesize_volume(
     for lvl, (s, b) in enumerate(zip(sources, blocks)):
         t0 = time.perf_counter()
         shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
-        if target is None:  # random samples of the source
+        if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
+            from geosynth.optimize import random_blocks
+
+            target = random_blocks(s, shape, b, rng, tileable)
+        elif target is None:  # random samples of the source
             target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
         else:
             target = upsample(target, shape, wrap=tileable)
         matcher = None if baseline else _Matcher(s, b, device, search)
         t_build = time.perf_counter() - t0
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
-        count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline)
+        iters = 1
+        if optimizing:
+            from geosynth.optimize import optimize_level
+
+            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=iterations)
+            count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
+        else:
+            count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
+                                                 cut=method == "graphcut")
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
-                                   "random tiling" if matcher is None else matcher.summary()))
+                                   "random tiling" if matcher is None else matcher.summary(), iters))
     timings["total"] = time.perf_counter() - t_start
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
-    return VolumeResult(target, result_field, src, reports, float(band), timings)
+    return VolumeResult(target, result_field, src, reports, float(band), timings,
+                        "random tiling" if baseline else method)
 
 
 @dataclass
@@ -433,8 +487,13 @@ class GeometryResult:
         mesh: the synthesized surface (trimesh.Trimesh, world units of the exemplar).
         volume: the VolumeResult (fields, per-level reports, timings).
         exemplar_field: the exemplar's signed distance Field the source was made from.
-        quality: the quality numbers (see :func:`geosynth.metrics.bidirectional_block_distance`)
-            for the synthesis and for the random-tiling baseline, if computed.
+        quality: the quality numbers, if computed: {"synthesis": ..., "random tiling":
+            ...}, each the block distance dict of
+            :func:`geosynth.metrics.bidirectional_block_distance` plus "structure":
+            :func:`geosynth.metrics.structure_report` of that field against the
+            exemplar's (print it with :func:`geosynth.metrics.format_structure`);
+            "synthesis" also has "method".
+        method: the method that made the volume (:data:`METHODS`).
         timings: seconds per stage.
     """
 
@@ -443,6 +502,7 @@ class GeometryResult:
     exemplar_field: Field
     quality: dict
     timings: dict
+    method: str = DEFAULT_METHOD
 
 
 def synthesize_geometry(
@@ -459,6 +519,8 @@ def synthesize_geometry(
     smooth: int = 10,
     quality_samples: int = 100,
     progress: bool = True,
+    method: str = DEFAULT_METHOD,
+    iterations: int = 8,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -467,16 +529,17 @@ def synthesize_geometry(
     2. :func:`synthesize_volume` to ``size`` samples (same spacing as the source).
     3. Marching cubes at the zero level and Taubin smoothing
        (:func:`geosynth.surface.field_to_mesh`).
-    4. Quality numbers beside the random-tiling baseline's (``quality_samples`` blocks
-       each way; 0 skips them).
+    4. Quality numbers beside the random-tiling baseline's: the block distance
+       (``quality_samples`` blocks each way; 0 skips all quality numbers) and the
+       structure metrics (:func:`geosynth.metrics.structure_report`).
 
     Args:
         exemplar: a trimesh.Trimesh, a mesh file path, or a built-in exemplar name
             (:data:`geosynth.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
-        levels, block, tileable, seed, device, search, progress: as in
-            :func:`synthesize_volume`.
+        levels, block, tileable, seed, device, search, progress, method, iterations:
+            as in :func:`synthesize_volume`.
         source_resolution: samples along the exemplar's longest side (the grid is
             :func:`exemplar_grid`).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
@@ -486,7 +549,7 @@ def synthesize_geometry(
         GeometryResult.
     """
     from geosynth.meshes import check_mesh, mesh_distance
-    from geosynth.metrics import bidirectional_block_distance
+    from geosynth.metrics import bidirectional_block_distance, structure_report
     from geosynth.surface import field_to_mesh
 
     timings = {}
@@ -502,7 +565,8 @@ def synthesize_geometry(
     distance_in_samples = exemplar_field.values / np.float32(spacing)
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
-                            device=device, search=search, spacing=spacing, progress=progress)
+                            device=device, search=search, spacing=spacing, progress=progress, method=method,
+                            iterations=iterations)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
     out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
@@ -512,13 +576,18 @@ def synthesize_geometry(
         t0 = time.perf_counter()
         finest = _level_blocks(levels, block)[-1]
         base = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
-                                 device=device, search=search, progress=False, baseline=True)
+                                 device=device, search=search, spacing=spacing, progress=False, baseline=True)
         quality["synthesis"] = bidirectional_block_distance(vol.source, vol.quantized, finest, samples=quality_samples,
                                                             seed=seed, device=device)
         quality["random tiling"] = bidirectional_block_distance(base.source, base.quantized, finest,
                                                                 samples=quality_samples, seed=seed, device=device)
+        # the structure metrics ride inside each side's dict, so a loop over quality.items()
+        # still finds the block distances
+        for key, fld in (("synthesis", vol.field), ("random tiling", base.field)):
+            quality[key]["structure"] = structure_report(exemplar_field, fld, periodic=tileable)
+        quality["synthesis"]["method"] = vol.method
         timings["quality numbers"] = time.perf_counter() - t0
-    return GeometryResult(out_mesh, vol, exemplar_field, quality, timings)
+    return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method)
 
 
 def exemplar_grid(mesh, resolution: int = 64, margin: int = 2, multiple: int = 1) -> Field:

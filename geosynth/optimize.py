@@ -1,0 +1,183 @@
+"""Texture optimization of one synthesis level (Kwatra et al. 2005, "Texture
+Optimization for Example-based Synthesis"), on uint8 distance-field codes.
+
+The level's target x starts from an initialization (the upsampled coarser result, or
+random source blocks at the coarsest level). Each iteration:
+
+1. M-step: for every output block on a lattice of stride ``stride`` (the blocks
+   overlap), the exact nearest source block z_p (the cascade search: lowest index on
+   ties, the same block on every device);
+2. E-step: every sample becomes the weighted mean of the matched source samples of
+   the blocks covering it, with Kwatra's IRLS weights w_p = ||x_p - z_p||^(r - 2),
+   r = 0.8 (a robust vote: a block that fits badly counts little), rounded to uint8.
+
+It stops when fewer than ``tolerance`` of the blocks changed their match, or after
+``iterations``. The vote runs in float64 on the host in a fixed order, so the same
+matches give the same bits everywhere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["IRLS_R", "lattice_positions", "optimize_level", "random_blocks", "vote"]
+
+IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
+
+
+def lattice_positions(size: int, block: int, stride: int, wrap: bool) -> list[int]:
+    """Block origins along one axis: every ``stride`` from 0; without wrap the last
+    block is aligned to the end (so every sample is covered), with wrap blocks run up
+    to the end and cross it."""
+    stride = max(1, int(stride))
+    if wrap:
+        return list(range(0, size, stride))
+    pos = list(range(0, size - block + 1, stride))
+    if pos[-1] != size - block:
+        pos.append(size - block)
+    return pos
+
+
+def _positions(shape, block: int, stride: int, wrap: bool) -> np.ndarray:
+    axes = [lattice_positions(n, block, stride, wrap) for n in shape]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+    return grid.reshape(-1, 3).astype(np.int64)
+
+
+def _padded(values: np.ndarray, block: int, wrap: bool) -> np.ndarray:
+    return np.pad(values, [(0, block)] * 3, mode="wrap") if wrap else values
+
+
+def _blocks(values: np.ndarray, positions: np.ndarray, block: int) -> np.ndarray:
+    """(Q, N, N, N) copies of the blocks at ``positions`` (already within ``values``)."""
+    out = np.empty((len(positions), block, block, block), values.dtype)
+    for i, (z, y, x) in enumerate(positions):
+        out[i] = values[z:z + block, y:y + block, x:x + block]
+    return out
+
+
+def irls_weights(ssd: np.ndarray, r: float = IRLS_R) -> np.ndarray:
+    """Kwatra's IRLS weights ||x_p - z_p||^(r - 2) from the blocks' SSDs (float64);
+    an SSD below 1 counts as 1 (a perfect match gets a large, finite weight)."""
+    d2 = np.maximum(np.asarray(ssd, np.float64), 1.0)
+    return d2 ** ((r - 2.0) / 2.0)
+
+
+def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray, wrap: bool,
+         fallback: np.ndarray | None = None) -> np.ndarray:
+    """The weighted mean per sample of the patches covering it, rounded to uint8.
+
+    Args:
+        shape: (Z, Y, X) of the output.
+        positions: (Q, 3) block origins (with ``wrap``, blocks may cross the far faces).
+        patches: (Q, N, N, N) uint8 matched source blocks.
+        weights: (Q,) float weights.
+        wrap: the output is periodic.
+        fallback: values for samples no patch covers (None: every sample is covered).
+
+    Returns:
+        (Z, Y, X) uint8.
+    """
+    block = patches.shape[1]
+    pshape = tuple(n + block for n in shape) if wrap else tuple(shape)
+    acc = np.zeros(pshape, np.float64)
+    wsum = np.zeros(pshape, np.float64)
+    for (z, y, x), patch, w in zip(positions, patches, weights):
+        acc[z:z + block, y:y + block, x:x + block] += w * patch
+        wsum[z:z + block, y:y + block, x:x + block] += w
+    if wrap:  # fold the overhang back onto the opposite faces
+        for axis, n in enumerate(shape):
+            for a in (acc, wsum):
+                head = [slice(None)] * 3
+                tail = [slice(None)] * 3
+                head[axis], tail[axis] = slice(0, block), slice(n, n + block)
+                a[tuple(head)] += a[tuple(tail)]
+        acc, wsum = acc[:shape[0], :shape[1], :shape[2]], wsum[:shape[0], :shape[1], :shape[2]]
+    covered = wsum > 0
+    out = np.zeros(shape, np.float64)
+    out[covered] = acc[covered] / wsum[covered]
+    result = np.clip(np.floor(out + 0.5), 0, 255).astype(np.uint8)
+    if fallback is not None:
+        result[~covered] = fallback[~covered]
+    return result
+
+
+def random_blocks(source: np.ndarray, shape, block: int, rng: np.random.Generator, wrap: bool) -> np.ndarray:
+    """An initial target of random source blocks (uint8, ``shape``), tiled edge to edge
+    on a stride-``block`` lattice (the last block aligned to the end)."""
+    pos = _positions(shape, block, block, wrap)
+    last = np.array(source.shape) - block
+    out = np.zeros(tuple(n + block for n in shape) if wrap else tuple(shape), np.uint8)
+    for z, y, x in pos:
+        o = [int(rng.integers(n + 1)) for n in last]
+        out[z:z + block, y:y + block, x:x + block] = source[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block]
+    return np.ascontiguousarray(out[:shape[0], :shape[1], :shape[2]])
+
+
+def _nearest_batch(search, queries: np.ndarray, thresholds):
+    if hasattr(search, "nearest_batch"):
+        return search.nearest_batch(queries, thresholds)
+    origins = np.empty((len(queries), 3), np.int64)
+    ssds = np.empty(len(queries), np.int64)
+    for i, q in enumerate(queries):
+        o, d = search.nearest(q, threshold=None if thresholds is None else int(thresholds[i]))
+        origins[i], ssds[i] = o, d
+    return origins, ssds, []
+
+
+def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *, stride: int | None = None,
+                   wrap: bool = False, iterations: int = 8, tolerance: float = 0.01, r: float = IRLS_R,
+                   progress=None) -> dict:
+    """Texture optimization of one level, in place on ``target``.
+
+    Args:
+        source: (Z, Y, X) uint8 source of this level.
+        target: (Z, Y, X) uint8 initialization; overwritten with the result.
+        block: block size N.
+        search: an object with ``nearest_batch(queries, thresholds)`` returning
+            ((Q, 3) origins, (Q,) SSDs, alive) -- :class:`geosynth.search.CascadeSearch`
+            -- or with ``nearest(query, threshold=)`` returning (origin, SSD).
+        stride: lattice stride (default N/4, at least 1).
+        wrap: periodic target.
+        iterations: the most iterations.
+        tolerance: stop once the share of blocks whose match changed is below it.
+        r: the robust exponent of the IRLS weights.
+        progress: a callable taking the iteration's number of matches, or None.
+
+    Returns:
+        {"iterations": int, "matches": int (block searches made), "changed": [share of
+        blocks whose match changed, per iteration; the first is 1.0], "mean_distance":
+        mean SSD / N^3 of the last iteration's matches (squared uint8 units), "alive":
+        per match, the cascade's blocks alive after each stage}.
+    """
+    shape = target.shape
+    stride = max(1, block // 4) if stride is None else int(stride)
+    positions = _positions(shape, block, stride, wrap)
+    sz, sy, sx = (n - block + 1 for n in source.shape)
+    prev = None
+    changed: list[float] = []
+    matches = 0
+    alive: list[list[int]] = []
+    mean = 0.0
+    for _ in range(max(1, int(iterations))):
+        queries = _blocks(_padded(target, block, wrap), positions, block)
+        thresholds = None
+        if prev is not None:
+            # the previous match's SSD bounds the best: the search drops blocks that cannot win
+            old = _blocks(source, prev, block)
+            thresholds = ((old.astype(np.int32) - queries) ** 2).reshape(len(queries), -1).sum(axis=1)
+        origins, ssds, info = _nearest_batch(search, queries, thresholds)
+        matches += len(queries)
+        alive.extend(info)
+        index = (origins[:, 0] * sy + origins[:, 1]) * sx + origins[:, 2]
+        share = 1.0 if prev is None else float(np.mean(index != prev_index))
+        changed.append(share)
+        prev, prev_index = origins, index
+        target[...] = vote(shape, positions, _blocks(source, origins, block), irls_weights(ssds, r), wrap)
+        mean = float(ssds.mean()) / block**3
+        if progress is not None:
+            progress(len(queries))
+        if share < tolerance:
+            break
+    return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
+            "alive": alive}
