@@ -23,6 +23,16 @@ import numpy as np
 __all__ = ["IRLS_R", "lattice_positions", "optimize_level", "random_blocks", "vote"]
 
 IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
+# Lattice stride = block / divisor: coarser levels are cheap and set the structure,
+# so they get the denser lattice.
+COARSE_DIVISOR = 4
+FINEST_DIVISOR = 4
+ITERATIONS = {"coarse": 8, "finest": 8}
+
+
+def level_stride(block: int, finest: bool) -> int:
+    """The lattice stride of a level: block / 4 (block / FINEST_DIVISOR at the finest), >= 1."""
+    return max(1, block // (FINEST_DIVISOR if finest else COARSE_DIVISOR))
 
 
 def lattice_positions(size: int, block: int, stride: int, wrap: bool) -> list[int]:

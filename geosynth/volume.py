@@ -460,10 +460,12 @@ def synthesize_volume(
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
         iters = 1
         if optimizing:
-            from geosynth.optimize import optimize_level
+            from geosynth.optimize import level_stride, optimize_level
 
-            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=iterations)
+            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=iterations,
+                                 stride=level_stride(b, lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
+            changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"])
         else:
             count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
                                                  cut=method == "graphcut")
@@ -471,7 +473,9 @@ def synthesize_volume(
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
-                                   "random tiling" if matcher is None else matcher.summary(), iters))
+                                   ("random tiling" if matcher is None else matcher.summary())
+                                   + (f"\ntexture optimization: {iters} iterations, matches changed {changes}"
+                                      if optimizing else ""), iters))
     timings["total"] = time.perf_counter() - t_start
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
