@@ -27,7 +27,16 @@ IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
 # so they get the denser lattice.
 COARSE_DIVISOR = 4
 FINEST_DIVISOR = 4
-ITERATIONS = {"coarse": 8, "finest": 8}
+FALLOFF_SIGMA = None  # in blocks; None: every sample of a block votes alike
+
+
+def falloff(block: int, sigma: float | None = FALLOFF_SIGMA) -> np.ndarray | None:
+    """(N, N, N) Gaussian weights around the block centre (sigma in blocks), or None."""
+    if sigma is None:
+        return None
+    c = (np.arange(block) - (block - 1) / 2) / (sigma * block)
+    g = np.exp(-0.5 * c**2)
+    return g[:, None, None] * g[None, :, None] * g[None, None, :]
 
 
 def level_stride(block: int, finest: bool) -> int:
@@ -74,7 +83,7 @@ def irls_weights(ssd: np.ndarray, r: float = IRLS_R) -> np.ndarray:
 
 
 def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray, wrap: bool,
-         fallback: np.ndarray | None = None) -> np.ndarray:
+         fallback: np.ndarray | None = None, falloff: np.ndarray | None = None) -> np.ndarray:
     """The weighted mean per sample of the patches covering it, rounded to uint8.
 
     Args:
@@ -84,6 +93,7 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
         weights: (Q,) float weights.
         wrap: the output is periodic.
         fallback: values for samples no patch covers (None: every sample is covered).
+        falloff: (N, N, N) float weights of a block's samples (None: all 1).
 
     Returns:
         (Z, Y, X) uint8.
@@ -92,9 +102,10 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
     pshape = tuple(n + block for n in shape) if wrap else tuple(shape)
     acc = np.zeros(pshape, np.float64)
     wsum = np.zeros(pshape, np.float64)
+    g = np.ones((block,) * 3) if falloff is None else np.asarray(falloff, np.float64)
     for (z, y, x), patch, w in zip(positions, patches, weights):
-        acc[z:z + block, y:y + block, x:x + block] += w * patch
-        wsum[z:z + block, y:y + block, x:x + block] += w
+        acc[z:z + block, y:y + block, x:x + block] += (w * g) * patch
+        wsum[z:z + block, y:y + block, x:x + block] += w * g
     if wrap:  # fold the overhang back onto the opposite faces
         for axis, n in enumerate(shape):
             for a in (acc, wsum):
@@ -183,7 +194,8 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         share = 1.0 if prev is None else float(np.mean(index != prev_index))
         changed.append(share)
         prev, prev_index = origins, index
-        target[...] = vote(shape, positions, _blocks(source, origins, block), irls_weights(ssds, r), wrap)
+        target[...] = vote(shape, positions, _blocks(source, origins, block), irls_weights(ssds, r), wrap,
+                           falloff=falloff(block))
         mean = float(ssds.mean()) / block**3
         if progress is not None:
             progress(len(queries))

@@ -339,7 +339,7 @@ def synthesize_volume(
     progress: bool = True,
     baseline: bool = False,
     method: str = DEFAULT_METHOD,
-    iterations: int = 8,
+    iterations=None,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -378,7 +378,10 @@ def synthesize_volume(
             stride-N/4 lattice and a robust vote, until under 1% of the matches
             change or ``iterations``). The default is the one that scores best on the
             built-in exemplars' structure metrics.
-        iterations: the most texture-optimization iterations per level ("optimize").
+        iterations: the most texture-optimization iterations ("optimize"): one number
+            for every level or one per level, coarsest first; None: 6 at the coarser
+            levels and 3 at the finest (the finest mostly refines; its searches
+            cost the most).
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -440,6 +443,12 @@ def synthesize_volume(
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
     optimizing = method == "optimize" and not baseline
+    if iterations is None:
+        iterations = [6] * (levels - 1) + [3]
+    caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
+    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
+                                  for c in caps):
+        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
     rng = np.random.default_rng(seed)
     reports: list[LevelReport] = []
     target = None
@@ -462,7 +471,7 @@ def synthesize_volume(
         if optimizing:
             from geosynth.optimize import level_stride, optimize_level
 
-            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=iterations,
+            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
                                  stride=level_stride(b, lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"])
@@ -524,7 +533,7 @@ def synthesize_geometry(
     quality_samples: int = 100,
     progress: bool = True,
     method: str = DEFAULT_METHOD,
-    iterations: int = 8,
+    iterations=None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
