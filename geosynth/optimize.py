@@ -11,8 +11,9 @@ random source blocks at the coarsest level). Each iteration:
    the blocks covering it, with Kwatra's IRLS weights w_p = ||x_p - z_p||^(r - 2),
    r = 0.8 (a robust vote: a block that fits badly counts little), rounded to uint8.
 
-It stops when fewer than ``tolerance`` of the blocks changed their match, or after
-``iterations``. The vote runs in float64 on the host in a fixed order, so the same
+It stops when fewer than ``tolerance`` of the blocks changed their match, when the
+energy sum_p ||x_p - z_p||^r rises (the rounded, reweighted vote is not a strict
+descent; the field before that vote is kept), or after ``iterations``. The vote runs in float64 on the host in a fixed order, so the same
 matches give the same bits everywhere.
 """
 
@@ -27,11 +28,15 @@ IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
 # so they get the denser lattice.
 COARSE_DIVISOR = 4
 FINEST_DIVISOR = 4
-FALLOFF_SIGMA = None  # in blocks; None: every sample of a block votes alike
+# Each block's vote falls off from its centre (a Gaussian of sigma 0.3 blocks): the
+# samples a block's match explains best count most. Measured on the built-in balls
+# and chainmail: elements 0.61 -> 0.79 and 0.31 -> 0.40 against a flat vote.
+FALLOFF_SIGMA = 0.3
 
 
-def falloff(block: int, sigma: float | None = FALLOFF_SIGMA) -> np.ndarray | None:
+def falloff(block: int, sigma: float | None = None) -> np.ndarray | None:
     """(N, N, N) Gaussian weights around the block centre (sigma in blocks), or None."""
+    sigma = FALLOFF_SIGMA if sigma is None else sigma
     if sigma is None:
         return None
     c = (np.arange(block) - (block - 1) / 2) / (sigma * block)
@@ -147,7 +152,7 @@ def _nearest_batch(search, queries: np.ndarray, thresholds):
 
 
 def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *, stride: int | None = None,
-                   wrap: bool = False, iterations: int = 8, tolerance: float = 0.01, r: float = IRLS_R,
+                   wrap: bool = False, iterations: int = 8, tolerance: float = 0.01, r: float | None = None,
                    progress=None) -> dict:
     """Texture optimization of one level, in place on ``target``.
 
@@ -162,16 +167,19 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         wrap: periodic target.
         iterations: the most iterations.
         tolerance: stop once the share of blocks whose match changed is below it.
-        r: the robust exponent of the IRLS weights.
+        r: the robust exponent of the IRLS weights (None: IRLS_R, 0.8).
         progress: a callable taking the iteration's number of matches, or None.
 
     Returns:
         {"iterations": int, "matches": int (block searches made), "changed": [share of
         blocks whose match changed, per iteration; the first is 1.0], "mean_distance":
         mean SSD / N^3 of the last iteration's matches (squared uint8 units), "alive":
-        per match, the cascade's blocks alive after each stage}.
+        per match, the cascade's blocks alive after each stage, "energy": Kwatra's
+        energy per iteration, "stopped": "matches settled", "energy rose" or
+        "iteration cap"}.
     """
     shape = target.shape
+    r = IRLS_R if r is None else float(r)
     stride = max(1, block // 4) if stride is None else int(stride)
     positions = _positions(shape, block, stride, wrap)
     sz, sy, sx = (n - block + 1 for n in source.shape)
@@ -180,6 +188,9 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
     matches = 0
     alive: list[list[int]] = []
     mean = 0.0
+    energy = []
+    before = None
+    stopped = "iteration cap"
     for _ in range(max(1, int(iterations))):
         queries = _blocks(_padded(target, block, wrap), positions, block)
         thresholds = None
@@ -190,16 +201,24 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         origins, ssds, info = _nearest_batch(search, queries, thresholds)
         matches += len(queries)
         alive.extend(info)
+        energy.append(float((np.maximum(ssds, 1.0) ** (r / 2)).sum()))  # Kwatra's E = sum ||x_p - z_p||^r
         index = (origins[:, 0] * sy + origins[:, 1]) * sx + origins[:, 2]
         share = 1.0 if prev is None else float(np.mean(index != prev_index))
         changed.append(share)
+        if share >= tolerance and len(energy) > 1 and energy[-1] > energy[-2]:
+            # the rounded, reweighted vote raised the energy: keep the field before it
+            target[...] = before
+            stopped = "energy rose"
+            break
         prev, prev_index = origins, index
+        before = target.copy()
         target[...] = vote(shape, positions, _blocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block))
         mean = float(ssds.mean()) / block**3
         if progress is not None:
             progress(len(queries))
         if share < tolerance:
+            stopped = "matches settled"
             break
     return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
-            "alive": alive}
+            "alive": alive, "energy": energy, "stopped": stopped}

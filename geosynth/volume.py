@@ -474,7 +474,7 @@ def synthesize_volume(
             got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
                                  stride=level_stride(b, lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
-            changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"])
+            changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
             count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
                                                  cut=method == "graphcut")

@@ -11,7 +11,7 @@ import pytest
 import geosynth
 from geosynth.examples import spheres_field
 from geosynth.graphcut import cut_cost, min_cut, must_keep
-from geosynth.optimize import irls_weights, lattice_positions, optimize_level, vote
+from geosynth.optimize import falloff, irls_weights, lattice_positions, optimize_level, vote
 from geosynth.search import CascadeSearch
 from geosynth.volume import METHODS, synthesize_volume
 
@@ -31,8 +31,8 @@ def codes(source):
 # ------------------------------------------------------------------ the IRLS vote
 
 
-@pytest.mark.parametrize("wrap", [False, True])
-def test_vote_is_the_irls_weighted_mean_per_sample(wrap):
+@pytest.mark.parametrize("wrap,sigma", [(False, None), (True, None), (True, 0.3)])
+def test_vote_is_the_irls_weighted_mean_per_sample(wrap, sigma):
     rng = np.random.default_rng(0)
     shape, block = (5, 4, 6), 3
     axes = [lattice_positions(n, block, 2, wrap) for n in shape]
@@ -42,17 +42,19 @@ def test_vote_is_the_irls_weighted_mean_per_sample(wrap):
     ssd[0] = 0  # a perfect match: weight of SSD 1, finite
     weights = irls_weights(ssd)
     np.testing.assert_allclose(weights, np.maximum(ssd, 1.0) ** ((0.8 - 2) / 2))
+    g = falloff(block, sigma) if sigma else None
     # the same thing sample by sample, the slow way
     num = np.zeros(shape)
     den = np.zeros(shape)
     for p, patch, w in zip(positions, patches, weights):
         for d in itertools.product(range(block), repeat=3):
             at = tuple((p + np.array(d)) % np.array(shape)) if wrap else tuple(p + np.array(d))
-            num[at] += w * float(patch[d])
-            den[at] += w
+            c = 1.0 if g is None else np.exp(-0.5 * sum(((k - 1) / (sigma * block)) ** 2 for k in d))
+            num[at] += w * c * float(patch[d])
+            den[at] += w * c
     assert (den > 0).all()
     expected = np.floor(num / den + 0.5).astype(np.uint8)
-    np.testing.assert_array_equal(vote(shape, positions, patches, weights, wrap), expected)
+    np.testing.assert_array_equal(vote(shape, positions, patches, weights, wrap, falloff=g), expected)
 
 
 def test_lattice_covers_every_sample():
@@ -70,7 +72,7 @@ def test_iterations_stop_when_matches_stop_changing(codes, device):
     src = np.ascontiguousarray(codes[:12, :12, :12])
     target = src.copy()
     got = optimize_level(src, target, 4, CascadeSearch(src, 4, device=device), stride=2, iterations=8)
-    assert got["iterations"] == 2
+    assert got["iterations"] == 2 and got["stopped"] == "matches settled"
     assert got["changed"] == [1.0, 0.0]
     assert got["mean_distance"] == 0.0
     np.testing.assert_array_equal(target, src)
@@ -85,8 +87,10 @@ def test_iteration_cap_and_tolerance(codes):
     assert got["iterations"] == 1 and got["matches"] == len(lattice_positions(16, 8, 2, False)) ** 3
     t2 = start.copy()
     got = optimize_level(src, t2, 8, CascadeSearch(src, 8, device="cpu"), iterations=20, tolerance=0.01)
-    assert got["changed"][-1] < 0.01 or got["iterations"] == 20
+    assert {"matches settled": got["changed"][-1] < 0.01, "iteration cap": got["iterations"] == 20,
+            "energy rose": got["energy"][-1] > got["energy"][-2]}[got["stopped"]]
     assert all(c >= 0.01 for c in got["changed"][:-1])
+    assert all(a > b for a, b in zip(got["energy"][:-2], got["energy"][1:-1]))  # it went down until it stopped
     # the optimized field is closer to the source's blocks than the random start
     assert not np.array_equal(t2, start)
 
