@@ -16,8 +16,15 @@ The method and its parameters are METHODS.md's M1 (seed 004, Sec. 5):
 - Tileable targets wrap: a block that crosses a face continues on the opposite face,
   so copies of the output tile without seams.
 
-Matching is exact (the lowest source index on ties) and integer-scored, so a seed
-gives the same field bit for bit on every device.
+Beyond the paper (``method=``, issue 16): "graphcut" pastes each block of the same
+scan along a minimum-error cut through the overlap (:mod:`geosynth.graphcut`) instead
+of keeping every synthesized sample; "optimize" replaces the scan by texture
+optimization per level (:mod:`geosynth.optimize`, Kwatra et al. 2005): exact matches
+of every block on a dense lattice and a robust weighted vote, iterated.
+
+Matching is exact (the lowest source index on ties) and integer-scored, and the votes
+and cuts run on the host in a fixed order, so a seed gives the same field bit for bit
+on every device.
 """
 
 from __future__ import annotations
@@ -379,9 +386,9 @@ def synthesize_volume(
             change or ``iterations``). The default is the one that scores best on the
             built-in exemplars' structure metrics.
         iterations: the most texture-optimization iterations ("optimize"): one number
-            for every level or one per level, coarsest first; None: 6 at the coarser
-            levels and 3 at the finest (the finest mostly refines; its searches
-            cost the most).
+            for every level or one per level, coarsest first; None: 12 at the coarsest
+            level (cheap, and it sets the layout), 6 in between and 3 at the finest
+            (it mostly refines; its searches cost the most); 6 for one level.
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -444,7 +451,7 @@ def synthesize_volume(
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
     optimizing = method == "optimize" and not baseline
     if iterations is None:
-        iterations = [6] * (levels - 1) + [3]
+        iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
     caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
     if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
                                   for c in caps):
@@ -469,10 +476,10 @@ def synthesize_volume(
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
         iters = 1
         if optimizing:
-            from geosynth.optimize import level_stride, optimize_level
+            from geosynth.optimize import level_sigma, level_stride, optimize_level
 
             got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
-                                 stride=level_stride(b, lvl == levels - 1))
+                                 stride=level_stride(b, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:

@@ -17,7 +17,7 @@ def source():
 
 
 def run(source, device, **kw):
-    args = dict(size=32, levels=2, block=8, progress=False, device=device, seed=3)
+    args = dict(size=32, levels=2, block=8, progress=False, device=device, seed=3, method="paper")  # the paper's scan
     args.update(kw)
     return synthesize_volume(source, **args)
 
@@ -146,6 +146,10 @@ def test_geometry_beats_random_tiling_on_built_in_exemplars(name):
     assert r.volume.quantized.shape[1:] == (48, 48)
     assert r.volume.quantized.shape[0] == r.exemplar_field.shape[0]  # the slab keeps its thickness
     assert r.quality["synthesis"]["mean"] < r.quality["random tiling"]["mean"]
+    assert r.method == r.quality["synthesis"]["method"] == "optimize"  # the default
+    kind = "surface" if name == "terrain" else "elements"
+    for side in ("synthesis", "random tiling"):
+        assert r.quality[side]["structure"]["kind"] == kind
 
 
 def test_exemplar_grid_and_target_size():
