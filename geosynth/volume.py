@@ -126,8 +126,9 @@ class LevelReport:
     Attributes:
         source_shape, target_shape: (Z, Y, X) sizes at this level.
         block: block size N.
-        matches: blocks matched.
-        mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units).
+        matches: blocks matched (texture optimization: over all its iterations).
+        mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units;
+            texture optimization: over the last iteration's matches).
         seconds: wall time of the level.
         search: what the search was: the tree's size (nodes per level, branching
             factor) or the cascade's stages and mean blocks alive after each.
