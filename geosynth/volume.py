@@ -477,10 +477,11 @@ def synthesize_volume(
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
         iters = 1
         if optimizing:
-            from geosynth.optimize import level_sigma, level_stride, optimize_level
+            from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
 
             got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
-                                 stride=level_stride(b, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1))
+                                 stride=level_stride(b, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
+                                 final=level_final(lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
