@@ -141,7 +141,7 @@ def test_geometry_beats_random_tiling_on_built_in_exemplars(name):
     from geosynth.volume import synthesize_geometry
 
     r = synthesize_geometry(name, 48, source_resolution=32, levels=2, block=8, quality_samples=40,
-                            device="opencl", progress=False, smooth=2)
+                            device="opencl", progress=False, smooth=2, iterations=[4, 2])
     assert r.mesh.is_watertight and len(r.mesh.faces) > 100
     assert r.volume.quantized.shape[1:] == (48, 48)
     assert r.volume.quantized.shape[0] == r.exemplar_field.shape[0]  # the slab keeps its thickness
