@@ -21,9 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["IRLS_R", "lattice_positions", "optimize_level", "random_blocks", "vote"]
+__all__ = ["IRLS_R", "irls_weights", "lattice_positions", "memory_estimate", "optimize_level", "random_blocks", "vote"]
 
 IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
+CHUNK = 1024  # queries copied and searched at a time (about 10 bytes per query sample at once)
+# Working memory of a level beyond the target: the vote's two float64 fields (padded by
+# a block when periodic) and one chunk of queries; see memory_estimate.
 # Lattice stride = block / divisor: coarser levels are cheap and set the structure,
 # so they get the denser lattice.
 COARSE_DIVISOR = 4
@@ -71,6 +74,14 @@ def level_stride(block: int, finest: bool) -> int:
     return max(1, block // (FINEST_DIVISOR if finest else COARSE_DIVISOR))
 
 
+def memory_estimate(shape, block: int) -> int:
+    """Bytes :func:`optimize_level` needs beyond its inputs for a (Z, Y, X) target:
+    the vote's accumulators (2 float64 per sample, padded by a block) and a chunk of
+    query copies with their int32 differences."""
+    padded = int(np.prod([int(n) + int(block) for n in shape]))
+    return 2 * 8 * padded + CHUNK * int(block) ** 3 * 10
+
+
 def lattice_positions(size: int, block: int, stride: int, wrap: bool) -> list[int]:
     """Block origins along one axis: every ``stride`` from 0; without wrap the last
     block is aligned to the end (so every sample is covered), with wrap blocks run up
@@ -100,6 +111,22 @@ def _blocks(values: np.ndarray, positions: np.ndarray, block: int) -> np.ndarray
     for i, (z, y, x) in enumerate(positions):
         out[i] = values[z:z + block, y:y + block, x:x + block]
     return out
+
+
+class _SourceBlocks:
+    """The source blocks at ``origins``, read one at a time (no (Q, N, N, N) copy)."""
+
+    def __init__(self, source: np.ndarray, origins: np.ndarray, block: int):
+        self.source, self.origins, self.block = source, origins, block
+        self.shape = (len(origins), block, block, block)
+
+    def __len__(self) -> int:
+        return len(self.origins)
+
+    def __iter__(self):
+        b = self.block
+        for z, y, x in self.origins:
+            yield self.source[z:z + b, y:y + b, x:x + b]
 
 
 def irls_weights(ssd: np.ndarray, r: float = IRLS_R) -> np.ndarray:
@@ -248,15 +275,20 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
     before = None
     stopped = "iteration cap"
     for _ in range(max(1, int(iterations))):
-        queries = _blocks(_padded(target, block, wrap), positions, block)
-        thresholds = None
-        if prev is not None:
-            # the previous match's SSD bounds the best: the search drops blocks that cannot win
-            old = _blocks(source, prev, block)
-            thresholds = ((old.astype(np.int32) - queries) ** 2).reshape(len(queries), -1).sum(axis=1)
-        origins, ssds, info = _nearest_batch(search, queries, thresholds)
-        matches += len(queries)
-        alive.extend(info)
+        padded = _padded(target, block, wrap)
+        origins = np.empty((len(positions), 3), np.int64)
+        ssds = np.empty(len(positions), np.int64)
+        for lo in range(0, len(positions), CHUNK):  # chunks bound the memory of the query copies
+            hi = min(lo + CHUNK, len(positions))
+            queries = _blocks(padded, positions[lo:hi], block)
+            thresholds = None
+            if prev is not None:
+                # the previous match's SSD bounds the best: the search drops blocks that cannot win
+                diff = _blocks(source, prev[lo:hi], block).astype(np.int32) - queries
+                thresholds = (diff * diff).reshape(hi - lo, -1).sum(axis=1)
+            origins[lo:hi], ssds[lo:hi], info = _nearest_batch(search, queries, thresholds)
+            alive.extend(info)
+        matches += len(positions)
         energy.append(float((np.maximum(ssds, 1.0) ** (r / 2)).sum()))  # Kwatra's E = sum ||x_p - z_p||^r
         index = (origins[:, 0] * sy + origins[:, 1]) * sx + origins[:, 2]
         share = 1.0 if prev is None else float(np.mean(index != prev_index))
@@ -268,18 +300,18 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
             break
         prev, prev_index = origins, index
         before = target.copy()
-        target[...] = vote(shape, positions, _blocks(source, origins, block), irls_weights(ssds, r), wrap,
+        target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma))
         voted = (origins, ssds)
         mean = float(ssds.mean()) / block**3
         if progress is not None:
-            progress(len(queries))
+            progress(len(positions))
         if share < tolerance:
             stopped = "matches settled"
             break
     if final == "max":
         origins, ssds = voted
-        target[...] = vote(shape, positions, _blocks(source, origins, block), irls_weights(ssds, r), wrap,
+        target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma), mode="max")
     return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
             "alive": alive, "energy": energy, "stopped": stopped}
