@@ -101,7 +101,8 @@ def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> t
         # The target is at most 128^3: the 256^3 source's queries come from a 128^3 target (a
         # 256^3 one spends minutes on coarse queries seeded at random, which no bound prunes).
         target = tuple(min(s, 128) for s in source.shape)
-        synthesize_volume(source, target, levels=2, block=[block // 2, block], device=dev, progress=False)
+        synthesize_volume(source, target, levels=2, block=[block // 2, block], device=dev, progress=False,
+                          method="paper")  # the paper's scan queries
     except _Enough:
         pass
     finally:

@@ -886,3 +886,34 @@ class CascadeSearch:
         """Origin (z, y, x) of block ``index``."""
         z, y, x = np.unravel_index(int(index), self.lattice)
         return int(z), int(y), int(x)
+
+    def nearest_batch(self, queries: np.ndarray, thresholds: Sequence[int | None] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
+        """The exact nearest block of each of several queries.
+
+        For now a Python loop over :meth:`nearest` (one search launch per query on the
+        fused path); the answers are the same as one call per query.
+
+        Args:
+            queries: (Q, N, N, N) uint8 blocks.
+            thresholds: None, or one upper bound of the best SSD per query (None
+                entries allowed), as in :meth:`nearest`.
+
+        Returns:
+            ((Q, 3) int64 origins, (Q,) int64 SSDs, per query the blocks alive after
+            each stage).
+        """
+        queries = np.asarray(queries)
+        if queries.ndim != 4 or queries.shape[1:] != (self.block,) * 3:
+            raise ValueError(f"queries must have shape (Q, {self.block}, {self.block}, {self.block}), "
+                             f"got {queries.shape}.")
+        n = len(queries)
+        origins = np.empty((n, 3), np.int64)
+        ssds = np.empty(n, np.int64)
+        alive = []
+        for i in range(n):
+            t = None if thresholds is None else thresholds[i]
+            origin, ssd = self.nearest(queries[i], threshold=None if t is None else int(t))
+            origins[i], ssds[i] = origin, ssd
+            alive.append(list(self.last_info.get("alive", [])))
+        return origins, ssds, alive

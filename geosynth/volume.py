@@ -16,8 +16,15 @@ The method and its parameters are METHODS.md's M1 (seed 004, Sec. 5):
 - Tileable targets wrap: a block that crosses a face continues on the opposite face,
   so copies of the output tile without seams.
 
-Matching is exact (the lowest source index on ties) and integer-scored, so a seed
-gives the same field bit for bit on every device.
+Beyond the paper (``method=``, issue 16): "graphcut" pastes each block of the same
+scan along a minimum-error cut through the overlap (:mod:`geosynth.graphcut`) instead
+of keeping every synthesized sample; "optimize" replaces the scan by texture
+optimization per level (:mod:`geosynth.optimize`, Kwatra et al. 2005): exact matches
+of every block on a dense lattice and a robust weighted vote, iterated.
+
+Matching is exact (the lowest source index on ties) and integer-scored, and the votes
+and cuts run on the host in a fixed order, so a seed gives the same field bit for bit
+on every device.
 """
 
 from __future__ import annotations
@@ -32,10 +39,13 @@ import numpy as np
 from geosynth import _checks
 from geosynth.field import Field
 from geosynth.memory import require
+from geosynth.optimize import memory_estimate as optimize_memory
 from geosynth.search import block_offsets
 
 __all__ = [
+    "DEFAULT_METHOD",
     "LevelReport",
+    "METHODS",
     "VolumeResult",
     "block_offsets",
     "downsample",
@@ -43,6 +53,12 @@ __all__ = [
     "scan_positions",
     "synthesize_volume",
 ]
+
+# How each level is made from its matches: "paper" (scan-order copying, already
+# synthesized samples kept), "graphcut" (the same scan, pasted along a minimum-error
+# cut, geosynth.graphcut), "optimize" (texture optimization, geosynth.optimize).
+METHODS = ("paper", "graphcut", "optimize")
+DEFAULT_METHOD = "optimize"
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -111,11 +127,13 @@ class LevelReport:
     Attributes:
         source_shape, target_shape: (Z, Y, X) sizes at this level.
         block: block size N.
-        matches: blocks matched.
-        mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units).
+        matches: blocks matched (texture optimization: over all its iterations).
+        mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units;
+            texture optimization: over the last iteration's matches).
         seconds: wall time of the level.
         search: what the search was: the tree's size (nodes per level, branching
             factor) or the cascade's stages and mean blocks alive after each.
+        iterations: texture-optimization iterations (1 for the scan methods).
     """
 
     source_shape: tuple[int, int, int]
@@ -125,6 +143,7 @@ class LevelReport:
     mean_match_distance: float
     seconds: float
     search: str = ""
+    iterations: int = 1
 
 
 @dataclass
@@ -138,6 +157,7 @@ class VolumeResult:
         levels: one LevelReport per level, coarsest first.
         band: the distance band of the quantization.
         timings: seconds per stage.
+        method: the method that made it (:data:`METHODS`), or "random tiling".
     """
 
     quantized: np.ndarray
@@ -146,6 +166,7 @@ class VolumeResult:
     levels: list[LevelReport]
     band: float
     timings: dict = dc_field(default_factory=dict)
+    method: str = DEFAULT_METHOD
 
 
 SEARCHES = ("cascade", "tree", "linear")
@@ -282,6 +303,15 @@ class _Matcher:
             return f"cascade: every one of {self.engine.n_blocks:,} blocks scored in one launch (small search)"
         return "linear"
 
+    def nearest_batch(self, queries: np.ndarray, thresholds=None) -> tuple[np.ndarray, np.ndarray, list]:
+        """Exact nearest blocks of (Q, N, N, N) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
+        if self.search == "cascade":
+            origins, ssds, alive = self.engine.nearest_batch(queries, thresholds)
+            self.alive.extend(alive)
+            return origins, ssds, alive
+        got = [self.nearest(q, None if thresholds is None else int(thresholds[i])) for i, q in enumerate(queries)]
+        return (np.array([g[0] for g in got], np.int64).reshape(-1, 3), np.array([g[1] for g in got], np.int64), [])
+
     def nearest(self, query: np.ndarray, threshold: int | None = None,
                 order: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Exact nearest block (lowest source index on ties) and its SSD.
@@ -309,7 +339,7 @@ class _Matcher:
         return self.origins[best], int(scores.numpy()[best])
 
 
-def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles):
+def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False):
     shape = target.shape
     done = np.zeros(shape, bool)
     axes = [scan_positions(n, block, wrap) for n in shape]
@@ -354,6 +384,10 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
             origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
             matched[pos] = np.asarray(origin)
         piece = piece_at(origin)
+        if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
+            from geosynth.graphcut import min_cut, must_keep
+
+            fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
         query[fresh] = piece[fresh]
         target[box] = query
         done[box] = True
@@ -385,7 +419,7 @@ def _matcher_bytes(shape, block: int, search: str) -> int:
 
 
 def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", float_source: bool = False,
-                 baseline: bool = False) -> int:
+                 baseline: bool = False, method: str = "paper") -> int:
     """Estimated peak bytes of :func:`synthesize_volume` (beyond its input), for a
     target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first).
 
@@ -397,6 +431,8 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     the previous level's target and search), the scan (target and mask 2 n, 400 B per
     block of Python bookkeeping, the level's search) and the result (uint8 target and
     float32 field, 5 n); 128 KiB of small buffers (the matcher's objects, the levels' reports).
+    With ``method="optimize"`` each level's scan stage also holds texture optimization's
+    vote accumulators and query chunk (:func:`geosynth.optimize.memory_estimate`).
     Measured (tracemalloc; RSS agrees): see tests/test_memory.py.
     """
     levels = len(blocks)
@@ -412,7 +448,8 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
         n_blocks = int(np.prod([len(range(0, v, max(1, b // 2))) for v in shape], dtype=object))
         m = 0 if baseline else _matcher_bytes(sh, b, search)
         stages.append(9 * n if lvl == 0 else 15 * n + prev_n + prev_m)
-        stages.append(2 * n + _BYTES_PER_BLOCK * n_blocks + m)
+        vote = optimize_memory(shape, b) if method == "optimize" and not baseline else 0
+        stages.append(2 * n + _BYTES_PER_BLOCK * n_blocks + m + vote)
         prev_n, prev_m = n, m
     stages.append(5 * prev_n + prev_m)
     return pyramid + max(stages) + (128 << 10)
@@ -493,6 +530,8 @@ def synthesize_volume(
     spacing: float = 1.0,
     progress: bool = True,
     baseline: bool = False,
+    method: str = DEFAULT_METHOD,
+    iterations=None,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -520,7 +559,21 @@ def synthesize_volume(
         spacing: world size of one finest-level sample, for the returned Field.
         progress: show a progress bar per level.
         baseline: tile randomly chosen source blocks instead of matching (the naive
-            baseline of the quality numbers; same scan and overwrite rule).
+            baseline of the quality numbers; same scan and overwrite rule, whatever
+            the method).
+        method: how a level is made from the matches (:data:`METHODS`): "paper" (the
+            scan-order copying above), "graphcut" (the same scan, each block pasted
+            along a minimum-error cut through the overlap,
+            :func:`geosynth.graphcut.min_cut`) or "optimize" (texture optimization,
+            :func:`geosynth.optimize.optimize_level`: the coarsest level starts from
+            random source blocks, every level iterates exact matches of blocks on a
+            stride-N/4 lattice and a robust vote, until under 1% of the matches
+            change or ``iterations``). The default is the one that scores best on the
+            built-in exemplars' structure metrics.
+        iterations: the most texture-optimization iterations ("optimize"): one number
+            for every level or one per level, coarsest first; None: 12 at the coarsest
+            level (cheap, and it sets the layout), 6 in between and 3 at the finest
+            (it mostly refines; its searches cost the most); 6 for one level.
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -564,9 +617,18 @@ def synthesize_volume(
         raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
 
     blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
+    optimizing = method == "optimize" and not baseline
+    if iterations is None:
+        iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
+    caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
+    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
+                                  for c in caps):
+        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
 
     def estimate(shape) -> int:
-        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline)
+        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline, method)
 
     _require_size(size, target_shape, levels, estimate, "size")
 
@@ -582,23 +644,41 @@ def synthesize_volume(
     for lvl, (s, b) in enumerate(zip(sources, blocks)):
         t0 = time.perf_counter()
         shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
-        if target is None:  # random samples of the source
+        if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
+            from geosynth.optimize import random_blocks
+
+            target = random_blocks(s, shape, b, rng, tileable)
+        elif target is None:  # random samples of the source
             target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
         else:
             target = upsample(target, shape, wrap=tileable)
         matcher = None if baseline else _Matcher(s, b, device, search)
         t_build = time.perf_counter() - t0
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
-        count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline)
+        iters = 1
+        if optimizing:
+            from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
+
+            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
+                                 stride=level_stride(b, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
+                                 final=level_final(lvl == levels - 1))
+            count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
+            changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
+        else:
+            count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
+                                                 cut=method == "graphcut")
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
-                                   "random tiling" if matcher is None else matcher.summary()))
+                                   ("random tiling" if matcher is None else matcher.summary())
+                                   + (f"\ntexture optimization: {iters} iterations, matches changed {changes}"
+                                      if optimizing else ""), iters))
     timings["total"] = time.perf_counter() - t_start
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
-    return VolumeResult(target, result_field, src, reports, float(band), timings)
+    return VolumeResult(target, result_field, src, reports, float(band), timings,
+                        "random tiling" if baseline else method)
 
 
 @dataclass
@@ -609,8 +689,13 @@ class GeometryResult:
         mesh: the synthesized surface (trimesh.Trimesh, world units of the exemplar).
         volume: the VolumeResult (fields, per-level reports, timings).
         exemplar_field: the exemplar's signed distance Field the source was made from.
-        quality: the quality numbers (see :func:`geosynth.metrics.bidirectional_block_distance`)
-            for the synthesis and for the random-tiling baseline, if computed.
+        quality: the quality numbers, if computed: {"synthesis": ..., "random tiling":
+            ...}, each the block distance dict of
+            :func:`geosynth.metrics.bidirectional_block_distance` plus "structure":
+            :func:`geosynth.metrics.structure_report` of that field against the
+            exemplar's (print it with :func:`geosynth.metrics.format_structure`);
+            "synthesis" also has "method".
+        method: the method that made the volume (:data:`METHODS`).
         timings: seconds per stage.
     """
 
@@ -619,6 +704,7 @@ class GeometryResult:
     exemplar_field: Field
     quality: dict
     timings: dict
+    method: str = DEFAULT_METHOD
 
 
 def synthesize_geometry(
@@ -636,6 +722,8 @@ def synthesize_geometry(
     quality_samples: int = 100,
     progress: bool = True,
     drop_degenerate: bool = False,
+    method: str = DEFAULT_METHOD,
+    iterations=None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -644,16 +732,17 @@ def synthesize_geometry(
     2. :func:`synthesize_volume` to ``size`` samples (same spacing as the source).
     3. Marching cubes at the zero level and Taubin smoothing
        (:func:`geosynth.surface.field_to_mesh`).
-    4. Quality numbers beside the random-tiling baseline's (``quality_samples`` blocks
-       each way; 0 skips them).
+    4. Quality numbers beside the random-tiling baseline's: the block distance
+       (``quality_samples`` blocks each way; 0 skips all quality numbers) and the
+       structure metrics (:func:`geosynth.metrics.structure_report`).
 
     Args:
         exemplar: a trimesh.Trimesh, a mesh file path, or a built-in exemplar name
             (:data:`geosynth.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
-        levels, block, tileable, seed, device, search, progress: as in
-            :func:`synthesize_volume`.
+        levels, block, tileable, seed, device, search, progress, method, iterations:
+            as in :func:`synthesize_volume`.
         source_resolution: samples along the exemplar's longest side (the grid is
             :func:`exemplar_grid`).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
@@ -682,7 +771,7 @@ def synthesize_geometry(
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
     from geosynth.meshes import check_mesh, mesh_distance
-    from geosynth.metrics import bidirectional_block_distance
+    from geosynth.metrics import bidirectional_block_distance, structure_report
     from geosynth.surface import field_to_mesh
 
     timings = {}
@@ -690,7 +779,7 @@ def synthesize_geometry(
     mesh = _exemplar_mesh(exemplar, seed)
     check_mesh(mesh, "exemplar", drop_degenerate=drop_degenerate)  # empty, NaN or degenerate meshes: a clear error now
     timings["exemplar"] = time.perf_counter() - t0
-    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples)
+    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method)
     t0 = time.perf_counter()
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
                                    drop_degenerate=drop_degenerate, device=device)
@@ -702,7 +791,8 @@ def synthesize_geometry(
     distance_in_samples = exemplar_field.values / np.float32(spacing)
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
-                            device=device, search=search, spacing=spacing, progress=progress)
+                            device=device, search=search, spacing=spacing, progress=progress, method=method,
+                            iterations=iterations)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
     out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
@@ -712,13 +802,18 @@ def synthesize_geometry(
         t0 = time.perf_counter()
         finest = _level_blocks(levels, block)[-1]
         base = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
-                                 device=device, search=search, progress=False, baseline=True)
+                                 device=device, search=search, spacing=spacing, progress=False, baseline=True)
         quality["synthesis"] = bidirectional_block_distance(vol.source, vol.quantized, finest, samples=quality_samples,
                                                             seed=seed, device=device)
         quality["random tiling"] = bidirectional_block_distance(base.source, base.quantized, finest,
                                                                 samples=quality_samples, seed=seed, device=device)
+        # the structure metrics ride inside each side's dict, so a loop over quality.items()
+        # still finds the block distances
+        for key, fld in (("synthesis", vol.field), ("random tiling", base.field)):
+            quality[key]["structure"] = structure_report(exemplar_field, fld, periodic=tileable)
+        quality["synthesis"]["method"] = vol.method
         timings["quality numbers"] = time.perf_counter() - t0
-    return GeometryResult(out_mesh, vol, exemplar_field, quality, timings)
+    return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method)
 
 
 # Marching cubes faces per sample of the synthesized field, per exemplar surface area in
@@ -732,7 +827,7 @@ _MESH_FACE_BYTES = (105, 270)
 
 
 def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks, search: str = "cascade",
-                   smooth: int = 10, quality_samples: int = 100) -> int:
+                   smooth: int = 10, quality_samples: int = 100, method: str = "paper") -> int:
     """Estimated peak bytes of :func:`synthesize_geometry` (beyond the exemplar mesh and
     its BVH), for the exemplar grid (Z, Y, X) of ``spacing``, the exemplar's surface
     ``area`` (world units^2) and the target (Z, Y, X).
@@ -753,7 +848,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
     faces = int(_FACES_PER_AREA_CELL * area / spacing**2 / max(g, 1) * n)
     stages = [
         grid_distance_bytes(grid_shape),
-        volume_bytes(target_shape, grid_shape, blocks, search, float_source=True),
+        volume_bytes(target_shape, grid_shape, blocks, search, float_source=True, method=method),
         5 * n + _MESH_FACE_BYTES[smooth > 0] * faces,
     ]
     if quality_samples:
@@ -762,7 +857,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
 
 
 def _require_geometry(mesh, size, source_resolution, levels: int, block, search: str, smooth: int,
-                      quality_samples: int) -> None:
+                      quality_samples: int, method: str) -> None:
     """Refuse a synthesize_geometry whose estimate exceeds the memory available, naming
     ``size`` when a smaller one fits at this source resolution, else ``source_resolution``."""
     from geosynth.memory import available_memory, largest_fitting
@@ -780,7 +875,7 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
             blocks = _plan_blocks(shape, target, levels, block, base_blocks)
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
             blocks = base_blocks
-        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples)
+        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, method)
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
     target = target_size(size, shape, levels)

@@ -245,7 +245,8 @@ def test_volume_estimate_matches_traced_peak(device):
     for n in (64, 128):
         peak, res = _traced_peak(lambda: synthesize_volume(src, (8, n, n), levels=2, block=8, device=device,
                                                            progress=False))
-        estimate = volume_bytes((8, n, n), src.shape, [lv.block for lv in res.levels], "cascade", True)
+        estimate = volume_bytes((8, n, n), src.shape, [lv.block for lv in res.levels], "cascade", True,
+                                method=res.method)
         _assert_ratio(estimate, peak, f"synthesize_volume 8 x {n} x {n} on {device}")
 
 
@@ -263,7 +264,7 @@ def test_geometry_estimate_matches_traced_peak():
                                                              device="cpu", progress=False, quality_samples=10))
         shape, _, spacing = _exemplar_grid_geometry(mesh, 16, multiple=2)
         estimate = geometry_bytes(shape, spacing, mesh.area, res.volume.quantized.shape,
-                                  [lv.block for lv in res.volume.levels], "cascade", 10, 10)
+                                  [lv.block for lv in res.volume.levels], "cascade", 10, 10, res.method)
         _assert_ratio(estimate, peak, f"synthesize_geometry size {n}")
 
 

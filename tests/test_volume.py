@@ -16,7 +16,7 @@ def source():
 
 
 def run(source, device, **kw):
-    args = dict(size=32, levels=2, block=8, progress=False, device=device, seed=3)
+    args = dict(size=32, levels=2, block=8, progress=False, device=device, seed=3, method="paper")  # the paper's scan
     args.update(kw)
     return synthesize_volume(source, **args)
 
@@ -140,11 +140,15 @@ def test_geometry_beats_random_tiling_on_built_in_exemplars(name):
     from geosynth.volume import synthesize_geometry
 
     r = synthesize_geometry(name, 48, source_resolution=32, levels=2, block=8, quality_samples=40,
-                            device="opencl", progress=False, smooth=2)
+                            device="opencl", progress=False, smooth=2, iterations=[4, 2])
     assert r.mesh.is_watertight and len(r.mesh.faces) > 100
     assert r.volume.quantized.shape[1:] == (48, 48)
     assert r.volume.quantized.shape[0] == r.exemplar_field.shape[0]  # the slab keeps its thickness
     assert r.quality["synthesis"]["mean"] < r.quality["random tiling"]["mean"]
+    assert r.method == r.quality["synthesis"]["method"] == "optimize"  # the default
+    kind = "surface" if name == "terrain" else "elements"
+    for side in ("synthesis", "random tiling"):
+        assert r.quality[side]["structure"]["kind"] == kind
 
 
 def test_exemplar_grid_and_target_size():
