@@ -316,7 +316,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
     import trimesh
 
     from geosynth.files import write_image
-    from geosynth.fields import mesh_distance, pointset_distance
+    from geosynth.distance import mesh_distance, pointset_distance
     from geosynth.pointsets import read_geometry
     from geosynth.render import field_slices_image
 

@@ -3,7 +3,7 @@
 The host half of the mesh distance-field family (kernels/sdf_mesh.*): the input
 checks, a consistent face orientation, and the bounding volume hierarchy (BVH) that
 both backends traverse, built once per mesh in NumPy and cached. The public function
-is :func:`mesh_distance` (re-exported by :mod:`geosynth.fields`).
+is :func:`mesh_distance` (re-exported by :mod:`geosynth.distance`).
 """
 
 from __future__ import annotations

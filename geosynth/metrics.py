@@ -63,7 +63,7 @@ def bidirectional_block_distance(
     Returns:
         {"output_to_exemplar": float, "exemplar_to_output": float, "mean": float}.
     """
-    from geosynth.search import CascadeSearch
+    from geosynth.cascade_search import CascadeSearch
 
     for name, v in (("exemplar", exemplar), ("output", output)):
         if v.dtype != np.uint8 or v.ndim != 3 or min(v.shape) < block:

@@ -144,7 +144,7 @@ def winding_number_naive(vertices: np.ndarray, faces: np.ndarray, points: np.nda
 
 
 def mesh_distance_naive(mesh, points: np.ndarray, *, signed: bool = True, band: float | None = None, sign: str = "winding") -> np.ndarray:
-    """Same arguments and result as :func:`geosynth.fields.mesh_distance` with points
+    """Same arguments and result as :func:`geosynth.distance.mesh_distance` with points
     (float64 here): brute-force distance; the sign from the exact winding number
     (``sign="winding"``) or from ``mesh.contains`` (``sign="contains"``, watertight meshes)."""
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -266,7 +266,7 @@ def compare_level_naive(field: np.ndarray, query: np.ndarray, origins: np.ndarra
 
 
 def nearest_block_naive(field: np.ndarray, query: np.ndarray) -> tuple[tuple[int, int, int], int]:
-    """Same result as :meth:`geosynth.search.BlockSearch.nearest`: the SSD of the query
+    """Same result as :meth:`geosynth.tree_search.BlockSearch.nearest`: the SSD of the query
     against every block, the smallest, the lowest raster index on ties."""
     from numpy.lib.stride_tricks import sliding_window_view
 

@@ -32,7 +32,7 @@ import numpy as np
 from geosynth import _checks
 from geosynth.field import Field
 from geosynth.memory import require
-from geosynth.search import block_offsets
+from geosynth.blocks import block_offsets
 
 __all__ = [
     "LevelReport",
@@ -254,11 +254,11 @@ class _Matcher:
         self.engine = None
         self.alive: list[list[int]] = []  # cascade: blocks alive after each stage, per match
         if search == "tree":
-            from geosynth.search import BlockSearch
+            from geosynth.tree_search import BlockSearch
 
             self.engine = BlockSearch(source, block, device=device)
         elif search == "cascade":
-            from geosynth.search import CascadeSearch
+            from geosynth.cascade_search import CascadeSearch
 
             self.engine = CascadeSearch(source, block, device=device)
         else:
@@ -376,7 +376,7 @@ def _matcher_bytes(shape, block: int, search: str) -> int:
     total = int(np.prod(shape, dtype=object))
     n_blocks = int(np.prod([max(0, int(s) - block + 1) for s in shape], dtype=object))
     if search == "tree":
-        from geosynth.search import BlockSearch
+        from geosynth.tree_search import BlockSearch
 
         return BlockSearch.memory_estimate(tuple(int(v) for v in shape), int(block))
     if search == "cascade":  # the field, up to two float32 bound grids and their box sums; per block 40 B

@@ -12,7 +12,7 @@ from conftest import TEST_DEVICES
 from geosynth import reference
 from geosynth.examples import chainmail_mesh
 from geosynth.field import Field, cubic_grid
-from geosynth.fields import mesh_distance
+from geosynth.distance import mesh_distance
 from geosynth.meshes import check_mesh, load_mesh, orient_faces
 
 # float32 kernels against a float64 oracle: relative to the mesh size

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from geosynth._backends.base import Backend
+from geosynth._backends.warp_cascade import WarpCascadeOps
 from geosynth._backends.warp_growth import WarpGrowthOps
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
@@ -28,7 +29,7 @@ _WARP_DTYPES = {
 }
 
 
-class WarpBackend(WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
+class WarpBackend(WarpCascadeOps, WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

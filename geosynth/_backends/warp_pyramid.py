@@ -83,12 +83,3 @@ class WarpPyramidOps:
                 pyramid_kernels.pyramid_pair_equal_kernel, count,
                 [sums.data, total, ny, nx, lc, n, quantized, base_a.data, base_b.data, count, out.data],
             )
-
-    def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
-                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
-        """out[3t:3t+3] <- work-item t's best SSD, its block index and blocks scored (M1's fused cascade)."""
-        self._launch(
-            pyramid_kernels.cascade_search_kernel, items,
-            [field.data, coarse.data, coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data,
-             query_terms.data, inv_c, inv_f, query.data, rows, margin, slack, best_shared.data, out.data],
-        )
