@@ -471,7 +471,7 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     from geosynth.pointmodels import load_point_model, point_model
     from geosynth.pointsets import write_point_set
     from geosynth.render import render_points, side_by_side
-    from geosynth.texture import texture_points
+    from geosynth.texturing import texture_points
     from geosynth.textures import read_texture, texture_example
 
     say = (lambda *a, **k: None) if args.quiet else print

@@ -484,10 +484,10 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     :func:`geosynth.parameterize.colour_parameterization`: the blending of
     ``kernels/growth.py`` (``blend_gaps``) as a plain-Python loop, same arithmetic in the
     same order."""
-    from geosynth.parameterize import PATCH, _as_model, growth_buckets, patch_offsets
+    from geosynth.parameterize import PATCH, as_model, growth_buckets, patch_offsets
     from geosynth.textures import as_texture, sample_bilinear
 
-    p, nrm = _as_model(points)
+    p, nrm = as_model(points)
     tex = as_texture(texture)
     h, w = tex.shape[:2]
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -572,11 +572,11 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
 
 def match_coherent_reference(level, search, colours, coloured, source, rng, subtexel: bool = True):
     """The coherent matching of ``kernels/growth.py`` (``match_coherent``) as a plain-Python
-    loop: same arguments as ``geosynth.texture._match_coherent_level`` (level, TexelSearch,
+    loop: same arguments as ``geosynth.matching.match_coherent_level`` (level, TexelSearch,
     colours (n, 3) uint8, coloured (n,) bool, source (n,) int64, Generator, subtexel), the
     same random draws, the same arithmetic; returns new (colours, coloured, source)."""
     from geosynth.parameterize import PARALLEL_LIMIT, growth_buckets
-    from geosynth.texture import refine_shifts
+    from geosynth.texel_search import refine_shifts
 
     n, k = level.neighbours.shape
     order = rng.permutation(n).tolist()
