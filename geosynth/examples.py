@@ -113,7 +113,7 @@ def chainmail_mesh(rings: int = 3, major_radius: float = 1.0, minor_radius: floa
     return trimesh.util.concatenate(parts)
 
 
-# ------------------------------------------------------------------ exemplars (issue 4, item 6)
+# ------------------------------------------------------------------ exemplars
 #
 # Units: every exemplar is built in the box [0, 1] x [0, 1] x [0, H]: one unit is the
 # side of its square footprint, z is up (balls settle along -z, the terrain's height

@@ -2,7 +2,7 @@
 
 - :func:`bidirectional_block_distance`: neighbourhood likeness (mean nearest-block
   SSD, both ways) on the uint8 codes.
-- Structure metrics (issue 16), which see what a person sees:
+- Structure metrics, which see what a person sees:
 
   * :func:`element_wholeness` for exemplars made of separate pieces (rings, balls):
     the share of the output's solid that sits in whole pieces;

@@ -317,7 +317,7 @@ def test_tri_lanes_layout():
     assert t[28] == 0 and lanes[1, 28] == np.inf  # a normal lost in float32: never "inside"
 
 
-# ------------------------------------------------------------------ one result on every device (issue 16)
+# ------------------------------------------------------------------ one result on every device
 
 
 def _device_pairs():

@@ -336,7 +336,7 @@ def test_hybrid_colours_every_point_and_is_close_to_parameterization():
     assert 0 < rep.gap_fraction < rep.matched_fraction < 1  # gaps widened, then matched
     assert rep.error["result"] < 0.15 * rep.error["random"]
     # Without widening, matching only the parameterization's own gaps: as good as the
-    # parameterization's blend within 15%. (The issue asks for <=; the eq. 5 SSD favours
+    # parameterization's blend within 15%. (Better would be <=; the eq. 5 SSD favours
     # the blurred blends of the gaps, so matched gaps measure about equal, not better.)
     out0, rep0 = texture_points(ps, tex, method="hybrid", pattern_size=0, device=dev, seed=2, quality_samples=50)
     assert rep0.matched_fraction == rep0.gap_fraction
