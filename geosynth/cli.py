@@ -1,4 +1,7 @@
-"""The ``geosynth`` command line.
+"""What does the geosynth command do with these arguments? Implements no paper section: it
+runs the methods' APIs.
+
+The ``geosynth`` command line.
 
 Every command checks its arguments before any work: each number against the range
 the library accepts (at parse time), each input file for existence, each output path

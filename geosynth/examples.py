@@ -1,4 +1,7 @@
-"""Built-in example data, generated procedurally so that everything runs with no input file."""
+"""Which example inputs run with no input file? Implements no paper section: exemplars for
+the methods' inputs.
+
+Built-in example data, generated procedurally so that everything runs with no input file."""
 
 from __future__ import annotations
 

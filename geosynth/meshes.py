@@ -1,4 +1,7 @@
-"""Meshes: loading, checking, orienting, and the signed distance of a mesh.
+"""Is this mesh usable, and how far is each grid point from it? The source distance field of
+Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 3 (system overview).
+
+Meshes: loading, checking, orienting, and the signed distance of a mesh.
 
 The host half of the mesh distance-field family (kernels/sdf_mesh.*): the input
 checks, a consistent face orientation, and the bounding volume hierarchy (BVH) that

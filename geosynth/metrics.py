@@ -1,4 +1,8 @@
-"""Quality numbers: how close a synthesized field is to the exemplar.
+"""How close is a synthesized field to its exemplar, and does it keep the exemplar's
+structure? Implements no paper section: our quality numbers for Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 6 (results).
+
+Quality numbers: how close a synthesized field is to the exemplar.
 
 - :func:`bidirectional_block_distance`: neighbourhood likeness (mean nearest-block
   SSD, both ways) on the uint8 codes.

@@ -1,4 +1,7 @@
-"""M3 point parameterization (Zhang, Qiu and Kaufman, "Fast hybrid approach for texturing
+"""Which patch and texture coordinate does each point get? Zhang, Qiu and Kaufman, "Fast
+Hybrid Approach for Texturing Point Models", Sec. 3 (point parameterization) and Appendix A.
+
+M3 point parameterization (Zhang, Qiu and Kaufman, "Fast hybrid approach for texturing
 point models", Sec. 3 and Appendix A): region growing of 2D patches over a point model
 with bounded distortion, the texture mapped onto the patches, gap points blended.
 

@@ -1,4 +1,7 @@
-"""Block pyramids (M1): the global box-filtered pyramid of a quantized field, and the
+"""What are a block's coarser levels, and how far apart are two blocks at a level? The block
+pyramid and level distance of Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 4.1-4.2.
+
+Block pyramids (M1): the global box-filtered pyramid of a quantized field, and the
 level distance between a query block and candidate blocks.
 
 A *block* is an N^3 cube of a (Z, Y, X) uint8 field, N a power of two; its origin is

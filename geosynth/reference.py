@@ -1,4 +1,7 @@
-"""Plain NumPy oracles, one per kernel: slow, obvious, never on a production path.
+"""What must each kernel return? Implements no paper section: plain oracles of the kernels
+the methods use.
+
+Plain NumPy oracles, one per kernel: slow, obvious, never on a production path.
 
 Each takes the same arguments as the operation it checks and returns the same
 result; float sums are accumulated in float64, uint8 sums in exact integers.

@@ -1,4 +1,8 @@
-"""Candidate SSD scoring: every candidate against a query, on any device.
+"""How far is every candidate from a query? The linear search of Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.3, and eq. 5 of Zhang, Qiu and Kaufman, "Fast Hybrid Approach
+for Texturing Point Models", Sec. 4.
+
+Candidate SSD scoring: every candidate against a query, on any device.
 
 Two forms:
 

@@ -1,4 +1,7 @@
-"""The fused cascade search (M1): Warp kernels.
+"""Which block is nearest, by bounds refined cell by cell? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.2 (eq. 2).
+
+The fused cascade search (M1): Warp kernels.
 
 The twin of ``cascade.cl``, with the same arguments in the same order
 (``cascade_search_kernel`` <-> ``cascade_search``); cascade.cl says what the bounds

@@ -1,4 +1,7 @@
-"""M3's sequential orders, each in one thread: the point parameterization's region growing
+"""Which points join which patch, in the paper's sequential order? Zhang, Qiu and Kaufman,
+"Fast Hybrid Approach for Texturing Point Models", Sec. 3.2-3.4 and 4.2.
+
+M3's sequential orders, each in one thread: the point parameterization's region growing
 (Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A), the texture mapping and gap
 blending (Sec. 3.4) and the coherent neighbourhood matching of one level (Sec. 4). Warp
 kernels.

@@ -1,4 +1,7 @@
-"""Block pyramids (M1): Warp kernels.
+"""What are the block pyramid's cell sums, and which nodes does a query expand? Lagae,
+Dumont and Dutré, "Geometry Synthesis", Sec. 4.1-4.3.
+
+Block pyramids (M1): Warp kernels.
 
 The twin of ``pyramid.cl``: every kernel here has its meaning there, with the same
 arguments in the same order (``pyramid_compare_kernel`` <-> ``pyramid_compare``). All

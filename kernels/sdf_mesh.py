@@ -1,4 +1,7 @@
-"""Distance-field kernels (mesh): Warp. The twin of sdf_mesh.cl.
+"""How far is each point from a mesh, and on which side? Lagae, Dumont and Dutré, "Geometry
+Synthesis", Sec. 3 (the source field).
+
+Distance-field kernels (mesh): Warp. The twin of sdf_mesh.cl.
 
 Both kernels compute, per query point p, the exact distance to the mesh and, when
 ``is_signed``, its sign from the fast generalized winding number (Barill et al.

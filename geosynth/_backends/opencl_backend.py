@@ -1,4 +1,6 @@
-"""OpenCL backend: builds ``kernels/*.cl`` once per context and dtype, launches them.
+"""How does an OpenCL device build and launch the kernels? Implements no paper section.
+
+OpenCL backend: builds ``kernels/*.cl`` once per context and dtype, launches them.
 
 Buffers are plain ``cl.Buffer`` objects with 64 spare bytes past the data, so that
 the 16-wide kernels (``ssd_gather_x16``) may read a full vector at the last element.

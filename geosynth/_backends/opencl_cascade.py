@@ -1,4 +1,7 @@
-"""OpenCL backend methods for the fused M1 cascade search (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the fused cascade search? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.2 (eq. 2).
+
+OpenCL backend methods for the fused M1 cascade search (mixed into OpenCLBackend).
 
 Launches the kernel of ``kernels/cascade.cl`` (same arguments in the same order as
 ``WarpCascadeOps``); see there for the definitions.

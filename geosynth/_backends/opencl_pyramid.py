@@ -1,4 +1,7 @@
-"""OpenCL backend methods for block pyramids (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the block pyramid kernels? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.1-4.3.
+
+OpenCL backend methods for block pyramids (mixed into OpenCLBackend).
 
 Launches the kernels of ``kernels/pyramid.cl`` (one method per kernel, same arguments
 in the same order as ``WarpPyramidOps``). Methods use the host OpenCLBackend's helpers:

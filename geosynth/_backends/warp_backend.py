@@ -1,4 +1,6 @@
-"""Warp backend: launches the kernels of ``geosynth.kernels.ssd`` on a Warp device.
+"""How does a Warp device launch the kernels? Implements no paper section.
+
+Warp backend: launches the kernels of ``geosynth.kernels.ssd`` on a Warp device.
 
 Warp compiles one binary per Python module per device; ``geosynth.kernels.ssd`` is
 loaded once per device and reused. On the CPU Warp runs kernels on one thread.

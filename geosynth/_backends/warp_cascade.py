@@ -1,4 +1,7 @@
-"""Warp backend methods for the fused M1 cascade search (mixed into WarpBackend).
+"""How does a Warp device launch the fused cascade search? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.2 (eq. 2).
+
+Warp backend methods for the fused M1 cascade search (mixed into WarpBackend).
 
 Launches the kernel of ``geosynth.kernels.cascade`` (same arguments in the same order
 as ``OpenCLCascadeOps``); see there and kernels/cascade.cl for the definitions.

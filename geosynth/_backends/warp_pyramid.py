@@ -1,4 +1,7 @@
-"""Warp backend methods for block pyramids (mixed into WarpBackend).
+"""How does a Warp device launch the block pyramid kernels? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.1-4.3.
+
+Warp backend methods for block pyramids (mixed into WarpBackend).
 
 Launches the kernels of ``geosynth.kernels.pyramid`` (one method per kernel, same
 arguments in the same order as ``OpenCLPyramidOps``). Methods use the host
