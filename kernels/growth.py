@@ -10,7 +10,7 @@ The twin of ``growth.cl`` (same kernel names without ``_kernel``, same arguments
 same order, the same float64 arithmetic in the same order, exact integer scores);
 ``geosynth.reference`` has plain-Python twins (``parameterize_reference``,
 ``colour_parameterization_reference``, ``match_coherent_reference``) that give the same
-bits. Definitions are those of ``geosynth/parameterize.py`` and ``geosynth/texture.py``;
+bits. Definitions are those of ``geosynth/parameterize.py`` and ``geosynth/matching.py``;
 the orders are fixed here:
 
 - ``grow_patches_kernel``: patches start at the first free point of ``order`` (a seeded
