@@ -436,7 +436,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZ
         axis=1,
     )
     return MeshBVH(
-        tri_lanes=_tri_lanes(tri),
+        tri_lanes=tri_lanes_layout(tri),
         sbox=_search_boxes(bbox),
         vertices=v.astype(np.float32),
         faces=np.ascontiguousarray(f, dtype=np.int32),
@@ -459,7 +459,7 @@ def _search_boxes(bbox: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(out)
 
 
-def _tri_lanes(tri: np.ndarray) -> np.ndarray:
+def tri_lanes_layout(tri: np.ndarray) -> np.ndarray:
     """(F, 32) float32 lane layout of (F, 3, 3) float64 triangles (see MeshBVH.tri_lanes)."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, ac, bc = b - a, c - a, c - b

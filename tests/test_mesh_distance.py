@@ -303,10 +303,10 @@ def test_grid_matches_points_larger_mesh(device):
 
 
 def test_tri_lanes_layout():
-    from geosynth.meshes import _tri_lanes
+    from geosynth.meshes import tri_lanes_layout
 
     tri = np.array([[[0, 0, 0], [2, 0, 0], [0, 1, 0]], [[0, 0, 0], [1e-30, 0, 0], [0, 1e-30, 0]]], np.float64)
-    lanes = _tri_lanes(tri)
+    lanes = tri_lanes_layout(tri)
     assert lanes.shape == (2, 32) and lanes.dtype == np.float32 and np.isfinite(lanes[:, :28]).all()
     t = lanes[0]
     np.testing.assert_allclose(t[9:12], [0, 0, 2])  # n = ab x ac
