@@ -1,10 +1,10 @@
 """Distance-field sampling: every present backend against pysdf, Open3D and mesh2sdf.
 
-Cases (issue 3): meshes a ~20k-face torus, a ~20k-face chainmail of linked tori and a
+Cases: meshes a ~20k-face torus, a ~20k-face chainmail of linked tori and a
 ~200k-face torus; grids 64^3 and 128^3 over the bounds plus 10%. Reported: points/s,
 the maximum error against the exact oracle (brute force over all faces, winding-number
 sign) on a sample of the grid points, the sign errors there, and the ratio to the
-fastest peer. Then point queries (issue 15 item 11): mesh_distance(mesh, points) at the
+fastest peer. Then point queries: mesh_distance(mesh, points) at the
 64^3 grid's sample positions of the ~20k-face torus, once in grid order and once
 shuffled, against pysdf on the same points; these rows give the median of repeated
 calls and the spread (the machine is shared), and check that every device returns the

@@ -1,6 +1,6 @@
 """Candidate SSD scoring: every present backend against NumPy and faiss, in one run.
 
-Cases (issue 2):
+Cases:
 - dense (N, D) = (1,000,000, 64), (200,000, 512), (30,000, 4,096), with 1 and 64
   queries, float32 and uint8;
 - gather: all 117,649 16^3 blocks of a 64^3 uint8 field, one query block;

@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import finish, parse_args, start  # noqa: E402
 
 from geosynth.pointmodels import point_model  # noqa: E402
-from geosynth.texture import texture_points  # noqa: E402
+from geosynth.texturing import texture_points  # noqa: E402
 from geosynth.textures import texture_example  # noqa: E402
 
 QUICK_PASSES, QUICK_SECONDS = 3, 2.0  # cases under 2 s run 3 times, the best pass reported (this VM's noise)

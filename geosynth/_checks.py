@@ -1,4 +1,7 @@
-"""Input checks shared by the public operations: each error names the argument,
+"""Is this argument acceptable? Implements no paper section: the checks every method's API
+shares.
+
+Input checks shared by the public operations: each error names the argument,
 what was expected and what was given."""
 
 from __future__ import annotations

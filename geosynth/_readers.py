@@ -1,4 +1,7 @@
-"""Reading geometry files, for :func:`geosynth.pointsets.read_point_set`,
+"""What geometry does this file hold? Implements no paper section: the readers behind every
+method's input.
+
+Reading geometry files, for :func:`geosynth.pointsets.read_point_set`,
 :func:`geosynth.pointsets.read_geometry` and :func:`geosynth.meshes.load_mesh`.
 
 - PLY (ASCII, binary little- and big-endian; with or without normals, colours, faces)

@@ -1,4 +1,7 @@
-"""The device switch: device strings -> backend objects.
+"""Which backend runs a device string? Implements no paper section: every method's kernels
+run through it.
+
+The device switch: device strings -> backend objects.
 
 Every public operation of geosynth takes ``device=``. This module resolves that
 string once and returns a backend; the two backends (Warp, OpenCL) expose the same

@@ -1,4 +1,7 @@
-"""The ``geosynth`` command line.
+"""What does the geosynth command do with these arguments? Implements no paper section: it
+runs the methods' APIs.
+
+The ``geosynth`` command line.
 
 Every command checks its arguments before any work: each number against the range
 the library accepts (at parse time), each input file for existence, each output path
@@ -316,7 +319,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
     import trimesh
 
     from geosynth.files import write_image
-    from geosynth.fields import mesh_distance, pointset_distance
+    from geosynth.distance import mesh_distance, pointset_distance
     from geosynth.pointsets import read_geometry
     from geosynth.render import field_slices_image
 
@@ -471,7 +474,7 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     from geosynth.pointmodels import load_point_model, point_model
     from geosynth.pointsets import write_point_set
     from geosynth.render import render_points, side_by_side
-    from geosynth.texture import texture_points
+    from geosynth.texturing import texture_points
     from geosynth.textures import read_texture, texture_example
 
     say = (lambda *a, **k: None) if args.quiet else print

@@ -1,4 +1,7 @@
-"""Tolerances and tuning constants, each with its reason."""
+"""Why these tolerances and tuning values? Implements no paper section: each constant says
+what it serves.
+
+Tolerances and tuning constants, each with its reason."""
 
 from __future__ import annotations
 

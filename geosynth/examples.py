@@ -1,4 +1,7 @@
-"""Built-in example data, generated procedurally so that everything runs with no input file."""
+"""Which example inputs run with no input file? Implements no paper section: exemplars for
+the methods' inputs.
+
+Built-in example data, generated procedurally so that everything runs with no input file."""
 
 from __future__ import annotations
 
@@ -113,7 +116,7 @@ def chainmail_mesh(rings: int = 3, major_radius: float = 1.0, minor_radius: floa
     return trimesh.util.concatenate(parts)
 
 
-# ------------------------------------------------------------------ exemplars (issue 4, item 6)
+# ------------------------------------------------------------------ exemplars
 #
 # Units: every exemplar is built in the box [0, 1] x [0, 1] x [0, H]: one unit is the
 # side of its square footprint, z is up (balls settle along -z, the terrain's height

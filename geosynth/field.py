@@ -1,4 +1,7 @@
-"""The Field type: values sampled on a regular grid, with the grid's place in the world."""
+"""Where in the world is each sample of a grid? Implements no paper section: the grid type
+of every distance field.
+
+The Field type: values sampled on a regular grid, with the grid's place in the world."""
 
 from __future__ import annotations
 

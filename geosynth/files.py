@@ -1,4 +1,7 @@
-"""Files in and out: the one output guard every command and writer goes through,
+"""May this path be written, and how is it written safely? Implements no paper section:
+every output goes through it.
+
+Files in and out: the one output guard every command and writer goes through,
 atomic writes that never leave a partial or temporary file behind, and pictures
 written as their extension says.
 

@@ -1,4 +1,7 @@
-"""Memory refused up front: what this process may still allocate, and a one-line refusal.
+"""Will this run fit in memory? Implements no paper section: every method's memory estimate
+is refused here.
+
+Memory refused up front: what this process may still allocate, and a one-line refusal.
 
 Every operation whose memory grows with an input or an option estimates its peak
 before allocating (a formula next to the operation, saying what it counts) and calls

@@ -1,9 +1,12 @@
-"""Meshes: loading, checking, orienting, and the signed distance of a mesh.
+"""Is this mesh usable, and how far is each grid point from it? The source distance field of
+Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 3 (system overview).
+
+Meshes: loading, checking, orienting, and the signed distance of a mesh.
 
 The host half of the mesh distance-field family (kernels/sdf_mesh.*): the input
 checks, a consistent face orientation, and the bounding volume hierarchy (BVH) that
 both backends traverse, built once per mesh in NumPy and cached. The public function
-is :func:`mesh_distance` (re-exported by :mod:`geosynth.fields`).
+is :func:`mesh_distance` (re-exported by :mod:`geosynth.distance`).
 """
 
 from __future__ import annotations
@@ -433,7 +436,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, leaf_size: int = LEAF_SIZ
         axis=1,
     )
     return MeshBVH(
-        tri_lanes=_tri_lanes(tri),
+        tri_lanes=tri_lanes_layout(tri),
         sbox=_search_boxes(bbox),
         vertices=v.astype(np.float32),
         faces=np.ascontiguousarray(f, dtype=np.int32),
@@ -456,7 +459,7 @@ def _search_boxes(bbox: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(out)
 
 
-def _tri_lanes(tri: np.ndarray) -> np.ndarray:
+def tri_lanes_layout(tri: np.ndarray) -> np.ndarray:
     """(F, 32) float32 lane layout of (F, 3, 3) float64 triangles (see MeshBVH.tri_lanes)."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, ac, bc = b - a, c - a, c - b

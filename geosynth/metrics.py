@@ -1,8 +1,12 @@
-"""Quality numbers: how close a synthesized field is to the exemplar.
+"""How close is a synthesized field to its exemplar, and does it keep the exemplar's
+structure? Implements no paper section: our quality numbers for Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 6 (results).
+
+Quality numbers: how close a synthesized field is to the exemplar.
 
 - :func:`bidirectional_block_distance`: neighbourhood likeness (mean nearest-block
   SSD, both ways) on the uint8 codes.
-- Structure metrics (issue 16), which see what a person sees:
+- Structure metrics, which see what a person sees:
 
   * :func:`element_wholeness` for exemplars made of separate pieces (rings, balls):
     the share of the output's solid that sits in whole pieces;
@@ -63,7 +67,7 @@ def bidirectional_block_distance(
     Returns:
         {"output_to_exemplar": float, "exemplar_to_output": float, "mean": float}.
     """
-    from geosynth.search import CascadeSearch
+    from geosynth.cascade_search import CascadeSearch
 
     for name, v in (("exemplar", exemplar), ("output", output)):
         if v.dtype != np.uint8 or v.ndim != 3 or min(v.shape) < block:

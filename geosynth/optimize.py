@@ -246,7 +246,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         target: (Z, Y, X) uint8 initialization; overwritten with the result.
         block: block size N.
         search: an object with ``nearest_batch(queries, thresholds)`` returning
-            ((Q, 3) origins, (Q,) SSDs, alive) -- :class:`geosynth.search.CascadeSearch`
+            ((Q, 3) origins, (Q,) SSDs, alive) -- :class:`geosynth.cascade_search.CascadeSearch`
             -- or with ``nearest(query, threshold=)`` returning (origin, SSD).
         stride: lattice stride (default N/4, at least 1).
         wrap: periodic target.

@@ -1,4 +1,7 @@
-"""M3 point parameterization (Zhang, Qiu and Kaufman, "Fast hybrid approach for texturing
+"""Which patch and texture coordinate does each point get? Zhang, Qiu and Kaufman, "Fast
+Hybrid Approach for Texturing Point Models", Sec. 3 (point parameterization) and Appendix A.
+
+M3 point parameterization (Zhang, Qiu and Kaufman, "Fast hybrid approach for texturing
 point models", Sec. 3 and Appendix A): region growing of 2D patches over a point model
 with bounded distortion, the texture mapped onto the patches, gap points blended.
 
@@ -50,8 +53,8 @@ from geosynth.pointsets import PointSet
 from geosynth.textures import as_texture, sample_bilinear
 
 __all__ = [
-    "FREE", "GAP", "PATCH", "CheckedModel", "Parameterization", "colour_parameterization", "frames_from_up", "neighbourhood_offsets",
-    "check_up", "growth_inputs", "parameterize_points", "patch_offsets", "propagate",
+    "FREE", "GAP", "PATCH", "CheckedModel", "Parameterization", "colour_parameterization", "frames_from_up", "tangent_offsets",
+    "as_model", "check_up", "growth_inputs", "parameterize_points", "patch_offsets", "pick_batch", "propagate",
 ]
 
 FREE, PATCH, GAP = 0, 1, 2
@@ -199,27 +202,29 @@ def frames_from_up(normals: np.ndarray, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray,
     return s, t
 
 
-def neighbourhood_offsets(positions: np.ndarray, s_axis: np.ndarray, t_axis: np.ndarray, normals: np.ndarray,
-                          neighbours: np.ndarray, unit: float, centres: np.ndarray | None = None) -> np.ndarray:
-    """The irregular neighbourhood of each point (Sec. 4): its neighbours mapped onto its
-    tangent plane by the patch mapping of Appendix A, in texels (x along S, y along T).
+def tangent_offsets(positions: np.ndarray, s_axis: np.ndarray, t_axis: np.ndarray, normals: np.ndarray,
+                    centres: np.ndarray, others: np.ndarray, unit: float) -> np.ndarray:
+    """Points mapped onto the tangent planes of centre points by the patch mapping of
+    Appendix A, in texels (x along S, y along T): the irregular neighbourhood of Sec. 4
+    when ``others`` are the centres' neighbours.
 
     Args:
-        positions: (N, 3) positions; normals, s_axis, t_axis: (N, 3) frames.
-        neighbours: (M, k) indices into ``positions`` of the neighbours of each centre.
+        positions: (N, 3) float64 positions; normals, s_axis, t_axis: (N, 3) frames.
+        centres: (M,) indices of the centre points.
+        others: (M, J, 3) float64 positions to map, J per centre (any points: the
+            centres' neighbours, or coarser points of a hierarchy).
         unit: world length of a texel.
-        centres: (M,) indices of the centre points (default: 0..N-1, M = N).
 
     Returns:
-        (M, k, 2) float64 offsets; a neighbour along the centre's normal gets the
-        plain projection (V . S, V . T) (length 0 if it coincides).
+        (M, J, 2) float64 offsets; a point along the centre's normal gets the plain
+        projection (V . S, V . T) (length 0 if it coincides).
     """
-    c = np.arange(len(neighbours)) if centres is None else np.asarray(centres)
+    c = np.asarray(centres)
     p = np.asarray(positions, np.float64)
     zero = np.zeros((len(c), 1, 2))
-    uv, _, _, _, _, ok = propagate(p[neighbours], p[c][:, None], zero, normals[c][:, None], s_axis[c][:, None],
+    uv, _, _, _, _, ok = propagate(others, p[c][:, None], zero, normals[c][:, None], s_axis[c][:, None],
                                    t_axis[c][:, None], unit)
-    v = p[neighbours] - p[c][:, None]
+    v = others - p[c][:, None]
     plain = np.stack([_dot(v, s_axis[c][:, None]), _dot(v, t_axis[c][:, None])], -1) / unit
     return np.where(ok[..., None], uv, plain)
 
@@ -228,14 +233,26 @@ def neighbourhood_offsets(positions: np.ndarray, s_axis: np.ndarray, t_axis: np.
 
 
 class CheckedModel(NamedTuple):
-    """A point model that :func:`_as_model` has checked: (N, 3) float64 positions and
+    """A point model that :func:`as_model` has checked: (N, 3) float64 positions and
     unit normals. The M3 stages accept it in place of a PointSet (no second check)."""
 
     positions: np.ndarray
     normals: np.ndarray
 
 
-def _as_model(points) -> tuple[np.ndarray, np.ndarray]:
+def as_model(points) -> tuple[np.ndarray, np.ndarray]:
+    """Check a point model for the M3 stages.
+
+    Args:
+        points: a PointSet with normals, or a :class:`CheckedModel` (returned as is).
+
+    Returns:
+        ((N, 3) float64 positions, (N, 3) float64 unit normals).
+
+    Raises:
+        TypeError: not a PointSet.
+        ValueError: NaN or inf positions, no normals, zero-length or non-finite normals.
+    """
     if isinstance(points, CheckedModel):
         return points.positions, points.normals
     if not isinstance(points, PointSet):
@@ -272,7 +289,7 @@ def mean_spacing(distances: np.ndarray) -> float:
     return d
 
 
-def _pick_batch(cand: np.ndarray, neighbours: np.ndarray, blocked: np.ndarray, limit: int) -> np.ndarray:
+def pick_batch(cand: np.ndarray, neighbours: np.ndarray, blocked: np.ndarray, limit: int) -> np.ndarray:
     """Greedy: up to ``limit`` candidates in the given order, none in another's
     k-neighbourhood (in either direction). ``blocked`` is an all-False (N, 2) bool
     scratch array (column 0: a neighbour of a chosen point, column 1: chosen); it is
@@ -321,7 +338,7 @@ def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0,
     """
     from geosynth.pointmodels import knn_table
 
-    p, nrm = _as_model(points)
+    p, nrm = as_model(points)
     n_pts = len(p)
     k = check_k(k, n_pts)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -470,7 +487,7 @@ def colour_parameterization(
     """
     import geosynth
 
-    p, nrm = _as_model(points)
+    p, nrm = as_model(points)
     tex = as_texture(texture)
     h, wdt = tex.shape[:2]
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)

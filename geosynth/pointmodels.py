@@ -1,4 +1,8 @@
-"""Point models for M3: built-in shapes sampled as oriented point sets, points sampled
+"""Which point models can be textured, and which are each point's k nearest neighbours? The
+inputs and neighbourhoods of Zhang, Qiu and Kaufman, "Fast Hybrid Approach for Texturing
+Point Models", Sec. 4 and 6.
+
+Point models for M3: built-in shapes sampled as oriented point sets, points sampled
 from any mesh, loading from files, and k-nearest-neighbour tables.
 
 Built-ins (any count; the paper's models have 16k-76k points):

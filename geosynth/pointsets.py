@@ -1,8 +1,11 @@
-"""Oriented point sets: PLY input/output (and :func:`read_geometry`, which reads a mesh
+"""How is an oriented point set read, written, and given a distance field? The MLS distance
+of "Geometry texture synthesis with point-set surfaces", Sec. 5.1 (finding a similar patch).
+
+Oriented point sets: PLY input/output (and :func:`read_geometry`, which reads a mesh
 or a point set), normal estimation, and the MLS distance field.
 
-The distance field of a point set is the one of method M2 (METHODS.md, "Metric";
-seed 000, Sec. 5.1): grid points are projected onto the MLS point-set surface of
+The distance field of a point set is the one of method M2 ("Geometry texture synthesis
+with point-set surfaces", Sec. 5.1, finding a similar patch): grid points are projected onto the MLS point-set surface of
 Adamson and Alexa with their quasi-orthogonal projection, and the field holds the
 signed distance to the projection plus a gradient field.
 

@@ -1,4 +1,7 @@
-"""Block pyramids (M1): the global box-filtered pyramid of a quantized field, and the
+"""What are a block's coarser levels, and how far apart are two blocks at a level? The block
+pyramid and level distance of Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 4.1-4.2.
+
+Block pyramids (M1): the global box-filtered pyramid of a quantized field, and the
 level distance between a query block and candidate blocks.
 
 A *block* is an N^3 cube of a (Z, Y, X) uint8 field, N a power of two; its origin is
@@ -29,7 +32,7 @@ It uses the exact cell sums: for one cell of c^3 samples with sums Q (query) and
 
 is a lower bound of the full block SSD, and N^3 * dist_l = LB_l for exact means.
 Since c^3 is a power of two, the search keeps every bound as an exact integer
-(see :mod:`geosynth.search`).
+(see :mod:`geosynth.tree_search`).
 """
 
 from __future__ import annotations
@@ -49,6 +52,7 @@ __all__ = [
     "check_block",
     "compare_level",
     "level_shape",
+    "query_arrays",
 ]
 
 _INT32_LIMIT = 2**31 - 1024  # flat indices stay int32 in the kernels
@@ -265,7 +269,18 @@ def check_query(query, block: int) -> np.ndarray:
     return np.ascontiguousarray(query)
 
 
-def _query_arrays(backend, query: np.ndarray, block: int) -> tuple[DeviceArray, DeviceArray]:
+def query_arrays(backend, query: np.ndarray, block: int) -> tuple[DeviceArray, DeviceArray]:
+    """A query block's levels on a device, as the compare kernels read them.
+
+    Args:
+        backend: the Backend to upload to.
+        query: (N, N, N) uint8 block, N = ``block``.
+        block: the block size N (a power of two).
+
+    Returns:
+        (flat int32 DeviceArray of every level's samples, coarsest first; (L + 1,)
+        int32 DeviceArray of each level's start in it).
+    """
     lev = block_levels(query, block)
     flat = np.concatenate([a.reshape(-1) for a in lev]).astype(np.int32)
     off = np.zeros(len(lev) + 1, np.int32)
@@ -320,7 +335,7 @@ def compare_level(
     _, ny, nx = pyramid.shape
     base = (org @ np.array([ny * nx, nx, 1], np.int64)).astype(np.int32)
     code = np.full(m, 2 * int(level) + int(rounded), np.int32)
-    q, qoff = _query_arrays(backend, query, n_block)
+    q, qoff = query_arrays(backend, query, n_block)
     out = backend.pyramid_empty((m,), np.int64)
     ids = backend.to_device(np.arange(m, dtype=np.int32))
     backend.pyramid_compare(

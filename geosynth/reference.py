@@ -1,4 +1,7 @@
-"""Plain NumPy oracles, one per kernel: slow, obvious, never on a production path.
+"""What must each kernel return? Implements no paper section: plain oracles of the kernels
+the methods use.
+
+Plain NumPy oracles, one per kernel: slow, obvious, never on a production path.
 
 Each takes the same arguments as the operation it checks and returns the same
 result; float sums are accumulated in float64, uint8 sums in exact integers.
@@ -144,7 +147,7 @@ def winding_number_naive(vertices: np.ndarray, faces: np.ndarray, points: np.nda
 
 
 def mesh_distance_naive(mesh, points: np.ndarray, *, signed: bool = True, band: float | None = None, sign: str = "winding") -> np.ndarray:
-    """Same arguments and result as :func:`geosynth.fields.mesh_distance` with points
+    """Same arguments and result as :func:`geosynth.distance.mesh_distance` with points
     (float64 here): brute-force distance; the sign from the exact winding number
     (``sign="winding"``) or from ``mesh.contains`` (``sign="contains"``, watertight meshes)."""
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -266,7 +269,7 @@ def compare_level_naive(field: np.ndarray, query: np.ndarray, origins: np.ndarra
 
 
 def nearest_block_naive(field: np.ndarray, query: np.ndarray) -> tuple[tuple[int, int, int], int]:
-    """Same result as :meth:`geosynth.search.BlockSearch.nearest`: the SSD of the query
+    """Same result as :meth:`geosynth.tree_search.BlockSearch.nearest`: the SSD of the query
     against every block, the smallest, the lowest raster index on ties."""
     from numpy.lib.stride_tricks import sliding_window_view
 
@@ -484,10 +487,10 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
     :func:`geosynth.parameterize.colour_parameterization`: the blending of
     ``kernels/growth.py`` (``blend_gaps``) as a plain-Python loop, same arithmetic in the
     same order."""
-    from geosynth.parameterize import PATCH, _as_model, growth_buckets, patch_offsets
+    from geosynth.parameterize import PATCH, as_model, growth_buckets, patch_offsets
     from geosynth.textures import as_texture, sample_bilinear
 
-    p, nrm = _as_model(points)
+    p, nrm = as_model(points)
     tex = as_texture(texture)
     h, w = tex.shape[:2]
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -572,11 +575,11 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
 
 def match_coherent_reference(level, search, colours, coloured, source, rng, subtexel: bool = True):
     """The coherent matching of ``kernels/growth.py`` (``match_coherent``) as a plain-Python
-    loop: same arguments as ``geosynth.texture._match_coherent_level`` (level, TexelSearch,
+    loop: same arguments as ``geosynth.matching.match_coherent_level`` (level, TexelSearch,
     colours (n, 3) uint8, coloured (n,) bool, source (n,) int64, Generator, subtexel), the
     same random draws, the same arithmetic; returns new (colours, coloured, source)."""
     from geosynth.parameterize import PARALLEL_LIMIT, growth_buckets
-    from geosynth.texture import refine_shifts
+    from geosynth.texel_search import refine_shifts
 
     n, k = level.neighbours.shape
     order = rng.permutation(n).tolist()

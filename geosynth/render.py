@@ -1,4 +1,7 @@
-"""Pictures of results, written as PNG with no imaging dependency.
+"""What does a result look like? Implements no paper section: pictures of the methods'
+outputs.
+
+Pictures of results, written as PNG with no imaging dependency.
 
 - :func:`write_png`: an atomic PNG or JPEG writer (Pillow).
 - :func:`render_mesh`: a shaded picture of a triangle mesh, by a z-buffer rasterizer

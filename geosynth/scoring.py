@@ -1,4 +1,8 @@
-"""Candidate SSD scoring: every candidate against a query, on any device.
+"""How far is every candidate from a query? The linear search of Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.3, and eq. 5 of Zhang, Qiu and Kaufman, "Fast Hybrid Approach
+for Texturing Point Models", Sec. 4.
+
+Candidate SSD scoring: every candidate against a query, on any device.
 
 Two forms:
 
@@ -256,7 +260,7 @@ def score_gather(
     return scorer(values, origins=origins, threshold=threshold, keep_on_device=keep_on_device)
 
 
-def _offset_run(flat: np.ndarray) -> int:
+def offset_run(flat: np.ndarray) -> int:
     """The longest run length L in (64, 32, 16) such that the flat offsets are runs of L
     consecutive indices (a block's x rows), else 0."""
     for run in (64, 32, 16):
@@ -346,7 +350,7 @@ class GatherScorer:
         self._grid = None
         self._flat_off_host = flat_off.reshape(-1).astype(np.int32)
         self._flat_off = None
-        self._run = _offset_run(self._flat_off_host) if w is None else 0  # explicit bases: 16-lane loads
+        self._run = offset_run(self._flat_off_host) if w is None else 0  # explicit bases: 16-lane loads
         self._weights = None if w is None else self.backend.to_device(np.repeat(w, channels))
         # Strided or multi-channel lattices read a polyphase copy (see _polyphase_layout).
         self._poly = None

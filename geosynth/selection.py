@@ -1,4 +1,7 @@
-"""Selection on scores: the best candidate, the near-best set, the best fraction,
+"""Which candidate wins? Implements no paper section: the argmin and near-best picks after
+scoring.
+
+Selection on scores: the best candidate, the near-best set, the best fraction,
 and a seeded random pick.
 
 Scores may be a NumPy array (uploaded to ``device``) or a DeviceArray returned by a

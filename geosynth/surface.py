@@ -1,4 +1,8 @@
-"""Geometry out: a field's level set as a triangle mesh, smoothing, and mesh files.
+"""What mesh does a field's level set make? It stands in for the geometry reconstruction of
+Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 5.3 (marching cubes on the synthesized
+field).
+
+Geometry out: a field's level set as a triangle mesh, smoothing, and mesh files.
 
 :func:`field_to_mesh` runs marching cubes (scikit-image's Lewiner variant) on a
 :class:`~geosynth.field.Field`, puts the vertices where the field's samples are in

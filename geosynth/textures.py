@@ -1,4 +1,8 @@
-"""Sample textures for M3 (texturing point models): image input/output through Pillow,
+"""Which texture, at which resolution, is sampled? The supersampled texture and the texture
+pyramid of Zhang, Qiu and Kaufman, "Fast Hybrid Approach for Texturing Point Models", Sec. 4
+and 4.1.
+
+Sample textures for M3 (texturing point models): image input/output through Pillow,
 procedural built-ins, bilinear lookups, the m-times supersampled texture of the
 neighbourhood search and the texture pyramid of multiresolution matching.
 

@@ -1,8 +1,10 @@
-"""M1: volumetric geometry synthesis (Bhat-style block matching on distance fields).
+"""M1: which larger field looks like the exemplar? Volumetric geometry synthesis by
+block matching on distance fields (Lagae, Dumont and Dutré, "Geometry Synthesis",
+Report CW 381, K.U. Leuven, 2004, Sec. 5).
 
 From an exemplar's signed distance field (the *source*, quantized to uint8), grow a
 larger field (the *target*) block by block, coarse to fine, then extract its surface.
-The method and its parameters are METHODS.md's M1 (seed 004, Sec. 5):
+The method and its parameters are the report's (Sec. 5):
 
 - Single resolution (Sec. 5.1): the target starts as random source samples; blocks
   of N^3 samples are visited in scan order (z slowest) with a step of N/2, so that in
@@ -16,7 +18,7 @@ The method and its parameters are METHODS.md's M1 (seed 004, Sec. 5):
 - Tileable targets wrap: a block that crosses a face continues on the opposite face,
   so copies of the output tile without seams.
 
-Beyond the paper (``method=``, issue 16): "graphcut" pastes each block of the same
+Beyond the paper (``method=``): "graphcut" pastes each block of the same
 scan along a minimum-error cut through the overlap (:mod:`geosynth.graphcut`) instead
 of keeping every synthesized sample; "optimize" replaces the scan by texture
 optimization per level (:mod:`geosynth.optimize`, Kwatra et al. 2005): exact matches
@@ -39,8 +41,8 @@ import numpy as np
 from geosynth import _checks
 from geosynth.field import Field
 from geosynth.memory import require
+from geosynth.blocks import block_offsets
 from geosynth.optimize import memory_estimate as optimize_memory
-from geosynth.search import block_offsets
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -275,11 +277,11 @@ class _Matcher:
         self.engine = None
         self.alive: list[list[int]] = []  # cascade: blocks alive after each stage, per match
         if search == "tree":
-            from geosynth.search import BlockSearch
+            from geosynth.tree_search import BlockSearch
 
             self.engine = BlockSearch(source, block, device=device)
         elif search == "cascade":
-            from geosynth.search import CascadeSearch
+            from geosynth.cascade_search import CascadeSearch
 
             self.engine = CascadeSearch(source, block, device=device)
         else:
@@ -410,7 +412,7 @@ def _matcher_bytes(shape, block: int, search: str) -> int:
     total = int(np.prod(shape, dtype=object))
     n_blocks = int(np.prod([max(0, int(s) - block + 1) for s in shape], dtype=object))
     if search == "tree":
-        from geosynth.search import BlockSearch
+        from geosynth.tree_search import BlockSearch
 
         return BlockSearch.memory_estimate(tuple(int(v) for v in shape), int(block))
     if search == "cascade":  # the field, up to two float32 bound grids and their box sums; per block 40 B
@@ -549,8 +551,8 @@ def synthesize_volume(
         device: a device string for the matching kernels (None: "auto").
         search: "cascade" (the default: eq. 2 lower bounds of every block, coarse to
             fine, on the device, then exact SSDs of the few survivors; see
-            :class:`geosynth.search.CascadeSearch`), "tree" (the paper's exact
-            best-first search, :class:`geosynth.search.BlockSearch`; fast for clean
+            :class:`geosynth.cascade_search.CascadeSearch`), "tree" (the paper's exact
+            best-first search, :class:`geosynth.tree_search.BlockSearch`; fast for clean
             queries, slower for synthesis queries whose random or upsampled samples
             weaken its bounds) or "linear" (every block scored by the gather kernel).
             All three return the same block.

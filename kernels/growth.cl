@@ -3,7 +3,7 @@
 // mapping and gap blending (Sec. 3.4: blend_gaps) and the coherent neighbourhood matching
 // of one level (Sec. 4: match_coherent). The twin of growth.py (same kernels, same
 // arguments in the same order, float64 without contraction in the same order, exact
-// integer scores); see there and geosynth/parameterize.py, geosynth/texture.py for the
+// integer scores); see there and geosynth/parameterize.py, geosynth/matching.py for the
 // definitions.
 #include "common.h"
 

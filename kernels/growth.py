@@ -1,4 +1,7 @@
-"""M3's sequential orders, each in one thread: the point parameterization's region growing
+"""Which points join which patch, in the paper's sequential order? Zhang, Qiu and Kaufman,
+"Fast Hybrid Approach for Texturing Point Models", Sec. 3.2-3.4 and 4.2.
+
+M3's sequential orders, each in one thread: the point parameterization's region growing
 (Zhang, Qiu and Kaufman, Sec. 3.2-3.3 and Appendix A), the texture mapping and gap
 blending (Sec. 3.4) and the coherent neighbourhood matching of one level (Sec. 4). Warp
 kernels.
@@ -7,7 +10,7 @@ The twin of ``growth.cl`` (same kernel names without ``_kernel``, same arguments
 same order, the same float64 arithmetic in the same order, exact integer scores);
 ``geosynth.reference`` has plain-Python twins (``parameterize_reference``,
 ``colour_parameterization_reference``, ``match_coherent_reference``) that give the same
-bits. Definitions are those of ``geosynth/parameterize.py`` and ``geosynth/texture.py``;
+bits. Definitions are those of ``geosynth/parameterize.py`` and ``geosynth/matching.py``;
 the orders are fixed here:
 
 - ``grow_patches_kernel``: patches start at the first free point of ``order`` (a seeded

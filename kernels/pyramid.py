@@ -1,4 +1,7 @@
-"""Block pyramids (M1): Warp kernels.
+"""What are the block pyramid's cell sums, and which nodes does a query expand? Lagae,
+Dumont and Dutré, "Geometry Synthesis", Sec. 4.1-4.3.
+
+Block pyramids (M1): Warp kernels.
 
 The twin of ``pyramid.cl``: every kernel here has its meaning there, with the same
 arguments in the same order (``pyramid_compare_kernel`` <-> ``pyramid_compare``). All
@@ -14,7 +17,7 @@ c = N / 2^(l-1) and samples slab log2(c) at origin + c * (i, j, k).
 Node codes (``node_code``): ``level * 2 + kind``; kind 0 compares exact cell sums,
 kind 1 compares against the interval of sums that the node's uint8-rounded means
 allow (a parent node grouping children with equal rounded means; see
-``geosynth.search``).
+``geosynth.tree_search``).
 
 Hashes are linear polynomial hashes modulo 2^64, built by doubling (``pyramid_hash_step``);
 they only propose groups, which are then verified exactly (``pyramid_pair_equal``).
@@ -223,94 +226,3 @@ def pyramid_pair_equal_kernel(
                 if va != vb:
                     same = 0
     out[t] = same
-
-
-CASCADE_COARSE = 8  # coarse cells per block (side n/2), each split into 8 fine cells (side n/4)
-
-
-@wp.func
-def _cascade_block_ssd(
-    field: wp.array(dtype=wp.uint8), base: int, n: int, sy: int, sz: int, query: wp.array(dtype=wp.uint8), limit: int
-) -> int:
-    """Exact SSD of the block at flat position base; stops (returning > limit) once above limit."""
-    acc = int(0)
-    for dz in range(n):
-        for dy in range(n):
-            p = base + dz * sz + dy * sy
-            q = (dz * n + dy) * n
-            for dx in range(n):
-                e = int(field[p + dx]) - int(query[q + dx])
-                acc += e * e
-        if acc > limit:
-            return acc
-    return acc
-
-
-@wp.kernel
-def cascade_search_kernel(
-    field: wp.array(dtype=wp.uint8),  # (Z*Y*X,) the source
-    coarse: wp.array(dtype=wp.float32),  # sums of the (n/2)^3 cube at every position
-    coarse_norm: wp.array(dtype=wp.float32),  # centred norms of the (n/2)^3 cube
-    fine: wp.array(dtype=wp.float32),  # sums of the (n/4)^3 cube at every position
-    lx: int,
-    ly: int,
-    lz: int,
-    sy: int,
-    sz: int,
-    n: int,
-    offsets: wp.array(dtype=wp.int32),  # 8 coarse, then 64 fine cell offsets grouped by coarse cell
-    query_terms: wp.array(dtype=wp.float32),  # the query's 8 coarse sums, 8 coarse norms, 64 fine sums
-    inv_c: float,  # 1 / (n/2)^3
-    inv_f: float,  # 1 / (n/4)^3
-    query: wp.array(dtype=wp.uint8),  # (n^3,)
-    rows: int,
-    margin: float,
-    slack: float,
-    best_shared: wp.array(dtype=wp.int32),  # (1,) best SSD found so far by any thread
-    out: wp.array(dtype=wp.int32),  # (3 * threads,) best SSD, its lattice index (-1: none), blocks scored
-):
-    """The fused cascade search: thread t scans lattice rows [t*rows, (t+1)*rows) block by
-    block (see ``cascade_search`` in pyramid.cl for the bounds and why the answer is exact)."""
-    item = wp.tid()
-    r0 = item * rows
-    r1 = wp.min(r0 + rows, ly * lz)
-    best = int(2147483647)
-    best_i = int(-1)
-    scored = int(0)
-    for r in range(r0, r1):
-        z = r / ly
-        row = z * sz + (r - z * ly) * sy
-        for x in range(lx):
-            t = wp.min(best, best_shared[0])
-            lim = float(t) * margin + slack
-            p = row + x
-            bound = float(0.0)
-            for j in range(CASCADE_COARSE):
-                o = p + offsets[j]
-                e = coarse[o] - query_terms[j]
-                d = coarse_norm[o] - query_terms[CASCADE_COARSE + j]
-                bound += e * e * inv_c + d * d
-            alive = bound <= lim
-            j = int(0)
-            while alive and j < CASCADE_COARSE:
-                o = p + offsets[j]
-                e = coarse[o] - query_terms[j]
-                d = coarse_norm[o] - query_terms[CASCADE_COARSE + j]
-                acc = float(0.0)
-                for i in range(CASCADE_COARSE):
-                    k = CASCADE_COARSE * (j + 1) + i
-                    f = fine[p + offsets[k]] - query_terms[CASCADE_COARSE + k]
-                    acc += f * f
-                bound += acc * inv_f - (e * e * inv_c + d * d)
-                alive = bound <= lim
-                j += 1
-            if alive:
-                s = _cascade_block_ssd(field, p, n, sy, sz, query, t)
-                scored += 1
-                if s <= t and s < best:  # exact (it ran to the end); a later index never wins a tie
-                    best = s
-                    best_i = r * lx + x
-                    wp.atomic_min(best_shared, 0, s)
-    out[3 * item] = best
-    out[3 * item + 1] = best_i
-    out[3 * item + 2] = scored

@@ -7,7 +7,7 @@
 // the lanes of SIMD vectors (below): mesh_distance_grid 4 x 2 x 2 grid samples,
 // mesh_distance_points 16 consecutive points (the host sorts them in Morton order).
 //
-// One result on every device (issue 16): each lane's distance is the minimum over ALL
+// One result on every device: each lane's distance is the minimum over ALL
 // triangles of one per-triangle float expression (tri_min_dist2_v; sdf_mesh.py has the
 // same operations in the same order), found by a search whose pruning keeps a safety
 // margin larger than any rounding (search boxes grown on the host, and a node is left

@@ -1,4 +1,7 @@
-"""Distance-field kernels (mesh): Warp. The twin of sdf_mesh.cl.
+"""How far is each point from a mesh, and on which side? Lagae, Dumont and Dutré, "Geometry
+Synthesis", Sec. 3 (the source field).
+
+Distance-field kernels (mesh): Warp. The twin of sdf_mesh.cl.
 
 Both kernels compute, per query point p, the exact distance to the mesh and, when
 ``is_signed``, its sign from the fast generalized winding number (Barill et al.
@@ -6,7 +9,7 @@ Both kernels compute, per query point p, the exact distance to the mesh and, whe
 ``_kernel`` suffix) as sdf_mesh.cl; both traverse the BVH arrays of
 geosynth.meshes.MeshBVH (``sbox``, ``child``, ``tri_lanes``, ``tris``, ``dipole``).
 
-One result on every device (issue 16): the distance is the minimum over all triangles
+One result on every device: the distance is the minimum over all triangles
 of ``tri_min_dist2``, the operations of sdf_mesh.cl's ``tri_min_dist2_v`` in the same
 order, found by a search that prunes a node only when its (grown) search box is
 farther than PRUNE_REL times the best so far: a margin beyond any rounding, so the

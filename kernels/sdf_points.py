@@ -1,4 +1,7 @@
-"""Distance-field kernels (points): Warp. The twin of sdf_points.cl.
+"""How far is each point from a point set's MLS surface? "Geometry texture synthesis with
+point-set surfaces", Sec. 5.1.
+
+Distance-field kernels (points): Warp. The twin of sdf_points.cl.
 
 The MLS surface of an oriented point set (Adamson and Alexa): with Gaussian weights
 ``w_i(y) = exp(-|p_i - y|^2 / h^2)``, cut off beyond ``reach``,

@@ -1,4 +1,8 @@
-"""Candidate SSD scoring and score selection: Warp kernels.
+"""How far is every candidate from a query, and which is nearest? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.3 (linear search), and Zhang, Qiu and Kaufman, "Fast Hybrid
+Approach for Texturing Point Models", Sec. 4 (eq. 5).
+
+Candidate SSD scoring and score selection: Warp kernels.
 
 The twin of ``ssd.cl``: every kernel here has its meaning there, with the same
 arguments in the same order (``argmin_partials_kernel`` <-> ``argmin_partials``). Where

@@ -1,4 +1,7 @@
-"""M3 texel search, batched: eq. 5 of many irregular neighbourhoods against every texel
+"""Which texel best matches each of many neighbourhoods? Zhang, Qiu and Kaufman, "Fast
+Hybrid Approach for Texturing Point Models", Sec. 4 (eq. 5).
+
+M3 texel search, batched: eq. 5 of many irregular neighbourhoods against every texel
 of a supersampled texture in one launch, then the best texel of each. Warp kernels.
 
 The twin of ``texel.cl`` (same kernel names without ``_kernel``, same arguments in the

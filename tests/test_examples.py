@@ -1,4 +1,4 @@
-"""Built-in exemplars (issue 4, item 6): documented sizes, finite, watertight, seeded."""
+"""Built-in exemplars: documented sizes, finite, watertight, seeded."""
 
 import numpy as np
 import pytest

@@ -215,7 +215,7 @@ def test_texture_points_estimates_match_rss(device):
     supersampled pixels): RSS, as the kernels' buffers and pykdtree's tree are outside NumPy."""
     setup = f"""
     from geosynth.pointmodels import point_model
-    from geosynth.texture import texture_bytes, texture_points
+    from geosynth.texturing import texture_bytes, texture_points
     from geosynth.textures import texture_example
     DEVICE = {device!r}
     tex16, tex32 = texture_example("noise", 16), texture_example("noise", 32)
@@ -299,7 +299,7 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
     from geosynth.meshes import mesh_distance
     from geosynth.pointmodels import point_model, sample_mesh_points
     from geosynth.pointsets import pointset_distance
-    from geosynth.texture import texture_points
+    from geosynth.texturing import texture_points
     from geosynth.textures import texture_example
     from geosynth.volume import synthesize_geometry, synthesize_volume
 

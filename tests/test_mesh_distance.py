@@ -12,7 +12,7 @@ from conftest import TEST_DEVICES
 from geosynth import reference
 from geosynth.examples import chainmail_mesh
 from geosynth.field import Field, cubic_grid
-from geosynth.fields import mesh_distance
+from geosynth.distance import mesh_distance
 from geosynth.meshes import check_mesh, load_mesh, orient_faces
 
 # float32 kernels against a float64 oracle: relative to the mesh size
@@ -303,10 +303,10 @@ def test_grid_matches_points_larger_mesh(device):
 
 
 def test_tri_lanes_layout():
-    from geosynth.meshes import _tri_lanes
+    from geosynth.meshes import tri_lanes_layout
 
     tri = np.array([[[0, 0, 0], [2, 0, 0], [0, 1, 0]], [[0, 0, 0], [1e-30, 0, 0], [0, 1e-30, 0]]], np.float64)
-    lanes = _tri_lanes(tri)
+    lanes = tri_lanes_layout(tri)
     assert lanes.shape == (2, 32) and lanes.dtype == np.float32 and np.isfinite(lanes[:, :28]).all()
     t = lanes[0]
     np.testing.assert_allclose(t[9:12], [0, 0, 2])  # n = ab x ac
@@ -317,7 +317,7 @@ def test_tri_lanes_layout():
     assert t[28] == 0 and lanes[1, 28] == np.inf  # a normal lost in float32: never "inside"
 
 
-# ------------------------------------------------------------------ one result on every device (issue 16)
+# ------------------------------------------------------------------ one result on every device
 
 
 def _device_pairs():

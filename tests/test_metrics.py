@@ -1,4 +1,4 @@
-"""Structure metrics (issue 16) on analytic fields with known answers."""
+"""Structure metrics on analytic fields with known answers."""
 
 import numpy as np
 import pytest

@@ -12,7 +12,7 @@ import geosynth
 from geosynth.examples import spheres_field
 from geosynth.graphcut import cut_cost, min_cut, must_keep
 from geosynth.optimize import falloff, irls_weights, lattice_positions, optimize_level, vote
-from geosynth.search import CascadeSearch
+from geosynth.cascade_search import CascadeSearch
 from geosynth.volume import METHODS, synthesize_volume
 
 

@@ -9,7 +9,7 @@ from conftest import TEST_DEVICES
 
 from geosynth import reference
 from geosynth.field import Field, cubic_grid
-from geosynth.fields import pointset_distance as fields_pointset_distance
+from geosynth.distance import pointset_distance as distance_pointset_distance
 from geosynth.pointsets import (
     MLS_REACH,
     PointSet,
@@ -156,7 +156,7 @@ def test_grid_output(device):
     np.testing.assert_allclose(dist.values.reshape(-1), d, atol=1e-5)
     np.testing.assert_allclose(grad.values.reshape(-1, 3), g, atol=1e-5)
     # field= takes the grid of an existing Field; resolution alone boxes the points.
-    again, _ = fields_pointset_distance(PointSet(p, p), field=want, device=device)
+    again, _ = distance_pointset_distance(PointSet(p, p), field=want, device=device)
     np.testing.assert_array_equal(again.values, dist.values)
     boxed, _ = pointset_distance(p, p, resolution=8, device=device)
     assert boxed.shape == cubic_grid(np.stack([p.min(0), p.max(0)]), 8, 0.1).shape

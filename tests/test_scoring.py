@@ -325,7 +325,7 @@ def test_gather_scorer_bases_equal_origins(device, rng, channels):
 def test_gather_explicit_origins_of_block_rows(device, rng, dtype, block, channels):
     """Block offsets come in x runs (16-lane loads on OpenCL); explicit origins, with and
     without a threshold, give the oracle's scores (the argmin stays exact)."""
-    from geosynth.scoring import GatherScorer, _offset_run
+    from geosynth.scoring import GatherScorer, offset_run
 
     shape = (block + 3, block + 2, block + 5) + ((channels,) if channels > 1 else ())
     grid = random_data(rng, shape, dtype)
@@ -333,7 +333,7 @@ def test_gather_explicit_origins_of_block_rows(device, rng, dtype, block, channe
     vals = random_data(rng, (len(off), channels) if channels > 1 else (len(off),), dtype)
     origins = np.stack([rng.integers(0, 4, 50), rng.integers(0, 3, 50), rng.integers(0, 6, 50)], 1)
     scorer = GatherScorer(grid, off, device=device)
-    assert _offset_run(scorer._flat_off_host) == min(64, block * channels)
+    assert offset_run(scorer._flat_off_host) == min(64, block * channels)
     want = reference.score_gather_naive(grid, off, vals, origins=origins)
     assert_scores(scorer(vals, origins=origins), want, dtype)
     thr = float(np.sort(want)[5])

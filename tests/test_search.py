@@ -8,11 +8,13 @@ import pytest
 
 import geosynth
 from geosynth import reference
-from geosynth import search as search_mod
+from geosynth import tree_search as tree_search_mod
 from geosynth.examples import quantize_distance, spheres_field
-from geosynth.search import BlockSearch, CascadeSearch, block_offsets, block_origins, box_sums
+from geosynth.blocks import block_offsets, block_origins, box_sums
+from geosynth.cascade_search import CascadeSearch
+from geosynth.tree_search import BlockSearch
 
-# (block size, source side): small enough for CI, every block size of the issue.
+# (block size, source side): small enough for CI, block sizes 2 to 16.
 CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
 
 
@@ -187,7 +189,7 @@ def test_merged_tree_holds_every_block_once(device, rng, kind):
 
 def test_hash_collisions_never_merge(device, rng, monkeypatch):
     # 2-bit hashes: nearly every group is a collision that the exact check must split
-    monkeypatch.setattr(search_mod, "_HASH_MASK", 0x3)
+    monkeypatch.setattr(tree_search_mod, "HASH_MASK", 0x3)
     field = (rng.integers(0, 4, (12, 12, 12)) * 60).astype(np.uint8)
     s = BlockSearch(field, 4, device=device)
     _check_tree_holds_every_block_once(s, field)

@@ -1,4 +1,4 @@
-"""Geometry out (issue 4, item 5): marching cubes, smoothing, mesh files."""
+"""Geometry out: marching cubes, smoothing, mesh files."""
 
 import os
 from pathlib import Path

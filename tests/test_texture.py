@@ -13,7 +13,8 @@ from geosynth.parameterize import PATCH, colour_parameterization, parameterize_p
 from geosynth.reference import colour_parameterization_reference, parameterize_reference
 from geosynth.pointmodels import knn_table, load_point_model, point_model
 from geosynth.pointsets import PointSet, read_point_set, write_point_set
-from geosynth.texture import TexelSearch, texture_points
+from geosynth.texel_search import TexelSearch
+from geosynth.texturing import texture_points
 from geosynth.textures import (
     as_texture, read_texture, sample_bilinear, sample_bilinear_grid, supersample, texture_example, texture_pyramid,
     write_texture,
@@ -335,7 +336,7 @@ def test_hybrid_colours_every_point_and_is_close_to_parameterization():
     assert 0 < rep.gap_fraction < rep.matched_fraction < 1  # gaps widened, then matched
     assert rep.error["result"] < 0.15 * rep.error["random"]
     # Without widening, matching only the parameterization's own gaps: as good as the
-    # parameterization's blend within 15%. (The issue asks for <=; the eq. 5 SSD favours
+    # parameterization's blend within 15%. (Better would be <=; the eq. 5 SSD favours
     # the blurred blends of the gaps, so matched gaps measure about equal, not better.)
     out0, rep0 = texture_points(ps, tex, method="hybrid", pattern_size=0, device=dev, seed=2, quality_samples=50)
     assert rep0.matched_fraction == rep0.gap_fraction
@@ -361,7 +362,8 @@ def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, 
     # integer scores, same random draws): the same texels and colours on every device
     from geosynth.parameterize import frames_from_up
     from geosynth.reference import match_coherent_reference
-    from geosynth.texture import _match_coherent_level, build_hierarchy
+    from geosynth.matching import match_coherent_level
+    from geosynth.point_hierarchy import build_hierarchy
 
     ps = point_model("blob", 1500, seed=5)
     tex = texture_example("noise", 24, seed=2)
@@ -382,7 +384,7 @@ def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, 
         coloured[pick] = True
     ref = match_coherent_reference(level, search, colours, coloured, source, np.random.default_rng(9), subtexel)
     todo = int((~coloured).sum())
-    assert _match_coherent_level(level, search, colours, coloured, source, np.random.default_rng(9), subtexel) == todo
+    assert match_coherent_level(level, search, colours, coloured, source, np.random.default_rng(9), subtexel) == todo
     for name, a, b in zip(("colours", "coloured", "source"), (colours, coloured, source), ref):
         np.testing.assert_array_equal(a, b, err_msg=name)
     assert coloured.all() and (source >= 0).all() and (source < 24 * 24).all()

@@ -1,4 +1,6 @@
-"""What both backends share: the host-side steps around their kernels.
+"""What do both backends do on the host around their kernels? Implements no paper section.
+
+What both backends share: the host-side steps around their kernels.
 
 A backend subclasses :class:`Backend` and implements the primitives, one per kernel
 (same names and argument order as ``kernels/ssd.py`` / ``kernels/ssd.cl``) plus

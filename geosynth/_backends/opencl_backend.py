@@ -1,4 +1,6 @@
-"""OpenCL backend: builds ``kernels/*.cl`` once per context and dtype, launches them.
+"""How does an OpenCL device build and launch the kernels? Implements no paper section.
+
+OpenCL backend: builds ``kernels/*.cl`` once per context and dtype, launches them.
 
 Buffers are plain ``cl.Buffer`` objects with 64 spare bytes past the data, so that
 the 16-wide kernels (``ssd_gather_x16``) may read a full vector at the last element.
@@ -12,6 +14,7 @@ import numpy as np
 import pyopencl as cl
 
 from geosynth._backends.base import Backend
+from geosynth._backends.opencl_cascade import OpenCLCascadeOps
 from geosynth._backends.opencl_growth import OpenCLGrowthOps
 from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
@@ -62,7 +65,7 @@ def _read_source(name: str) -> str:
     return (resources.files("geosynth.kernels") / name).read_text()
 
 
-class OpenCLBackend(OpenCLGrowthOps, OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexelOps, Backend):
+class OpenCLBackend(OpenCLCascadeOps, OpenCLGrowthOps, OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexelOps, Backend):
     """PyOpenCL on ``"opencl:P:D"`` (platform P, device D)."""
 
     def __init__(self, platform_index: int, device_index: int):

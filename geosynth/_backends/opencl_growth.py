@@ -1,4 +1,7 @@
-"""OpenCL backend methods for the M3 patch growth (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the M3 growth kernel? Zhang, Qiu and Kaufman, "Fast
+Hybrid Approach for Texturing Point Models", Sec. 3.2-3.4 and 4.2.
+
+OpenCL backend methods for the M3 patch growth (mixed into OpenCLBackend).
 
 Launches the kernel of ``kernels/growth.cl``; see kernels/growth.py for the definitions.
 """

@@ -1,4 +1,7 @@
-"""OpenCL backend methods for mesh distance fields (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the mesh distance kernels? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 3.
+
+OpenCL backend methods for mesh distance fields (mixed into OpenCLBackend).
 
 Launches the kernels of ``kernels/sdf_mesh.cl``. Methods may use the host
 OpenCLBackend's helpers: self.queue, self.context, self._kernel("sdf_mesh", name, np.float32)

@@ -1,4 +1,7 @@
-"""OpenCL backend methods for points distance fields (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the point-set distance kernels? "Geometry texture
+synthesis with point-set surfaces", Sec. 5.1.
+
+OpenCL backend methods for points distance fields (mixed into OpenCLBackend).
 
 Launches the kernels of ``kernels/sdf_points.cl``. Methods may use the host
 OpenCLBackend's helpers: self.queue, self.context, self._kernel("sdf_points", name, np.float32)

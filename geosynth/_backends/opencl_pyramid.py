@@ -1,4 +1,7 @@
-"""OpenCL backend methods for block pyramids (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the block pyramid kernels? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.1-4.3.
+
+OpenCL backend methods for block pyramids (mixed into OpenCLBackend).
 
 Launches the kernels of ``kernels/pyramid.cl`` (one method per kernel, same arguments
 in the same order as ``WarpPyramidOps``). Methods use the host OpenCLBackend's helpers:
@@ -92,14 +95,4 @@ class OpenCLPyramidOps:
         self._pyr("pyramid_pair_equal")(
             self.queue, _range(count), (_LOCAL,), sums.data, i32(total), i32(ny), i32(nx), i32(lc), i32(n),
             i32(quantized), base_a.data, base_b.data, i32(count), out.data,
-        )
-
-    def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
-                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
-        """Same as WarpPyramidOps.cascade_search."""
-        local = 1 if self.is_cpu else _LOCAL  # one work-group per item on a CPU: the items balance the cores
-        self._pyr("cascade_search")(
-            self.queue, (-(-items // local) * local,), (local,), field.data, coarse.data, coarse_norm.data, fine.data, lx, ly,
-            lz, sy, sz, n, offsets.data, query_terms.data, inv_c, inv_f, query.data, rows, margin, slack,
-            best_shared.data, out.data,
         )

@@ -1,4 +1,7 @@
-"""OpenCL backend methods for the batched M3 texel search (mixed into OpenCLBackend).
+"""How does an OpenCL device launch the batched texel search? Zhang, Qiu and Kaufman, "Fast
+Hybrid Approach for Texturing Point Models", Sec. 4 (eq. 5).
+
+OpenCL backend methods for the batched M3 texel search (mixed into OpenCLBackend).
 
 Launches the kernels of ``kernels/texel.cl``; see kernels/texel.py for the definitions.
 """

@@ -1,4 +1,6 @@
-"""Warp backend: launches the kernels of ``geosynth.kernels.ssd`` on a Warp device.
+"""How does a Warp device launch the kernels? Implements no paper section.
+
+Warp backend: launches the kernels of ``geosynth.kernels.ssd`` on a Warp device.
 
 Warp compiles one binary per Python module per device; ``geosynth.kernels.ssd`` is
 loaded once per device and reused. On the CPU Warp runs kernels on one thread.
@@ -10,6 +12,7 @@ import numpy as np
 import warp as wp
 
 from geosynth._backends.base import Backend
+from geosynth._backends.warp_cascade import WarpCascadeOps
 from geosynth._backends.warp_growth import WarpGrowthOps
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
@@ -28,7 +31,7 @@ _WARP_DTYPES = {
 }
 
 
-class WarpBackend(WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
+class WarpBackend(WarpCascadeOps, WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

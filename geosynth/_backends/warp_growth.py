@@ -1,4 +1,7 @@
-"""Warp backend methods for the M3 patch growth (mixed into WarpBackend).
+"""How does a Warp device launch the M3 growth kernel? Zhang, Qiu and Kaufman, "Fast Hybrid
+Approach for Texturing Point Models", Sec. 3.2-3.4 and 4.2.
+
+Warp backend methods for the M3 patch growth (mixed into WarpBackend).
 
 Launches the kernel of ``geosynth.kernels.growth``; see there for the definitions.
 """

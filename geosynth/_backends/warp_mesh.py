@@ -1,4 +1,7 @@
-"""Warp backend methods for mesh distance fields (mixed into WarpBackend).
+"""How does a Warp device launch the mesh distance kernels? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 3.
+
+Warp backend methods for mesh distance fields (mixed into WarpBackend).
 
 Launches the kernels of ``geosynth.kernels.sdf_mesh``. Methods may use the host
 WarpBackend's helpers: self.device, self._launch(kernel, dim, inputs),

@@ -1,4 +1,7 @@
-"""Warp backend methods for points distance fields (mixed into WarpBackend).
+"""How does a Warp device launch the point-set distance kernels? "Geometry texture synthesis
+with point-set surfaces", Sec. 5.1.
+
+Warp backend methods for points distance fields (mixed into WarpBackend).
 
 Launches the kernels of ``geosynth.kernels.sdf_points``. Methods may use the host
 WarpBackend's helpers: self.device, self._launch(kernel, dim, inputs),

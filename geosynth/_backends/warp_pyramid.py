@@ -1,4 +1,7 @@
-"""Warp backend methods for block pyramids (mixed into WarpBackend).
+"""How does a Warp device launch the block pyramid kernels? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.1-4.3.
+
+Warp backend methods for block pyramids (mixed into WarpBackend).
 
 Launches the kernels of ``geosynth.kernels.pyramid`` (one method per kernel, same
 arguments in the same order as ``OpenCLPyramidOps``). Methods use the host
@@ -83,12 +86,3 @@ class WarpPyramidOps:
                 pyramid_kernels.pyramid_pair_equal_kernel, count,
                 [sums.data, total, ny, nx, lc, n, quantized, base_a.data, base_b.data, count, out.data],
             )
-
-    def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
-                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
-        """out[3t:3t+3] <- work-item t's best SSD, its block index and blocks scored (M1's fused cascade)."""
-        self._launch(
-            pyramid_kernels.cascade_search_kernel, items,
-            [field.data, coarse.data, coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data,
-             query_terms.data, inv_c, inv_f, query.data, rows, margin, slack, best_shared.data, out.data],
-        )

@@ -1,4 +1,7 @@
-"""Warp backend methods for the batched M3 texel search (mixed into WarpBackend).
+"""How does a Warp device launch the batched texel search? Zhang, Qiu and Kaufman, "Fast
+Hybrid Approach for Texturing Point Models", Sec. 4 (eq. 5).
+
+Warp backend methods for the batched M3 texel search (mixed into WarpBackend).
 
 Launches the kernels of ``geosynth.kernels.texel``; see there for the definitions.
 """

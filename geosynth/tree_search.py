@@ -1,4 +1,8 @@
-"""The M1 search tree and the exact best-first block search (paper sections 4.1-4.4).
+"""Which source block is nearest to a query, by the paper's search tree?
+
+Implements M1's geometry matching of Lagae, Dumont and Dutré, "Geometry Synthesis",
+Sec. 4.1 (search tree construction), 4.2 (block similarity, eqs. 2 and 3), 4.3 (the
+best-first matching algorithm) and 4.4 (branching factor: parent nodes).
 
 :class:`BlockSearch` builds, once per source field and block size, the global pyramid
 (:mod:`geosynth.pyramid`) and a search tree over every block of the source, keeps
@@ -59,54 +63,38 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth import _checks
 from geosynth.backend import DeviceArray
+from geosynth.blocks import block_offsets, block_origins
 from geosynth.pyramid import (
     BlockPyramid,
-    _query_arrays,
     build_pyramid,
     check_block,
     check_field,
     check_memory,
     check_query,
     pyramid_bytes,
+    query_arrays,
 )
-from geosynth.scoring import GatherScorer, candidate_origins, score_gather
+from geosynth.scoring import score_gather
 from geosynth.selection import argmin
 
-__all__ = ["BlockSearch", "CascadeSearch", "block_offsets", "block_origins", "box_sums"]
+__all__ = ["BlockSearch", "TreeStats"]
 
 # Odd 64-bit multipliers of the polynomial hash, one per axis (x, y, z).
 _HASH_MULT = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9)
 _MASK64 = (1 << 64) - 1
 # Tests narrow the hashes to force collisions (the exact verification must split them).
-_HASH_MASK = _MASK64
+HASH_MASK = _MASK64
 # Queue fronts expanded per kernel launch (exactness does not depend on it). By default
 # it adapts: 1 for the first launches (easy queries end after a few expansions), then
 # doubling every 2 launches up to MAX_BATCH (hard queries, e.g. with random samples,
 # expand thousands of nodes and are bound by the per-launch overhead).
 DEFAULT_BATCH = 4  # sizes the staging buffers; larger batches grow them
 MAX_BATCH = 512
-
-
-def block_offsets(block: int) -> np.ndarray:
-    """(N^3, 3) int64 offsets (dz, dy, dx) of a block's samples, raster order."""
-    ax = np.arange(block)
-    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
-
-
-def block_origins(shape, block: int) -> np.ndarray:
-    """(B, 3) int64 origins of every block of a field, in block-index order.
-
-    The same as ``geosynth.scoring.candidate_origins(shape, block_offsets(block))``:
-    raster order, z slowest.
-    """
-    return candidate_origins(tuple(shape), block_offsets(block))
 
 
 @dataclass
@@ -263,7 +251,7 @@ class BlockSearch:
                 src, dst = dst, src
                 w *= 2
         # sync: the hashes of every position come back for the host-side grouping.
-        return be.pyramid_read_all(src)[lattice_idx] & np.uint64(_HASH_MASK)
+        return be.pyramid_read_all(src)[lattice_idx] & np.uint64(HASH_MASK)
 
     def _verify(self, level: int, quantized: bool, group: np.ndarray, reps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Check every merge exactly; split any group that a hash collision formed."""
@@ -475,7 +463,7 @@ class BlockSearch:
                                   or not 1 <= batch <= 4096):
             raise ValueError(f"batch must be None or an integer in [1, 4096], got {batch!r}.")
         self._grow(MAX_BATCH if batch is None else int(batch))
-        q, qoff = _query_arrays(self.backend, query, self.block)
+        q, qoff = query_arrays(self.backend, query, self.block)
         n3 = self.block ** 3
         levels = self.levels
         is_leaf = self._is_leaf
@@ -584,336 +572,3 @@ class BlockSearch:
         k = len(excess)
         return dict(queries=k, disagreement=diff / max(k, 1),
                     mean_excess=float(np.mean(excess)) if k else 0.0, max_excess=int(max(excess)) if k else 0)
-
-
-# -- the cascade: every block, coarse-to-fine lower bounds -------------------------------------
-
-# Lower bounds are summed in float32 (exact integer cell sums, rounded squares); a
-# candidate is dropped only when its bound exceeds the best SSD by more than this
-# relative margin, far above the float32 error of sums of <= 512 positive terms.
-_BOUND_MARGIN = 1e-4
-_MAX_BOUND_CELL = 32  # c^3 * 255 < 2^24: cell sums stay exact in float32
-# The cascade runs only when scoring every block directly costs more than this many
-# launches' worth of work (backend.launch_work); below, one launch does it all.
-_CASCADE_MIN_LAUNCHES = 10
-# Block sizes the fused kernel (pyramid.cl cascade_search) runs by default. It takes any
-# multiple of 8 up to 32 (8-byte rows, SSDs below 2^31); its stages are fixed: 2^3 cells
-# of side N/2, each split into 2^3 of N/4. At N = 32 its 8^3-sample fine cells leave
-# ~100 k blocks of 32^3 samples to score exactly: 105 ms a match at 256^3 on PoCL, where
-# the staged search's (N/4)^3 cells take 53 ms; at N = 8 and 16 it is 3x faster.
-_FUSED_BLOCKS = (8, 16)
-_INT32_MAX = 2**31 - 1
-# The fused bound's centred-norm terms (C_q - C_b)^2 carry float32 rounding of the norms
-# (each <= 127.5 sqrt(m) for m samples): <= 2 |d| 2^-23 (C_q + C_b) < 0.008 m per cell.
-# The limit gets 0.08 m more for its 8 coarse cells (N = 8: 5 SSD units).
-_NORM_SLACK = 0.08
-
-
-def _centred_norms(sums: np.ndarray, squares: np.ndarray, m: int) -> np.ndarray:
-    """Norms of cells minus their mean, sqrt(sum x^2 - (sum x)^2 / m), float64 from exact
-    integer sums and sums of squares of m samples each."""
-    s = np.asarray(sums, np.float64)
-    return np.sqrt(np.maximum(np.asarray(squares, np.float64) - s * s / m, 0.0))
-
-
-def box_sums(field: np.ndarray, cell: int) -> np.ndarray:
-    """Exact sums over every ``cell``^3 cube of a field.
-
-    Args:
-        field: (Z, Y, X) integer array.
-        cell: cube side c >= 1.
-
-    Returns:
-        (Z - c + 1, Y - c + 1, X - c + 1) int64; ``out[p] = field[p : p + c].sum()``.
-    """
-    p = np.zeros(tuple(s + 1 for s in field.shape), np.int64)
-    p[1:, 1:, 1:] = np.asarray(field, np.int64).cumsum(0).cumsum(1).cumsum(2)
-    c = int(cell)
-    return (p[c:, c:, c:] - p[:-c, c:, c:] - p[c:, :-c, c:] - p[c:, c:, :-c]
-            + p[:-c, :-c, c:] + p[:-c, c:, :-c] + p[c:, :-c, :-c] - p[:-c, :-c, :-c])
-
-
-class CascadeSearch:
-    """Exact nearest block by lower bounds over every block, coarse to fine.
-
-    The paper's bound (eq. 2) without the tree: for a level with cell size c, the
-    Cauchy-Schwarz form ``sum over cells (S_q - S_b)^2 / c^3`` of the exact cell sums is
-    a lower bound of the block SSD. One gather-kernel launch scores that bound for every
-    block at the first stage (by default the only one: 4^3 cells), a short guess phase
-    finds a good block (the smallest bounds, refined at the next stage if any, then full
-    SSDs), and each finer stage keeps only blocks whose bound does not exceed the best
-    SSD found. The survivors are
-    scored exactly; the answer is the block of smallest SSD, the lowest block index on
-    ties: the same answer as :meth:`BlockSearch.nearest_linear` and
-    :meth:`BlockSearch.nearest`, with no tree to build and no per-node host work.
-
-    Args:
-        field: (Z, Y, X) uint8 source.
-        block: the block size N, a power of two <= every side of ``field``.
-        device: a device string; None means ``"auto"``.
-        guesses: blocks scored exactly in the guess phase of the staged search (default
-            32; the fused search needs none: its work-items share the best SSD found).
-        min_work: sample comparisons (blocks x N^3) below which every block is scored
-            in one launch instead (None: 10 launches' worth on the device; 0: always
-            run the stages).
-        cells: the bound stages' cell sizes, coarse to fine (powers of two, 2 <= c <
-            N), each a launch of its own. None: for N = 8 and 16 the fused search,
-            one launch per query (``fused``); for other N the backend's
-            ``bound_cells_per_side``: on PoCL one stage of
-            (N/4)^3-sample cells, 64 cell sums a block, over every block (the fast
-            lattice kernel), then the exact SSDs of its few survivors: measured with
-            synthesis queries 1.2x faster than 8 then 64 cells at N = 16 and 4x at N = 32
-            (the 8-cell bound keeps a third of the blocks, scored again by index); on
-            Warp's one CPU thread 8 then 64 cells, 4x faster there than 64 at once.
-
-    The fused search (``cells=None``, N = 8 or 16) runs the stages (N/2, N/4) and the
-    exact SSDs in one kernel: work-items scan rows of blocks 16 at a time, refine a
-    block's bound cell by cell only while it stays below the best SSD any of them has
-    found (shared through an atomic minimum) and score the survivors exactly; no bounds
-    come back to the host, only each item's best block. On synthesis queries (PoCL, 2
-    cores) 3-4x faster than the staged launches at 64^3 / 8 and 2-3x at 128^3 / 16.
-
-    Attributes:
-        stages: the cell sizes of the bound stages, coarse to fine; empty for N <= 2
-            and for searches small enough that scoring every block in one launch is
-            cheaper (fewer than ``min_work`` comparisons).
-        fused: whether the stages run fused in one launch.
-        last_info: per query, the number of blocks alive after each stage (fused: all
-            blocks, then the blocks scored exactly).
-
-    Example:
-        >>> import numpy as np
-        >>> f = np.random.default_rng(0).integers(0, 256, (20, 20, 20), dtype=np.uint8)
-        >>> CascadeSearch(f, 8, device="cpu").nearest(f[3:11, 2:10, 5:13])
-        ((3, 2, 5), 0)
-    """
-
-    def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32,
-                 min_work: float | None = None, cells: Sequence[int] | None = None):
-        from geosynth.backend import to_device
-
-        field = check_field(field)
-        check_block(block, field.shape)
-        self.field = field
-        self.block = int(block)
-        self.lattice = tuple(int(s) - self.block + 1 for s in field.shape)
-        self.n_blocks = int(np.prod(self.lattice))
-        backend = _checks.resolve_backend(device)
-        fused = cells is None and self.block in _FUSED_BLOCKS
-        if cells is None:  # fused, or the backend's choice (Backend.bound_cells_per_side)
-            per_side = (2, 4) if fused else backend.bound_cells_per_side
-            cells = [self.block // n for n in per_side if self.block // n >= 2]
-        cells = [int(c) for c in cells]
-        for c in cells:
-            if c < 2 or c >= self.block or c & (c - 1) or c > _MAX_BOUND_CELL:
-                raise ValueError(f"cells must be powers of two in [2, {min(self.block - 1, _MAX_BOUND_CELL)}] "
-                                 f"for block {self.block}, got {cells}.")
-        if cells != sorted(cells, reverse=True) or len(set(cells)) != len(cells):
-            raise ValueError(f"cells must go coarse to fine (strictly decreasing), got {cells}.")
-        self.stages = cells
-        if min_work is None:
-            min_work = _CASCADE_MIN_LAUNCHES * backend.launch_work
-        if self.n_blocks * self.block**3 < min_work:
-            self.stages = []  # one launch over every block costs less than the stages' launches
-            fused = False
-        self.fused = fused
-        per_sample = 1 + 4 * 3 + 8 if fused else 1 + 12 * len(self.stages)  # fused: 3 float arrays, int64 squares
-        check_memory(field.size * per_sample + (0 if fused else self.n_blocks * 40),
-                     f"the cascade search of a {field.shape} field (block {block})")
-        dev = "auto" if device is None else device
-        self._backend = backend
-        self._field_device = to_device(field, dev)
-        self._exact_scorer = GatherScorer(self._field_device, block_offsets(self.block))
-        self._bound_scorers = {} if fused else {
-            c: GatherScorer(to_device(box_sums(field, c).astype(np.float32), dev), c * block_offsets(self.block // c))
-            for c in self.stages
-        }
-        if fused:
-            self._fused_setup(dev)
-        self.guesses = max(1, int(guesses))
-        self.guess_skip = 16384  # blocks under a given threshold above which a guess pays off
-        self.last_info: dict = {}
-
-    def _fused_setup(self, dev: str) -> None:
-        """Cell sums (sides N/2 and N/4) and coarse centred norms at every field position,
-        in the field's strides (0 where the cube leaves the field), and the cell offsets."""
-        from geosynth.backend import to_device
-
-        shape = self.field.shape
-        cc, cf = self.stages
-
-        def padded(values: np.ndarray) -> DeviceArray:
-            out = np.zeros(shape, np.float32)
-            out[:values.shape[0], :values.shape[1], :values.shape[2]] = values
-            return to_device(out, dev)
-
-        s1 = box_sums(self.field, cc)
-        s2 = box_sums(self.field.astype(np.int64) ** 2, cc)
-        self._fused_arrays = (padded(s1), padded(_centred_norms(s1, s2, cc**3)), padded(box_sums(self.field, cf)))
-        sy, sz = shape[2], shape[2] * shape[1]
-        lz, ly, lx = self.lattice
-        self._fused_geometry = (lx, ly, lz, sy, sz)  # lattice and field strides, as the kernel takes them
-        coarse = np.indices((2, 2, 2)).reshape(3, -1).T  # (8, 3) coarse cells, C order
-        fine = (2 * coarse[:, None, :] + coarse[None, :, :]).reshape(-1, 3)  # grouped by coarse cell
-        strides = np.array([sz, sy, 1])
-        offsets = np.concatenate([cc * coarse @ strides, cf * fine @ strides]).astype(np.int32)
-        self._fused_offsets = to_device(offsets, dev)
-        # the query's samples in the order of the cells: fine cells in the offsets' order, C order within
-        n = self.block
-        inner = np.indices((cf, cf, cf)).reshape(3, -1).T
-        samples = (cf * fine)[:, None, :] + inner[None, :, :]  # (64, cf^3, 3)
-        self._fused_order = (samples @ np.array([n * n, n, 1])).reshape(-1).astype(np.intp)
-        n_rows = ly * lz
-        self._fused_rows = -(-n_rows // max(1, min(n_rows, self._backend.search_items)))
-        self._fused_items = -(-n_rows // self._fused_rows)
-
-    def _nearest_fused(self, query: np.ndarray, threshold: int | None):
-        """The fused search: ((z, y, x), SSD), or None when no block is within ``threshold``."""
-        be, n = self._backend, self.block
-        cc, cf = self.stages
-        flat = query.reshape(-1).astype(np.int32)[self._fused_order]  # fine cell by fine cell, by coarse cell
-        fine = flat.reshape(64, -1).sum(axis=1)
-        s1 = fine.reshape(8, 8).sum(axis=1)
-        s2 = (flat * flat).reshape(8, -1).sum(axis=1)
-        terms = np.concatenate([s1, _centred_norms(s1, s2, cc**3), fine]).astype(np.float32)
-        start = _INT32_MAX if threshold is None else min(int(threshold), _INT32_MAX)
-        out = be.empty((self._fused_items, 3), np.int32)
-        be.cascade_search(
-            self._field_device, *self._fused_arrays, *self._fused_geometry, n,
-            self._fused_offsets, be.to_device(terms), 1.0 / cc**3, 1.0 / cf**3,
-            be.to_device(np.ascontiguousarray(query.reshape(-1))), self._fused_rows, 1.0 + _BOUND_MARGIN,
-            1.0 + _NORM_SLACK * cc**3, be.to_device(np.array([start], np.int32)), out, self._fused_items,
-        )
-        res = be.to_host(out)  # sync: (items, 3) come back, one line per work-item
-        self.last_info = {"alive": [self.n_blocks, int(res[:, 2].sum())]}
-        found = res[res[:, 1] >= 0]
-        if len(found) == 0:
-            return None
-        best = found[:, 0].min()
-        if threshold is not None and int(best) > threshold:
-            return None
-        return self.origin_of(int(found[found[:, 0] == best, 1].min())), int(best)
-
-    def _bound(self, cell: int, query_sums: dict, alive: np.ndarray | None) -> np.ndarray:
-        """Lower bounds (float32, SSD units) of the blocks ``alive`` (None: all)."""
-        scorer = self._bound_scorers[cell]
-        if alive is None:
-            bounds = scorer(query_sums[cell])
-        else:  # block indices are lattice indices: no origins to gather and check
-            bounds = scorer.score_bases(query_sums[cell], scorer.lattice_bases(alive))
-        bounds *= np.float32(1.0 / cell**3)  # c is a power of two: exact
-        return bounds
-
-    def _exact(self, alive: np.ndarray, query: np.ndarray, threshold=None) -> np.ndarray:
-        scorer = self._exact_scorer
-        return scorer.score_bases(query.reshape(-1), scorer.lattice_bases(alive), threshold=threshold)
-
-    def nearest(self, query: np.ndarray, threshold: int | None = None) -> tuple[tuple[int, int, int], int]:
-        """The exact nearest block of ``query``.
-
-        Args:
-            query: (N, N, N) uint8 block.
-            threshold: optional upper bound on the best SSD (e.g. the SSD of any one
-                block, a coherence guess); it only speeds the search up.
-
-        Returns:
-            ((z, y, x) origin, SSD) of the block of smallest SSD, lowest index on ties.
-        """
-        query = check_query(query, self.block)
-        n_all = self.n_blocks
-        if self.fused:
-            got = self._nearest_fused(query, threshold)
-            return got if got is not None else self._nearest_fused(query, None)  # the threshold was too low
-        if not self.stages:  # every block, on the lattice (the fast path of the kernel)
-            scores = self._exact_scorer(query.reshape(-1), threshold=threshold, keep_on_device=True)
-            # sync: the reduction runs where the scores are; one index and score come back
-            best, best_score = self._exact_scorer.backend.argmin(scores)
-            if threshold is not None and int(best_score) > threshold:  # the threshold was too low
-                return self.nearest(query)
-            self.last_info = {"alive": [n_all]}
-            return self.origin_of(best), int(best_score)
-        q64 = query.astype(np.int64)
-        query_sums = {}
-        for c in self.stages:
-            n = self.block // c
-            query_sums[c] = q64.reshape(n, c, n, c, n, c).sum(axis=(1, 3, 5)).reshape(-1).astype(np.float32)
-        bounds = self._bound(self.stages[0], query_sums, None)
-        best_ssd = None if threshold is None else int(threshold)
-        if best_ssd is None or np.count_nonzero(bounds <= best_ssd * (1 + _BOUND_MARGIN) + 1) > self.guess_skip:
-            best_ssd = self._guess(bounds, query_sums, query, best_ssd)
-        limit = best_ssd * (1 + _BOUND_MARGIN) + 1
-        counts = [n_all]
-        alive = np.flatnonzero(bounds <= limit)
-        counts.append(len(alive))
-        for c in self.stages[1:]:
-            if len(alive) == 0:
-                break
-            alive = alive[self._bound(c, query_sums, alive) <= limit]
-            counts.append(len(alive))
-        self.last_info = {"alive": counts}
-        if len(alive) == 0:  # the caller's threshold was below the best SSD: search without it
-            return self.nearest(query)
-        # Every block of SSD <= best_ssd survives (its bounds are <= its SSD), so the
-        # minimum over the survivors is the global minimum and their order is the index order.
-        scores = self._exact(alive, query, best_ssd)
-        i = int(np.argmin(scores))
-        if int(scores[i]) > best_ssd:  # no block within the caller's threshold: it was too low
-            return self.nearest(query)
-        return self.origin_of(int(alive[i])), int(scores[i])
-
-    def _guess(self, bounds: np.ndarray, query_sums: dict, query: np.ndarray, best_ssd: int | None) -> int:
-        """An upper bound of the best SSD: the exact SSD of the blocks of smallest
-        bound (refined at the second stage), or ``best_ssd`` if that is lower."""
-        n_pool = 64 * self.guesses
-        if len(bounds) <= n_pool:
-            pool = np.arange(len(bounds))
-        else:
-            # About the n_pool smallest bounds, by a cut estimated on a subsample
-            # (a full partition of millions of bounds costs more than the search).
-            step = max(1, len(bounds) // (16 * n_pool))
-            sub = bounds[::step]
-            cut = np.partition(sub, min(len(sub) - 1, n_pool // step))[min(len(sub) - 1, n_pool // step)]
-            pool = np.flatnonzero(bounds <= cut)
-            if len(pool) > n_pool:
-                pool = pool[np.argpartition(bounds[pool], n_pool)[:n_pool]]
-        fine = self._bound(self.stages[1], query_sums, pool) if len(self.stages) > 1 else bounds[pool]
-        if len(pool) > self.guesses:
-            pool = pool[np.argpartition(fine, self.guesses)[:self.guesses]]
-        guess = int(self._exact(np.sort(pool), query).min())
-        return guess if best_ssd is None else min(guess, best_ssd)
-
-    def origin_of(self, index: int) -> tuple[int, int, int]:
-        """Origin (z, y, x) of block ``index``."""
-        z, y, x = np.unravel_index(int(index), self.lattice)
-        return int(z), int(y), int(x)
-
-    def nearest_batch(self, queries: np.ndarray, thresholds: Sequence[int | None] | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
-        """The exact nearest block of each of several queries.
-
-        For now a Python loop over :meth:`nearest` (one search launch per query on the
-        fused path); the answers are the same as one call per query.
-
-        Args:
-            queries: (Q, N, N, N) uint8 blocks.
-            thresholds: None, or one upper bound of the best SSD per query (None
-                entries allowed), as in :meth:`nearest`.
-
-        Returns:
-            ((Q, 3) int64 origins, (Q,) int64 SSDs, per query the blocks alive after
-            each stage).
-        """
-        queries = np.asarray(queries)
-        if queries.ndim != 4 or queries.shape[1:] != (self.block,) * 3:
-            raise ValueError(f"queries must have shape (Q, {self.block}, {self.block}, {self.block}), "
-                             f"got {queries.shape}.")
-        n = len(queries)
-        origins = np.empty((n, 3), np.int64)
-        ssds = np.empty(n, np.int64)
-        alive = []
-        for i in range(n):
-            t = None if thresholds is None else thresholds[i]
-            origin, ssd = self.nearest(queries[i], threshold=None if t is None else int(t))
-            origins[i], ssds[i] = origin, ssd
-            alive.append(list(self.last_info.get("alive", [])))
-        return origins, ssds, alive

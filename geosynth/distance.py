@@ -1,4 +1,8 @@
-"""Distance fields: sampling the signed distance of meshes and oriented point sets.
+"""What is the signed distance of a mesh or point set on a grid? The source field of Lagae,
+Dumont and Dutré, "Geometry Synthesis", Sec. 3 (system overview), and the MLS distance of
+"Geometry texture synthesis with point-set surfaces", Sec. 5.1.
+
+Distance fields: sampling the signed distance of meshes and oriented point sets.
 
 The public face of the distance-field kernel family (kernels/sdf_mesh.*,
 kernels/sdf_points.*). Grids are :class:`geosynth.field.Field` objects.

@@ -1,0 +1,28 @@
+"""How does an OpenCL device launch the fused cascade search? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.2 (eq. 2).
+
+OpenCL backend methods for the fused M1 cascade search (mixed into OpenCLBackend).
+
+Launches the kernel of ``kernels/cascade.cl`` (same arguments in the same order as
+``WarpCascadeOps``); see there for the definitions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_LOCAL = 64  # work-items per group on a GPU (see opencl_backend._LOCAL_1D)
+
+
+class OpenCLCascadeOps:
+    """Mixin: the fused cascade search on an OpenCL device."""
+
+    def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
+                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
+        """Same as WarpCascadeOps.cascade_search."""
+        local = 1 if self.is_cpu else _LOCAL  # one work-group per item on a CPU: the items balance the cores
+        self._kernel("cascade", "cascade_search", np.uint8)(
+            self.queue, (-(-items // local) * local,), (local,), field.data, coarse.data, coarse_norm.data, fine.data, lx, ly,
+            lz, sy, sz, n, offsets.data, query_terms.data, inv_c, inv_f, query.data, rows, margin, slack,
+            best_shared.data, out.data,
+        )

@@ -1,0 +1,25 @@
+"""How does a Warp device launch the fused cascade search? Lagae, Dumont and Dutré,
+"Geometry Synthesis", Sec. 4.2 (eq. 2).
+
+Warp backend methods for the fused M1 cascade search (mixed into WarpBackend).
+
+Launches the kernel of ``geosynth.kernels.cascade`` (same arguments in the same order
+as ``OpenCLCascadeOps``); see there and kernels/cascade.cl for the definitions.
+"""
+
+from __future__ import annotations
+
+from geosynth.kernels import cascade as cascade_kernels
+
+
+class WarpCascadeOps:
+    """Mixin: the fused cascade search on a Warp device."""
+
+    def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
+                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
+        """out[3t:3t+3] <- work-item t's best SSD, its block index and blocks scored (M1's fused cascade)."""
+        self._launch(
+            cascade_kernels.cascade_search_kernel, items,
+            [field.data, coarse.data, coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data,
+             query_terms.data, inv_c, inv_f, query.data, rows, margin, slack, best_shared.data, out.data],
+        )
