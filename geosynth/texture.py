@@ -63,7 +63,7 @@ import numpy as np
 
 from geosynth.parameterize import (
     DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, _as_model, check_k, check_up, colour_parameterization,
-    frames_from_up, mean_spacing, neighbourhood_offsets, parameterize_points, propagate,
+    frames_from_up, mean_spacing, neighbourhood_offsets, parameterize_with_device_arrays, propagate,
 )
 from geosynth.pointsets import PointSet
 from geosynth.textures import as_texture, sample_bilinear_grid, texture_pyramid
@@ -650,6 +650,7 @@ def _match_coherent_level(level: PointLevel, search: TexelSearch, colours: np.nd
     in one kernel launch (kernels/growth.py, ``match_coherent``, gives the rules).
     Updates colours (n, 3) uint8, coloured (n,) bool and source (n,) int64 in place;
     returns the count coloured."""
+    from geosynth._backends.interfaces import MatchInputs, MatchScratch, MatchState
     from geosynth.parameterize import growth_buckets
 
     backend = search.device_grid.backend
@@ -661,19 +662,18 @@ def _match_coherent_level(level: PointLevel, search: TexelSearch, colours: np.nd
     n_buckets = growth_buckets(k)
     f64, i32 = np.float64, np.int32
     up = backend.to_device
-    inputs = [up(np.ascontiguousarray(a, f64)) for a in (level.positions, level.normals, level.s_axis, level.t_axis)]
-    inputs.append(up(level.neighbours.astype(i32, copy=False)))
-    in_out = [up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32))]
-    scratch = [backend.empty((n,), i32) for _ in range(4)] + [backend.empty((n_buckets,), i32) for _ in range(2)] + \
-        [backend.empty((k,), i32), backend.empty((k * 3,), np.uint8), backend.empty((k,), i32)]
+    inputs = MatchInputs(*(up(np.ascontiguousarray(a, f64)) for a in
+                           (level.positions, level.normals, level.s_axis, level.t_axis)),
+                         up(level.neighbours.astype(i32, copy=False)))
+    state = MatchState(up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32)))
     backend.match_coherent(n, k, inputs, level.unit, search.device_grid, search.host.shape[1], search.pad, search.m,
                            search.h, search.w, int(search.tileable), int(subtexel),
                            up(np.stack([dy1, dx1], 1).astype(i32).reshape(-1)), len(dy1), int(ring), up(order),
-                           up(rand_texel), n_buckets, in_out, scratch)
-    done, cols, src = backend.to_host_all(in_out)
-    coloured[:] = done.astype(bool)
-    colours[:] = cols
-    source[:] = src
+                           up(rand_texel), n_buckets, state, MatchScratch.allocate(backend, n, k, n_buckets))
+    done = state.to_host(backend)
+    coloured[:] = done["coloured"].astype(bool)
+    colours[:] = done["colours"]
+    source[:] = done["source"]
     return todo
 
 
@@ -965,13 +965,14 @@ def texture_points(
 
     def run_param():
         t1 = time.perf_counter()
-        par = parameterize_points(model, k, unit_scale=unit_scale, up=up, weights=weights, threshold=threshold,
-                                  max_patch=None if tileable else max_patch, seed=rng, neighbours=(dist, nb),
-                                  device=dev_name)
+        par, grown = parameterize_with_device_arrays(
+            model, k, unit_scale=unit_scale, up=up, weights=weights, threshold=threshold,
+            max_patch=None if tileable else max_patch, seed=rng, neighbours=(dist, nb), device=dev_name)
         sec["parameterization"] = time.perf_counter() - t1
         rates["parameterization"] = n_pts / max(sec["parameterization"], 1e-9)
         t1 = time.perf_counter()
-        cols, _, offs = colour_parameterization(model, par, tex, tileable=tileable, seed=rng, device=dev_name)
+        cols, _, offs = colour_parameterization(model, par, tex, tileable=tileable, seed=rng, device=dev_name,
+                                                grown=grown)
         sec["texture mapping + gaps"] = time.perf_counter() - t1
         rates["texture mapping + gaps"] = n_pts / max(sec["texture mapping + gaps"], 1e-9)
         return par, cols, offs
