@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from geosynth._backends.interfaces import MatchInputs, MatchScratch, MatchState
 from geosynth.parameterize import growth_buckets, pick_batch, tangent_offsets
 from geosynth.point_hierarchy import PointLevel
 from geosynth.texel_search import TexelSearch, pixel_offsets, refine_shifts
@@ -195,17 +196,16 @@ def match_coherent_level(level: PointLevel, search: TexelSearch, colours: np.nda
     n_buckets = growth_buckets(k)
     f64, i32 = np.float64, np.int32
     up = backend.to_device
-    inputs = [up(np.ascontiguousarray(a, f64)) for a in (level.positions, level.normals, level.s_axis, level.t_axis)]
-    inputs.append(up(level.neighbours.astype(i32, copy=False)))
-    in_out = [up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32))]
-    scratch = [backend.empty((n,), i32) for _ in range(4)] + [backend.empty((n_buckets,), i32) for _ in range(2)] + \
-        [backend.empty((k,), i32), backend.empty((k * 3,), np.uint8), backend.empty((k,), i32)]
+    inputs = MatchInputs(*(up(np.ascontiguousarray(a, f64)) for a in
+                           (level.positions, level.normals, level.s_axis, level.t_axis)),
+                         up(level.neighbours.astype(i32, copy=False)))
+    state = MatchState(up(coloured.astype(i32)), up(np.ascontiguousarray(colours, np.uint8)), up(source.astype(i32)))
     backend.match_coherent(n, k, inputs, level.unit, search.device_grid, search.host.shape[1], search.pad, search.m,
                            search.h, search.w, int(search.tileable), int(subtexel),
                            up(np.stack([dy1, dx1], 1).astype(i32).reshape(-1)), len(dy1), int(ring), up(order),
-                           up(rand_texel), n_buckets, in_out, scratch)
-    done, cols, src = backend.to_host_all(in_out)
-    coloured[:] = done.astype(bool)
-    colours[:] = cols
-    source[:] = src
+                           up(rand_texel), n_buckets, state, MatchScratch.allocate(backend, n, k, n_buckets))
+    done = state.to_host(backend)
+    coloured[:] = done["coloured"].astype(bool)
+    colours[:] = done["colours"]
+    source[:] = done["source"]
     return todo

@@ -26,7 +26,7 @@ from geosynth.backend import get_backend
 from geosynth.matching import DEFAULT_MATCH_BATCH, match_level
 from geosynth.parameterize import (
     DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_k, check_up, colour_parameterization,
-    frames_from_up, mean_spacing, parameterize_points, tangent_offsets,
+    frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
 )
 from geosynth.point_hierarchy import PointLevel, build_hierarchy
 from geosynth.pointmodels import knn_table, spatial_order
@@ -387,11 +387,13 @@ def _parameterize(model: CheckedModel, tex: np.ndarray, k: int, *, unit_scale, u
         (the Parameterization, (N, 3) uint8 colours, (P, 2) per-patch texture offsets).
     """
     t1 = time.perf_counter()
-    par = parameterize_points(model, k, unit_scale=unit_scale, up=up, weights=weights, threshold=threshold,
-                              max_patch=max_patch, seed=rng, neighbours=neighbours, device=device)
+    par, grown = parameterize_with_device_arrays(model, k, unit_scale=unit_scale, up=up, weights=weights,
+                                                 threshold=threshold, max_patch=max_patch, seed=rng,
+                                                 neighbours=neighbours, device=device)
     _timed(report, "parameterization", t1, len(model.positions))
     t1 = time.perf_counter()
-    cols, _, offs = colour_parameterization(model, par, tex, tileable=tileable, seed=rng, device=device)
+    cols, _, offs = colour_parameterization(model, par, tex, tileable=tileable, seed=rng, device=device,
+                                            grown=grown)  # the growth's device arrays, not uploaded again
     _timed(report, "texture mapping + gaps", t1, len(model.positions))
     return par, cols, offs
 

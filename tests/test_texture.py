@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from conftest import TEST_DEVICES
 
-from geosynth.parameterize import PATCH, colour_parameterization, parameterize_points
+import geosynth
+from geosynth.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
 from geosynth.reference import colour_parameterization_reference, parameterize_reference
 from geosynth.pointmodels import knn_table, load_point_model, point_model
 from geosynth.pointsets import PointSet, read_point_set, write_point_set
@@ -206,10 +207,13 @@ def test_gap_blending_kernel_equals_the_python_blending(device, model, k, tileab
         np.testing.assert_array_equal(a, b, err_msg=name)
     assert out[1].all()
     # the device arrays of a device growth, used in place of uploads, give the same
-    grown = parameterize_points(ps, k, seed=4, max_patch=None if tileable else 24.0, threshold=1.0, device=device)
-    assert "device" in grown.extra
-    again = colour_parameterization(ps, grown, tex, tileable=tileable, seed=6, device=device)
-    assert "device" not in grown.extra  # used once: the blending overwrote them
+    grown, arrays = parameterize_with_device_arrays(ps, k, seed=4, max_patch=None if tileable else 24.0,
+                                                    threshold=1.0, device=device)
+    assert arrays.backend is geosynth.get_backend(device)
+    host_before = {name: a.copy() for name, a in vars(grown).items() if isinstance(a, np.ndarray)}
+    again = colour_parameterization(ps, grown, tex, tileable=tileable, seed=6, device=device, grown=arrays)
+    for name, a in host_before.items():  # the Parameterization is not changed
+        np.testing.assert_array_equal(getattr(grown, name), a, err_msg=name)
     for a, b in zip(again, colour_parameterization(ps, grown, tex, tileable=tileable, seed=6, device=device)):
         np.testing.assert_array_equal(a, b)
     # blends of texture values: inside the texture's range per channel, and not constant

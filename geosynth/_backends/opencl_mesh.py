@@ -3,8 +3,8 @@
 
 OpenCL backend methods for mesh distance fields (mixed into OpenCLBackend).
 
-Launches the kernels of ``kernels/sdf_mesh.cl``. Methods may use the host
-OpenCLBackend's helpers: self.queue, self.context, self._kernel("sdf_mesh", name, np.float32)
+Implements geosynth._backends.interfaces.MeshOps (the docstrings are there) with the
+kernels of ``kernels/sdf_mesh.cl``. Methods may use the host OpenCLBackend's helpers: self.queue, self.context, self._kernel("sdf_mesh", name, np.float32)
 (built once per context, with kernels/ on the include path for common.h),
 self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 """
@@ -12,6 +12,9 @@ self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 from __future__ import annotations
 
 import numpy as np
+
+from geosynth._backends.interfaces import MeshArrays, MeshOps
+from geosynth.backend import DeviceArray
 
 # Work-group shapes: small groups, so that PoCL spreads the work over every core
 # (the cost per point varies a lot with its distance to the mesh).
@@ -27,41 +30,20 @@ def _round_up(value: int, multiple: int) -> int:
     return -(-value // multiple) * multiple
 
 
-class OpenCLMeshHandle:
-    """A mesh on an OpenCL device: the BVH arrays of geosynth.meshes.MeshBVH."""
-
-    def __init__(self, bvh, backend):
-        self.sbox = backend.to_device(bvh.sbox)
-        self.child = backend.to_device(bvh.child)
-        self.tris = backend.to_device(bvh.tris)
-        self.dipole = backend.to_device(bvh.dipole)
-        self.tri_lanes = backend.to_device(bvh.tri_lanes)
-
-
-class OpenCLMeshOps:
+class OpenCLMeshOps(MeshOps):
     """Mixin: the mesh distance-field kernels on an OpenCL device."""
 
-    def mesh_handle(self, bvh) -> OpenCLMeshHandle:
-        """The device structures of a prepared mesh, uploaded once per mesh and device."""
-        handle = bvh.device_cache.get(self.name)
-        if handle is None:
-            handle = bvh.device_cache[self.name] = OpenCLMeshHandle(bvh, self)
-        return handle
-
-    def mesh_distance_points(self, mesh, points, n, signed, band, out) -> None:
-        """out (n,) <- distance at points (n, 3), 16 consecutive points per SIMD tile
-        (pass them in a spatial order); see kernels/sdf_mesh.cl."""
+    def mesh_distance_points(self, mesh: MeshArrays, points: DeviceArray, n: int, signed: bool, band: float,
+                             out: DeviceArray) -> None:
         kernel = self._kernel("sdf_mesh", "mesh_distance_points", np.float32)
         g = -(-n // _POINT_TILE)
         kernel(
             self.queue, (_round_up(g, _LOCAL_POINT_TILES),), (_LOCAL_POINT_TILES,),
-            points.data, np.int32(n),
-            mesh.sbox.data, mesh.child.data, mesh.tri_lanes.data, mesh.tris.data, mesh.dipole.data,
-            np.int32(bool(signed)), np.float32(band), out.data,
+            points.data, np.int32(n), *mesh.buffers(), np.int32(bool(signed)), np.float32(band), out.data,
         )
 
-    def mesh_distance_grid(self, mesh, origin, spacing, shape, signed, band, out) -> None:
-        """out (nz * ny * nx,) <- distance at origin + spacing * (i, j, k) for shape (nx, ny, nz)."""
+    def mesh_distance_grid(self, mesh: MeshArrays, origin: np.ndarray, spacing: np.ndarray,
+                           shape: tuple[int, int, int], signed: bool, band: float, out: DeviceArray) -> None:
         nx, ny, nz = shape
         kernel = self._kernel("sdf_mesh", "mesh_distance_grid", np.float32)
         tiles = [-(-n // t) for n, t in zip(shape, _TILE)]
@@ -70,6 +52,5 @@ class OpenCLMeshOps:
             self.queue, gsize, _LOCAL_TILES,
             *(np.float32(v) for v in origin), *(np.float32(v) for v in spacing),
             np.int32(nx), np.int32(ny), np.int32(nz),
-            mesh.sbox.data, mesh.child.data, mesh.tri_lanes.data, mesh.tris.data, mesh.dipole.data,
-            np.int32(bool(signed)), np.float32(band), out.data,
+            *mesh.buffers(), np.int32(bool(signed)), np.float32(band), out.data,
         )

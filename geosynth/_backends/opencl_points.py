@@ -3,7 +3,8 @@ synthesis with point-set surfaces", Sec. 5.1.
 
 OpenCL backend methods for points distance fields (mixed into OpenCLBackend).
 
-Launches the kernels of ``kernels/sdf_points.cl``. Methods may use the host
+Implements geosynth._backends.interfaces.PointsOps (the docstrings are there) with the
+kernels of ``kernels/sdf_points.cl``. Methods may use the host
 OpenCLBackend's helpers: self.queue, self.context, self._kernel("sdf_points", name, np.float32)
 (built once per context, with kernels/ on the include path for common.h),
 self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
@@ -13,17 +14,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from geosynth._backends.interfaces import PointsOps
+from geosynth.backend import DeviceArray
+
 _LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
 
 
-class OpenCLPointsOps:
+class OpenCLPointsOps(PointsOps):
     """Mixin: the points distance-field kernels on an OpenCL device."""
 
     def mls_project(
-        self, pn, cell_start, grid_origin, inv_cell, grid_dims, inv_h2, reach, tol, max_iter,
-        queries, lattice, m, dist, grad, proj,
+        self, pn: DeviceArray, cell_start: DeviceArray, grid_origin: tuple[float, float, float], inv_cell: float,
+        grid_dims: tuple[int, int, int], inv_h2: float, reach: float, tol: float, max_iter: int,
+        queries: DeviceArray | None, lattice: tuple | None, m: int, dist: DeviceArray, grad: DeviceArray,
+        proj: DeviceArray | None,
     ) -> None:
-        """Same arguments as WarpPointsOps.mls_project."""
         if queries is None:
             (qo, qs, qn) = lattice
         else:

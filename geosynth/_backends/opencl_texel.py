@@ -3,22 +3,26 @@ Hybrid Approach for Texturing Point Models", Sec. 4 (eq. 5).
 
 OpenCL backend methods for the batched M3 texel search (mixed into OpenCLBackend).
 
-Launches the kernels of ``kernels/texel.cl``; see kernels/texel.py for the definitions.
+Implements geosynth._backends.interfaces.TexelOps (the docstrings are there) with the
+kernels of ``kernels/texel.cl``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from geosynth._backends.interfaces import TexelOps
+from geosynth.backend import DeviceArray
+
 _LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
 
 
-class OpenCLTexelOps:
+class OpenCLTexelOps(TexelOps):
     """Mixin: the batched texel search on an OpenCL device."""
 
-    def texel_search(self, grid, n, width, row_step, col_step, base0, qstart, offsets, values, nq,
-                     scores, best_idx, best_score) -> None:
-        """Same arguments as WarpTexelOps.texel_search."""
+    def texel_search(self, grid: DeviceArray, n: int, width: int, row_step: int, col_step: int, base0: int,
+                     qstart: DeviceArray, offsets: DeviceArray, values: DeviceArray, nq: int,
+                     scores: DeviceArray, best_idx: DeviceArray, best_score: DeviceArray) -> None:
         i32 = np.int32
         k = self._kernel("texel", "texel_scores", np.uint8)
         strips = (n // width) * (-(-width // 16))

@@ -3,7 +3,8 @@ with point-set surfaces", Sec. 5.1.
 
 Warp backend methods for points distance fields (mixed into WarpBackend).
 
-Launches the kernels of ``geosynth.kernels.sdf_points``. Methods may use the host
+Implements geosynth._backends.interfaces.PointsOps (the docstrings are there) with the
+kernels of ``geosynth.kernels.sdf_points``. Methods may use the host
 WarpBackend's helpers: self.device, self._launch(kernel, dim, inputs),
 self.to_device(ndarray), self.empty(shape, dtype), self.to_host(array).
 """
@@ -12,29 +13,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from geosynth._backends.interfaces import PointsOps
+from geosynth.backend import DeviceArray
 from geosynth.kernels import sdf_points as points_kernels
 
 
-class WarpPointsOps:
+class WarpPointsOps(PointsOps):
     """Mixin: the points distance-field kernels on a Warp device."""
 
     def mls_project(
-        self, pn, cell_start, grid_origin, inv_cell, grid_dims, inv_h2, reach, tol, max_iter,
-        queries, lattice, m, dist, grad, proj,
+        self, pn: DeviceArray, cell_start: DeviceArray, grid_origin: tuple[float, float, float], inv_cell: float,
+        grid_dims: tuple[int, int, int], inv_h2: float, reach: float, tol: float, max_iter: int,
+        queries: DeviceArray | None, lattice: tuple | None, m: int, dist: DeviceArray, grad: DeviceArray,
+        proj: DeviceArray | None,
     ) -> None:
-        """MLS signed distance, gradient and (optionally) projection of m query points.
-
-        Args:
-            pn: (n * 8,) float32 DeviceArray, sorted points interleaved with normals.
-            cell_start: (nx * ny * nz + 1,) int32 DeviceArray, first point of each cell.
-            grid_origin: (x, y, z) of the cell grid; inv_cell: 1 / cell size;
-            grid_dims: (nx, ny, nz) cell counts.
-            inv_h2: 1 / h^2; reach: the weights' cut-off; tol: |f| to stop at;
-            max_iter: most projection steps.
-            queries: (m * 3,) float32 DeviceArray, or None for the lattice.
-            lattice: ((ox, oy, oz), (sx, sy, sz), (qx, qy)) when queries is None.
-            m: query count; dist (m,), grad (m * 3,), proj (m * 3,) or None: outputs.
-        """
         if queries is None:
             (qo, qs, qn) = lattice
         else:

@@ -1,0 +1,359 @@
+"""The backend operations of each kernel family, declared once.
+
+One abstract class per family (mesh, points, texel, growth; the SSD primitives are
+declared on :class:`geosynth._backends.base.Backend`). The Warp mixin
+(``warp_<family>.py``) and the OpenCL mixin (``opencl_<family>.py``) subclass it, with
+the same parameter names in the same order (tests/test_backend_interfaces.py checks).
+Nothing here validates: the public functions that call these operations do.
+
+Arrays that travel together are a frozen dataclass of DeviceArrays (:class:`ArrayGroup`):
+its fields are declared in the order of the kernel's arguments, and
+:meth:`ArrayGroup.buffers` is the only place that turns a group into launch arguments,
+on both backends. Shapes below are the logical ones; the kernels index every array flat.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from geosynth.backend import DeviceArray
+
+
+@dataclass(frozen=True)
+class ArrayGroup:
+    """Device arrays passed to a kernel together, fields in the kernel's argument order."""
+
+    def arrays(self) -> list[DeviceArray]:
+        """The DeviceArrays, in field order."""
+        return [getattr(self, f.name) for f in fields(self)]
+
+    def buffers(self) -> list:
+        """The backend buffers (``DeviceArray.data``), in field order: the launch arguments."""
+        return [a.data for a in self.arrays()]
+
+    def to_host(self, backend) -> dict[str, np.ndarray]:
+        """Every array copied to the host with one synchronization, by field name."""
+        return dict(zip((f.name for f in fields(self)), backend.to_host_all(self.arrays())))
+
+
+# ------------------------------------------------------------------ mesh distance (kernels/sdf_mesh.*)
+
+
+@dataclass(frozen=True)
+class MeshArrays(ArrayGroup):
+    """A prepared mesh (geosynth.meshes.MeshBVH) on a device, flat, in kernel order.
+
+    Attributes:
+        sbox: (nodes * 8,) float32 search boxes.
+        child: (nodes * 2,) int32 child / leaf triangle ranges.
+        tri_lanes: (F * 32,) float32 triangles in the distance kernels' lane layout.
+        tris: (F * 9,) float32 triangle corners.
+        dipole: (nodes * 8,) float32 winding-number dipoles.
+    """
+
+    sbox: DeviceArray
+    child: DeviceArray
+    tri_lanes: DeviceArray
+    tris: DeviceArray
+    dipole: DeviceArray
+
+    @classmethod
+    def upload(cls, bvh, backend) -> MeshArrays:
+        f32, i32 = np.float32, np.int32
+        return cls(*(backend.to_device(np.ascontiguousarray(getattr(bvh, name), dt).reshape(-1))
+                     for name, dt in (("sbox", f32), ("child", i32), ("tri_lanes", f32), ("tris", f32),
+                                      ("dipole", f32))))
+
+
+class MeshOps(ABC):
+    """Distance to a triangle mesh at points and on grids (float32, world units)."""
+
+    def mesh_handle(self, bvh) -> MeshArrays:
+        """The device arrays of a prepared mesh (geosynth.meshes.MeshBVH), uploaded once
+        per mesh and device (kept in ``bvh.device_cache``)."""
+        handle = bvh.device_cache.get(self.name)
+        if handle is None:
+            handle = bvh.device_cache[self.name] = MeshArrays.upload(bvh, self)
+        return handle
+
+    @abstractmethod
+    def mesh_distance_points(self, mesh: MeshArrays, points: DeviceArray, n: int, signed: bool, band: float,
+                             out: DeviceArray) -> None:
+        """out (n,) float32 <- the distance (negative inside when ``signed``) at points
+        (n * 3,) float32 xyz. Pass the points in a spatial order: each search starts from
+        the previous point's closest triangle. ``band``: distances beyond it may be
+        reported as any value beyond it (inf: exact everywhere)."""
+
+    @abstractmethod
+    def mesh_distance_grid(self, mesh: MeshArrays, origin: np.ndarray, spacing: np.ndarray,
+                           shape: tuple[int, int, int], signed: bool, band: float, out: DeviceArray) -> None:
+        """out (nz * ny * nx,) float32 <- the distance at origin + spacing * (i, j, k),
+        shape = (nx, ny, nz); origin, spacing: (3,) float32 world units; band as above."""
+
+
+# ------------------------------------------------------------------ point-set distance (kernels/sdf_points.*)
+
+
+class PointsOps(ABC):
+    """MLS signed distance to an oriented point set (float32, world units)."""
+
+    @abstractmethod
+    def mls_project(
+        self, pn: DeviceArray, cell_start: DeviceArray, grid_origin: tuple[float, float, float], inv_cell: float,
+        grid_dims: tuple[int, int, int], inv_h2: float, reach: float, tol: float, max_iter: int,
+        queries: DeviceArray | None, lattice: tuple | None, m: int, dist: DeviceArray, grad: DeviceArray,
+        proj: DeviceArray | None,
+    ) -> None:
+        """MLS signed distance, gradient and (optionally) projection of m query points.
+
+        Args:
+            pn: (n * 8,) float32, the points sorted by cell, interleaved with normals.
+            cell_start: (nx * ny * nz + 1,) int32, first point of each cell.
+            grid_origin: (x, y, z) of the cell grid; inv_cell: 1 / cell size;
+                grid_dims: (nx, ny, nz) cell counts.
+            inv_h2: 1 / h^2 (h: the kernel radius); reach: the weights' cut-off distance;
+                tol: |f| at which a projection stops; max_iter: most projection steps.
+            queries: (m * 3,) float32 xyz, or None for the lattice.
+            lattice: ((ox, oy, oz), (sx, sy, sz), (qx, qy)) origin, spacing and the counts
+                along x and y (x fastest) when queries is None.
+            m: query count.
+            dist: (m,) float32 out; grad: (m * 3,) float32 out; proj: (m * 3,) float32
+                out, or None for no projection.
+        """
+
+
+# ------------------------------------------------------------------ texel search (kernels/texel.*)
+
+
+class TexelOps(ABC):
+    """The batched M3 texel search: eq. 5 against every texel (uint8 data, uint32 scores)."""
+
+    @abstractmethod
+    def texel_search(self, grid: DeviceArray, n: int, width: int, row_step: int, col_step: int, base0: int,
+                     qstart: DeviceArray, offsets: DeviceArray, values: DeviceArray, nq: int,
+                     scores: DeviceArray, best_idx: DeviceArray, best_score: DeviceArray) -> None:
+        """Eq. 5 of ``nq`` queries against every texel, then each query's best texel.
+
+        Args:
+            grid: flat uint8, the padded supersampled texture.
+            n, width: texel count and texels per row; row_step, col_step, base0: flat
+                index of texel (ty, tx) is base0 + ty * row_step + tx * col_step.
+            qstart: (nq + 1,) int32 first entry of each query; offsets (E,) int32 flat
+                offsets from the texel's index and values (E,) uint8: the queries' entries.
+            scores: (>= nq * n,) uint32 out (query-major); best_idx (nq,) int32 out (the
+                lowest index of the minimum) and best_score (nq,) uint32 out.
+        """
+
+
+# ------------------------------------------------------------------ M3 growth (kernels/growth.*)
+# Every growth kernel runs in one thread (the paper's sequential order). n points, k
+# neighbours each; b = growth_buckets(k) priority levels of the queues.
+
+
+@dataclass(frozen=True)
+class GrowthInputs(ArrayGroup):
+    """grow_patches' model. pos, nrm: (n * 3,) float64 positions and unit normals; nb:
+    (n * k,) int32 neighbour table (self excluded); order: (n,) int32 seed order; dirs:
+    (3,) or (n * 3,) float64 seed-frame directions (one for all, or one per point)."""
+
+    pos: DeviceArray
+    nrm: DeviceArray
+    nb: DeviceArray
+    order: DeviceArray
+    dirs: DeviceArray
+
+
+@dataclass(frozen=True)
+class GrowthOutputs(ArrayGroup):
+    """grow_patches' results. state, patch: (n,) int32 (PATCH/GAP, patch index or -1);
+    uv: (n * 2,) float64 texels; fn, fs, ft: (n * 3,) float64 frames (NaN for gap
+    points); distortion: (n,) float64; seeds: (n,) int32, the first counts[0] used;
+    counts: (1,) int32 patches."""
+
+    state: DeviceArray
+    patch: DeviceArray
+    uv: DeviceArray
+    fn: DeviceArray
+    fs: DeviceArray
+    ft: DeviceArray
+    distortion: DeviceArray
+    seeds: DeviceArray
+    counts: DeviceArray
+
+    @classmethod
+    def allocate(cls, backend, n: int) -> GrowthOutputs:
+        f64, i32 = np.float64, np.int32
+        return cls(*(backend.empty(shape, dt) for shape, dt in
+                     (((n,), i32), ((n,), i32), ((n, 2), f64), ((n, 3), f64), ((n, 3), f64), ((n, 3), f64),
+                      ((n,), f64), ((n,), i32), ((1,), i32))))
+
+
+@dataclass(frozen=True)
+class GrowthScratch(ArrayGroup):
+    """grow_patches' scratch: key, slot, next, prev, touched (n,) int32; head, tail (b,)
+    int32; terms (k * 12,) float64."""
+
+    key: DeviceArray
+    slot: DeviceArray
+    next: DeviceArray
+    prev: DeviceArray
+    touched: DeviceArray
+    head: DeviceArray
+    tail: DeviceArray
+    terms: DeviceArray
+
+    @classmethod
+    def allocate(cls, backend, n: int, k: int, n_buckets: int) -> GrowthScratch:
+        i32 = np.int32
+        return cls(*(backend.empty((n,), i32) for _ in range(5)), backend.empty((n_buckets,), i32),
+                   backend.empty((n_buckets,), i32), backend.empty((k * 12,), np.float64))
+
+
+@dataclass(frozen=True)
+class BlendInputs(ArrayGroup):
+    """blend_gaps' model: pos, nrm (n * 3,) float64; nb (n * k,) int32; state (n,) int32."""
+
+    pos: DeviceArray
+    nrm: DeviceArray
+    nb: DeviceArray
+    state: DeviceArray
+
+
+@dataclass(frozen=True)
+class PatchFrames(ArrayGroup):
+    """Each point's patch: patch (n,) int32 (-1: none), uv (n * 2,) float64 texels, frames
+    fn, fs, ft (n * 3,) float64. blend_gaps reads and overwrites them (joined gap points)."""
+
+    patch: DeviceArray
+    uv: DeviceArray
+    fn: DeviceArray
+    fs: DeviceArray
+    ft: DeviceArray
+
+
+@dataclass(frozen=True)
+class BlendOutputs(ArrayGroup):
+    """blend_gaps' results: colours (n * 3,) float64 RGB; coloured (n,) int32 0/1."""
+
+    colours: DeviceArray
+    coloured: DeviceArray
+
+    @classmethod
+    def allocate(cls, backend, n: int) -> BlendOutputs:
+        return cls(backend.empty((n, 3), np.float64), backend.empty((n,), np.int32))
+
+
+@dataclass(frozen=True)
+class BlendScratch(ArrayGroup):
+    """blend_gaps' scratch: key, slot, next, prev (n,) int32; head, tail (b,) int32; terms
+    (k * 16,) float64."""
+
+    key: DeviceArray
+    slot: DeviceArray
+    next: DeviceArray
+    prev: DeviceArray
+    head: DeviceArray
+    tail: DeviceArray
+    terms: DeviceArray
+
+    @classmethod
+    def allocate(cls, backend, n: int, k: int, n_buckets: int) -> BlendScratch:
+        i32 = np.int32
+        return cls(*(backend.empty((n,), i32) for _ in range(4)), backend.empty((n_buckets,), i32),
+                   backend.empty((n_buckets,), i32), backend.empty((k * 16,), np.float64))
+
+
+@dataclass(frozen=True)
+class MatchInputs(ArrayGroup):
+    """match_coherent's level: pos, nrm, s_axis, t_axis (n * 3,) float64 (positions, unit
+    normals, texture x and y directions); nb (n * k,) int32."""
+
+    pos: DeviceArray
+    nrm: DeviceArray
+    s_axis: DeviceArray
+    t_axis: DeviceArray
+    nb: DeviceArray
+
+
+@dataclass(frozen=True)
+class MatchState(ArrayGroup):
+    """match_coherent's in/out: coloured (n,) int32 0/1; colours (n * 3,) uint8; source
+    (n,) int32 texel each coloured point came from (-1: none)."""
+
+    coloured: DeviceArray
+    colours: DeviceArray
+    source: DeviceArray
+
+
+@dataclass(frozen=True)
+class MatchScratch(ArrayGroup):
+    """match_coherent's scratch: key, slot, next, prev (n,) int32; head, tail (b,) int32;
+    rel (k,) int32; vals (k * 3,) uint8; cand (k,) int32."""
+
+    key: DeviceArray
+    slot: DeviceArray
+    next: DeviceArray
+    prev: DeviceArray
+    head: DeviceArray
+    tail: DeviceArray
+    rel: DeviceArray
+    vals: DeviceArray
+    cand: DeviceArray
+
+    @classmethod
+    def allocate(cls, backend, n: int, k: int, n_buckets: int) -> MatchScratch:
+        i32 = np.int32
+        return cls(*(backend.empty((n,), i32) for _ in range(4)), backend.empty((n_buckets,), i32),
+                   backend.empty((n_buckets,), i32), backend.empty((k,), i32), backend.empty((k * 3,), np.uint8),
+                   backend.empty((k,), i32))
+
+
+class GrowthOps(ABC):
+    """The M3 patch growth, gap blending and coherent matching, each one kernel launch
+    in one thread (kernels/growth.py defines the rules and the queue's tie order)."""
+
+    @abstractmethod
+    def grow_patches(self, n: int, k: int, inputs: GrowthInputs, dir_step: int, unit: float,
+                     weights: tuple[float, float, float, float], threshold: float, max_patch: float,
+                     n_buckets: int, outputs: GrowthOutputs, scratch: GrowthScratch) -> None:
+        """Grow every patch of a point model into ``outputs``.
+
+        Args:
+            dir_step: 0 for one seed direction (dirs (3,)), 1 for one per point.
+            unit: world length of a texel; weights: (w1, w2, w3, w4) of eqs. 2-4;
+                threshold: the distortion bound; max_patch: largest patch extent in
+                texels (<= 0: unbounded); n_buckets: priority levels of the queue.
+        """
+
+    @abstractmethod
+    def blend_gaps(self, n: int, k: int, inputs: BlendInputs, unit: float, tex: DeviceArray, h: int, w: int,
+                   wrap: int, offsets: DeviceArray, n_buckets: int, frames: PatchFrames, outputs: BlendOutputs,
+                   scratch: BlendScratch) -> None:
+        """Colour the patch points, then blend the gap points into ``outputs``.
+
+        Args:
+            unit: world length of a texel; tex: (h * w * 3,) uint8 RGB texture; wrap: 1
+                for periodic lookups, 0 clamped; offsets: (patches * 2,) float64 texel
+                offset (x, y) of each patch; n_buckets: priority levels of the queue.
+            frames: read, and overwritten where a gap point joins a patch.
+        """
+
+    @abstractmethod
+    def match_coherent(self, n: int, k: int, inputs: MatchInputs, unit: float, grid: DeviceArray, xp: int, pad: int,
+                       m: int, h: int, w: int, tileable: int, subtexel: int, shifts1: DeviceArray, n_shift1: int,
+                       ring: int, order: DeviceArray, rand_texel: DeviceArray, n_buckets: int, state: MatchState,
+                       scratch: MatchScratch) -> None:
+        """Coherent neighbourhood matching of one level: colour every uncoloured point.
+
+        Args:
+            unit: world length of a texel; grid: flat uint8 padded supersampled texture,
+                xp pixels per row, pad pixels of padding, m the supersampling factor,
+                h x w texels; tileable, subtexel, ring: 0 or 1.
+            shifts1: (n_shift1 * 2,) int32 first refinement shifts (dy, dx).
+            order: (n,) int32 order of the points taken when none is queued; rand_texel:
+                (n,) int32 the texel a point with no coloured neighbour takes.
+            n_buckets: priority levels of the queue; state: read and updated in place.
+        """
