@@ -9,7 +9,8 @@ import pytest
 import geosynth
 from geosynth import reference
 from geosynth import search as search_mod
-from geosynth.examples import quantize_distance, spheres_field
+from geosynth.examples import spheres_field
+from geosynth.volume import quantize_field
 from geosynth.search import BlockSearch, CascadeSearch, block_offsets, block_origins, box_sums
 
 # (block size, source side): small enough for CI, every block size of the issue.
@@ -19,7 +20,7 @@ CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
 def _field(kind: str, side: int, rng) -> np.ndarray:
     if kind == "random":
         return rng.integers(0, 256, (side, side + 1, side - 1), dtype=np.uint8)
-    return quantize_distance(spheres_field(side, count=max(3, side // 4), radius=(2.0, side / 5), seed=side), 4.0)
+    return quantize_field(spheres_field(side, count=max(3, side // 4), radius=(2.0, side / 5), seed=side), 4.0)
 
 
 def _queries(field, block, rng, count=6):
