@@ -222,6 +222,21 @@ class _Camera:
         return self.cx + self.focal * a, self.cy - self.focal * b, z
 
 
+def _check_quality(supersample, specular) -> None:
+    if supersample not in (1, 2, 3, 4):
+        raise ValueError(f"supersample must be 1, 2, 3 or 4, got {supersample!r}.")
+    if not 0 <= specular <= 1:
+        raise ValueError(f"specular must be in [0, 1], got {specular!r}.")
+
+
+def _framing_camera(points: np.ndarray, bounds, view: View, width: int, height: int) -> _Camera:
+    """The camera framing ``points``, or the (2, 3) box ``bounds`` when given."""
+    frame = points if bounds is None else np.asarray(bounds, np.float64)
+    if frame.ndim != 2 or frame.shape[1] != 3 or not np.isfinite(frame).all():
+        raise ValueError(f"bounds must be a finite (2, 3) box, got {np.shape(bounds)}.")
+    return _Camera(frame, view, width, height)
+
+
 def _expand(counts: np.ndarray):
     """For counts c_k, the owner k and the rank 0..c_k-1 of each of the sum(c) items."""
     owner = np.repeat(np.arange(len(counts)), counts)
@@ -408,10 +423,7 @@ def render_mesh(mesh, size=(800, 600), view=None, color=MESH_COLOR, face_colors=
     vertices, faces = _as_mesh_arrays(mesh)
     width, height = _as_size(size)
     cam_view = _as_view(view)
-    if supersample not in (1, 2, 3, 4):
-        raise ValueError(f"supersample must be 1, 2, 3 or 4, got {supersample!r}.")
-    if not 0 <= specular <= 1:
-        raise ValueError(f"specular must be in [0, 1], got {specular!r}.")
+    _check_quality(supersample, specular)
     if face_colors is not None and vertex_colors is not None:
         raise ValueError("give face_colors or vertex_colors, not both.")
     base = _as_rgb("color", color)
@@ -419,13 +431,9 @@ def render_mesh(mesh, size=(800, 600), view=None, color=MESH_COLOR, face_colors=
     back = None if back_color is None else _as_rgb("back_color", back_color)
     fcol = None if face_colors is None else _as_rgb("face_colors", face_colors, len(faces))
     vcol = None if vertex_colors is None else _as_rgb("vertex_colors", vertex_colors, len(vertices))
-    frame = vertices if bounds is None else np.asarray(bounds, np.float64)
-    if frame.ndim != 2 or frame.shape[1] != 3 or not np.isfinite(frame).all():
-        raise ValueError(f"bounds must be a finite (2, 3) box, got {np.shape(bounds)}.")
-
     ss = supersample
     W, H = width * ss, height * ss
-    camera = _Camera(frame, cam_view, W, H)
+    camera = _framing_camera(vertices, bounds, cam_view, W, H)
     u, v, z = camera.project(vertices)
     z = np.where(z > camera.near, z, -1.0)  # vertices behind the camera drop their triangles
     fid, bary = _rasterize(u, v, z, faces, W, H, camera.perspective)
@@ -537,21 +545,14 @@ def render_points(points, normals=None, colors=None, size=(800, 600), view=None,
     bg = _as_rgb("background", background)
     width, height = _as_size(size)
     cam_view = _as_view(view)
-    if supersample not in (1, 2, 3, 4):
-        raise ValueError(f"supersample must be 1, 2, 3 or 4, got {supersample!r}.")
-    if not 0 <= specular <= 1:
-        raise ValueError(f"specular must be in [0, 1], got {specular!r}.")
+    _check_quality(supersample, specular)
     if radius is None:
         radius = _default_splat_radius(p)
     elif not (np.isfinite(radius) and radius > 0):
         raise ValueError(f"radius must be > 0, got {radius!r}.")
-    frame = p if bounds is None else np.asarray(bounds, np.float64)
-    if frame.ndim != 2 or frame.shape[1] != 3 or not np.isfinite(frame).all():
-        raise ValueError(f"bounds must be a finite (2, 3) box, got {np.shape(bounds)}.")
-
     ss = supersample
     W, H = width * ss, height * ss
-    camera = _Camera(frame, cam_view, W, H)
+    camera = _framing_camera(p, bounds, cam_view, W, H)
     u, v, z = camera.project(p)
     rpix = radius * camera.focal / np.maximum(z, 1e-300) if camera.perspective else np.full(n, radius * camera.focal)
     rpix = np.clip(rpix, 0.5, 64.0)
