@@ -7,18 +7,22 @@ values agree bit for bit with each other and with the kernels that repeat
 
 - :func:`linear_taps`: along one axis, the two samples around a coordinate and the
   weight of the second (wrapped, or the coordinate clamped to the grid first);
-- :func:`lerp_axis`: blend along one axis with those taps, ``a * (1 - t) + b * t``.
+- :func:`lerp_axis`: blend along one axis with those taps, ``a * (1 - t) + b * t``
+  (:func:`geosynth.textures.sample_bilinear`, whose lookups are scattered, writes the
+  same blend out for its four texels).
 
-scipy.ndimage.map_coordinates / zoom (order=1) compute the same blend with other
-roundings (and in float64 only), which would change the float32 volume results and
-the texture values the kernels reproduce, hence this small module.
+scipy.ndimage.map_coordinates / zoom (order=1) compute the same blend in float64 with
+other roundings: that would change the float32 volume results and the texture values
+the kernels reproduce, hence this small module. (The elements metric's grid
+refinement, geosynth.metrics._refine, stays on scipy.ndimage.zoom: it differs from
+this module by up to 1 float32 ulp, so moving it would change metric figures.)
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["lerp", "lerp_axis", "linear_taps"]
+__all__ = ["lerp_axis", "linear_taps"]
 
 
 def linear_taps(coord, size: int, wrap: bool, dtype=np.float64,
@@ -57,11 +61,6 @@ def linear_taps(coord, size: int, wrap: bool, dtype=np.float64,
     return i0, np.minimum(i0 + 1, size - 1), frac
 
 
-def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """``a * (1 - t) + b * t``, in the arrays' dtype (broadcast)."""
-    return a * (1 - t) + b * t
-
-
 def lerp_axis(values: np.ndarray, axis: int, taps: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """Resample ``values`` along ``axis`` at the 1D taps of :func:`linear_taps`.
 
@@ -76,4 +75,5 @@ def lerp_axis(values: np.ndarray, axis: int, taps: tuple[np.ndarray, np.ndarray,
     shape = [1] * values.ndim
     shape[axis] = len(t)
     t = t.reshape(shape)
-    return lerp(np.take(values, i0, axis=axis), np.take(values, i1, axis=axis), t)
+    # one expression: each gathered copy is freed as soon as it is weighted (peak memory)
+    return np.take(values, i0, axis=axis) * (1 - t) + np.take(values, i1, axis=axis) * t

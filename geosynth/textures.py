@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from geosynth.files import check_input, write_image
-from geosynth.interpolate import lerp, lerp_axis, linear_taps
+from geosynth.interpolate import lerp_axis, linear_taps
 
 __all__ = [
     "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",
@@ -202,7 +202,9 @@ def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     y0, y1, fy = linear_taps(y, h, wrap)
     x0, x1, fx = linear_taps(x, w, wrap)
     fy, fx = fy[..., None], fx[..., None]
-    return lerp(lerp(tex[y0, x0], tex[y0, x1], fx), lerp(tex[y1, x0], tex[y1, x1], fx), fy)
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx  # lerp_axis's blend, at scattered texels
+    bottom = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
 
 
 def sample_bilinear_grid(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
