@@ -106,9 +106,10 @@ def block_offsets(size: int) -> np.ndarray:
 def gather_blocks_rows(devices, rng, size=64, block=16) -> list[Row]:
     case = f"gather uint8 {size}^3 field, all {block}^3 blocks"
     print(f"  {case}", flush=True)
-    from geosynth.examples import quantize_distance, spheres_field
+    from geosynth.examples import spheres_field
+    from geosynth.volume import quantize_field
 
-    field = quantize_distance(spheres_field(size, count=40, seed=1), band=4.0)
+    field = quantize_field(spheres_field(size, count=40, seed=1), band=4.0)
     off = block_offsets(block)
     origin = rng.integers(0, size - block + 1, 3)
     vals = field[tuple((origin + off).T)]

@@ -234,7 +234,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         _check_device(args.device)
 
     from geosynth.backend import describe_devices
-    from geosynth.examples import quantize_distance, spheres_field
+    from geosynth.examples import spheres_field
+    from geosynth.volume import quantize_field
     from geosynth.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
@@ -244,7 +245,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         say(f"  {name:<14} {desc}")
 
     rng = np.random.default_rng(args.seed)
-    field = quantize_distance(spheres_field(size, count=max(1, size**3 // 6500), seed=args.seed), band=4.0)
+    field = quantize_field(spheres_field(size, count=max(1, size**3 // 6500), seed=args.seed), band=4.0)
     offsets = np.stack(np.meshgrid(*[np.arange(block)] * 3, indexing="ij"), -1).reshape(-1, 3)
     # The query: of a few random blocks, the one with the most structure (not empty space).
     draws = rng.integers(0, size - block + 1, (32, 3))

@@ -12,25 +12,9 @@ import numpy as np
 
 __all__ = [
     "EXEMPLARS", "Exemplar", "balls_mesh", "chainmail_exemplar", "chainmail_mesh", "exemplar_field", "exemplar_mesh",
-    "fibers_mesh", "grid_mesh", "quantize_distance", "settle_spheres", "spheres_field", "terrain_heights",
+    "fibers_mesh", "grid_mesh", "settle_spheres", "spheres_field", "terrain_heights",
     "terrain_mesh", "torus_mesh", "tube_mesh",
 ]
-
-
-def quantize_distance(distance: np.ndarray, band: float) -> np.ndarray:
-    """Map signed distances to uint8: -band -> 0, 0 -> 128 (about), +band -> 255.
-
-    Args:
-        distance: any-shape float array of signed distances (negative inside).
-        band: half-width of the clamped band, in the same units, > 0.
-
-    Returns:
-        uint8 array of the same shape.
-    """
-    if not band > 0:
-        raise ValueError(f"band must be > 0, got {band!r}.")
-    t = (np.clip(distance, -band, band) + band) / (2 * band)
-    return np.round(t * 255).astype(np.uint8)
 
 
 def spheres_field(size: int = 64, count: int = 40, radius: tuple[float, float] = (3.0, 7.0), seed: int = 0) -> np.ndarray:

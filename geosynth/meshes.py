@@ -204,17 +204,13 @@ def orient_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Connected-component labels of n nodes joined by edges (a, b) (label propagation)."""
-    label = np.arange(n)
-    while True:
-        m = np.minimum(label[a], label[b])
-        new = label.copy()
-        np.minimum.at(new, a, m)
-        np.minimum.at(new, b, m)
-        new = new[new]  # pointer jumping
-        if np.array_equal(new, label):
-            return np.unique(label, return_inverse=True)[1]
-        label = new
+    """Connected-component labels (int64) of n nodes joined by edges (a, b), numbered
+    in the order of each component's smallest node (scipy.sparse.csgraph)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def _propagate(n: int, a: np.ndarray, b: np.ndarray, rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -222,6 +218,10 @@ def _propagate(n: int, a: np.ndarray, b: np.ndarray, rel: np.ndarray) -> tuple[n
 
     Returns (component labels, flip flags relative to each component's first face).
     Conflicting cycles (non-orientable parts) keep the first label that reached them.
+
+    Kept by hand: scipy.sparse.csgraph finds components and BFS trees but carries no
+    parity along the edges, and its sparse matrices sum the rel flags of two edges
+    joining the same two faces; this loop keeps the first edge that reaches a face.
     """
     from collections import deque
 

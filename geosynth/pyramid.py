@@ -116,7 +116,7 @@ def check_field(field) -> np.ndarray:
     if field.dtype != np.uint8:
         raise TypeError(
             f"field has dtype {field.dtype}: expected uint8 (quantize it first, e.g. with "
-            "geosynth.examples.quantize_distance)."
+            "geosynth.volume.quantize_field)."
         )
     if field.ndim != 3:
         raise ValueError(f"field must be a 3-D (Z, Y, X) array, got shape {field.shape}.")

@@ -1,7 +1,7 @@
 """What does a result look like? Implements no paper section: pictures of the methods'
 outputs.
 
-Pictures of results, written as PNG with no imaging dependency.
+Pictures of results, rendered in NumPy and written as PNG or JPEG by Pillow.
 
 - :func:`write_png`: an atomic PNG or JPEG writer (Pillow).
 - :func:`render_mesh`: a shaded picture of a triangle mesh, by a z-buffer rasterizer
@@ -10,12 +10,13 @@ Pictures of results, written as PNG with no imaging dependency.
   to the camera, supersampled for smooth edges.
 - :func:`render_points`: the same camera and light for point sets, each point a
   screen-space disk (splat) in the z-buffer.
-- :func:`side_by_side`: pictures in a row, with optional labels in a small bitmap font.
+- :func:`side_by_side`: pictures in a row, with optional labels drawn by Pillow.
 - :func:`render_mesh_png`, :func:`render_points_png`: render and write in one step.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.files import write_image
+from geosynth.interpolate import lerp_axis, linear_taps
 
 __all__ = [
     "View", "field_slices_image", "render_mesh", "render_mesh_png", "render_points", "render_points_png",
@@ -37,16 +39,10 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
 
 
 def _bilinear(image: np.ndarray, factor: int) -> np.ndarray:
-    """Upsample a 2D array by an integer factor with bilinear interpolation."""
+    """Upsample a 2D array by an integer factor, bilinear (cell centres aligned, clamped at the edges)."""
     h, w = image.shape
-    y = np.clip((np.arange(h * factor) + 0.5) / factor - 0.5, 0, h - 1)
-    x = np.clip((np.arange(w * factor) + 0.5) / factor - 0.5, 0, w - 1)
-    y0, x0 = np.minimum(y.astype(int), h - 2 if h > 1 else 0), np.minimum(x.astype(int), w - 2 if w > 1 else 0)
-    y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
-    fy, fx = (y - y0)[:, None], (x - x0)[None, :]
-    top = image[y0][:, x0] * (1 - fx) + image[y0][:, x1] * fx
-    bottom = image[y1][:, x0] * (1 - fx) + image[y1][:, x1] * fx
-    return top * (1 - fy) + bottom * fy
+    y, x = ((np.arange(n * factor) + 0.5) / factor - 0.5 for n in (h, w))
+    return lerp_axis(lerp_axis(image, 1, linear_taps(x, w, False)), 0, linear_taps(y, h, False))
 
 
 def distance_colours(distance: np.ndarray, scale: float, spacing: float) -> np.ndarray:
@@ -227,6 +223,21 @@ class _Camera:
         """Pixel coordinates u (right), v (down), and depth z of (n, 3) world points."""
         a, b, z = self._plane(points)
         return self.cx + self.focal * a, self.cy - self.focal * b, z
+
+
+def _check_quality(supersample, specular) -> None:
+    if supersample not in (1, 2, 3, 4):
+        raise ValueError(f"supersample must be 1, 2, 3 or 4, got {supersample!r}.")
+    if not 0 <= specular <= 1:
+        raise ValueError(f"specular must be in [0, 1], got {specular!r}.")
+
+
+def _framing_camera(points: np.ndarray, bounds, view: View, width: int, height: int) -> _Camera:
+    """The camera framing ``points``, or the (2, 3) box ``bounds`` when given."""
+    frame = points if bounds is None else np.asarray(bounds, np.float64)
+    if frame.ndim != 2 or frame.shape[1] != 3 or not np.isfinite(frame).all():
+        raise ValueError(f"bounds must be a finite (2, 3) box, got {np.shape(bounds)}.")
+    return _Camera(frame, view, width, height)
 
 
 def _expand(counts: np.ndarray):
@@ -415,10 +426,7 @@ def render_mesh(mesh, size=(800, 600), view=None, color=MESH_COLOR, face_colors=
     vertices, faces = _as_mesh_arrays(mesh)
     width, height = _as_size(size)
     cam_view = _as_view(view)
-    if supersample not in (1, 2, 3, 4):
-        raise ValueError(f"supersample must be 1, 2, 3 or 4, got {supersample!r}.")
-    if not 0 <= specular <= 1:
-        raise ValueError(f"specular must be in [0, 1], got {specular!r}.")
+    _check_quality(supersample, specular)
     if face_colors is not None and vertex_colors is not None:
         raise ValueError("give face_colors or vertex_colors, not both.")
     base = _as_rgb("color", color)
@@ -426,13 +434,9 @@ def render_mesh(mesh, size=(800, 600), view=None, color=MESH_COLOR, face_colors=
     back = None if back_color is None else _as_rgb("back_color", back_color)
     fcol = None if face_colors is None else _as_rgb("face_colors", face_colors, len(faces))
     vcol = None if vertex_colors is None else _as_rgb("vertex_colors", vertex_colors, len(vertices))
-    frame = vertices if bounds is None else np.asarray(bounds, np.float64)
-    if frame.ndim != 2 or frame.shape[1] != 3 or not np.isfinite(frame).all():
-        raise ValueError(f"bounds must be a finite (2, 3) box, got {np.shape(bounds)}.")
-
     ss = supersample
     W, H = width * ss, height * ss
-    camera = _Camera(frame, cam_view, W, H)
+    camera = _framing_camera(vertices, bounds, cam_view, W, H)
     u, v, z = camera.project(vertices)
     z = np.where(z > camera.near, z, -1.0)  # vertices behind the camera drop their triangles
     fid, bary = _rasterize(u, v, z, faces, W, H, camera.perspective)
@@ -544,21 +548,14 @@ def render_points(points, normals=None, colors=None, size=(800, 600), view=None,
     bg = _as_rgb("background", background)
     width, height = _as_size(size)
     cam_view = _as_view(view)
-    if supersample not in (1, 2, 3, 4):
-        raise ValueError(f"supersample must be 1, 2, 3 or 4, got {supersample!r}.")
-    if not 0 <= specular <= 1:
-        raise ValueError(f"specular must be in [0, 1], got {specular!r}.")
+    _check_quality(supersample, specular)
     if radius is None:
         radius = _default_splat_radius(p)
     elif not (np.isfinite(radius) and radius > 0):
         raise ValueError(f"radius must be > 0, got {radius!r}.")
-    frame = p if bounds is None else np.asarray(bounds, np.float64)
-    if frame.ndim != 2 or frame.shape[1] != 3 or not np.isfinite(frame).all():
-        raise ValueError(f"bounds must be a finite (2, 3) box, got {np.shape(bounds)}.")
-
     ss = supersample
     W, H = width * ss, height * ss
-    camera = _Camera(frame, cam_view, W, H)
+    camera = _framing_camera(p, bounds, cam_view, W, H)
     u, v, z = camera.project(p)
     rpix = radius * camera.focal / np.maximum(z, 1e-300) if camera.perspective else np.full(n, radius * camera.focal)
     rpix = np.clip(rpix, 0.5, 64.0)
@@ -648,56 +645,45 @@ def render_points_png(points, path: str | os.PathLike, normals=None, colors=None
 
 # ------------------------------------------------------------------ pictures in a row, with labels
 
-# A 5 x 7 bitmap font: 7 rows of 5 bits (bit 4 = leftmost column) per character, as hex.
-_FONT = {
-    "A": "0E11111F111111", "B": "1E11111E11111E", "C": "0E111010101 10E".replace(" ", ""),
-    "D": "1C121111111 21C".replace(" ", ""), "E": "1F10101E10101F", "F": "1F10101E101010",
-    "G": "0E111017111 10F".replace(" ", ""), "H": "1111111F111111", "I": "0E04040404040E",
-    "J": "07020202021 20C".replace(" ", ""), "K": "11121418141211", "L": "1010101010101F",
-    "M": "111B1515111111", "N": "11111915131111", "O": "0E11111111110E", "P": "1E11111E101010",
-    "Q": "0E11111115120D", "R": "1E11111E141211", "S": "0F10100E01011E", "T": "1F040404040404",
-    "U": "1111111111110E", "V": "1111111111 0A04".replace(" ", ""), "W": "1111111515150A",
-    "X": "11110A040A1111", "Y": "11110A04040404", "Z": "1F01020408101F",
-    "0": "0E111315191 10E".replace(" ", ""), "1": "040C040404040E", "2": "0E11010204081F",
-    "3": "1F02040201110E", "4": "02060A121F0202", "5": "1F101E0101110E", "6": "0608101E11110E",
-    "7": "1F010204080808", "8": "0E11110E11110E", "9": "0E11110F01020C",
-    " ": "00000000000000", ".": "00000000000C0C", ",": "00000000 0C0408".replace(" ", ""),
-    ":": "000C0C000C0C00", ";": "000C0C000C0408", "-": "0000001F000000", "_": "0000000000001F",
-    "/": "00010204081000", "(": "02040808080402", ")": "08040202020408", "=": "00001F001F0000",
-    "+": "0004041F040400", "%": "18190204081303", "^": "040A1100000000", "?": "0E110102040004",
-    "!": "04040404040004", "'": "04040800000000", "#": "0A0A1F0A1F0A0A", "*": "0004150E150400",
-    "[": "0E08080808080E", "]": "0E02020202020E", "<": "02040810080402", ">": "08040201020408",
-}
+CAPTION_PIXELS = 10  # font size (em height in pixels) of a caption at scale 1
 
 
-def _glyph(ch: str) -> np.ndarray:
-    code = _FONT.get(ch.upper(), _FONT["?"])
-    rows = [int(code[2 * r:2 * r + 2], 16) for r in range(7)]
-    return np.array([[(row >> (4 - c)) & 1 for c in range(5)] for row in rows], bool)
+@functools.lru_cache(maxsize=8)
+def _font(pixels: int):
+    """Pillow's built-in font (no font file from the system) at ``pixels``; where Pillow
+    has no FreeType, its small bitmap font (returned with the integer zoom it needs)."""
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=pixels), 1
+    except (ImportError, OSError, TypeError):  # no FreeType, or Pillow < 10.1
+        return ImageFont.load_default(), max(1, round(pixels / 11))
 
 
 def text_image(text: str, scale: int = 2, color=(40, 40, 40), background=BACKGROUND) -> np.ndarray:
-    """A line of text in the built-in 5 x 7 bitmap font (letters are shown upper case;
-    characters it lacks are shown as '?').
+    """A line of text drawn by Pillow (ImageDraw) in Pillow's built-in font, anti-aliased.
 
     Args:
-        text: the line.
-        scale: pixels per font pixel, >= 1.
+        text: the line (one line: newlines are shown as spaces).
+        scale: size factor, >= 1: the font is ``CAPTION_PIXELS * scale`` pixels.
         color, background: (r, g, b) of the letters and around them.
 
     Returns:
-        (7 * scale, 6 * scale * len(text), 3) uint8 RGB (at least one column wide).
+        (H, W, 3) uint8 RGB; H depends only on ``scale`` (the font's ascent + descent),
+        W on the text (at least one column).
     """
-    if scale < 1:
-        raise ValueError(f"scale must be >= 1, got {scale}.")
-    mask = np.zeros((7, max(1, 6 * len(text))), bool)
-    for i, ch in enumerate(text):
-        mask[:, 6 * i:6 * i + 5] = _glyph(ch)
-    mask = mask.repeat(scale, 0).repeat(scale, 1)
-    out = np.empty(mask.shape + (3,), np.uint8)
-    out[:] = np.asarray(background, np.uint8)
-    out[mask] = np.asarray(color, np.uint8)
-    return out
+    from PIL import Image, ImageDraw
+
+    if not isinstance(scale, (int, np.integer)) or scale < 1:
+        raise ValueError(f"scale must be an integer >= 1, got {scale!r}.")
+    line = " ".join(str(text).splitlines())
+    font, zoom = _font(CAPTION_PIXELS * int(scale))
+    height = sum(font.getmetrics()) if hasattr(font, "getmetrics") else font.getbbox("Ag|")[3] + 1
+    width = max(1, int(np.ceil(font.getlength(line))))
+    canvas = Image.new("RGB", (width, height), tuple(int(c) for c in background))
+    ImageDraw.Draw(canvas).text((0, 0), line, fill=tuple(int(c) for c in color), font=font)
+    out = np.asarray(canvas, np.uint8)
+    return out.repeat(zoom, 0).repeat(zoom, 1) if zoom > 1 else out.copy()
 
 
 def side_by_side(images, labels=None, gap: int = 8, background=BACKGROUND, scale: int = 2) -> np.ndarray:
@@ -705,11 +691,11 @@ def side_by_side(images, labels=None, gap: int = 8, background=BACKGROUND, scale
 
     Args:
         images: a non-empty sequence of (H, W, 3) or (H, W) uint8 pictures (heights may differ).
-        labels: None, or one string per picture (drawn centred above it in the built-in
-            bitmap font, clipped to the picture's width).
+        labels: None, or one string per picture (drawn centred above it by
+            :func:`text_image`, clipped to the picture's width).
         gap: pixels between pictures and around the labels, >= 0.
         background: (r, g, b) of the gaps and padding.
-        scale: font scale of the labels.
+        scale: size factor of the labels (see :func:`text_image`).
 
     Returns:
         (H', W', 3) uint8 RGB picture.

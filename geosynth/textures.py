@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from geosynth.files import check_input, write_image
+from geosynth.interpolate import lerp_axis, linear_taps
 
 __all__ = [
     "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",
@@ -189,21 +190,6 @@ def write_texture(path: str | os.PathLike, texture: np.ndarray, *, inputs=()) ->
 # ------------------------------------------------------------------ lookups
 
 
-def _taps(coord, size: int, wrap: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The two texels of a bilinear lookup along one axis and the weight of the second:
-    (i0, i1 int64, fraction float64), wrapped or clamped to the edge."""
-    c = np.asarray(coord, np.float64)
-    if not wrap:
-        c = np.clip(c, 0, size - 1)
-    c0 = np.floor(c)
-    frac = c - c0
-    i0 = c0.astype(np.int64)
-    if wrap:
-        i0 = np.mod(i0, size)
-        return i0, np.mod(i0 + 1, size), frac
-    return i0, np.minimum(i0 + 1, size - 1), frac
-
-
 def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     """Bilinear texture lookup at continuous texel coordinates, in float64.
 
@@ -217,10 +203,10 @@ def sample_bilinear(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     """
     tex = np.asarray(texture, np.float64)
     h, w = tex.shape[:2]
-    y0, y1, fy = _taps(y, h, wrap)
-    x0, x1, fx = _taps(x, w, wrap)
+    y0, y1, fy = linear_taps(y, h, wrap)
+    x0, x1, fx = linear_taps(x, w, wrap)
     fy, fx = fy[..., None], fx[..., None]
-    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx  # lerp_axis's blend, at scattered texels
     bottom = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
     return top * (1 - fy) + bottom * fy
 
@@ -239,11 +225,8 @@ def sample_bilinear_grid(texture: np.ndarray, y, x, wrap: bool) -> np.ndarray:
     """
     tex = np.asarray(texture, np.float64)
     h, w = tex.shape[:2]
-    y0, y1, fy = _taps(y, h, wrap)
-    x0, x1, fx = _taps(x, w, wrap)
-    fy, fx = fy[:, None, None], fx[None, :, None]
-    rows = tex[:, x0] * (1 - fx) + tex[:, x1] * fx  # (H, Nx, C): every texture row along x
-    return rows[y0] * (1 - fy) + rows[y1] * fy
+    rows = lerp_axis(tex, 1, linear_taps(x, w, wrap))  # (H, Nx, C): every texture row along x
+    return lerp_axis(rows, 0, linear_taps(y, h, wrap))
 
 
 def supersample(texture: np.ndarray, m: int = 8, wrap: bool = True, scale: float = 1.0,

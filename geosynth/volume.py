@@ -40,6 +40,7 @@ import numpy as np
 
 from geosynth import _checks
 from geosynth.field import Field
+from geosynth.interpolate import lerp_axis, linear_taps
 from geosynth.memory import require
 from geosynth.blocks import block_offsets
 from geosynth.optimize import memory_estimate as optimize_memory
@@ -74,27 +75,29 @@ def downsample(values: np.ndarray) -> np.ndarray:
 
 def upsample(values: np.ndarray, shape: Sequence[int], wrap: bool) -> np.ndarray:
     """Trilinear x2 upsampling of a uint8 (Z, Y, X) volume to ``shape`` (cell centres
-    aligned; clamped at the faces, or periodic when ``wrap``), rounded to uint8."""
+    aligned; clamped at the faces, or periodic when ``wrap``), in float32, rounded to uint8."""
     out = values.astype(np.float32)
     for axis, n in enumerate(shape):
         m = out.shape[axis]
         pos = (np.arange(n) + 0.5) * m / n - 0.5
-        lo = np.floor(pos).astype(np.int64)
-        t = (pos - lo).astype(np.float32)
-        hi = lo + 1
-        if wrap:
-            lo, hi = lo % m, hi % m
-        else:
-            lo, hi = np.clip(lo, 0, m - 1), np.clip(hi, 0, m - 1)
-        shape_t = [1] * out.ndim
-        shape_t[axis] = n
-        t = t.reshape(shape_t)
-        out = np.take(out, lo, axis=axis) * (1 - t) + np.take(out, hi, axis=axis) * t
+        out = lerp_axis(out, axis, linear_taps(pos, m, wrap, np.float32, clamp="taps"))
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
 def quantize_field(distance: np.ndarray, band: float) -> np.ndarray:
-    """Signed distances -> uint8: -band -> 0, +band -> 255, linear between (clamped)."""
+    """Signed distances -> uint8 codes: -band -> 0, 0 -> 127.5 (between codes 127 and 128),
+    +band -> 255, linear between, clamped outside the band.
+
+    Args:
+        distance: any-shape float array of signed distances (negative inside).
+        band: half-width of the band, in the distances' units, > 0.
+
+    Returns:
+        uint8 array of the same shape (the project's one quantizer; inverse:
+        :func:`dequantize_field`).
+    """
+    if not band > 0:
+        raise ValueError(f"band must be > 0, got {band!r}.")
     t = (np.clip(distance, -band, band) + band) / (2 * band)
     return np.round(t * 255).astype(np.uint8)
 

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from geosynth import reference
-from geosynth.examples import quantize_distance, spheres_field
+from geosynth.examples import spheres_field
+from geosynth.volume import quantize_field
 from geosynth.pyramid import build_pyramid, compare_level
 
 
 def _real_field(size: int = 24) -> np.ndarray:
-    return quantize_distance(spheres_field(size, count=8, radius=(2.0, 5.0), seed=2), 4.0)
+    return quantize_field(spheres_field(size, count=8, radius=(2.0, 5.0), seed=2), 4.0)
 
 
 @pytest.mark.parametrize("kind", ["random", "real"])

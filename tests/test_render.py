@@ -115,11 +115,18 @@ def test_side_by_side_and_labels():
     assert row.shape == (20, 46, 3)
     assert (row[5:15, 34:46] == 128).all() and (row[:5, 34:] == 255).all()
     labelled = side_by_side([a, b], labels=["A1", "x"], gap=4, scale=1)
-    assert labelled.shape[0] == 20 + 7 + 8
-    assert (labelled[4:11] < 128).any()  # text drawn
+    text_height = text_image("x", scale=1).shape[0]
+    assert labelled.shape[0] == 20 + text_height + 8
+    assert (labelled[4:4 + text_height, :30] < 128).any()  # text drawn above each picture
+    assert (labelled[4:4 + text_height, 34:] < 128).any()
+    assert (labelled[:4] == 255).all() and (labelled[4 + text_height:8 + text_height] == 255).all()
     t = text_image("Hi 1", scale=2)
-    assert t.shape == (14, 48, 3)
-    np.testing.assert_array_equal(text_image("hi"), text_image("HI"))
+    assert t.shape[0] == text_image("x", scale=2).shape[0] > text_height  # the height follows the scale only
+    assert t.shape[1] > text_image("H", scale=2).shape[1] and t.dtype == np.uint8
+    assert t.min() < 80 and t.max() == 255  # dark letters on the white background
+    assert not np.array_equal(text_image("hi"), text_image("HI"))  # lower case is drawn as such
+    with pytest.raises(ValueError, match="scale"):
+        text_image("x", scale=0)
 
 
 def test_png_helpers(tmp_path, sphere):

@@ -9,10 +9,11 @@ import pytest
 import geosynth
 from geosynth import reference
 from geosynth import tree_search as tree_search_mod
-from geosynth.examples import quantize_distance, spheres_field
 from geosynth.blocks import block_offsets, block_origins, box_sums
 from geosynth.cascade_search import CascadeSearch
+from geosynth.examples import spheres_field
 from geosynth.tree_search import BlockSearch
+from geosynth.volume import quantize_field
 
 # (block size, source side): small enough for CI, block sizes 2 to 16.
 CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
@@ -21,7 +22,7 @@ CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
 def _field(kind: str, side: int, rng) -> np.ndarray:
     if kind == "random":
         return rng.integers(0, 256, (side, side + 1, side - 1), dtype=np.uint8)
-    return quantize_distance(spheres_field(side, count=max(3, side // 4), radius=(2.0, side / 5), seed=side), 4.0)
+    return quantize_field(spheres_field(side, count=max(3, side // 4), radius=(2.0, side / 5), seed=side), 4.0)
 
 
 def _queries(field, block, rng, count=6):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from geosynth.examples import quantize_distance
+from geosynth.volume import quantize_field
 from geosynth.field import Field
 from geosynth.surface import field_to_mesh, save_mesh, smooth_mesh
 
@@ -47,7 +47,7 @@ def test_inverted_field_gives_inward_faces():
 
 def test_uint8_field_default_level():
     f = sphere_field()
-    q = Field(quantize_distance(f.values, 0.3), f.origin, f.spacing)
+    q = Field(quantize_field(f.values, 0.3), f.origin, f.spacing)
     mesh = field_to_mesh(q)  # level 127.5
     r = np.linalg.norm(mesh.vertices - CENTRE, axis=1)
     assert np.abs(r - RADIUS).max() < 0.5 * SPACING.max()
