@@ -397,7 +397,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     result = synthesize_geometry(
         example or exemplar, size,
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
-        seed=args.seed, device=args.device, search=args.search, smooth=args.smooth,
+        seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
     )
     save_mesh(result.mesh, out, inputs=inputs)
@@ -550,6 +550,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source-resolution", type=_int_type(8), default=64,
                    help="exemplar samples along its longest side, >= 8 (default 64)")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
+    p.add_argument("--method", choices=["optimize", "graphcut", "paper"], default="optimize",
+                   help="optimize: texture optimization per level (default, keeps structure best); graphcut: the "
+                        "paper's scan with minimum-error cuts; paper: the paper's scan-order copying")
     p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
     p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
@@ -720,9 +723,11 @@ def _close_progress_bars() -> None:
     """Close the bars an interrupted or failed run left open, so the message that follows
     starts on a line of its own (a bar's frame may outlive the exception)."""
     module = sys.modules.get("tqdm")
-    if module is not None:
-        for bar in list(getattr(module.tqdm, "_instances", ())):
-            bar.close()
+    bars = list(getattr(module.tqdm, "_instances", ())) if module is not None else []
+    for bar in bars:
+        bar.close()
+    if bars:  # a bar interrupted mid-write may not have ended its line
+        sys.stderr.write("\n")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks, _readers
-from geosynth.field import Field, cubic_grid, cubic_grid_geometry
+from geosynth.field import Field, cubic_grid_geometry
 from geosynth.files import check_input
 from geosynth.memory import require
 
@@ -531,8 +531,7 @@ def _query_order(points: np.ndarray) -> np.ndarray:
 def grid_distance_bytes(shape) -> int:
     """Estimated peak bytes of :func:`mesh_distance` on a grid of ``shape`` (Z, Y, X),
     beyond the mesh's BVH: 4 B/sample of the device output (host memory on Warp CPU and
-    PoCL) and 4 of its host copy (the zeroed grid Field is calloc'ed and never touched,
-    so it takes no pages); 256 KiB for the launch. Measured (RSS high-water delta and
+    PoCL) and 4 of its host copy, which becomes the Field's values; 256 KiB for the launch. Measured (RSS high-water delta and
     tracemalloc, icosphere, 64^3 and 128^3 grids): 8.0 B/sample."""
     n = int(np.prod([int(v) for v in shape], dtype=object))
     return 8 * n + (256 << 10)
@@ -656,7 +655,7 @@ def mesh_distance(
         shape = field.shape
         require(grid_distance_bytes(shape), option="field", value=shape,
                 what=f"the distance field of a {shape[2]} x {shape[1]} x {shape[0]} grid")
-        grid = Field(np.zeros(field.shape, np.float32), field.origin.copy(), field.spacing.copy())
+        origin, spacing = field.origin.copy(), field.spacing.copy()
     else:
         if resolution is None:
             raise ValueError("resolution is required for a grid (or pass field= or points).")
@@ -665,13 +664,14 @@ def mesh_distance(
         require(grid_distance_bytes(shape), option="resolution", value=resolution,
                 largest_fn=lambda r: grid_distance_bytes(cubic_grid_geometry(b, r, padding)[2]), smallest=2,
                 what=f"resolution {int(resolution):,} (a {shape[2]:,} x {shape[1]:,} x {shape[0]:,} grid)")
-        grid = cubic_grid(b, resolution, padding)
+        origin, spacing, _ = cubic_grid_geometry(b, resolution, padding)
+        spacing = np.full(3, spacing, np.float64)
     backend = _checks.resolve_backend(device)
-    nz, ny, nx = grid.shape
+    nz, ny, nx = shape
     out = backend.empty((nz * ny * nx,), np.float32)
     backend.mesh_distance_grid(
-        backend.mesh_handle(bvh), grid.origin.astype(np.float32), grid.spacing.astype(np.float32),
+        backend.mesh_handle(bvh), np.asarray(origin).astype(np.float32), spacing.astype(np.float32),
         (nx, ny, nz), bool(signed), band_arg, out,
     )
-    grid.values = backend.to_host(out).reshape(nz, ny, nx)  # sync: the field comes back
-    return grid
+    # sync: the field comes back; the Field is made around it (no zeroed grid first)
+    return Field(backend.to_host(out).reshape(nz, ny, nx), origin, spacing)

@@ -40,6 +40,16 @@ SLOPE_W1_SCALE = 0.25  # slopes score = 1 - W1 / 0.25, clipped to [0, 1]
 ELEMENTS_LARGEST_SHARE = 0.9  # auto kind: "elements" when the largest exemplar core holds less than this
 MAX_REFINEMENT = 4
 MAX_REFINED_SAMPLES = 2**25  # per field; caps the refinement of large fields (32 Mi samples, 128 MiB float32)
+# Peak bytes per refined sample while cores are labelled (the float64 zoom, its float32
+# copy, the core mask and the int32 labels): the refinement also stays within the memory
+# available (geosynth.memory), so the quality numbers never refuse a run that fits.
+REFINED_SAMPLE_BYTES = 32
+
+
+def _refined_sample_cap() -> int:
+    from geosynth.memory import available_memory
+
+    return int(min(MAX_REFINED_SAMPLES, available_memory() // (2 * REFINED_SAMPLE_BYTES)))
 
 
 def bidirectional_block_distance(
@@ -249,13 +259,14 @@ def _element_scores(ex_values, ex_spacing, out_values, out_spacing, periodic, fa
     h = float(ex_spacing.max())
     threshold = 0.5 * h  # half a sample of the exemplar's grid, in world units
     if factor is None:
-        factor = pick_refinement(ex_values, threshold, max_samples=MAX_REFINED_SAMPLES)
+        factor = pick_refinement(ex_values, threshold, max_samples=_refined_sample_cap())
     picked = factor
 
     def out_factor_of(f: int) -> int:
         return max(1, int(round(f * float(out_spacing.max()) / h)))
 
-    while factor > 1 and np.prod([(n - 1) * out_factor_of(factor) + 1 for n in out_values.shape]) > MAX_REFINED_SAMPLES:
+    cap = _refined_sample_cap()
+    while factor > 1 and np.prod([(n - 1) * out_factor_of(factor) + 1 for n in out_values.shape]) > cap:
         factor -= 1  # the output is too large for that grid: both sides go coarser together
     if ex_cores is None or factor != picked:
         ex_cores = _exemplar_cores(ex_values, threshold, factor)

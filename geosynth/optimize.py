@@ -27,7 +27,7 @@ IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
 CHUNK = 1024  # queries copied and searched at a time
 # Peak bytes per query sample of a chunk (the uint8 copies, the int32 differences of
 # the threshold and their squares are not all alive at once): measured with tracemalloc.
-_QUERY_SAMPLE_BYTES = 6
+_QUERY_SAMPLE_BYTES = 8
 # Working memory of a level beyond the target: the vote's two float64 fields (padded by
 # a block when periodic) and one chunk of queries; see memory_estimate.
 # Lattice stride = block / divisor: coarser levels are cheap and set the structure,
@@ -77,13 +77,14 @@ def level_stride(block: int, finest: bool) -> int:
     return max(1, block // (FINEST_DIVISOR if finest else COARSE_DIVISOR))
 
 
-def memory_estimate(shape, block: int) -> int:
+def memory_estimate(shape, block: int, stride: int | None = None, wrap: bool = False) -> int:
     """Bytes :func:`optimize_level` needs beyond its inputs for a (Z, Y, X) target:
     the vote's accumulators (2 float64 per sample, padded by a block) and a chunk of
-    query copies with their int32 differences."""
+    query copies with their int32 differences (at most CHUNK of the lattice's blocks;
+    ``stride`` None: the finest level's)."""
     padded = int(np.prod([int(n) + int(block) for n in shape]))
-    stride = level_stride(int(block), True)  # the finest stride: the most lattice positions
-    positions = int(np.prod([int(n) // stride + 1 for n in shape]))
+    stride = level_stride(int(block), True) if stride is None else int(stride)
+    positions = int(np.prod([len(lattice_positions(int(n), int(block), stride, wrap)) for n in shape]))
     return 2 * 8 * padded + min(CHUNK, positions) * int(block) ** 3 * _QUERY_SAMPLE_BYTES
 
 

@@ -43,7 +43,7 @@ from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
 from geosynth.memory import require
 from geosynth.blocks import block_offsets
-from geosynth.optimize import memory_estimate as optimize_memory
+from geosynth.optimize import level_stride, memory_estimate as optimize_memory
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -424,7 +424,7 @@ def _matcher_bytes(shape, block: int, search: str) -> int:
 
 
 def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", float_source: bool = False,
-                 baseline: bool = False, method: str = "paper") -> int:
+                 baseline: bool = False, method: str = "paper", tileable: bool = False) -> int:
     """Estimated peak bytes of :func:`synthesize_volume` (beyond its input), for a
     target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first).
 
@@ -453,7 +453,8 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
         n_blocks = int(np.prod([len(range(0, v, max(1, b // 2))) for v in shape], dtype=object))
         m = 0 if baseline else _matcher_bytes(sh, b, search)
         stages.append(9 * n if lvl == 0 else 15 * n + prev_n + prev_m)
-        vote = optimize_memory(shape, b) if method == "optimize" and not baseline else 0
+        vote = (optimize_memory(shape, b, level_stride(b, lvl == levels - 1), tileable)
+                if method == "optimize" and not baseline else 0)
         stages.append(2 * n + _BYTES_PER_BLOCK * n_blocks + m + vote)
         prev_n, prev_m = n, m
     stages.append(5 * prev_n + prev_m)
@@ -492,7 +493,7 @@ def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[in
     return blocks
 
 
-def _require_size(size, target_shape, levels: int, estimate, option: str = "size") -> None:
+def _require_size(size, target_shape, levels: int, estimate, option: str = "size", blocks=None) -> None:
     """Refuse a target whose estimate exceeds the memory available. The largest size
     that fits keeps the form given: one number that made a cube, a cube; one number of
     :func:`synthesize_geometry` (x = y = size, z the source's), that; three numbers
@@ -516,7 +517,10 @@ def _require_size(size, target_shape, levels: int, estimate, option: str = "size
             return (z, s, s)
     else:
         shape_at = scaled
-    best = largest_fitting(lambda s: estimate(shape_at(s)), avail, factor, side, factor)
+    # the smallest size whose every level holds its block (a multiple of the level factor)
+    smallest = max([factor] + [int(b) << (levels - 1 - lvl) for lvl, b in enumerate(blocks or ())])
+    smallest = -(-smallest // factor) * factor
+    best = largest_fitting(lambda s: estimate(shape_at(s)), avail, smallest, side, factor)
     largest = best if best is None or np.ndim(size) == 0 else shape_at(best)
     require(estimate(target_shape), option=option, value=size, largest=largest, available=avail,
             what=f"{option} {x:,} x {y:,} x {z:,} (x y z)")
@@ -633,9 +637,9 @@ def synthesize_volume(
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
 
     def estimate(shape) -> int:
-        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline, method)
+        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline, method, tileable)
 
-    _require_size(size, target_shape, levels, estimate, "size")
+    _require_size(size, target_shape, levels, estimate, "size", blocks)
 
     if float_source:
         src = quantize_field(src, band)

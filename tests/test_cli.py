@@ -330,7 +330,7 @@ def test_verbose_sets_the_variable(files, capsys, monkeypatch):
 
 
 LONG = ["volume", "--example", "terrain", "--size", "512", "--levels", "1", "--block", "8", "--source-resolution",
-        "16", "--quality-samples", "0", "--device", "cpu", "--search", "linear"]
+        "16", "--quality-samples", "0", "--device", "cpu", "--search", "linear", "--method", "paper"]
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
