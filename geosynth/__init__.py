@@ -4,10 +4,10 @@ The public API; everything else is private. Every operation takes ``device=``
 (see :mod:`geosynth.backend`).
 """
 
-from geosynth.backend import DeviceArray as DeviceArray
+from geosynth.arrays import DeviceArray as DeviceArray
+from geosynth.arrays import to_device as to_device
 from geosynth.backend import devices as devices
 from geosynth.backend import get_backend as get_backend
-from geosynth.backend import to_device as to_device
 from geosynth.scoring import candidate_origins as candidate_origins
 from geosynth.scoring import lattice_shape as lattice_shape
 from geosynth.scoring import score_dense as score_dense

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 
 __all__ = [
     "BlockPyramid",
@@ -49,6 +49,7 @@ __all__ = [
     "check_block",
     "compare_level",
     "level_shape",
+    "query_arrays",
 ]
 
 _INT32_LIMIT = 2**31 - 1024  # flat indices stay int32 in the kernels
@@ -265,7 +266,18 @@ def check_query(query, block: int) -> np.ndarray:
     return np.ascontiguousarray(query)
 
 
-def _query_arrays(backend, query: np.ndarray, block: int) -> tuple[DeviceArray, DeviceArray]:
+def query_arrays(backend, query: np.ndarray, block: int) -> tuple[DeviceArray, DeviceArray]:
+    """A query block's cell sums at every pyramid level, uploaded for the level kernels.
+
+    Args:
+        backend: the backend to upload to.
+        query: (block, block, block) uint8, checked by :func:`check_query`.
+        block: the block side (a power of two).
+
+    Returns:
+        (sums, starts): int32 DeviceArrays, every level's cell sums concatenated coarsest
+        first as :func:`block_levels` gives them, and the (levels + 1,) start of each.
+    """
     lev = block_levels(query, block)
     flat = np.concatenate([a.reshape(-1) for a in lev]).astype(np.int32)
     off = np.zeros(len(lev) + 1, np.int32)
@@ -320,7 +332,7 @@ def compare_level(
     _, ny, nx = pyramid.shape
     base = (org @ np.array([ny * nx, nx, 1], np.int64)).astype(np.int32)
     code = np.full(m, 2 * int(level) + int(rounded), np.int32)
-    q, qoff = _query_arrays(backend, query, n_block)
+    q, qoff = query_arrays(backend, query, n_block)
     out = backend.pyramid_empty((m,), np.int64)
     ids = backend.to_device(np.arange(m, dtype=np.int32))
     backend.pyramid_compare(

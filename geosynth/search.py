@@ -65,16 +65,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth import _checks
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 from geosynth.pyramid import (
     BlockPyramid,
-    _query_arrays,
     build_pyramid,
     check_block,
     check_field,
     check_memory,
     check_query,
     pyramid_bytes,
+    query_arrays,
 )
 from geosynth.scoring import GatherScorer, candidate_origins, score_gather
 from geosynth.selection import argmin
@@ -475,7 +475,7 @@ class BlockSearch:
                                   or not 1 <= batch <= 4096):
             raise ValueError(f"batch must be None or an integer in [1, 4096], got {batch!r}.")
         self._grow(MAX_BATCH if batch is None else int(batch))
-        q, qoff = _query_arrays(self.backend, query, self.block)
+        q, qoff = query_arrays(self.backend, query, self.block)
         n3 = self.block ** 3
         levels = self.levels
         is_leaf = self._is_leaf
@@ -690,7 +690,7 @@ class CascadeSearch:
 
     def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32,
                  min_work: float | None = None, cells: Sequence[int] | None = None):
-        from geosynth.backend import to_device
+        from geosynth.arrays import to_device
 
         field = check_field(field)
         check_block(block, field.shape)
@@ -737,7 +737,7 @@ class CascadeSearch:
     def _fused_setup(self, dev: str) -> None:
         """Cell sums (sides N/2 and N/4) and coarse centred norms at every field position,
         in the field's strides (0 where the cube leaves the field), and the cell offsets."""
-        from geosynth.backend import to_device
+        from geosynth.arrays import to_device
 
         shape = self.field.shape
         cc, cf = self.stages

@@ -17,7 +17,7 @@ from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
 from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
 # Work-group sizes are always given: with none, PoCL picks the largest divisor of the
