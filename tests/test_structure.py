@@ -16,7 +16,12 @@ and are skipped.
 from __future__ import annotations
 
 import ast
+import re
+import subprocess
+import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"geosynth": ROOT / "geosynth", "geosynth.kernels": ROOT / "kernels"}
@@ -279,3 +284,56 @@ def test_no_module_imports_a_private_name():
     bad = sorted(f"{MODULES[m].relative_to(ROOT)}:{line}: {text}" for (m, text), line in found.items()
                  if (m, text) not in PENDING_PRIVATE_USES)
     assert not bad, "modules using another module's private name:\n" + "\n".join(bad)
+
+
+# -- the public API ------------------------------------------------------------------
+
+ENTRY_POINTS = ["synthesize_geometry", "synthesize_volume", "texture_points", "mesh_distance", "pointset_distance",
+                "Field", "PointSet", "read_point_set", "write_point_set", "read_geometry", "load_mesh", "save_mesh",
+                "read_texture", "write_texture", "write_image", "DeviceArray", "to_device", "devices", "argmin"]
+
+
+def test_public_api_is_complete():
+    """Every method's entry point and data type is exported; every exported name resolves
+    (lazy ones to the very object of their home module) and is listed by dir()."""
+    import importlib
+
+    import geosynth
+
+    assert set(ENTRY_POINTS) <= set(geosynth.__all__)
+    assert len(set(geosynth.__all__)) == len(geosynth.__all__)
+    for name in geosynth.__all__:
+        value = getattr(geosynth, name)
+        home = geosynth._LAZY.get(name)
+        if home is not None:
+            assert value is getattr(importlib.import_module(home), name)
+    assert set(geosynth.__all__) <= set(dir(geosynth))
+    assert callable(geosynth.Field.load) and callable(geosynth.Field.save)
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        geosynth.not_a_name  # noqa: B018
+
+
+def test_import_stays_light():
+    """``import geosynth`` imports none of the heavy libraries nor the modules exported lazily."""
+    code = ("import sys, geosynth; print(' '.join(m for m in sys.modules if m.split('.')[0] in "
+            "('trimesh', 'scipy', 'skimage', 'PIL', 'warp', 'pyopencl') or m in set(geosynth._LAZY.values())))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == []
+
+
+def test_readme_uses_public_names():
+    """The README's Python examples import only ``geosynth`` and use names it exports."""
+    import geosynth
+
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+    assert blocks
+    for block in blocks:
+        tree = ast.parse(block)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                assert not (node.module or "").startswith("geosynth"), f"README: from {node.module} import ..."
+            if isinstance(node, ast.Import):
+                for alias in node.names:
+                    assert not alias.name.startswith("geosynth."), f"README: import {alias.name}"
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "geosynth":
+                assert node.attr in geosynth.__all__, f"README uses geosynth.{node.attr}, which is not exported"
