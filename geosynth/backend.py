@@ -11,8 +11,8 @@ Device strings:
 - ``"cuda"`` / ``"cuda:N"``: Warp on an NVIDIA GPU.
 - ``"opencl"`` / ``"opencl:P:D"``: PyOpenCL, platform P, device D (``"opencl"`` is
   the first usable OpenCL device; on a machine with no GPU that is PoCL). An OpenCL
-  device whose compiler cannot build a kernel (PyPI's PoCL 3.0 with LLVM 14 on a CPU
-  that LLVM 14 does not know, such as AMD Zen 5) is not usable: ``devices()`` leaves it
+  device whose compiler cannot build every geosynth program (PyPI's PoCL 3.0 with LLVM 14
+  on a CPU that LLVM 14 does not know, such as AMD Zen 5) is not usable: ``devices()`` leaves it
   out, ``describe_devices()`` shows it with the compiler's reason, and asking for it is
   a RuntimeError with that reason.
 - ``"auto"``: the first CUDA GPU if present, else the fastest CPU backend as
@@ -193,20 +193,18 @@ def _warp_device_names() -> list[str]:
     return [str(d) for d in wp.get_devices()]
 
 
-_PROBE_SOURCE = "__kernel void geosynth_probe(__global int *out) { out[get_global_id(0)] = 1; }"
-
-
 def _cache_dir() -> str:
     return os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geosynth")
 
 
 def _probe_memo_path() -> str:
-    return os.path.join(_cache_dir(), "opencl-unusable.json")
+    return os.path.join(_cache_dir(), "opencl-devices.json")
 
 
-def _probe_key(platform, dev) -> str:
-    """What decides whether a device's compiler works: the driver, the device, this CPU,
-    and PoCL's settings (not where it caches)."""
+def _probe_key(platform, dev, programs: str) -> str:
+    """What decides whether a device builds geosynth's programs: the driver, the device,
+    this CPU, PoCL's settings (not where it caches) and the programs (``programs``: their
+    digest)."""
     cpu = _platform.processor()
     try:
         with open("/proc/cpuinfo") as fh:  # the first processor's identity and features
@@ -217,7 +215,8 @@ def _probe_key(platform, dev) -> str:
         pass
     unrelated = ("POCL_CACHE_DIR", "POCL_AFFINITY", "POCL_SIGFPE_HANDLER")  # where it caches, how it runs
     env = sorted((k, v) for k, v in os.environ.items() if k.startswith("POCL_") and k not in unrelated)
-    parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env]
+    parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env,
+             programs]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:32]
 
 
@@ -231,7 +230,7 @@ def _read_probe_memo() -> dict[str, str]:
 
 
 def _write_probe_memo(memo: dict[str, str]) -> None:
-    """Best effort: a cache that cannot be written only means probing again next run."""
+    """Best effort: a cache that cannot be written only means building again next run."""
     try:
         os.makedirs(_cache_dir(), exist_ok=True)
         tmp = f"{_probe_memo_path()}.{os.getpid()}.tmp"
@@ -242,24 +241,41 @@ def _write_probe_memo(memo: dict[str, str]) -> None:
         pass
 
 
+def _build_programs(p: int, i: int) -> str | None:
+    """Build every geosynth program for OpenCL device ``i`` of platform ``p``: None, or the
+    first failing program and its compiler's first error."""
+    from geosynth._backends import opencl_backend  # imports pyopencl: only once OpenCL loaded
+
+    try:
+        opencl_backend.build_all(p, i)
+    except opencl_backend.ProgramBuildError as exc:
+        return str(exc)
+    except Exception as exc:  # no context for the device, or the driver failed otherwise
+        return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
+    return None
+
+
 @functools.lru_cache(maxsize=1)
 def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
     """Every OpenCL device as ``(name, description, why_unusable or None)``.
 
-    Each platform's devices must build a one-line kernel to count as usable: an ICD
-    can list a CPU that its compiler cannot target, and every kernel call would fail.
-    A usable device's probe hits its compiler's own cache (PoCL keys it by source and
-    options, both constant). A failed build is not cached by PoCL and leaves three
-    temporary files in its cache folder every time, so a device whose compiler failed
-    is remembered per machine (``~/.cache/geosynth/opencl-unusable.json``, keyed by
-    driver, device, CPU and PoCL settings) and not built again; delete that file to
-    probe it anew.
+    A device is usable only if its compiler builds every geosynth program
+    (``geosynth._backends.opencl_backend.PROGRAMS``): an ICD can list a CPU that its
+    compiler cannot target (PyPI's PoCL 3.0 with LLVM 14 on AMD Zen 5), or a compiler can
+    reject what the programs use (clang's vector extensions). The outcome is remembered
+    per machine (``~/.cache/geosynth/opencl-devices.json``, keyed by driver, device, CPU,
+    PoCL settings and the programs' sources and options), so that each process need not
+    build them all: warm in PoCL's cache that still took 0.39-0.59 s (0.17-0.28 s of CPU)
+    per device here (PoCL 3.1, 2 shared cores), against 6 ms to read the memo; a failed build, which PoCL does not cache, leaves three temporary
+    files in its cache folder each time. The programs built here are kept in the device's
+    context for its backend. Delete that file to check the devices anew.
     """
     cl, _ = _opencl_status()
     if cl is None:
         return ()
     memo = _read_probe_memo()
     memo_changed = False
+    programs = None
     out = []
     for p, platform in enumerate(cl.get_platforms()):
         try:
@@ -269,16 +285,17 @@ def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
         version = platform.version.strip().split("  ")[0]  # "OpenCL 3.0 PoCL 3.1+debian"
         for i, dev in enumerate(devs):
             desc = f"{platform.name.strip()} ({version}): {dev.name.strip()}, {dev.max_compute_units} compute units"
-            key = _probe_key(platform, dev)
-            why = memo.get(key)
-            if why is None:
-                try:
-                    cl.Program(cl.Context([dev]), _PROBE_SOURCE).build()
-                except Exception as exc:
-                    lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower() and ln.strip()]
-                    why = (lines[-1] if lines else str(exc).strip().splitlines()[0])[:200]
-                    memo[key] = why
-                    memo_changed = True
+            if programs is None:
+                from geosynth._backends.opencl_backend import programs_digest
+
+                programs = programs_digest()
+            key = _probe_key(platform, dev, programs)
+            if key in memo:
+                why = memo[key] or None
+            else:
+                why = _build_programs(p, i)
+                memo[key] = why or ""
+                memo_changed = True
             out.append((f"opencl:{p}:{i}", desc, why))
     if memo_changed:
         _write_probe_memo(memo)
@@ -290,8 +307,9 @@ def _opencl_device_names() -> list[str]:
 
 
 def unusable_devices() -> dict[str, str]:
-    """``{device string: reason}`` for OpenCL devices that are listed by an ICD but
-    cannot build a kernel (left out of :func:`devices`)."""
+    """``{device string: reason}`` for OpenCL devices that are listed by an ICD but whose
+    compiler fails on a geosynth program (left out of :func:`devices`); the reason names
+    the first failing program and the compiler's first error."""
     return {name: why for name, _, why in _opencl_inventory() if why is not None}
 
 
