@@ -32,7 +32,7 @@ class DeviceArray:
     copies; ``.numpy()`` copies it to the host.
 
     Attributes:
-        data: the backend's own array (``warp.array`` or ``pyopencl.array.Array``).
+        data: the backend's own array (``warp.array``, or a ``pyopencl.Buffer`` with spare bytes past the data).
         backend: the backend that owns it.
         shape: the logical shape.
         dtype: the NumPy dtype.

@@ -266,9 +266,10 @@ def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
     per machine (``~/.cache/geosynth/opencl-devices.json``, keyed by driver, device, CPU,
     PoCL settings and the programs' sources and options), so that each process need not
     build them all: warm in PoCL's cache that still took 0.39-0.59 s (0.17-0.28 s of CPU)
-    per device here (PoCL 3.1, 2 shared cores), against 6 ms to read the memo; a failed build, which PoCL does not cache, leaves three temporary
-    files in its cache folder each time. The programs built here are kept in the device's
-    context for its backend. Delete that file to check the devices anew.
+    per device here (PoCL 3.1, 2 shared cores), against 6 ms to read the memo; and a failed
+    build, which PoCL does not cache, leaves three temporary files in its cache folder each
+    time. The programs built here are kept in the device's context for its backend. Delete
+    that file to check the devices anew.
     """
     cl, _ = _opencl_status()
     if cl is None:
