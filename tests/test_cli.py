@@ -326,13 +326,14 @@ def test_verbose_sets_the_variable(files, capsys, monkeypatch):
 
 
 LONG = ["volume", "--example", "terrain", "--size", "512", "--levels", "1", "--block", "8", "--source-resolution",
-        "16", "--quality-samples", "0", "--device", ONE_DEVICE, "--search", "linear"]
+        "16", "--quality-samples", "0", "--search", "linear"]
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_signals_end_a_run_quietly(sig, code, tmp_path):
+def test_signals_end_a_run_quietly(sig, code, tmp_path, one_device):
     out = tmp_path / "long.ply"
-    proc = subprocess.Popen([sys.executable, "-m", "geosynth.cli", *LONG, "-o", str(out)], cwd=tmp_path,
+    proc = subprocess.Popen([sys.executable, "-m", "geosynth.cli", *LONG, "--device", one_device, "-o", str(out)],
+                            cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"},
                             # a shell's background job inherits SIGINT ignored; Python then keeps ignoring it
