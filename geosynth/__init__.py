@@ -2,12 +2,34 @@
 
 The public API; everything else is private. Every operation takes ``device=``
 (see :mod:`geosynth.backend`).
+
+- Devices and arrays: :func:`devices`, :func:`get_backend`, :func:`to_device`, :class:`DeviceArray`.
+- Block scoring and selection: :func:`score_dense`, :func:`score_gather`, :func:`candidate_origins`,
+  :func:`lattice_shape`, :func:`argmin`, :func:`within_tolerance`, :func:`best_fraction`, :func:`random_pick`.
+- M1, volumes and geometry: :func:`synthesize_volume` (:class:`VolumeResult`),
+  :func:`synthesize_geometry` (:class:`GeometryResult`).
+- M2, distance fields: :func:`mesh_distance`, :func:`pointset_distance` (:class:`Field`).
+- M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
+- Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
+  :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
+  ``Field.load`` / ``Field.save``.
+- Built-in inputs: :func:`point_model`, :func:`load_point_model`, :func:`texture_example`,
+  :func:`exemplar_mesh`, :func:`exemplar_field`.
+- :class:`MemoryBudgetError`: an operation's memory estimate exceeds what is available.
+
+``import geosynth`` loads only the device switch, scoring and selection; the other
+names' modules are imported on first use (PEP 562 ``__getattr__``): importing them all
+up front took ~0.17 s of CPU against ~0.10 s (NumPy alone ~0.07 s), measured.
 """
 
-from geosynth.backend import DeviceArray as DeviceArray
+from __future__ import annotations
+
+import importlib
+
+from geosynth.arrays import DeviceArray as DeviceArray
+from geosynth.arrays import to_device as to_device
 from geosynth.backend import devices as devices
 from geosynth.backend import get_backend as get_backend
-from geosynth.backend import to_device as to_device
 from geosynth.scoring import candidate_origins as candidate_origins
 from geosynth.scoring import lattice_shape as lattice_shape
 from geosynth.scoring import score_dense as score_dense
@@ -19,7 +41,35 @@ from geosynth.selection import within_tolerance as within_tolerance
 
 __version__ = "0.1.0"
 
-__all__ = [
+# Public name -> the module that defines it, imported when the name is first read.
+_LAZY = {
+    "synthesize_volume": "geosynth.volume",
+    "synthesize_geometry": "geosynth.volume",
+    "VolumeResult": "geosynth.volume",
+    "GeometryResult": "geosynth.volume",
+    "texture_points": "geosynth.texturing",
+    "TextureReport": "geosynth.texturing",
+    "mesh_distance": "geosynth.meshes",
+    "load_mesh": "geosynth.meshes",
+    "pointset_distance": "geosynth.pointsets",
+    "PointSet": "geosynth.pointsets",
+    "read_point_set": "geosynth.pointsets",
+    "write_point_set": "geosynth.pointsets",
+    "read_geometry": "geosynth.pointsets",
+    "Field": "geosynth.field",
+    "save_mesh": "geosynth.surface",
+    "read_texture": "geosynth.textures",
+    "write_texture": "geosynth.textures",
+    "texture_example": "geosynth.textures",
+    "write_image": "geosynth.files",
+    "point_model": "geosynth.pointmodels",
+    "load_point_model": "geosynth.pointmodels",
+    "exemplar_mesh": "geosynth.examples",
+    "exemplar_field": "geosynth.examples",
+    "MemoryBudgetError": "geosynth.memory",
+}
+
+__all__ = sorted([
     "DeviceArray",
     "argmin",
     "best_fraction",
@@ -32,4 +82,19 @@ __all__ = [
     "score_gather",
     "to_device",
     "within_tolerance",
-]
+    *_LAZY,
+])
+
+
+def __getattr__(name: str):
+    """Import a lazily exported name's module on first use and keep the name here."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'geosynth' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -10,7 +10,8 @@ import math
 
 import numpy as np
 
-from geosynth.backend import DeviceArray, float_stats, get_backend
+from geosynth.arrays import DeviceArray, float_stats
+from geosynth.backend import get_backend
 
 # uint8 data is scored in uint32: the largest possible score must fit.
 UINT32_MAX = np.iinfo(np.uint32).max

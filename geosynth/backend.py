@@ -14,8 +14,8 @@ Device strings:
 - ``"cuda"`` / ``"cuda:N"``: Warp on an NVIDIA GPU.
 - ``"opencl"`` / ``"opencl:P:D"``: PyOpenCL, platform P, device D (``"opencl"`` is
   the first usable OpenCL device; on a machine with no GPU that is PoCL). An OpenCL
-  device whose compiler cannot build a kernel (PyPI's PoCL 3.0 with LLVM 14 on a CPU
-  that LLVM 14 does not know, such as AMD Zen 5) is not usable: ``devices()`` leaves it
+  device whose compiler cannot build every geosynth program (PyPI's PoCL 3.0 with LLVM 14
+  on a CPU that LLVM 14 does not know, such as AMD Zen 5) is not usable: ``devices()`` leaves it
   out, ``describe_devices()`` shows it with the compiler's reason, and asking for it is
   a RuntimeError with that reason.
 - ``"auto"``: the first CUDA GPU if present, else the fastest CPU backend as
@@ -40,9 +40,7 @@ import tempfile
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-__all__ = ["DeviceArray", "devices", "get_backend", "parse_device"]
+__all__ = ["devices", "get_backend", "parse_device"]
 
 _DEVICE_RE = re.compile(r"^(auto|cpu|cuda(?::(\d+))?|opencl(?::(\d+):(\d+))?)$")
 
@@ -198,20 +196,18 @@ def _warp_device_names() -> list[str]:
     return [str(d) for d in wp.get_devices()]
 
 
-_PROBE_SOURCE = "__kernel void geosynth_probe(__global int *out) { out[get_global_id(0)] = 1; }"
-
-
 def _cache_dir() -> str:
     return os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geosynth")
 
 
 def _probe_memo_path() -> str:
-    return os.path.join(_cache_dir(), "opencl-unusable.json")
+    return os.path.join(_cache_dir(), "opencl-devices.json")
 
 
-def _probe_key(platform, dev) -> str:
-    """What decides whether a device's compiler works: the driver, the device, this CPU,
-    and PoCL's settings (not where it caches)."""
+def _probe_key(platform, dev, programs: str) -> str:
+    """What decides whether a device builds geosynth's programs: the driver, the device,
+    this CPU, PoCL's settings (not where it caches) and the programs (``programs``: their
+    digest)."""
     cpu = _platform.processor()
     try:
         with open("/proc/cpuinfo") as fh:  # the first processor's identity and features
@@ -222,7 +218,8 @@ def _probe_key(platform, dev) -> str:
         pass
     unrelated = ("POCL_CACHE_DIR", "POCL_AFFINITY", "POCL_SIGFPE_HANDLER")  # where it caches, how it runs
     env = sorted((k, v) for k, v in os.environ.items() if k.startswith("POCL_") and k not in unrelated)
-    parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env]
+    parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env,
+             programs]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:32]
 
 
@@ -236,7 +233,7 @@ def _read_probe_memo() -> dict[str, str]:
 
 
 def _write_probe_memo(memo: dict[str, str]) -> None:
-    """Best effort: a cache that cannot be written only means probing again next run."""
+    """Best effort: a cache that cannot be written only means building again next run."""
     try:
         os.makedirs(_cache_dir(), exist_ok=True)
         tmp = f"{_probe_memo_path()}.{os.getpid()}.tmp"
@@ -247,24 +244,42 @@ def _write_probe_memo(memo: dict[str, str]) -> None:
         pass
 
 
+def _build_programs(p: int, i: int) -> str | None:
+    """Build every geosynth program for OpenCL device ``i`` of platform ``p``: None, or the
+    first failing program and its compiler's first error."""
+    from geosynth._backends import opencl_backend  # imports pyopencl: only once OpenCL loaded
+
+    try:
+        opencl_backend.build_all(p, i)
+    except opencl_backend.ProgramBuildError as exc:
+        return str(exc)
+    except Exception as exc:  # no context for the device, or the driver failed otherwise
+        return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
+    return None
+
+
 @functools.lru_cache(maxsize=1)
 def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
     """Every OpenCL device as ``(name, description, why_unusable or None)``.
 
-    Each platform's devices must build a one-line kernel to count as usable: an ICD
-    can list a CPU that its compiler cannot target, and every kernel call would fail.
-    A usable device's probe hits its compiler's own cache (PoCL keys it by source and
-    options, both constant). A failed build is not cached by PoCL and leaves three
-    temporary files in its cache folder every time, so a device whose compiler failed
-    is remembered per machine (``~/.cache/geosynth/opencl-unusable.json``, keyed by
-    driver, device, CPU and PoCL settings) and not built again; delete that file to
-    probe it anew.
+    A device is usable only if its compiler builds every geosynth program
+    (``geosynth._backends.opencl_backend.PROGRAMS``): an ICD can list a CPU that its
+    compiler cannot target (PyPI's PoCL 3.0 with LLVM 14 on AMD Zen 5), or a compiler can
+    reject what the programs use (clang's vector extensions). The outcome is remembered
+    per machine (``~/.cache/geosynth/opencl-devices.json``, keyed by driver, device, CPU,
+    PoCL settings and the programs' sources and options), so that each process need not
+    build them all: warm in PoCL's cache that still took 0.39-0.59 s (0.17-0.28 s of CPU)
+    per device here (PoCL 3.1, 2 shared cores), against 6 ms to read the memo; and a failed
+    build, which PoCL does not cache, leaves three temporary files in its cache folder each
+    time. The programs built here are kept in the device's context for its backend. Delete
+    that file to check the devices anew.
     """
     cl, _ = _opencl_status()
     if cl is None:
         return ()
     memo = _read_probe_memo()
     memo_changed = False
+    programs = None
     out = []
     for p, platform in enumerate(cl.get_platforms()):
         try:
@@ -274,16 +289,17 @@ def _opencl_inventory() -> tuple[tuple[str, str, str | None], ...]:
         version = platform.version.strip().split("  ")[0]  # "OpenCL 3.0 PoCL 3.1+debian"
         for i, dev in enumerate(devs):
             desc = f"{platform.name.strip()} ({version}): {dev.name.strip()}, {dev.max_compute_units} compute units"
-            key = _probe_key(platform, dev)
-            why = memo.get(key)
-            if why is None:
-                try:
-                    cl.Program(cl.Context([dev]), _PROBE_SOURCE).build()
-                except Exception as exc:
-                    lines = [ln.strip() for ln in str(exc).splitlines() if "error" in ln.lower() and ln.strip()]
-                    why = (lines[-1] if lines else str(exc).strip().splitlines()[0])[:200]
-                    memo[key] = why
-                    memo_changed = True
+            if programs is None:
+                from geosynth._backends.opencl_backend import programs_digest
+
+                programs = programs_digest()
+            key = _probe_key(platform, dev, programs)
+            if key in memo:
+                why = memo[key] or None
+            else:
+                why = _build_programs(p, i)
+                memo[key] = why or ""
+                memo_changed = True
             out.append((f"opencl:{p}:{i}", desc, why))
     if memo_changed:
         _write_probe_memo(memo)
@@ -295,8 +311,9 @@ def _opencl_device_names() -> list[str]:
 
 
 def unusable_devices() -> dict[str, str]:
-    """``{device string: reason}`` for OpenCL devices that are listed by an ICD but
-    cannot build a kernel (left out of :func:`devices`)."""
+    """``{device string: reason}`` for OpenCL devices that are listed by an ICD but whose
+    compiler fails on a geosynth program (left out of :func:`devices`); the reason names
+    the first failing program and the compiler's first error."""
     return {name: why for name, _, why in _opencl_inventory() if why is not None}
 
 
@@ -403,119 +420,3 @@ def get_backend(device: str = "auto"):
         RuntimeError: the device is not present.
     """
     return _backend_for(resolve_device(device))
-
-
-class DeviceArray:
-    """An array that lives on one device, with the backend that owns it.
-
-    Made by :func:`geosynth.to_device` or returned by an operation called with
-    ``keep_on_device=True``. Pass it back to operations on the same device to avoid
-    copies; ``.numpy()`` copies it to the host.
-
-    Attributes:
-        data: the backend's own array (``warp.array`` or ``pyopencl.array.Array``).
-        backend: the backend that owns it.
-        shape: the logical shape.
-        dtype: the NumPy dtype.
-    """
-
-    def __init__(self, data: Any, backend: Any, shape: tuple[int, ...], dtype: np.dtype):
-        self.data = data
-        self.backend = backend
-        self.shape = tuple(int(s) for s in shape)
-        self.dtype = np.dtype(dtype)
-        self._derived: dict[Any, DeviceArray] = {}
-        self._stats: tuple[int, float, float] | None = None  # see value_stats
-
-    def value_stats(self) -> tuple[int, float, float] | None:
-        """For float data: (how many values are NaN or inf, min and max of the finite ones);
-        None for other dtypes.
-
-        Recorded from the host copy by :func:`to_device`; for arrays made otherwise, read
-        back once and kept (DeviceArrays are never modified in place). The public
-        operations use it to refuse NaN/inf and data whose float32 scores could overflow.
-        """
-        if self.dtype.kind != "f":
-            return None
-        if self._stats is None:
-            self._stats = float_stats(self.numpy())
-        return self._stats
-
-    def known_stats(self) -> tuple[int, float, float] | None:
-        """:meth:`value_stats` if already known (no read back), else None."""
-        return self._stats
-
-    @property
-    def device(self) -> str:
-        return self.backend.name
-
-    @property
-    def ndim(self) -> int:
-        return len(self.shape)
-
-    @property
-    def size(self) -> int:
-        return int(np.prod(self.shape, dtype=np.int64))
-
-    def numpy(self) -> np.ndarray:
-        """Copy to a host NumPy array (a synchronization point)."""
-        return self.backend.to_host(self)
-
-    def derived(self, key: Any, make) -> "DeviceArray":
-        """A device array computed from this one on the host, made once and cached.
-
-        Used for views the kernels need in another layout (a periodically padded copy
-        for ``wrap=True``). The first call reads this array back once; DeviceArrays
-        are never modified in place, so the cache stays valid.
-
-        Args:
-            key: a hashable description of the derivation.
-            make: function from this array's host copy (NumPy) to the derived one.
-        """
-        if key not in self._derived:
-            self._derived[key] = self.backend.to_device(np.ascontiguousarray(make(self.numpy())))
-        return self._derived[key]
-
-    def __repr__(self) -> str:
-        return f"DeviceArray(shape={self.shape}, dtype={self.dtype}, device={self.device!r})"
-
-
-def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceArray:
-    """Upload a NumPy array to a device once, to reuse across operations.
-
-    For float arrays, how many values are NaN or inf and the range of the others are
-    recorded with it (see :meth:`DeviceArray.value_stats`), so that operations can check
-    it without reading it back.
-
-    Args:
-        array: any NumPy array of a dtype geosynth uses (float32, uint8, int32,
-            uint32); a DeviceArray already on ``device`` is returned as is.
-        device: a device string.
-
-    Returns:
-        A DeviceArray on the resolved device.
-
-    Raises:
-        RuntimeError: ``array`` is a DeviceArray on another device.
-    """
-    backend = get_backend(device)
-    if isinstance(array, DeviceArray):
-        if array.backend is not backend:
-            raise RuntimeError(f"inputs live on different devices ({array.device} vs {backend.name}).")
-        return array
-    host = np.ascontiguousarray(array)
-    out = backend.to_device(host)
-    if host.dtype.kind == "f":
-        out._stats = float_stats(host)
-    return out
-
-
-def float_stats(host: np.ndarray) -> tuple[int, float, float]:
-    """(how many values are NaN or inf, min, max of the finite values) of a float array;
-    min and max are 0 when no value is finite."""
-    finite = np.isfinite(host)
-    bad = int(host.size - np.count_nonzero(finite))
-    values = host[finite] if bad else host
-    if values.size == 0:
-        return bad, 0.0, 0.0
-    return bad, float(values.min()), float(values.max())

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from geosynth import _checks
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 from geosynth.blocks import block_offsets, box_sums
 from geosynth.pyramid import check_block, check_field, check_memory, check_query
 from geosynth.scoring import GatherScorer
@@ -107,7 +107,7 @@ class CascadeSearch:
 
     def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32,
                  min_work: float | None = None, cells: Sequence[int] | None = None):
-        from geosynth.backend import to_device
+        from geosynth.arrays import to_device
 
         field = check_field(field)
         check_block(block, field.shape)
@@ -154,7 +154,7 @@ class CascadeSearch:
     def _fused_setup(self, dev: str) -> None:
         """Cell sums (sides N/2 and N/4) and coarse centred norms at every field position,
         in the field's strides (0 where the cube leaves the field), and the cell offsets."""
-        from geosynth.backend import to_device
+        from geosynth.arrays import to_device
 
         shape = self.field.shape
         cc, cf = self.stages

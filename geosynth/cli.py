@@ -386,7 +386,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     from geosynth.files import write_image
     from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
-    from geosynth.volume import _exemplar_mesh, synthesize_geometry
+    from geosynth.examples import resolve_exemplar_mesh
+    from geosynth.volume import synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -417,7 +418,14 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         for k, q in result.quality.items():
             say(f"  {k:<14} output->exemplar {q['output_to_exemplar']:9.1f}   exemplar->output {q['exemplar_to_output']:9.1f}"
                 f"   mean {q['mean']:9.1f}")
-    exemplar_mesh = _exemplar_mesh(example or exemplar, args.seed)
+        structures = {k: q["structure"] for k, q in result.quality.items() if q.get("structure")}
+        if structures:
+            from geosynth.metrics import format_structure
+
+            say("structure (what a person sees; beside random tiling):")
+            for k, report in structures.items():
+                say(f"  {k:<14} {format_structure(report)}")
+    exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
     picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)], labels=["exemplar", "synthesized"])
     write_image(png, picture, inputs=inputs)
     say(f"picture: {png} (exemplar left, result right)")

@@ -12,7 +12,7 @@ import numpy as np
 
 __all__ = [
     "EXEMPLARS", "Exemplar", "balls_mesh", "chainmail_exemplar", "chainmail_mesh", "exemplar_field", "exemplar_mesh",
-    "fibers_mesh", "grid_mesh", "settle_spheres", "spheres_field", "terrain_heights",
+    "fibers_mesh", "grid_mesh", "resolve_exemplar_mesh", "settle_spheres", "spheres_field", "terrain_heights",
     "terrain_mesh", "torus_mesh", "tube_mesh",
 ]
 
@@ -616,3 +616,34 @@ def exemplar_field(name: str, resolution: int = 64, seed: int = 0, padding: floa
     from geosynth.meshes import mesh_distance
 
     return mesh_distance(ex(seed=seed), resolution=resolution, padding=padding, device=device)
+
+
+def resolve_exemplar_mesh(exemplar, seed: int | None = 0):
+    """The mesh an ``exemplar`` argument names (as :func:`geosynth.synthesize_geometry` takes it).
+
+    Args:
+        exemplar: a ``trimesh.Trimesh`` (returned as is), a built-in exemplar name (one
+            of ``EXEMPLARS``) or a mesh file path (read by :func:`geosynth.meshes.load_mesh`).
+        seed: the built-in exemplar's seed (None: 0).
+
+    Returns:
+        a ``trimesh.Trimesh``.
+
+    Raises:
+        ValueError: a string without a suffix that is neither a built-in name nor a file;
+            a file that cannot be read as a mesh (see ``load_mesh``).
+    """
+    import trimesh
+
+    if isinstance(exemplar, trimesh.Trimesh):
+        return exemplar
+    if isinstance(exemplar, str) and exemplar in EXEMPLARS:
+        return exemplar_mesh(exemplar, seed=0 if seed is None else seed)
+    from pathlib import Path
+
+    if isinstance(exemplar, str) and not Path(exemplar).suffix and not Path(exemplar).exists():
+        raise ValueError(f"exemplar {exemplar!r} is neither a built-in exemplar ({', '.join(EXEMPLARS)}) "
+                         "nor a mesh file.")
+    from geosynth.meshes import load_mesh
+
+    return load_mesh(exemplar)

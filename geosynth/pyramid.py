@@ -42,7 +42,7 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 
 __all__ = [
     "BlockPyramid",

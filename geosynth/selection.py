@@ -18,8 +18,7 @@ import math
 import numpy as np
 
 from geosynth import _checks
-from geosynth._backends.base import NONFINITE_SCORES, SELECT_EQ, SELECT_LEQ, SELECT_LT
-from geosynth.backend import DeviceArray
+from geosynth.arrays import NONFINITE_SCORES, SELECT_EQ, SELECT_LEQ, SELECT_LT, DeviceArray
 
 _FLOAT32_MAX = np.finfo(np.float32).max
 

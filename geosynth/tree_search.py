@@ -67,7 +67,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 from geosynth.blocks import block_offsets, block_origins
 from geosynth.pyramid import (
     BlockPyramid,

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
+from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
 from geosynth.memory import require
@@ -288,7 +289,7 @@ class _Matcher:
 
             self.engine = CascadeSearch(source, block, device=device)
         else:
-            from geosynth.backend import to_device
+            from geosynth.arrays import to_device
             from geosynth.scoring import candidate_origins
 
             self.grid = to_device(source, "auto" if device is None else device)
@@ -966,21 +967,3 @@ def target_size(size, source_shape, levels: int) -> tuple[int, int, int]:
         return (z, int(size), int(size))
     return _as_shape("size", size)
 
-
-def _exemplar_mesh(exemplar, seed):
-    import trimesh
-
-    if isinstance(exemplar, trimesh.Trimesh):
-        return exemplar
-    from geosynth.examples import EXEMPLARS, exemplar_mesh
-
-    if isinstance(exemplar, str) and exemplar in EXEMPLARS:
-        return exemplar_mesh(exemplar, seed=0 if seed is None else seed)
-    from pathlib import Path
-
-    if isinstance(exemplar, str) and not Path(exemplar).suffix and not Path(exemplar).exists():
-        raise ValueError(f"exemplar {exemplar!r} is neither a built-in exemplar ({', '.join(EXEMPLARS)}) "
-                         "nor a mesh file.")
-    from geosynth.meshes import load_mesh
-
-    return load_mesh(exemplar)

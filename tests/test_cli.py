@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import geosynth.cli as cli
+from conftest import ONE_DEVICE
 from geosynth.cli import main
 
 TINY = ["--size", "16", "--levels", "1", "--block", "8", "--quality-samples", "0", "--quiet"]
@@ -118,7 +119,7 @@ CASES = {
     "texture model missing": (["texture", "{d}/nope.ply", "--texture-example", "noise", "-o", "{d}/t.ply"], "MODEL"),
     "field input missing": (["field", "{d}/nope.obj", "-o", "{d}/f.npz"], "INPUT"),
     "texture image a decompression bomb": (["texture", "--example", "sphere", "--count", "100", "-k", "8",
-                                            "{d}/bomb.png", "-o", "{d}/t.ply", "--quiet", "--device", "cpu"],
+                                            "{d}/bomb.png", "-o", "{d}/t.ply", "--quiet", "--device", "{dev}"],
                                            ("pixels", "20000", "20,000")),
     # numbers out of range, named by their flag, with the allowed range
     "demo --repeat 0": (["demo", "--repeat", "0"], "--repeat: must be an integer from 1 to 1000, got 0"),
@@ -192,21 +193,21 @@ CASES = {
                         "--device cuda:7: Device 'cuda:7' is not present"),
     # failures found while working: named by the flag that fixes them
     "-k >= the file's points": (["texture", "{d}/few.ply", "--texture-example", "noise", "-o", "{d}/t.ply", "-k", "25",
-                                 "--quiet", "--device", "cpu"], "-k 25 needs more than 25 points"),
-    "zero-area faces, volume": (["volume", "{d}/degen.ply", "-o", "{d}/x.ply", *TINY, "--device", "cpu"],
+                                 "--quiet", "--device", "{dev}"], "-k 25 needs more than 25 points"),
+    "zero-area faces, volume": (["volume", "{d}/degen.ply", "-o", "{d}/x.ply", *TINY, "--device", "{dev}"],
                                 "--drop-degenerate"),
     "zero-area faces, field": (["field", "{d}/degen.ply", "-o", "{d}/f.npz", "--resolution", "8", "--quiet",
-                                "--device", "cpu"], "--drop-degenerate"),
+                                "--device", "{dev}"], "--drop-degenerate"),
     "--size 100000": (["volume", "--example", "terrain", "-o", "{d}/x.ply", "--size", "100000", "--levels", "1",
                        "--block", "8", "--source-resolution", "16", "--quality-samples", "0", "--quiet",
-                       "--device", "cpu"], "--size"),
+                       "--device", "{dev}"], "--size"),
 }
 
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_bad_input_is_one_line(name, files, capsys):
     argv, says = CASES[name]
-    argv = [a.replace("{d}", str(files)) for a in argv]
+    argv = [a.replace("{d}", str(files)).replace("{dev}", ONE_DEVICE) for a in argv]
     before = _snapshot(files)
     rc, err = _run_main(argv, capsys)
     lines = _error_lines(err)
@@ -227,7 +228,7 @@ PROCESS_CASES = ["volume --png is the input mesh", "field --png is the input mes
 @pytest.mark.parametrize("name", PROCESS_CASES)
 def test_bad_input_in_a_process(name, files):
     argv, says = CASES[name]
-    argv = [a.replace("{d}", str(files)) for a in argv]
+    argv = [a.replace("{d}", str(files)).replace("{dev}", ONE_DEVICE) for a in argv]
     before = _snapshot(files)
     res = _run_process(argv, files)
     lines = _error_lines(res.stderr)
@@ -330,13 +331,14 @@ def test_verbose_sets_the_variable(files, capsys, monkeypatch):
 
 
 LONG = ["volume", "--example", "terrain", "--size", "512", "--levels", "1", "--block", "8", "--source-resolution",
-        "16", "--quality-samples", "0", "--device", "cpu", "--search", "linear", "--method", "paper"]
+        "16", "--quality-samples", "0", "--search", "linear", "--method", "paper"]
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_signals_end_a_run_quietly(sig, code, tmp_path):
+def test_signals_end_a_run_quietly(sig, code, tmp_path, one_device):
     out = tmp_path / "long.ply"
-    proc = subprocess.Popen([sys.executable, "-m", "geosynth.cli", *LONG, "-o", str(out)], cwd=tmp_path,
+    proc = subprocess.Popen([sys.executable, "-m", "geosynth.cli", *LONG, "--device", one_device, "-o", str(out)],
+                            cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"},
                             # a shell's background job inherits SIGINT ignored; Python then keeps ignoring it
@@ -361,19 +363,19 @@ def test_signals_end_a_run_quietly(sig, code, tmp_path):
     assert not out.exists() and not any(p.name.startswith(".long.ply") for p in tmp_path.iterdir())
 
 
-def test_good_runs_write_what_they_say(tmp_path, capsys):
+def test_good_runs_write_what_they_say(tmp_path, capsys, one_device):
     from PIL import Image
 
     rc = main(["volume", "--example", "terrain", "-o", str(tmp_path / "v.ply"), "--png", str(tmp_path / "v.jpg"),
-               "--source-resolution", "16", "--smooth", "0", "--device", "cpu", *TINY])
+               "--source-resolution", "16", "--smooth", "0", "--device", one_device, *TINY])
     assert rc == 0
     assert (tmp_path / "v.ply").read_bytes().startswith(b"ply")
     assert Image.open(tmp_path / "v.jpg").format == "JPEG"
-    rc = main(["demo", "--size", "16", "--block", "4", "--repeat", "1", "--device", "cpu",
+    rc = main(["demo", "--size", "16", "--block", "4", "--repeat", "1", "--device", one_device,
                "-o", str(tmp_path / "demo"), "--quiet"])
     assert rc == 0 and Image.open(tmp_path / "demo" / "nearest_block.png").format == "PNG"
     rc = main(["field", "--example", "torus", "-o", str(tmp_path / "f.npz"), "--resolution", "8", "--quiet",
-               "--device", "cpu"])
+               "--device", one_device])
     assert rc == 0 and np.load(tmp_path / "f.npz")["values"].shape[-1] >= 2
     assert _error_lines(capsys.readouterr().err) == []
 

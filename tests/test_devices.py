@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 import geosynth
+from conftest import TEST_DEVICES
 from geosynth.backend import parse_device, resolve_device
 
 
@@ -109,6 +111,74 @@ def test_an_opencl_device_whose_compiler_fails_is_left_out_and_refused(monkeypat
     monkeypatch.setattr(backend, "_opencl_inventory", lambda: fake[:1])
     with pytest.raises(RuntimeError, match="no usable OpenCL device"):
         resolve_device("opencl")
+
+
+BROKEN_PROGRAM = r"""
+import json, sys
+from geosynth import backend
+from geosynth._backends import opencl_backend
+from geosynth.cli import main
+
+read = opencl_backend._read_source
+opencl_backend._read_source = lambda name: (
+    "__kernel void broken(__global float *out) { out[0] = not_declared; }" if name == "broken.cl" else read(name))
+opencl_backend.PROGRAMS = (("broken", False),) + opencl_backend.PROGRAMS  # first: nothing else is built
+first = dict(backend.unusable_devices())
+backend._opencl_inventory.cache_clear()  # a second look reads the memo, builds nothing
+opencl_backend.build_all = lambda p, i: sys.exit("built again")
+print(json.dumps([backend.devices(), first, backend.unusable_devices()]))
+main(["devices"])
+"""
+
+
+def test_an_opencl_device_that_fails_a_program_is_unusable_with_its_message(tmp_path):
+    """A program its compiler rejects (planted in the program list, in a subprocess with its
+    own PoCL cache and memo) makes each OpenCL device unusable: left out of devices(), the
+    failing program and the compiler's message in unusable_devices() and `geosynth devices`,
+    remembered for the next look."""
+    import json
+
+    opencl = [d for d in TEST_DEVICES if d.startswith("opencl")]
+    if not opencl:
+        pytest.skip(f"no OpenCL test device ({TEST_DEVICES})")
+    env = {k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"}  # no runtime's messages on stdout
+    env.update(POCL_CACHE_DIR=str(tmp_path / "pocl"), XDG_CACHE_HOME=str(tmp_path / "xdg"))
+    out = subprocess.run([sys.executable, "-c", BROKEN_PROGRAM], capture_output=True, text=True, env=env,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    listing = next(ln for ln in out.stdout.splitlines() if ln.startswith("[["))
+    report = out.stdout.split(listing, 1)[1]
+    present, first, again = json.loads(listing)
+    for name in opencl:
+        assert name not in present
+        assert first[name].startswith("broken.cl: error") and "not_declared" in first[name], first[name]
+        assert again[name] == first[name]
+        line = next(ln for ln in report.splitlines() if ln.split()[:1] == [name])
+        assert "UNUSABLE" in line and "broken.cl: error" in line and "not_declared" in line, report
+    assert (tmp_path / "xdg" / "geosynth" / "opencl-devices.json").is_file()
+
+
+def test_every_program_builds_on_the_test_devices(device):
+    """The suite's OpenCL devices build every program, in the one context their backend uses."""
+    if not device.startswith("opencl"):
+        pytest.skip(f"{device} is a Warp device: Warp builds its kernels per module, at first launch")
+    from geosynth._backends import opencl_backend
+
+    _, p, i = device.split(":")
+    opencl_backend.build_all(int(p), int(i))
+    _, context, programs = opencl_backend.device_context(int(p), int(i))
+    assert set(programs) == set(opencl_backend.PROGRAMS)
+    backend = geosynth.get_backend(device)
+    assert backend.context is context and backend._programs is programs  # built once per context
+
+
+def test_the_program_list_names_every_kernel_source():
+    from importlib import resources
+
+    from geosynth._backends import opencl_backend
+
+    sources = {f.name[:-3] for f in resources.files("geosynth.kernels").iterdir() if f.name.endswith(".cl")}
+    assert sources == {family for family, _ in opencl_backend.PROGRAMS}
 
 
 def test_pocl_threads_pinned_only_when_every_core_is_ours(monkeypatch):

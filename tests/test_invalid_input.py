@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 import geosynth
+from conftest import TEST_DEVICES
+from geosynth.backend import resolve_device
 
 X = np.zeros((10, 4), np.float32)
 Q = np.zeros((2, 4), np.float32)
@@ -171,15 +173,15 @@ def test_unknown_and_absent_devices():
             geosynth.score_dense(X, Q, device=absent)
 
 
-def test_inputs_on_different_devices():
-    present = geosynth.devices()
-    if len(present) < 2:
-        pytest.skip("needs two devices")
-    xd = geosynth.to_device(X, present[0])
+def test_inputs_on_different_devices(device_pair):
+    a, b = device_pair
+    xd = geosynth.to_device(X, a)
     with pytest.raises(RuntimeError, match="inputs live on"):
-        geosynth.score_dense(xd, geosynth.to_device(Q, present[1]))
+        geosynth.score_dense(xd, geosynth.to_device(Q, b))
     with pytest.raises(RuntimeError, match="inputs live on"):
-        geosynth.score_dense(xd, Q, device=present[1])
+        geosynth.score_dense(xd, Q, device=b)
+    with pytest.raises(RuntimeError, match="inputs live on"):
+        geosynth.score_dense(geosynth.to_device(X, b), geosynth.to_device(Q, a))
 
 
 def test_synthesize_volume_invalid_input():
@@ -277,7 +279,7 @@ def test_estimate_normals_invalid_input():
     np.testing.assert_allclose(np.abs(estimate_normals(plane)), np.tile([0, 0, 1], (60, 1)), atol=1e-6)
 
 
-def test_pointset_distance_invalid_input():
+def test_pointset_distance_invalid_input(device):
     from geosynth.pointsets import pointset_distance, project_points, smallest_radius
 
     g = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1, 1, 21)), -1).reshape(-1, 2)
@@ -287,20 +289,20 @@ def test_pointset_distance_invalid_input():
     assert smallest_radius(pts) == 2 * 2.0**-16
     small = r"radius 1e-07 is too small for points spanning 2: .*the smallest radius that works is 3.05176e-05"
     with pytest.raises(ValueError, match=small):
-        pointset_distance(pts, nrm, q, radius=1e-7, device="cpu")
+        pointset_distance(pts, nrm, q, radius=1e-7, device=device)
     with pytest.raises(ValueError, match="radius 1e-300 is too small"):
-        pointset_distance(pts, nrm, resolution=8, radius=1e-300, device="cpu")
+        pointset_distance(pts, nrm, resolution=8, radius=1e-300, device=device)
     with pytest.raises(ValueError, match="radius 1e-07 is too small"):
-        project_points(pts, nrm, q, radius=1e-7, device="cpu")
+        project_points(pts, nrm, q, radius=1e-7, device=device)
     with pytest.raises(ValueError, match="radius must be a finite number > 0"):
-        pointset_distance(pts, nrm, q, radius=np.nan, device="cpu")
+        pointset_distance(pts, nrm, q, radius=np.nan, device=device)
     with pytest.raises(TypeError, match="radius must be a number"):
-        pointset_distance(pts, nrm, q, radius="0.1", device="cpu")
-    d, _ = pointset_distance(pts, nrm, q, radius=smallest_radius(pts), device="cpu")  # the smallest works
+        pointset_distance(pts, nrm, q, radius="0.1", device=device)
+    d, _ = pointset_distance(pts, nrm, q, radius=smallest_radius(pts), device=device)  # the smallest works
     assert np.isfinite(d).all()
 
 
-def test_mesh_distance_invalid_input():
+def test_mesh_distance_invalid_input(one_device):
     import trimesh
 
     from geosynth.meshes import mesh_distance
@@ -308,13 +310,13 @@ def test_mesh_distance_invalid_input():
     box = trimesh.creation.box()
     p = np.zeros((1, 3), np.float32)
     with pytest.raises(TypeError, match="signed must be True or False, got 'no'"):
-        mesh_distance(box, p, signed="no", device="cpu")
+        mesh_distance(box, p, signed="no", device=one_device)
     with pytest.raises(TypeError, match="drop_degenerate must be True or False, got 1"):
-        mesh_distance(box, p, drop_degenerate=1, device="cpu")
+        mesh_distance(box, p, drop_degenerate=1, device=one_device)
     with pytest.raises(TypeError, match="band must be a number"):
-        mesh_distance(box, p, band=True, device="cpu")
+        mesh_distance(box, p, band=True, device=one_device)
     with pytest.raises(ValueError, match="band must be a finite number > 0"):
-        mesh_distance(box, p, band=0.0, device="cpu")
+        mesh_distance(box, p, band=0.0, device=one_device)
 
 
 # ---------------------------------------------------------------------------------- quiet
@@ -332,15 +334,21 @@ QUIET_RUN = """
 import numpy as np, geosynth
 geosynth.devices()
 x = np.ones((10, 4), np.float32)
-for dev in ("auto", "cpu"):
+for dev in DEVICES:
     geosynth.argmin(geosynth.score_dense(x, x[0], device=dev), device=dev)
 """
 
 
+def _quiet_run(devices) -> str:
+    return QUIET_RUN.replace("DEVICES", repr(tuple(devices)))
+
+
 def test_import_and_devices_print_nothing():
-    """The default import, devices() and a kernel on auto and cpu are silent (Warp's
-    missing-CUDA-driver warning included); GEOSYNTH_VERBOSE=1 lets Warp speak."""
-    r = _run_python(QUIET_RUN, {})
+    """The default import, devices() and a kernel on every test device (and on "auto" when
+    it picks one of them) are silent (Warp's missing-CUDA-driver warning included);
+    GEOSYNTH_VERBOSE=1 lets Warp speak."""
+    auto = ("auto",) if resolve_device("auto") in TEST_DEVICES else ()
+    r = _run_python(_quiet_run(auto + tuple(TEST_DEVICES)), {})
     assert r.returncode == 0, r.stderr
     assert r.stdout == "" and r.stderr == ""
     if "cuda:0" not in geosynth.devices():  # without a GPU Warp warns about the driver when asked to speak
@@ -357,8 +365,11 @@ def test_pocl_cache_does_not_grow_on_a_second_run(tmp_path):
     names = [p.name for p in cl.get_platforms()] if cl is not None else []
     if "Portable Computing Language" not in names:
         pytest.skip(f"PoCL is not an OpenCL platform here (platforms: {names or 'none'})")
+    opencl = [d for d in TEST_DEVICES if d.startswith("opencl")]
+    if not opencl:
+        pytest.skip(f"no OpenCL test device ({TEST_DEVICES})")
     env = {"POCL_CACHE_DIR": str(tmp_path / "pocl"), "XDG_CACHE_HOME": str(tmp_path / "xdg")}
-    code = QUIET_RUN.replace('("auto", "cpu")', '("opencl",)')
+    code = _quiet_run(opencl)
 
     def files() -> set[str]:
         return {str(f.relative_to(tmp_path)) for f in (tmp_path / "pocl").rglob("*") if f.is_file()}
@@ -370,5 +381,4 @@ def test_pocl_cache_does_not_grow_on_a_second_run(tmp_path):
         seen.append(files())
     assert seen[0]  # the kernels were built and cached there
     assert seen[1] == seen[0] and seen[2] == seen[0], f"new files: {sorted((seen[1] | seen[2]) - seen[0])}"
-    if geosynth.backend.unusable_devices():  # a failed probe is remembered, not rebuilt
-        assert (tmp_path / "xdg" / "geosynth" / "opencl-unusable.json").is_file()
+    assert (tmp_path / "xdg" / "geosynth" / "opencl-devices.json").is_file()  # remembered, not rebuilt

@@ -250,18 +250,19 @@ def test_volume_estimate_matches_traced_peak(device):
         _assert_ratio(estimate, peak, f"synthesize_volume 8 x {n} x {n} on {device}")
 
 
-def test_geometry_estimate_matches_traced_peak():
+def test_geometry_estimate_matches_traced_peak(warp_cpu):
     """synthesize_geometry of the balls exemplar at source resolution 16, sizes 32 and 64
     (4x the samples): tracemalloc (fields, marching cubes and smoothing are NumPy)."""
     from geosynth.examples import exemplar_mesh
     from geosynth.volume import _exemplar_grid_geometry, geometry_bytes, synthesize_geometry
 
     mesh = exemplar_mesh("balls", seed=0)
-    synthesize_geometry(mesh, 16, source_resolution=16, levels=2, block=8, iterations=2, device="cpu", progress=False,
-                        quality_samples=5)
+    synthesize_geometry(mesh, 16, source_resolution=16, levels=2, block=8, iterations=2, device=warp_cpu,
+                        progress=False, quality_samples=5)
     for n in (32, 64):
-        peak, res = _traced_peak(lambda: synthesize_geometry(mesh, n, source_resolution=16, levels=2, block=8, iterations=2,
-                                                             device="cpu", progress=False, quality_samples=10))
+        peak, res = _traced_peak(lambda: synthesize_geometry(mesh, n, source_resolution=16, levels=2, block=8,
+                                                             iterations=2, device=warp_cpu, progress=False,
+                                                             quality_samples=10))
         shape, _, spacing = _exemplar_grid_geometry(mesh, 16, multiple=2)
         estimate = geometry_bytes(shape, spacing, mesh.area, res.volume.quantized.shape,
                                   [lv.block for lv in res.volume.levels], "cascade", 10, 10, res.method)

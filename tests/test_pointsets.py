@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import TEST_DEVICES
 
 from geosynth import reference
 from geosynth.field import Field, cubic_grid
@@ -68,16 +67,13 @@ def test_matches_oracle(device, rng):
     np.testing.assert_allclose(proj, want_p, atol=ATOL_H * h)
 
 
-def test_backends_agree(rng):
-    if len(TEST_DEVICES) < 2:
-        pytest.skip("one device only")
+def test_backends_agree(device_pair, rng):
     p, n = bumpy_set(rng)
     q = np.c_[rng.uniform(-1.2, 1.2, (500, 2)), rng.uniform(-0.4, 0.4, 500)].astype(np.float32)
     h = default_radius(p)
-    results = [pointset_distance(p, n, q, device=dev) for dev in TEST_DEVICES]
-    for dev, (d, g) in zip(TEST_DEVICES[1:], results[1:]):
-        np.testing.assert_allclose(d, results[0][0], atol=1e-5 * h, err_msg=f"{dev} vs {TEST_DEVICES[0]}")
-        np.testing.assert_allclose(g, results[0][1], atol=1e-5, err_msg=f"{dev} vs {TEST_DEVICES[0]}")
+    (d0, g0), (d1, g1) = (pointset_distance(p, n, q, device=dev) for dev in device_pair)
+    np.testing.assert_allclose(d1, d0, atol=1e-5 * h, err_msg=" vs ".join(device_pair))
+    np.testing.assert_allclose(g1, g0, atol=1e-5, err_msg=" vs ".join(device_pair))
 
 
 # ------------------------------------------------------------------------ analytic shapes
@@ -211,46 +207,46 @@ def test_ply_round_trip(tmp_path, rng):
 # ------------------------------------------------------------------------ bad input
 
 
-def test_invalid_input():
+def test_invalid_input(one_device):
     p = sphere_points(100)
     q = np.zeros((2, 3), np.float32)
     with pytest.raises(ValueError, match="normals are required.*estimate_normals"):
-        pointset_distance(p, None, q, device="cpu")
+        pointset_distance(p, None, q, device=one_device)
     with pytest.raises(ValueError, match="normals are required"):
-        pointset_distance(PointSet(p), query=q, device="cpu")
+        pointset_distance(PointSet(p), query=q, device=one_device)
     zero = p.copy()
     zero[7] = 0
     with pytest.raises(ValueError, match="zero-length normal.*index 7"):
-        pointset_distance(p, zero, q, device="cpu")
+        pointset_distance(p, zero, q, device=one_device)
     nan = p.copy()
     nan[3, 1] = np.nan
     with pytest.raises(ValueError, match="points contains 1 NaN"):
-        pointset_distance(nan, p, q, device="cpu")
+        pointset_distance(nan, p, q, device=one_device)
     with pytest.raises(ValueError, match="normals must have shape"):
-        pointset_distance(p, p[:50], q, device="cpu")
+        pointset_distance(p, p[:50], q, device=one_device)
     with pytest.raises(ValueError, match=r"points must have shape \(N, 3\)"):
-        pointset_distance(p[:, :2], p[:, :2], q, device="cpu")
+        pointset_distance(p[:, :2], p[:, :2], q, device=one_device)
     with pytest.raises(ValueError, match=r"query must have shape \(N, 3\)"):
-        pointset_distance(p, p, q[:, :2], device="cpu")
+        pointset_distance(p, p, q[:, :2], device=one_device)
     with pytest.raises(ValueError, match="resolution must be"):
-        pointset_distance(p, p, resolution=1, device="cpu")
+        pointset_distance(p, p, resolution=1, device=one_device)
     with pytest.raises(ValueError, match="zero extent"):
-        pointset_distance(p, p, bounds=[[0, 0, 0], [0, 0, 0]], resolution=8, device="cpu")
+        pointset_distance(p, p, bounds=[[0, 0, 0], [0, 0, 0]], resolution=8, device=one_device)
     with pytest.raises(ValueError, match="radius must be"):
-        pointset_distance(p, p, q, radius=0.0, device="cpu")
+        pointset_distance(p, p, q, radius=0.0, device=one_device)
     with pytest.raises(ValueError, match="radius must be"):
-        pointset_distance(p, p, q, radius=-1, device="cpu")
+        pointset_distance(p, p, q, radius=-1, device=one_device)
     with pytest.raises(ValueError, match="points is empty"):
-        pointset_distance(np.zeros((0, 3)), np.zeros((0, 3)), q, device="cpu")
+        pointset_distance(np.zeros((0, 3)), np.zeros((0, 3)), q, device=one_device)
     with pytest.raises(ValueError, match="query is empty"):
-        pointset_distance(p, p, np.zeros((0, 3)), device="cpu")
+        pointset_distance(p, p, np.zeros((0, 3)), device=one_device)
     with pytest.raises(ValueError, match="exactly one of"):
-        pointset_distance(p, p, device="cpu")
+        pointset_distance(p, p, device=one_device)
     with pytest.raises(ValueError, match="exactly one of"):
-        pointset_distance(p, p, q, resolution=8, device="cpu")
+        pointset_distance(p, p, q, resolution=8, device=one_device)
     with pytest.raises(ValueError, match="at least 3 points"):
         estimate_normals(p[:2])
     with pytest.raises(ValueError, match="k must be"):
         estimate_normals(p, k=2)
     with pytest.raises(ValueError, match="pass radius="):
-        pointset_distance(p[:1], p[:1], q, device="cpu")
+        pointset_distance(p[:1], p[:1], q, device=one_device)

@@ -50,17 +50,17 @@ def test_compare_level_matches_oracle(device, rng, block):
         assert (compare_level(pyr, query, origins, level) / c3 <= ssd).all()
 
 
-def test_pyramid_invalid_input():
+def test_pyramid_invalid_input(one_device):
     field = np.zeros((8, 8, 8), np.uint8)
     with pytest.raises(ValueError, match="power of two"):
-        build_pyramid(field, 6, device="cpu")
+        build_pyramid(field, 6, device=one_device)
     with pytest.raises(ValueError, match="larger than the source"):
-        build_pyramid(field, 16, device="cpu")
+        build_pyramid(field, 16, device=one_device)
     with pytest.raises(TypeError, match="uint8"):
-        build_pyramid(field.astype(np.float32), 4, device="cpu")
+        build_pyramid(field.astype(np.float32), 4, device=one_device)
     with pytest.raises(ValueError, match="3-D"):
-        build_pyramid(np.zeros((8, 8), np.uint8), 4, device="cpu")
-    pyr = build_pyramid(field, 4, device="cpu")
+        build_pyramid(np.zeros((8, 8), np.uint8), 4, device=one_device)
+    pyr = build_pyramid(field, 4, device=one_device)
     with pytest.raises(ValueError, match="shape"):
         compare_level(pyr, np.zeros((2, 2, 2), np.uint8), np.zeros((1, 3), int), 1)
     with pytest.raises(ValueError, match="level"):
@@ -71,9 +71,9 @@ def test_pyramid_invalid_input():
         pyr.means(3)
 
 
-def test_pyramid_memory_refused(monkeypatch):
+def test_pyramid_memory_refused(monkeypatch, one_device):
     import geosynth.pyramid as pyramid
 
     monkeypatch.setattr(pyramid, "available_memory", lambda: 1000)
     with pytest.raises(MemoryError, match=r"estimated [0-9.]+ MiB"):
-        build_pyramid(np.zeros((16, 16, 16), np.uint8), 4, device="cpu")
+        build_pyramid(np.zeros((16, 16, 16), np.uint8), 4, device=one_device)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import TEST_DEVICES
 
 import geosynth
 from geosynth.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
@@ -331,10 +330,10 @@ def test_matching_a_flat_grid_reproduces_the_exemplar(device):
     assert hits >= 20  # of 25 blocks
 
 
-def test_hybrid_colours_every_point_and_is_close_to_parameterization():
+def test_hybrid_colours_every_point_and_is_close_to_parameterization(one_device):
     tex = texture_example("noise", 32, seed=0)
     ps = point_model("sphere", 2500, seed=0)
-    dev = "opencl" if any(d.startswith("opencl") for d in TEST_DEVICES) else "cpu"
+    dev = one_device
     out, rep = texture_points(ps, tex, method="hybrid", device=dev, seed=2, quality_samples=50)
     assert out.colors is not None and len(out.colors) == len(ps)
     assert 0 < rep.gap_fraction < rep.matched_fraction < 1  # gaps widened, then matched
@@ -347,12 +346,12 @@ def test_hybrid_colours_every_point_and_is_close_to_parameterization():
     assert rep0.error["result"] <= 1.15 * rep0.error["parameterization"], rep0.error
 
 
-def test_multilevel_and_coherent_matching():
+def test_multilevel_and_coherent_matching(one_device):
     tex = texture_example("bricks", 64, seed=0)
     ps = point_model("torus", 1000, seed=0)
-    out2, rep2 = texture_points(ps, tex, method="match", levels=2, k=16, device="cpu", quality=False)
+    out2, rep2 = texture_points(ps, tex, method="match", levels=2, k=16, device=one_device, quality=False)
     assert rep2.levels == 2 and rep2.searches["count"] == len(ps)  # the coarsest level is random, no search
-    out_c, rep_c = texture_points(ps, tex, method="match", coherent=True, k=16, device="cpu", quality_samples=15)
+    out_c, rep_c = texture_points(ps, tex, method="match", coherent=True, k=16, device=one_device, quality_samples=15)
     assert rep_c.searches.get("count", 0) < 0.2 * len(ps)  # coherent: most points need no full search
     assert rep_c.error["result"] < 0.5 * rep_c.error["random"]
     for out in (out2, out_c):
@@ -394,7 +393,7 @@ def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, 
     assert coloured.all() and (source >= 0).all() and (source < 24 * 24).all()
 
 
-def test_colours_follow_the_points_whatever_their_order():
+def test_colours_follow_the_points_whatever_their_order(one_device):
     # texture_points works in a spatial order of its own: the same points given in another
     # order get the same colours, in that order
     from geosynth.pointmodels import spatial_order
@@ -404,8 +403,10 @@ def test_colours_follow_the_points_whatever_their_order():
     shuffle = np.random.default_rng(0).permutation(len(ps))
     moved = PointSet(ps.positions[shuffle], ps.normals[shuffle])
     for method in ("hybrid", "match"):
-        a, _ = texture_points(ps, tex, method=method, k=12, device="cpu", quality=False, coherent=method == "match")
-        b, _ = texture_points(moved, tex, method=method, k=12, device="cpu", quality=False, coherent=method == "match")
+        a, _ = texture_points(ps, tex, method=method, k=12, device=one_device, quality=False,
+                              coherent=method == "match")
+        b, _ = texture_points(moved, tex, method=method, k=12, device=one_device, quality=False,
+                              coherent=method == "match")
         np.testing.assert_array_equal(b.colors, a.colors[shuffle])
         np.testing.assert_array_equal(b.positions, moved.positions)
     order = spatial_order(ps.positions)
@@ -416,13 +417,20 @@ def test_colours_follow_the_points_whatever_their_order():
     assert gap(nb) < 0.2 * gap(nb0)  # neighbours sit near each other in memory
 
 
-def test_same_seed_same_colours_on_every_device(device):
+def test_same_seed_same_colours_on_every_device(device_pair):
+    tex = texture_example("checker", 32, seed=1)
+    ps = point_model("blob", 800, seed=3)
+    kwargs = dict(method="hybrid", k=16, levels=2, seed=7, quality=False)
+    ref, _ = texture_points(ps, tex, device=device_pair[0], **kwargs)
+    out, _ = texture_points(ps, tex, device=device_pair[1], **kwargs)
+    assert np.array_equal(out.colors, ref.colors)
+
+
+def test_the_seed_decides_the_colours(device):
     tex = texture_example("checker", 32, seed=1)
     ps = point_model("blob", 800, seed=3)
     kwargs = dict(method="hybrid", k=16, levels=2, seed=7, quality=False)
     out, _ = texture_points(ps, tex, device=device, **kwargs)
-    ref, _ = texture_points(ps, tex, device="cpu", **kwargs)
-    assert np.array_equal(out.colors, ref.colors)
     again, _ = texture_points(ps, tex, device=device, **kwargs)
     assert np.array_equal(again.colors, out.colors)
     other, _ = texture_points(ps, tex, device=device, **{**kwargs, "seed": 8})
@@ -432,13 +440,13 @@ def test_same_seed_same_colours_on_every_device(device):
 # ------------------------------------------------------------------ output, CLI
 
 
-def test_cli_texture(tmp_path):
+def test_cli_texture(tmp_path, one_device):
     from geosynth.cli import main
 
     out = tmp_path / "tex.ply"
     png = tmp_path / "tex.png"
     rc = main(["texture", "--example", "sphere", "--count", "1000", "--texture-example", "noise", "--texture-size", "32", "-o", str(out),
-               "--method", "hybrid", "-k", "16", "--device", "cpu", "--png", str(png), "--quiet",
+               "--method", "hybrid", "-k", "16", "--device", one_device, "--png", str(png), "--quiet",
                "--quality-samples", "5"])
     assert rc == 0 and out.exists() and png.exists()
     back = read_point_set(out)
@@ -460,7 +468,7 @@ def test_cli_texture(tmp_path):
 # ------------------------------------------------------------------ bad input
 
 
-def test_invalid_input(tmp_path):
+def test_invalid_input(tmp_path, one_device):
     ps = point_model("sphere", 300)
     tex = texture_example("noise", 16)
     with pytest.raises(ValueError, match="smaller than the neighbourhood"):
@@ -502,7 +510,7 @@ def test_invalid_input(tmp_path):
     for bad_up in ((0, 0, 0), (0, np.nan, 1), (1, 0)):  # a zero, NaN or 2-vector up, for every method
         for method in ("match", "hybrid", "param"):
             with pytest.raises(ValueError, match="up must be"):
-                texture_points(ps, tex[:16, :16], method=method, k=8, up=bad_up, quality=False, device="cpu")
+                texture_points(ps, tex[:16, :16], method=method, k=8, up=bad_up, quality=False, device=one_device)
 
 
 def test_texel_kernel_generic_layout(device, rng):

@@ -21,13 +21,15 @@ def run(source, device, **kw):
     return synthesize_volume(source, **args)
 
 
-def test_same_seed_same_field_on_every_device(source):
-    import geosynth
+def test_same_seed_same_field_on_every_device(device_pair, source):
+    a, b = (run(source, d).quantized for d in device_pair)
+    np.testing.assert_array_equal(b, a)
 
-    results = [run(source, d).quantized for d in geosynth.devices()]
-    for other in results[1:]:
-        np.testing.assert_array_equal(other, results[0])
-    assert not np.array_equal(run(source, "cpu", seed=4).quantized, results[0])
+
+def test_the_seed_decides_the_field(device, source):
+    first = run(source, device).quantized
+    np.testing.assert_array_equal(run(source, device).quantized, first)
+    assert not np.array_equal(run(source, device, seed=4).quantized, first)
 
 
 def test_beats_random_tiling(device, source):
@@ -40,16 +42,16 @@ def test_beats_random_tiling(device, source):
     assert synth.levels[-1].mean_match_distance < base.levels[-1].mean_match_distance
 
 
-def test_every_target_sample_comes_from_the_source_at_one_level(source):
+def test_every_target_sample_comes_from_the_source_at_one_level(device, source):
     """Single resolution: the output is made of copied source samples only."""
-    r = run(source, "opencl", levels=1, block=8)
+    r = run(source, device, levels=1, block=8)
     assert set(np.unique(r.quantized)) <= set(np.unique(r.source))
     assert r.levels[0].matches == len(scan_positions(32, 8, False)) ** 3
 
 
 def _seam_and_interior_distance(out, src, block, device):
     """Mean nearest-source distance of blocks straddling the wrap seam vs interior blocks."""
-    from geosynth.backend import to_device
+    from geosynth.arrays import to_device
     from geosynth.scoring import score_gather
     from geosynth.selection import argmin
 
@@ -87,24 +89,24 @@ def test_downsample_and_positions():
     assert scan_positions(32, 8, True) == list(range(0, 32, 4))
 
 
-def test_invalid_input(source, monkeypatch):
+def test_invalid_input(source, monkeypatch, one_device):
     with pytest.raises(ValueError, match="powers of two"):
-        run(source, "cpu", block=6)
+        run(source, one_device, block=6)
     with pytest.raises(ValueError, match="larger than the source"):
         synthesize_volume(source[:6, :6, :6], 32, levels=1, block=8, search="linear", progress=False)
     with pytest.raises(ValueError, match="smaller than its block"):
-        run(source, "cpu", size=4, levels=1)
+        run(source, one_device, size=4, levels=1)
     with pytest.raises(ValueError, match="multiple of 2"):
-        run(source, "cpu", size=33)
+        run(source, one_device, size=33)
     with pytest.raises(ValueError, match="source contains"):
         bad = source.copy()
         bad[0, 0, 0] = np.nan
-        run(bad, "cpu")
+        run(bad, one_device)
     with pytest.raises(ValueError, match="source must be a"):
-        run(source[0], "cpu")
+        run(source[0], one_device)
     monkeypatch.setenv("GEOSYNTH_MEMORY_LIMIT", "1000")
     with pytest.raises(MemoryError, match=r"size .* needs about .* more than the 1000 B available"):
-        run(source, "cpu")
+        run(source, one_device)
 
 
 def test_geometry_refuses_bad_meshes():
@@ -124,23 +126,23 @@ def test_geometry_refuses_bad_meshes():
         synthesize_geometry("chainmial", 32, progress=False)
 
 
-def test_linear_tree_and_cascade_searches_give_the_same_field(source):
+def test_linear_tree_and_cascade_searches_give_the_same_field(device, source):
     """All three searches are exact (the linear one with its early exit), so the fields agree."""
-    linear = run(source, "opencl", search="linear")
-    tree = run(source, "opencl", search="tree")
-    cascade = run(source, "opencl", search="cascade")
+    linear = run(source, device, search="linear")
+    tree = run(source, device, search="tree")
+    cascade = run(source, device, search="cascade")
     np.testing.assert_array_equal(linear.quantized, tree.quantized)
     np.testing.assert_array_equal(linear.quantized, cascade.quantized)
 
 
 @pytest.mark.parametrize("name", ["terrain", "balls"])
-def test_geometry_beats_random_tiling_on_built_in_exemplars(name):
+def test_geometry_beats_random_tiling_on_built_in_exemplars(name, one_device):
     """Mesh in, mesh out on a built-in exemplar (small settings for CI): a closed
     surface, and matched blocks closer to the exemplar's than randomly tiled ones."""
     from geosynth.volume import synthesize_geometry
 
     r = synthesize_geometry(name, 48, source_resolution=32, levels=2, block=8, quality_samples=40,
-                            device="opencl", progress=False, smooth=2, iterations=[4, 2])
+                            device=one_device, progress=False, smooth=2, iterations=[4, 2])
     assert r.mesh.is_watertight and len(r.mesh.faces) > 100
     assert r.volume.quantized.shape[1:] == (48, 48)
     assert r.volume.quantized.shape[0] == r.exemplar_field.shape[0]  # the slab keeps its thickness

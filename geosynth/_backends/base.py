@@ -15,16 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from geosynth.backend import DeviceArray
-
-# Selection modes, shared with the kernels (SELECT_LEQ, SELECT_LT, SELECT_EQ).
-SELECT_LEQ, SELECT_LT, SELECT_EQ = 0, 1, 2
-
-# The one refusal of float scores that are not finite, from the host and the device paths.
-NONFINITE_SCORES = (
-    "scores contains NaN or inf; every score must be finite (float data whose squared differences "
-    "overflow float32 score inf: scale the data down)."
-)
+from geosynth.arrays import NONFINITE_SCORES, DeviceArray
 
 
 class Backend(ABC):

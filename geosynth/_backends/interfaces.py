@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 
 
 @dataclass(frozen=True)

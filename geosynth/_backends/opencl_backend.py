@@ -8,6 +8,8 @@ the 16-wide kernels (``ssd_gather_x16``) may read a full vector at the last elem
 
 from __future__ import annotations
 
+import hashlib
+import re
 from importlib import resources
 
 import numpy as np
@@ -20,7 +22,7 @@ from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
 from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
 # Work-group sizes are always given: with none, PoCL picks the largest divisor of the
@@ -65,15 +67,96 @@ def _read_source(name: str) -> str:
     return (resources.files("geosynth.kernels") / name).read_text()
 
 
+# Every program the backend builds: (family, u8) is kernels/{family}.cl built with -DGS_U8
+# (uint8 data, uint32 scores) or without it (float32; float64 for growth). A device is
+# usable only if its compiler builds them all (see geosynth.backend).
+PROGRAMS: tuple[tuple[str, bool], ...] = (
+    ("ssd", False), ("ssd", True), ("growth", False), ("sdf_mesh", False), ("sdf_points", False),
+    ("pyramid", True), ("cascade", True), ("texel", True),
+)
+
+
+def build_options(family: str, u8: bool) -> list[str]:
+    """The compiler options of one program."""
+    options = ["-I", _kernel_dir(), f"-DDENSE_ROWS={_DENSE_ROWS[u8]}", "-cl-kernel-arg-info"]
+    return options + _FAMILY_OPTIONS.get(family, []) + (["-DGS_U8"] if u8 else [])
+
+
+def programs_digest() -> str:
+    """A hash of every program's source, the shared headers and the options: what decides,
+    with the device and its driver, whether the programs build."""
+    h = hashlib.sha256()
+    headers = sorted(f.name for f in resources.files("geosynth.kernels").iterdir() if f.name.endswith(".h"))
+    for name in sorted({f"{family}.cl" for family, _ in PROGRAMS}) + headers:
+        h.update(name.encode() + b"\0" + _read_source(name).encode() + b"\0")
+    for family, u8 in PROGRAMS:
+        h.update(" ".join([family, str(u8), *build_options(family, u8)[2:]]).encode() + b"\0")
+    return h.hexdigest()[:32]
+
+
+class ProgramBuildError(RuntimeError):
+    """A program that the device's compiler does not build; ``str()`` is one line naming
+    the program and the compiler's first error."""
+
+    def __init__(self, family: str, u8: bool, message: str):
+        self.family, self.u8, self.message = family, u8, message
+        super().__init__(f"{family}.cl{' (GS_U8)' if u8 else ''}: {message}")
+
+
+def _compiler_message(family: str, exc: Exception) -> str:
+    """The compiler's first error line, with PoCL's temporary file name replaced by the source's."""
+    text = re.sub(r"\S*tempfile_\w+\.cl", f"{family}.cl", str(exc))
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.lower().startswith("error")] or [ln for ln in lines if "error" in ln.lower()]
+    return (errors[0] if errors else lines[0] if lines else type(exc).__name__)[:300]
+
+
+def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
+    """Build one program of PROGRAMS for a context (PoCL serves a repeated build from its cache).
+
+    Raises:
+        ProgramBuildError: the compiler failed.
+    """
+    try:
+        return cl.Program(context, _read_source(f"{family}.cl")).build(options=build_options(family, u8))
+    except cl.Error as exc:
+        raise ProgramBuildError(family, u8, _compiler_message(family, exc)) from None
+
+
+# Per device (platform index, device index): the one context geosynth uses and the programs
+# built in it, shared by the usability check (geosynth.backend) and the backend, so that a
+# program is built once per process.
+_CONTEXTS: dict[tuple[int, int], tuple[cl.Device, cl.Context, dict]] = {}
+
+
+def device_context(platform_index: int, device_index: int) -> tuple[cl.Device, cl.Context, dict]:
+    """(device, context, programs by (family, u8)) of one OpenCL device, made once."""
+    key = (platform_index, device_index)
+    if key not in _CONTEXTS:
+        dev = cl.get_platforms()[platform_index].get_devices()[device_index]
+        _CONTEXTS[key] = (dev, cl.Context([dev]), {})
+    return _CONTEXTS[key]
+
+
+def build_all(platform_index: int, device_index: int) -> None:
+    """Build every program of PROGRAMS for one device (those not yet built in its context).
+
+    Raises:
+        ProgramBuildError: the first program its compiler does not build.
+    """
+    _, context, programs = device_context(platform_index, device_index)
+    for pkey in PROGRAMS:
+        if pkey not in programs:
+            programs[pkey] = build_program(context, *pkey)
+
+
 class OpenCLBackend(OpenCLCascadeOps, OpenCLGrowthOps, OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexelOps, Backend):
     """PyOpenCL on ``"opencl:P:D"`` (platform P, device D)."""
 
     def __init__(self, platform_index: int, device_index: int):
-        platform = cl.get_platforms()[platform_index]
-        self.cl_device = platform.get_devices()[device_index]
+        self.cl_device, self.context, self._programs = device_context(platform_index, device_index)
         self.name = f"opencl:{platform_index}:{device_index}"
         self.kind = "opencl"
-        self.context = cl.Context([self.cl_device])
         self.queue = cl.CommandQueue(self.context)
         self.is_cpu = bool(self.cl_device.type & cl.device_type.CPU)
         # Partial minima: a few contiguous chunks per core on a CPU, many strided shares on a GPU.
@@ -86,7 +169,6 @@ class OpenCLBackend(OpenCLCascadeOps, OpenCLGrowthOps, OpenCLMeshOps, OpenCLPoin
         # Fused cascade: ~32 items per core (measured on 2 cores: one lattice plane each
         # beat three times as many by 1.3x; the shared best SSD prunes more in long items).
         self.search_items = 32 * self.cl_device.max_compute_units if self.is_cpu else 1 << 16
-        self._programs: dict[tuple, cl.Program] = {}
         self._kernels: dict[tuple, cl.Kernel] = {}
         self._dummies: dict[np.dtype, DeviceArray] = {}
 
@@ -101,11 +183,9 @@ class OpenCLBackend(OpenCLCascadeOps, OpenCLGrowthOps, OpenCLMeshOps, OpenCLPoin
             pkey = (family, u8)
             program = self._programs.get(pkey)
             if program is None:
-                options = ["-I", _kernel_dir(), f"-DDENSE_ROWS={_DENSE_ROWS[u8]}", "-cl-kernel-arg-info"]
-                options += _FAMILY_OPTIONS.get(family, [])
-                program = cl.Program(self.context, _read_source(f"{family}.cl")).build(
-                    options=options + (["-DGS_U8"] if u8 else []))
-                self._programs[pkey] = program
+                if pkey not in PROGRAMS:  # the usability check builds PROGRAMS: keep it complete
+                    raise KeyError(f"{family}.cl {'with' if u8 else 'without'} GS_U8 is not in PROGRAMS")
+                program = self._programs[pkey] = build_program(self.context, family, u8)
             kernel = self._kernels[key] = cl.Kernel(program, name)
             kernel.set_scalar_arg_dtypes(_scalar_arg_dtypes(kernel))
         return kernel

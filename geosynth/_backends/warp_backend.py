@@ -18,7 +18,7 @@ from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
 from geosynth._backends.warp_pyramid import WarpPyramidOps
 from geosynth._backends.warp_texel import WarpTexelOps
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 from geosynth.kernels import ssd as ssd_kernels
 
 _WARP_DTYPES = {

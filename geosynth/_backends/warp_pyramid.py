@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from geosynth.backend import DeviceArray
+from geosynth.arrays import DeviceArray
 from geosynth.kernels import pyramid as pyramid_kernels
 
 _WIDE = {np.dtype(np.int64): wp.int64, np.dtype(np.uint64): wp.uint64}
