@@ -44,7 +44,7 @@ from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
 from geosynth.memory import require
 from geosynth.blocks import block_offsets
-from geosynth.optimize import level_stride, memory_estimate as optimize_memory
+from geosynth.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -111,13 +111,7 @@ def dequantize_field(values: np.ndarray, band: float) -> np.ndarray:
 def scan_positions(size: int, block: int, wrap: bool) -> list[int]:
     """Block origins along one axis: steps of block/2 from 0; without wrap the last
     block is aligned to the end, with wrap blocks run up to the end and cross it."""
-    step = max(1, block // 2)
-    if wrap:
-        return list(range(0, size, step))
-    pos = list(range(0, size - block + 1, step))
-    if pos[-1] != size - block:
-        pos.append(size - block)
-    return pos
+    return lattice_positions(size, block, block // 2, wrap)
 
 
 def _box(origin, block: int, shape, wrap: bool):
