@@ -54,7 +54,7 @@ class Backend(ABC):
         """Copy a contiguous host array to the device."""
 
     @abstractmethod
-    def empty(self, shape: tuple[int, ...], dtype) -> DeviceArray:
+    def empty(self, shape: tuple[int, ...], dtype: np.dtype) -> DeviceArray:
         """Allocate an uninitialised device array."""
 
     @abstractmethod
@@ -71,36 +71,50 @@ class Backend(ABC):
 
     # -- kernels (one method per kernel; no validation below the public API) -------
     @abstractmethod
-    def ssd_dense(self, candidates, queries, weights, n, d, b, out) -> None:
-        """out (b*n,) <- weighted SSD of every query row against every candidate row."""
+    def ssd_dense(self, candidates: DeviceArray, queries: DeviceArray, weights: DeviceArray | None, n: int, d: int,
+                  b: int, out: DeviceArray) -> None:
+        """out (b * n,) <- weighted SSD of every query row against every candidate row.
 
-    @abstractmethod
-    def ssd_gather(self, grid, bases, lattice, steps, base0, offsets, values, weights, kc, threshold, out,
-                   run: int = 0) -> None:
-        """out <- SSD of the query entries at base(c) + offsets for every candidate c.
-
-        ``run``: 0, or the length (a multiple of 16 dividing 256) of the runs of
-        consecutive flat offsets that the entries come in (a block's x rows); a hint a
-        backend may use for explicit bases, never a change of the result.
-
-        ``bases`` is a DeviceArray of explicit base indices or None for the lattice
-        (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.
-        ``threshold``: None, or a (1,) DeviceArray of the score dtype above which a
-        candidate may stop early and report any value above it.
+        candidates: (n * d,) uint8 or float32 rows; queries: (b * d,) same dtype; weights:
+        (d,) same dtype or None (all 1); out: uint32 for uint8 data (exact integer sums),
+        float32 for float32 data; query-major (entry q * n + c).
         """
 
     @abstractmethod
-    def argmin_partials(self, scores, n, part_val, part_idx) -> None:
-        """Per-thread minimum and its lowest index, over a share of scores (index -1 for an
-        empty share, -2 for a share holding a NaN or inf score)."""
+    def ssd_gather(self, grid: DeviceArray, bases: DeviceArray | None, lattice: tuple[int, int, int],
+                   steps: tuple[int, int, int], base0: int, offsets: DeviceArray, values: DeviceArray,
+                   weights: DeviceArray | None, kc: int, threshold: DeviceArray | None, out: DeviceArray,
+                   run: int = 0) -> None:
+        """out (candidates,) <- SSD of the query entries at base(c) + offsets for every candidate c.
+
+        grid: flat uint8 or float32; offsets: (kc,) int32 flat offsets from a candidate's
+        base; values: (kc,) the query's entries (grid dtype); weights: (kc,) or None.
+        ``bases`` is a DeviceArray of explicit int32 base indices or None for the lattice
+        (nx, ny, nz) with flat steps (step_x, step_y, step_z) starting at base0.
+        ``threshold``: None, or a (1,) DeviceArray of the score dtype above which a
+        candidate may stop early and report any value above it.
+        ``run``: 0, or the length (a multiple of 16 dividing 256) of the runs of
+        consecutive flat offsets that the entries come in (a block's x rows); a hint a
+        backend may use for explicit bases, never a change of the result.
+        """
 
     @abstractmethod
-    def count_selected(self, scores, n, chunk, thr, mode, counts) -> None:
-        """counts[t] <- how many scores in chunk t the threshold selects."""
+    def argmin_partials(self, scores: DeviceArray, n: int, part_val: DeviceArray, part_idx: DeviceArray) -> None:
+        """Per-thread minimum and its lowest index over a share of scores (n,): part_val
+        (g,) scores' dtype, part_idx (g,) int32 (-1 for an empty share, -2 for a share
+        holding a NaN or inf score); g = part_idx.size threads."""
 
     @abstractmethod
-    def compact_selected(self, scores, n, chunk, thr, mode, starts, out_idx) -> None:
-        """out_idx <- the selected indices, ascending, chunk t written from starts[t]."""
+    def count_selected(self, scores: DeviceArray, n: int, chunk: int, thr: DeviceArray, mode: int,
+                       counts: DeviceArray) -> None:
+        """counts[t] (int32) <- how many scores in chunk t (entries [t * chunk, (t + 1) * chunk)
+        of n) the threshold thr (1,) selects (mode: SELECT_* of geosynth.arrays)."""
+
+    @abstractmethod
+    def compact_selected(self, scores: DeviceArray, n: int, chunk: int, thr: DeviceArray, mode: int,
+                         starts: DeviceArray, out_idx: DeviceArray) -> None:
+        """out_idx (int32) <- the selected indices, ascending, chunk t written from starts[t]
+        (the exclusive prefix sum of count_selected's counts)."""
 
     # -- host-side steps shared by both backends ------------------------------------
     def argmin(self, scores: DeviceArray) -> tuple[int, np.generic]:

@@ -1,7 +1,7 @@
 """The backend operations of each kernel family, declared once.
 
-One abstract class per family (mesh, points, texel, growth; the SSD primitives are
-declared on :class:`geosynth._backends.base.Backend`). The Warp mixin
+One abstract class per family (mesh, points, texel, growth, pyramid, cascade; the SSD
+primitives are declared on :class:`geosynth._backends.base.Backend`). The Warp mixin
 (``warp_<family>.py``) and the OpenCL mixin (``opencl_<family>.py``) subclass it, with
 the same parameter names in the same order (tests/test_backend_interfaces.py checks).
 Nothing here validates: the public functions that call these operations do.
@@ -356,4 +356,107 @@ class GrowthOps(ABC):
             order: (n,) int32 order of the points taken when none is queued; rand_texel:
                 (n,) int32 the texel a point with no coloured neighbour takes.
             n_buckets: priority levels of the queue; state: read and updated in place.
+        """
+
+
+# ------------------------------------------------------------------ M1 block pyramids (kernels/pyramid.*)
+# Layout (kernels/pyramid.py): ``sums`` holds one slab of total = Z * Y * X uint32 entries
+# per cell size c = 2^k; entry p of slab k is the exact sum of the uint8 field over the
+# c^3 cube whose lowest corner is p (0 where the cube leaves the field).
+
+
+class PyramidOps(ABC):
+    """The block pyramid of Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 4.1-4.3:
+    cell sums, their rounded means, level distances and hashes (exact integer arithmetic)."""
+
+    @abstractmethod
+    def pyramid_empty(self, shape: tuple[int, ...], dtype: np.dtype) -> DeviceArray:
+        """An uninitialised device array; int64 and uint64 (distances, hashes) included."""
+
+    @abstractmethod
+    def pyramid_read(self, array: DeviceArray, count: int) -> np.ndarray:
+        """The first ``count`` entries of a flat device array, as a host copy (a sync)."""
+
+    @abstractmethod
+    def pyramid_read_all(self, array: DeviceArray) -> np.ndarray:
+        """Every entry of a device array (any dtype, shape kept), as a host copy (a sync)."""
+
+    @abstractmethod
+    def pyramid_write(self, array: DeviceArray, host: np.ndarray) -> None:
+        """Copy a host array (same dtype) into the start of an existing device array."""
+
+    @abstractmethod
+    def pyramid_init(self, field: DeviceArray, sums: DeviceArray, total: int) -> None:
+        """sums[:total] (uint32) <- field (total,) uint8 widened: the cell size 1 slab."""
+
+    @abstractmethod
+    def pyramid_double(self, sums: DeviceArray, src_off: int, dst_off: int, c: int, nz: int, ny: int,
+                       nx: int) -> None:
+        """The slab at dst_off <- sums of 2c-cubes from the cell size c slab at src_off
+        (0 where a 2c-cube leaves the (nz, ny, nx) field)."""
+
+    @abstractmethod
+    def pyramid_quantize(self, sums: DeviceArray, off: int, lc: int, total: int, out: DeviceArray) -> None:
+        """out (total,) uint8 <- the means of the cell size 2^lc slab at ``off``, rounded half up."""
+
+    @abstractmethod
+    def pyramid_compare(self, sums: DeviceArray, total: int, ny: int, nx: int, log_block: int,
+                        node_base: DeviceArray, node_code: DeviceArray, ids: DeviceArray, first: int, count: int,
+                        query: DeviceArray, query_off: DeviceArray, out: DeviceArray) -> None:
+        """out[:count] (int64) <- the integer level distance D of the tree nodes
+        ids[first:first + count] (int32) against a query. node_base: (nodes,) int32 flat
+        origin of each node's representative block; node_code: (nodes,) int32 level * 2 +
+        kind (0 exact sums, 1 the interval of sums its rounded means allow); query: int32
+        cell sums level after level, level l starting at query_off[l - 1] ((L + 1,) int32);
+        log_block = log2(block side)."""
+
+    @abstractmethod
+    def pyramid_hash_init(self, sums: DeviceArray, off: int, lc: int, quantized: int, total: int,
+                          out: DeviceArray) -> None:
+        """out (total,) uint64 <- per-position hash seeds (value + 1) of the slab at ``off``
+        (cell size 2^lc): exact sums, or their rounded means when ``quantized`` is 1."""
+
+    @abstractmethod
+    def pyramid_hash_step(self, src: DeviceArray, dst: DeviceArray, total: int, stride: int, mult: int) -> None:
+        """dst[p] (uint64) <- src[p] + mult * src[p + stride] (mod 2^64), 0 where p + stride
+        is past ``total``: one doubling of a linear polynomial hash."""
+
+    @abstractmethod
+    def pyramid_pair_equal(self, sums: DeviceArray, total: int, ny: int, nx: int, lc: int, n: int, quantized: int,
+                           base_a: DeviceArray, base_b: DeviceArray, count: int, out: DeviceArray) -> None:
+        """out[t] (int32) <- 1 where the n^3 cells of size 2^lc (sums, or rounded means when
+        ``quantized``) of the blocks at flat origins base_a[t] and base_b[t] are all equal,
+        else 0, for t < count (verifies the groups that hashes propose)."""
+
+
+# ------------------------------------------------------------------ M1 fused cascade search (kernels/cascade.*)
+
+
+class CascadeOps(ABC):
+    """The exact nearest block by lower bounds refined cell by cell (Lagae, Dumont and
+    Dutré, "Geometry Synthesis", Sec. 4.2, eq. 2, over every block of the source)."""
+
+    @abstractmethod
+    def cascade_search(self, field: DeviceArray, coarse: DeviceArray, coarse_norm: DeviceArray, fine: DeviceArray,
+                       lx: int, ly: int, lz: int, sy: int, sz: int, n: int, offsets: DeviceArray,
+                       query_terms: DeviceArray, inv_c: float, inv_f: float, query: DeviceArray, rows: int,
+                       margin: float, slack: float, best_shared: DeviceArray, out: DeviceArray, items: int) -> None:
+        """One query against every block of the lattice (lx, ly, lz) with flat row / slab
+        strides sy, sz; ``items`` work-items, item t scanning lattice rows [t * rows,
+        (t + 1) * rows).
+
+        Args:
+            field: (Z * Y * X,) uint8 source; coarse, coarse_norm: (Z * Y * X,) float32
+                sums and centred norms of the (n/2)^3 cube at every position; fine:
+                (Z * Y * X,) float32 sums of the (n/4)^3 cube.
+            n: block side; offsets: (72,) int32, the 8 coarse then the 64 fine cell
+                offsets (grouped by coarse cell) from a block's origin.
+            query_terms: (80,) float32, the query's 8 coarse sums, 8 coarse centred norms,
+                64 fine sums; inv_c = 1 / (n/2)^3, inv_f = 1 / (n/4)^3; query: (n^3,) uint8.
+            margin, slack: a block is dropped when its bound exceeds best * margin + slack
+                (float32 rounding allowance: the answer stays exact).
+            best_shared: (1,) int32 in/out, the best SSD found by any item (start: a
+                threshold or INT32_MAX).
+            out: (items * 3,) int32, per item its best SSD, that block's lattice index (-1:
+                none within the threshold) and the count of blocks it scored exactly.
         """

@@ -9,17 +9,18 @@ Launches the kernel of ``kernels/cascade.cl`` (same arguments in the same order 
 
 from __future__ import annotations
 
+from geosynth._backends.interfaces import CascadeOps
+
 import numpy as np
 
 _LOCAL = 64  # work-items per group on a GPU (see opencl_backend._LOCAL_1D)
 
 
-class OpenCLCascadeOps:
+class OpenCLCascadeOps(CascadeOps):
     """Mixin: the fused cascade search on an OpenCL device."""
 
     def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
                        inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
-        """Same as WarpCascadeOps.cascade_search."""
         local = 1 if self.is_cpu else _LOCAL  # one work-group per item on a CPU: the items balance the cores
         self._kernel("cascade", "cascade_search", np.uint8)(
             self.queue, (-(-items // local) * local,), (local,), field.data, coarse.data, coarse_norm.data, fine.data, lx, ly,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from geosynth._backends.interfaces import PyramidOps
 from geosynth.arrays import DeviceArray
 
 _LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
@@ -23,7 +24,7 @@ def _range(count: int) -> tuple[int]:
     return (max(1, -(-count // _LOCAL)) * _LOCAL,)
 
 
-class OpenCLPyramidOps:
+class OpenCLPyramidOps(PyramidOps):
     """Mixin: the block-pyramid kernels on an OpenCL device."""
 
     def _pyr(self, name: str) -> cl.Kernel:
@@ -31,11 +32,9 @@ class OpenCLPyramidOps:
 
     # -- memory ---------------------------------------------------------------------
     def pyramid_empty(self, shape, dtype) -> DeviceArray:
-        """Same as WarpPyramidOps.pyramid_empty."""
         return self.empty(shape, dtype)
 
     def pyramid_read(self, array: DeviceArray, count: int) -> np.ndarray:
-        """Same as WarpPyramidOps.pyramid_read."""
         host = np.empty(count, array.dtype)
         if count:
             # sync: a blocking copy waits for the kernel that wrote it.
@@ -43,11 +42,9 @@ class OpenCLPyramidOps:
         return host
 
     def pyramid_read_all(self, array: DeviceArray) -> np.ndarray:
-        """Same as WarpPyramidOps.pyramid_read_all."""
         return self.to_host(array)
 
     def pyramid_write(self, array: DeviceArray, host: np.ndarray) -> None:
-        """Same as WarpPyramidOps.pyramid_write."""
         host = np.ascontiguousarray(host)
         if host.size:
             cl.enqueue_copy(self.queue, array.data, host, is_blocking=False)

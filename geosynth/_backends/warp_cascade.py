@@ -9,15 +9,16 @@ as ``OpenCLCascadeOps``); see there and kernels/cascade.cl for the definitions.
 
 from __future__ import annotations
 
+from geosynth._backends.interfaces import CascadeOps
+
 from geosynth.kernels import cascade as cascade_kernels
 
 
-class WarpCascadeOps:
+class WarpCascadeOps(CascadeOps):
     """Mixin: the fused cascade search on a Warp device."""
 
     def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
                        inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
-        """out[3t:3t+3] <- work-item t's best SSD, its block index and blocks scored (M1's fused cascade)."""
         self._launch(
             cascade_kernels.cascade_search_kernel, items,
             [field.data, coarse.data, coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data,
