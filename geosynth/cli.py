@@ -387,7 +387,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
     from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume import _block_text, synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -400,13 +400,18 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
         seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
+        slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
     )
+    if result.volume.slab:
+        z, y, x = result.volume.source.shape
+        say(f"slab exemplar ({x} x {y} x {z} samples, x y z): blocks span its full thickness along z, "
+            f"grown across only" + (" (chosen automatically)" if getattr(args, "slab", "auto") == "auto" else ""))
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
     say("\nper level:")
     for i, lv in enumerate(result.volume.levels):
         src_xyz, tgt_xyz = (" x ".join(str(v) for v in shape[::-1]) for shape in (lv.source_shape, lv.target_shape))
-        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {lv.block}: "
+        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {_block_text(lv.block)}: "
             f"{lv.matches:,} matches, mean best-match distance {lv.mean_match_distance:.1f} per sample, {lv.seconds:.1f} s "
             f"({lv.seconds / max(1, lv.matches) * 1e3:.2f} ms per match)")
         say("    search: " + lv.search.replace("\n", "\n    "))
@@ -563,6 +568,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "paper's scan with minimum-error cuts; paper: the paper's scan-order copying")
     p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
+    p.add_argument("--slab", choices=["auto", "yes", "no"], default="auto",
+                   help="blocks through the exemplar's full thickness, grown across only: auto (default: when the "
+                        "exemplar is at least 4x thinner along z than across), yes or no")
     p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
                    help=f"Taubin smoothing iterations, 0 to {MAX_SMOOTH} (default 10)")
     p.add_argument("--quality-samples", type=_int_type(0), default=100,

@@ -18,6 +18,12 @@ The method and its parameters are the report's (Sec. 5):
 - Tileable targets wrap: a block that crosses a face continues on the opposite face,
   so copies of the output tile without seams.
 
+Slab exemplars (beyond the paper): when the exemplar is much thinner along z than
+across (:func:`is_slab`) and the target keeps its thickness, every level's block spans
+the level's full thickness along z, (Z_l, B, B), and the synthesis grows across only:
+a block then holds whole columns of the slab (a dome, a ring of a single layer), and
+no block position along z can stack a slab's top on its bottom.
+
 Beyond the paper (``method=``): "graphcut" pastes each block of the same
 scan along a minimum-error cut through the overlap (:mod:`geosynth.graphcut`) instead
 of keeping every synthesized sample; "optimize" replaces the scan by texture
@@ -43,7 +49,7 @@ from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
 from geosynth.memory import require
-from geosynth.blocks import block_offsets
+from geosynth.blocks import block_offsets, block_shape
 from geosynth.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
 
 __all__ = [
@@ -51,8 +57,10 @@ __all__ = [
     "LevelReport",
     "METHODS",
     "VolumeResult",
+    "SLAB_RATIO",
     "block_offsets",
     "downsample",
+    "is_slab",
     "quantize_field",
     "scan_positions",
     "synthesize_volume",
@@ -63,6 +71,17 @@ __all__ = [
 # cut, geosynth.graphcut), "optimize" (texture optimization, geosynth.optimize).
 METHODS = ("paper", "graphcut", "optimize")
 DEFAULT_METHOD = "optimize"
+# A source is a slab when its across sides are at least this many times its thickness
+# (the built-in slabs: 5-13; chainmail 2.7 and terrain 2 are not).
+SLAB_RATIO = 4
+
+
+def is_slab(source_shape, target_shape) -> bool:
+    """Whether a synthesis from a (Z, Y, X) source to a (Z, Y, X) target is a slab's:
+    the source's thinnest side is z, ``SLAB_RATIO`` times thinner than across, and the
+    target is no thicker than the source (it grows across only)."""
+    z, y, x = (int(v) for v in source_shape)
+    return z * SLAB_RATIO <= min(y, x) and int(target_shape[0]) <= z
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -74,14 +93,16 @@ def downsample(values: np.ndarray) -> np.ndarray:
     return ((s + 4) // 8).astype(np.uint8)
 
 
-def upsample(values: np.ndarray, shape: Sequence[int], wrap: bool) -> np.ndarray:
+def upsample(values: np.ndarray, shape: Sequence[int], wrap) -> np.ndarray:
     """Trilinear x2 upsampling of a uint8 (Z, Y, X) volume to ``shape`` (cell centres
-    aligned; clamped at the faces, or periodic when ``wrap``), in float32, rounded to uint8."""
+    aligned; clamped at the faces, or periodic when ``wrap``: one bool, or one per axis
+    (z, y, x)), in float32, rounded to uint8."""
     out = values.astype(np.float32)
+    wraps = (bool(wrap),) * 3 if np.ndim(wrap) == 0 else tuple(bool(w) for w in wrap)
     for axis, n in enumerate(shape):
         m = out.shape[axis]
         pos = (np.arange(n) + 0.5) * m / n - 0.5
-        out = lerp_axis(out, axis, linear_taps(pos, m, wrap, np.float32, clamp="taps"))
+        out = lerp_axis(out, axis, linear_taps(pos, m, wraps[axis], np.float32, clamp="taps"))
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
@@ -114,9 +135,10 @@ def scan_positions(size: int, block: int, wrap: bool) -> list[int]:
     return lattice_positions(size, block, block // 2, wrap)
 
 
-def _box(origin, block: int, shape, wrap: bool):
-    """Index arrays (np.ix_) for the block at ``origin`` (wrapping when asked)."""
-    axes = [np.arange(o, o + block) % n if wrap else np.arange(o, o + block) for o, n in zip(origin, shape)]
+def _box(origin, block, shape, wrap: bool):
+    """Index arrays (np.ix_) for the block (N or (bz, by, bx)) at ``origin`` (wrapping when asked)."""
+    axes = [np.arange(o, o + b) % n if wrap else np.arange(o, o + b)
+            for o, b, n in zip(origin, block_shape(block), shape)]
     return np.ix_(*axes)
 
 
@@ -126,7 +148,7 @@ class LevelReport:
 
     Attributes:
         source_shape, target_shape: (Z, Y, X) sizes at this level.
-        block: block size N.
+        block: block size N, or (bz, by, bx) for a slab (bz the level's thickness).
         matches: blocks matched (texture optimization: over all its iterations).
         mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units;
             texture optimization: over the last iteration's matches).
@@ -158,6 +180,7 @@ class VolumeResult:
         band: the distance band of the quantization.
         timings: seconds per stage.
         method: the method that made it (:data:`METHODS`), or "random tiling".
+        slab: whether the blocks spanned the full thickness (:func:`is_slab`).
     """
 
     quantized: np.ndarray
@@ -167,6 +190,7 @@ class VolumeResult:
     band: float
     timings: dict = dc_field(default_factory=dict)
     method: str = DEFAULT_METHOD
+    slab: bool = False
 
 
 SEARCHES = ("cascade", "tree", "linear")
@@ -268,12 +292,15 @@ class _Matcher:
     the search tree, or the plain linear search (every block scored by the gather
     kernel, argmin on the device). All three return the same block."""
 
-    def __init__(self, source: np.ndarray, block: int, device, search: str):
+    def __init__(self, source: np.ndarray, block, device, search: str):
         self.block = block
         self.offsets = block_offsets(block)
         self.search = search
         self.engine = None
         self.alive: list[list[int]] = []  # cascade: blocks alive after each stage, per match
+        if search == "tree" and np.ndim(block) != 0:
+            raise ValueError(f"search='tree' takes cubic blocks only; a slab's block {tuple(block)} needs "
+                             "search='cascade' or 'linear'.")
         if search == "tree":
             from geosynth.tree_search import BlockSearch
 
@@ -296,7 +323,7 @@ class _Matcher:
         if self.search == "cascade" and self.engine.stages and self.alive:
             width = max(len(a) for a in self.alive)
             mean = np.mean([a + [0] * (width - len(a)) for a in self.alive], axis=0)
-            cells = ", ".join(f"{c}^3" for c in self.engine.stages)
+            cells = ", ".join(f"{c}^3" if np.ndim(c) == 0 else "x".join(map(str, c)) for c in self.engine.stages)
             return (f"cascade over {self.engine.n_blocks:,} blocks, bound cells {cells}: mean blocks alive "
                     + " -> ".join(f"{v:,.0f}" for v in mean))
         if self.search == "cascade":
@@ -304,7 +331,7 @@ class _Matcher:
         return "linear"
 
     def nearest_batch(self, queries: np.ndarray, thresholds=None) -> tuple[np.ndarray, np.ndarray, list]:
-        """Exact nearest blocks of (Q, N, N, N) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
+        """Exact nearest blocks of (Q, bz, by, bx) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
         if self.search == "cascade":
             origins, ssds, alive = self.engine.nearest_batch(queries, thresholds)
             self.alive.extend(alive)
@@ -342,7 +369,8 @@ class _Matcher:
 def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False):
     shape = target.shape
     done = np.zeros(shape, bool)
-    axes = [scan_positions(n, block, wrap) for n in shape]
+    sides = block_shape(block)
+    axes = [scan_positions(n, b, wrap) for n, b in zip(shape, sides)]
     positions = [(z, y, x) for z in axes[0] for y in axes[1] for x in axes[2]]
     ssd_sum = 0
     bar = None
@@ -350,11 +378,11 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
         from tqdm import tqdm
 
         bar = tqdm(total=len(positions), desc=label, unit="block", leave=True, dynamic_ncols=True)
-    last_origin = np.array(source.shape) - block
+    last_origin = np.array(source.shape) - np.array(sides)
     matched: dict[tuple[int, int, int], np.ndarray] = {}
 
     def piece_at(origin):
-        return source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
+        return source[origin[0]:origin[0] + sides[0], origin[1]:origin[1] + sides[1], origin[2]:origin[2] + sides[2]]
 
     for pos in positions:
         box = _box(pos, block, shape, wrap)
@@ -396,7 +424,7 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
             bar.update(1)
     if bar is not None:
         bar.close()
-    return len(positions), ssd_sum / max(1, len(positions)) / block**3
+    return len(positions), ssd_sum / max(1, len(positions)) / int(np.prod(sides))
 
 
 # Per-block bookkeeping of a level's scan (Python objects): the position tuple and its
@@ -404,12 +432,12 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
 _BYTES_PER_BLOCK = 500
 
 
-def _matcher_bytes(shape, block: int, search: str) -> int:
+def _matcher_bytes(shape, block, search: str) -> int:
     """Bytes of one level's search structure on a uint8 source of ``shape`` (device
     buffers included: host memory on Warp CPU and PoCL)."""
     total = int(np.prod(shape, dtype=object))
-    n_blocks = int(np.prod([max(0, int(s) - block + 1) for s in shape], dtype=object))
-    if search == "tree":
+    n_blocks = int(np.prod([max(0, int(s) - b + 1) for s, b in zip(shape, block_shape(block))], dtype=object))
+    if search == "tree" and np.ndim(block) == 0:
         from geosynth.tree_search import BlockSearch
 
         return BlockSearch.memory_estimate(tuple(int(v) for v in shape), int(block))
@@ -421,7 +449,8 @@ def _matcher_bytes(shape, block: int, search: str) -> int:
 def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", float_source: bool = False,
                  baseline: bool = False, method: str = "paper", tileable: bool = False) -> int:
     """Estimated peak bytes of :func:`synthesize_volume` (beyond its input), for a
-    target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first).
+    target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first;
+    each N or a slab's (bz, by, bx)).
 
     What it counts: the uint8 source pyramid (alive throughout; 13 B per source sample
     more while a float source is quantized); then the largest of the stages, per level
@@ -445,10 +474,11 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     for lvl, (sh, b) in enumerate(zip(sources, blocks)):
         shape = [int(v) // 2 ** (levels - 1 - lvl) for v in target_shape]
         n = int(np.prod(shape, dtype=object))
-        n_blocks = int(np.prod([len(range(0, v, max(1, b // 2))) for v in shape], dtype=object))
+        n_blocks = int(np.prod([len(range(0, v, max(1, s // 2))) for v, s in zip(shape, block_shape(b))],
+                               dtype=object))
         m = 0 if baseline else _matcher_bytes(sh, b, search)
         stages.append(9 * n if lvl == 0 else 15 * n + prev_n + prev_m)
-        vote = (optimize_memory(shape, b, level_stride(b, lvl == levels - 1), tileable)
+        vote = (optimize_memory(shape, b, level_stride(block_shape(b)[-1], lvl == levels - 1), tileable)
                 if method == "optimize" and not baseline else 0)
         stages.append(2 * n + _BYTES_PER_BLOCK * n_blocks + m + vote)
         prev_n, prev_m = n, m
@@ -456,28 +486,45 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     return pyramid + max(stages) + (128 << 10)
 
 
-def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int]) -> list[int]:
+def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int], slab: bool = False) -> list[int]:
     """The block of each level (coarsest first) for a source and target (Z, Y, X):
     ``blocks`` (from :func:`_level_blocks`) with the default scheme's coarse blocks
-    shrunk to fit a thin source or target there (a slab exemplar; sizes given per
-    level are taken as they are). Only shapes are used: nothing is allocated.
+    shrunk to fit a thin source or target there (sizes given per level are taken as
+    they are). With ``slab`` the blocks are the across sides B only (z spans the
+    level's thickness, :func:`level_block_shapes`) and only y and x must hold them.
+    Only shapes are used: nothing is allocated.
 
     Raises:
-        ValueError: a block larger than the source or the target at its level.
+        ValueError: a block larger than the source or the target at its level; a slab
+            target thicker than its source.
     """
     blocks = list(blocks)
     # the source pyramid's shapes (downsample halves each side, dropping an odd sample)
     source_shapes = [tuple(int(v) for v in source_shape)]
     for _ in range(levels - 1):
         source_shapes.insert(0, tuple(v // 2 for v in source_shapes[0]))
+    first = 1 if slab else 0  # the axes a block must fit in
     if np.ndim(block) == 0:
         for lvl, s in enumerate(source_shapes):
             t = [n // 2 ** (levels - 1 - lvl) for n in target_shape]
-            fit = 1 << (int(min(min(s), min(t))).bit_length() - 1)
+            fit = 1 << (int(min(min(s[first:]), min(t[first:]))).bit_length() - 1)
             if lvl < levels - 1 and fit >= 2:
                 blocks[lvl] = min(blocks[lvl], fit)
     for lvl, (s, b) in enumerate(zip(source_shapes, blocks)):
         t = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
+        if slab and t[0] > s[0]:
+            raise ValueError(f"a slab's target is no thicker than its source: level {lvl + 1} has target {t} "
+                             f"and source {s}; give a size of the source's thickness or slab=False.")
+        if slab and b > min(s[1:]):
+            raise ValueError(
+                f"block {b} at level {lvl + 1} is larger across than the slab source there {s}; "
+                "use a smaller block, fewer levels or a larger source."
+            )
+        if slab and b > min(t[1:]):
+            raise ValueError(f"the target at level {lvl + 1} {t} is smaller across than its block {b}; "
+                             "use a larger size.")
+        if slab:
+            continue
         if b > min(s):
             raise ValueError(
                 f"block {b} at level {lvl + 1} is larger than the source there {s}; "
@@ -486,6 +533,18 @@ def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[in
         if b > min(t):
             raise ValueError(f"the target at level {lvl + 1} {t} is smaller than its block {b}; use a larger size.")
     return blocks
+
+
+def level_block_shapes(target_shape, levels: int, blocks: list[int], slab: bool) -> list:
+    """Each level's block (coarsest first): B (a cube) or, for a slab, (Z_l, B, B) with
+    Z_l the target's thickness at that level (a cube again where Z_l = B)."""
+    if not slab:
+        return list(blocks)
+    out = []
+    for lvl, b in enumerate(blocks):
+        z = int(target_shape[0]) // 2 ** (levels - 1 - lvl)
+        out.append(int(b) if z == int(b) else (z, int(b), int(b)))
+    return out
 
 
 def _require_size(size, target_shape, levels: int, estimate, option: str = "size", blocks=None) -> None:
@@ -536,6 +595,7 @@ def synthesize_volume(
     baseline: bool = False,
     method: str = DEFAULT_METHOD,
     iterations=None,
+    slab: bool | None = None,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -578,6 +638,10 @@ def synthesize_volume(
             for every level or one per level, coarsest first; None: 12 at the coarsest
             level (cheap, and it sets the layout), 6 in between and 3 at the finest
             (it mostly refines; its searches cost the most); 6 for one level.
+        slab: blocks span each level's full thickness along z, (Z_l, B, B) with B
+            from ``block``, and the synthesis grows across only; None (default):
+            chosen by :func:`is_slab` (a source ``SLAB_RATIO`` times thinner along z
+            than across, a target no thicker). ``result.slab`` says which ran.
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -620,7 +684,11 @@ def synthesize_volume(
     if any(s % factor for s in target_shape):
         raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
 
-    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks)
+    if slab is not None:
+        _checks.check_bool("slab", slab)
+    slab = is_slab(src.shape, target_shape) if slab is None else bool(slab)
+    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks, slab)
+    shapes = level_block_shapes(target_shape, levels, blocks, slab)
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
     optimizing = method == "optimize" and not baseline
@@ -632,7 +700,8 @@ def synthesize_volume(
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
 
     def estimate(shape) -> int:
-        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline, method, tileable)
+        return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, slab), search, float_source,
+                            baseline, method, tileable)
 
     _require_size(size, target_shape, levels, estimate, "size", blocks)
 
@@ -645,7 +714,7 @@ def synthesize_volume(
     reports: list[LevelReport] = []
     target = None
     timings = {"prepare": time.perf_counter() - t_start}
-    for lvl, (s, b) in enumerate(zip(sources, blocks)):
+    for lvl, (s, b, across) in enumerate(zip(sources, shapes, blocks)):
         t0 = time.perf_counter()
         shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
         if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
@@ -655,16 +724,16 @@ def synthesize_volume(
         elif target is None:  # random samples of the source
             target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
         else:
-            target = upsample(target, shape, wrap=tileable)
+            target = upsample(target, shape, wrap=(tileable and not slab, tileable, tileable))
         matcher = None if baseline else _Matcher(s, b, device, search)
         t_build = time.perf_counter() - t0
-        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
+        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {_block_text(b)})"
         iters = 1
         if optimizing:
             from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
 
             got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
-                                 stride=level_stride(b, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
+                                 stride=level_stride(across, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
                                  final=level_final(lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
@@ -682,7 +751,15 @@ def synthesize_volume(
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
     return VolumeResult(target, result_field, src, reports, float(band), timings,
-                        "random tiling" if baseline else method)
+                        "random tiling" if baseline else method, slab)
+
+
+def _block_text(block) -> str:
+    """"16" for a cube, "16 x 16 x 6 (x y z)" for a slab's block."""
+    if np.ndim(block) == 0:
+        return str(int(block))
+    z, y, x = block
+    return f"{x} x {y} x {z} (x y z)"
 
 
 @dataclass
@@ -728,6 +805,7 @@ def synthesize_geometry(
     drop_degenerate: bool = False,
     method: str = DEFAULT_METHOD,
     iterations=None,
+    slab: bool | None = None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -745,8 +823,10 @@ def synthesize_geometry(
             (:data:`geosynth.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
-        levels, block, tileable, seed, device, search, progress, method, iterations:
-            as in :func:`synthesize_volume`.
+        levels, block, tileable, seed, device, search, progress, method, iterations, slab:
+            as in :func:`synthesize_volume` (a slab exemplar, e.g. a plate with relief
+            or one layer of rings, is found by its source grid's shape; the blocks then
+            span its full padded thickness: ``result.volume.slab``).
         source_resolution: samples along the exemplar's longest side (the grid is
             :func:`exemplar_grid`).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
@@ -783,7 +863,7 @@ def synthesize_geometry(
     mesh = _exemplar_mesh(exemplar, seed)
     check_mesh(mesh, "exemplar", drop_degenerate=drop_degenerate)  # empty, NaN or degenerate meshes: a clear error now
     timings["exemplar"] = time.perf_counter() - t0
-    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method)
+    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method, slab)
     t0 = time.perf_counter()
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
                                    drop_degenerate=drop_degenerate, device=device)
@@ -796,7 +876,7 @@ def synthesize_geometry(
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                             device=device, search=search, spacing=spacing, progress=progress, method=method,
-                            iterations=iterations)
+                            iterations=iterations, slab=slab)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
     out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
@@ -804,9 +884,10 @@ def synthesize_geometry(
     quality = {}
     if quality_samples:
         t0 = time.perf_counter()
-        finest = _level_blocks(levels, block)[-1]
+        finest = vol.levels[-1].block  # a slab's: the full thickness along z
         base = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
-                                 device=device, search=search, spacing=spacing, progress=False, baseline=True)
+                                 device=device, search=search, spacing=spacing, progress=False, baseline=True,
+                                 slab=vol.slab)
         quality["synthesis"] = bidirectional_block_distance(vol.source, vol.quantized, finest, samples=quality_samples,
                                                             seed=seed, device=device)
         quality["random tiling"] = bidirectional_block_distance(base.source, base.quantized, finest,
@@ -861,7 +942,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
 
 
 def _require_geometry(mesh, size, source_resolution, levels: int, block, search: str, smooth: int,
-                      quality_samples: int, method: str) -> None:
+                      quality_samples: int, method: str, slab: bool | None = None) -> None:
     """Refuse a synthesize_geometry whose estimate exceeds the memory available, naming
     ``size`` when a smaller one fits at this source resolution, else ``source_resolution``."""
     from geosynth.memory import available_memory, largest_fitting
@@ -875,10 +956,12 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
     def estimate(sz, res) -> int:
         shape, _, spacing = _exemplar_grid_geometry(mesh, res, multiple=factor)
         target = target_size(sz, shape, levels)
+        flat = is_slab(shape, target) if slab is None else bool(slab)
         try:
-            blocks = _plan_blocks(shape, target, levels, block, base_blocks)
+            blocks = _plan_blocks(shape, target, levels, block, base_blocks, flat)
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
             blocks = base_blocks
+        blocks = level_block_shapes(target, levels, blocks, flat)
         return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, method)
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
