@@ -102,7 +102,8 @@ class CascadeSearch:
     cores) 3-4x faster than the staged launches at 64^3 / 8 and 2-3x at 128^3 / 16.
 
     Attributes:
-        stages: the cell sizes of the bound stages, coarse to fine; empty for N <= 2
+        stages: the cell sizes of the bound stages, coarse to fine (an anisotropic
+            block's: (cz, cy, cx) boxes); empty for N <= 2
             and for searches small enough that scoring every block in one launch is
             cheaper (fewer than ``min_work`` comparisons).
         fused: whether the stages run fused in one launch.

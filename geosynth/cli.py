@@ -387,7 +387,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
     from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.volume import _block_text, synthesize_geometry
+    from geosynth.volume import block_text, synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -411,7 +411,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     say("\nper level:")
     for i, lv in enumerate(result.volume.levels):
         src_xyz, tgt_xyz = (" x ".join(str(v) for v in shape[::-1]) for shape in (lv.source_shape, lv.target_shape))
-        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {_block_text(lv.block)}: "
+        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {block_text(lv.block)}: "
             f"{lv.matches:,} matches, mean best-match distance {lv.mean_match_distance:.1f} per sample, {lv.seconds:.1f} s "
             f"({lv.seconds / max(1, lv.matches) * 1e3:.2f} ms per match)")
         say("    search: " + lv.search.replace("\n", "\n    "))

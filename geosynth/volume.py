@@ -59,6 +59,7 @@ __all__ = [
     "VolumeResult",
     "SLAB_RATIO",
     "block_offsets",
+    "block_text",
     "downsample",
     "is_slab",
     "quantize_field",
@@ -673,8 +674,12 @@ def synthesize_volume(
     if src.size == 0:
         raise ValueError(f"source is empty (shape {src.shape}).")
     _check_size(size)
-    # Each level halves the source: beyond log2 of its smallest side, no block fits.
-    max_levels = max(1, int(min(src.shape)).bit_length() - 1)
+    # Each level halves the source: beyond log2 of its smallest side, no block fits (a
+    # slab's: of its smallest side across, while its thickness keeps a sample).
+    thin = slab is True or (slab is None and src.shape[0] * SLAB_RATIO <= min(src.shape[1:]))
+    max_levels = max(1, int(min(src.shape[1:] if thin else src.shape)).bit_length() - 1)
+    if thin:
+        max_levels = min(max_levels, int(src.shape[0]).bit_length())
     _check_common(levels, max_levels, f" (each level halves the source {src.shape})", block, tileable, seed,
                   device, search, progress)
     if band is not None:
@@ -738,7 +743,7 @@ def synthesize_volume(
             target = upsample(target, shape, wrap=(tileable and not slab, tileable, tileable))
         matcher = None if baseline else _Matcher(s, b, device, search)
         t_build = time.perf_counter() - t0
-        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {_block_text(b)})"
+        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {block_text(b)})"
         iters = 1
         if optimizing:
             from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
@@ -765,7 +770,7 @@ def synthesize_volume(
                         "random tiling" if baseline else method, slab)
 
 
-def _block_text(block) -> str:
+def block_text(block) -> str:
     """"16" for a cube, "16 x 16 x 6 (x y z)" for a slab's block."""
     if np.ndim(block) == 0:
         return str(int(block))
