@@ -62,6 +62,7 @@ __all__ = [
     "block_text",
     "downsample",
     "is_slab",
+    "resolve_method",
     "quantize_field",
     "scan_positions",
     "synthesize_volume",
@@ -71,7 +72,21 @@ __all__ = [
 # synthesized samples kept), "graphcut" (the same scan, pasted along a minimum-error
 # cut, geosynth.graphcut), "optimize" (texture optimization, geosynth.optimize).
 METHODS = ("paper", "graphcut", "optimize")
-DEFAULT_METHOD = "optimize"
+# The default, "auto": the method that scores best on the built-in exemplars' structure
+# metrics for the kind of run (bench/bm_volume.py --part quality; opencl, 64 -> 128, 3
+# levels): "graphcut" for a slab (elements: chainmail 0.99 against optimize's 0.74,
+# rings 1.00 against 0.91; domes alike), "optimize" otherwise (balls 0.86 against
+# graphcut's 0.58, fibers 0.48 against 0.43, terrain's debris 0.0% against 0.5% and no
+# overhangs against 10.7%).
+DEFAULT_METHOD = "auto"
+
+
+def resolve_method(method: str, slab: bool) -> str:
+    """The method a run uses: ``method``, or for "auto" "graphcut" on a slab and
+    "optimize" otherwise (see DEFAULT_METHOD)."""
+    if method == "auto":
+        return "graphcut" if slab else "optimize"
+    return method
 # A source is a slab when its across sides are at least this many times its thickness.
 # The built-in sources at 64 samples across: domes 5.3, rings 8 and chainmail 2.7 (one
 # layer of linked rings) are slabs; fibers 2.3 (tubes in every direction), terrain 2,
@@ -184,7 +199,7 @@ class VolumeResult:
         levels: one LevelReport per level, coarsest first.
         band: the distance band of the quantization.
         timings: seconds per stage.
-        method: the method that made it (:data:`METHODS`), or "random tiling".
+        method: the method that made it (:data:`METHODS`, "auto" resolved), or "random tiling".
         slab: whether the blocks spanned the full thickness (:func:`is_slab`).
     """
 
@@ -194,7 +209,7 @@ class VolumeResult:
     levels: list[LevelReport]
     band: float
     timings: dict = dc_field(default_factory=dict)
-    method: str = DEFAULT_METHOD
+    method: str = "optimize"
     slab: bool = False
 
 
@@ -394,46 +409,48 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
     def piece_at(origin):
         return source[origin[0]:origin[0] + sides[0], origin[1]:origin[1] + sides[1], origin[2]:origin[2] + sides[2]]
 
-    for pos in positions:
-        box = _box(pos, block, shape, wrap)
-        query = target[box]
-        fresh = ~done[box]
-        if random_tiles:  # the baseline: a random source block, no matching
-            origin = np.array([rng.integers(n + 1) for n in last_origin])
-            ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
-        else:
-            # Coherence guesses: the earlier neighbours' matches moved on by the same step.
-            # Their best SSD bounds the answer, so the search may drop hopeless blocks
-            # early; the result is the same exact match.
-            threshold = None
-            for axis in range(3):
-                prev = list(pos)
-                i = axes[axis].index(pos[axis])
-                if i == 0:
-                    continue
-                prev[axis] = axes[axis][i - 1]
-                if tuple(prev) in matched:
-                    guess = matched[tuple(prev)].copy()
-                    guess[axis] += pos[axis] - prev[axis] if pos[axis] > prev[axis] else 0
-                    guess = np.clip(guess, 0, last_origin)
-                    g = int(((piece_at(guess).astype(np.int64) - query) ** 2).sum())
-                    threshold = g if threshold is None else min(threshold, g)
-            order = np.argsort(fresh.reshape(-1), kind="stable")  # synthesized samples first
-            origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
-            matched[pos] = np.asarray(origin)
-        piece = piece_at(origin)
-        if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
-            from geosynth.graphcut import min_cut, must_keep
+    try:  # an interrupted scan still ends its bar's line
+        for pos in positions:
+            box = _box(pos, block, shape, wrap)
+            query = target[box]
+            fresh = ~done[box]
+            if random_tiles:  # the baseline: a random source block, no matching
+                origin = np.array([rng.integers(n + 1) for n in last_origin])
+                ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
+            else:
+                # Coherence guesses: the earlier neighbours' matches moved on by the same step.
+                # Their best SSD bounds the answer, so the search may drop hopeless blocks
+                # early; the result is the same exact match.
+                threshold = None
+                for axis in range(3):
+                    prev = list(pos)
+                    i = axes[axis].index(pos[axis])
+                    if i == 0:
+                        continue
+                    prev[axis] = axes[axis][i - 1]
+                    if tuple(prev) in matched:
+                        guess = matched[tuple(prev)].copy()
+                        guess[axis] += pos[axis] - prev[axis] if pos[axis] > prev[axis] else 0
+                        guess = np.clip(guess, 0, last_origin)
+                        g = int(((piece_at(guess).astype(np.int64) - query) ** 2).sum())
+                        threshold = g if threshold is None else min(threshold, g)
+                order = np.argsort(fresh.reshape(-1), kind="stable")  # synthesized samples first
+                origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
+                matched[pos] = np.asarray(origin)
+            piece = piece_at(origin)
+            if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
+                from geosynth.graphcut import min_cut, must_keep
 
-            fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
-        query[fresh] = piece[fresh]
-        target[box] = query
-        done[box] = True
-        ssd_sum += ssd
+                fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
+            query[fresh] = piece[fresh]
+            target[box] = query
+            done[box] = True
+            ssd_sum += ssd
+            if bar is not None:
+                bar.update(1)
+    finally:
         if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+            bar.close()
     return len(positions), ssd_sum / max(1, len(positions)) / int(np.prod(sides))
 
 
@@ -643,8 +660,9 @@ def synthesize_volume(
             :func:`geosynth.optimize.optimize_level`: the coarsest level starts from
             random source blocks, every level iterates exact matches of blocks on a
             stride-N/4 lattice and a robust vote, until under 1% of the matches
-            change or ``iterations``). The default is the one that scores best on the
-            built-in exemplars' structure metrics.
+            change or ``iterations``), or "auto" (the default: "graphcut" for a slab,
+            "optimize" otherwise, the ones that score best on the built-in exemplars'
+            structure metrics; :func:`resolve_method`).
         iterations: the most texture-optimization iterations ("optimize"): one number
             for every level or one per level, coarsest first; None: 12 at the coarsest
             level (cheap, and it sets the layout), 6 in between and 3 at the finest
@@ -705,8 +723,9 @@ def synthesize_volume(
     blocks = _level_blocks(levels, block, slab)
     blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks, slab)
     shapes = level_block_shapes(target_shape, levels, blocks, slab)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
+    if method != "auto" and method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
+    method = resolve_method(method, slab)
     optimizing = method == "optimize" and not baseline
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
@@ -792,7 +811,7 @@ class GeometryResult:
             :func:`geosynth.metrics.structure_report` of that field against the
             exemplar's (print it with :func:`geosynth.metrics.format_structure`);
             "synthesis" also has "method".
-        method: the method that made the volume (:data:`METHODS`).
+        method: the method that made the volume (:data:`METHODS`, "auto" resolved).
         timings: seconds per stage.
     """
 
@@ -801,7 +820,7 @@ class GeometryResult:
     exemplar_field: Field
     quality: dict
     timings: dict
-    method: str = DEFAULT_METHOD
+    method: str = "optimize"
 
 
 def synthesize_geometry(
@@ -978,7 +997,8 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
             blocks = base_blocks
         blocks = level_block_shapes(target, levels, blocks, flat)
-        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, method)
+        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples,
+                              resolve_method(method, flat))
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
     target = target_size(size, shape, levels)
