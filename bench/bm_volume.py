@@ -273,7 +273,8 @@ def quality(device: str, exemplars, size: int, source_resolution: int, methods=v
             whole = time.perf_counter() - t0
             q = r.quality
             syn, ran = q["synthesis"], q["random tiling"]
-            lines.append(f"| {name} | {method} | {'yes' if r.volume.slab else 'no'} | "
+            default = volume.resolve_method(volume.DEFAULT_METHOD, r.volume.slab) == method
+            lines.append(f"| {name} | {method}{' (default)' if default else ''} | {'yes' if r.volume.slab else 'no'} | "
                          f"{_structure_text(syn['structure'])} | {_structure_text(ran['structure'])} | "
                          f"{syn['mean']:.0f} / {ran['mean']:.0f} | {syn['mean'] / ran['mean']:.2f} | "
                          f"{r.timings['synthesis total']:.1f} s | {whole:.1f} s |")

@@ -774,7 +774,7 @@ def synthesize_volume(
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
             count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
-                                                 cut=method == "graphcut")
+                                                 cut=method == "graphcut" and not baseline)
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds

@@ -125,6 +125,19 @@ def test_defaults_grow_a_thin_plate_that_they_refused(one_device):
     r = synthesize_geometry("domes", 96, source_resolution=48, device=one_device, progress=False,
                             quality_samples=20, smooth=0, iterations=2)
     assert r.volume.slab and r.volume.levels[-1].block == (12, 16, 16)
+    assert r.method == "graphcut"  # the default for a slab
     s = r.quality["synthesis"]["structure"]["surface"]
     assert s["debris"]["output"] <= 0.005 and s["slopes"]["score"] >= 0.8
     assert r.quality["synthesis"]["mean"] < 0.5 * r.quality["random tiling"]["mean"]
+
+
+def test_random_tiling_baseline_is_one_whatever_the_method(one_device, domes_source):
+    """The baseline tiles random blocks by the paper's overwrite rule for every method
+    (the default's graphcut on a slab included): one baseline to compare against."""
+    from geosynth.volume import synthesize_volume
+
+    z = domes_source.shape[0]
+    runs = [synthesize_volume(domes_source, (z, 48, 48), levels=2, block=8, seed=3, device=one_device,
+                              progress=False, baseline=True, method=m).quantized for m in ("auto", "paper", "graphcut")]
+    for other in runs[1:]:
+        np.testing.assert_array_equal(other, runs[0])
