@@ -14,8 +14,14 @@ End to end: ``synthesize_geometry`` with the defaults (64 samples across the exe
 128 x 128 target, 3 levels, block 16) per backend and built-in exemplar, plus a full
 64^3 -> 128^3 cube of spheres, with the time of each stage.
 
+Quality: per built-in exemplar and method (paper, graphcut, optimize), with the
+defaults otherwise, the structure metrics (elements, or debris / slopes / overhangs)
+and the mean block distance beside random tiling's, whether it grew as a slab, and
+the time, on the first OpenCL device given (else the first device; a seed gives the
+same field on every device).
+
 Usage: python bench/bm_volume.py [--quick] [--devices cpu,opencl:0:0] [--out FILE]
-       [--budget SECONDS] [--part matching|end-to-end] [--cases 64,128,256]
+       [--budget SECONDS] [--part matching|end-to-end|quality] [--cases 64,128,256]
 """
 
 from __future__ import annotations
@@ -242,9 +248,47 @@ def end_to_end(devices, exemplars, size, source_resolution, cube) -> list[str]:
     return lines
 
 
+def _structure_text(report: dict) -> str:
+    """A short cell: "elements 0.74", or "debris 0.0%, slopes 0.96, overhangs 0.0% (exemplar 0.0%)"."""
+    if report["kind"] == "elements":
+        e = report["elements"]["score"]
+        return "elements n/a" if np.isnan(e) else f"elements {e:.2f}"
+    s = report["surface"]
+    return (f"debris {100 * s['debris']['output']:.1f}%, slopes {s['slopes']['score']:.2f}, overhangs "
+            f"{100 * s['overhangs']['output']:.1f}% (exemplar {100 * s['overhangs']['exemplar']:.1f}%)")
+
+
+def quality(device: str, exemplars, size: int, source_resolution: int, methods=volume.METHODS) -> list[str]:
+    """The quality table: per exemplar and method, structure and block distance beside random tiling."""
+    lines = [f"## Quality per method (synthesize_geometry defaults: 3 levels, block 16; {source_resolution} "
+             f"samples across -> {size}; device {device})", "",
+             "| exemplar | method | slab | structure | random tiling's | block distance (synthesis / random) | "
+             "ratio | synthesis | whole run |",
+             "|---|---|---|---|---|---:|---:|---:|---:|"]
+    for name in exemplars:
+        for method in methods:
+            t0 = time.perf_counter()
+            r = synthesize_geometry(name, size, source_resolution=source_resolution, device=device, progress=False,
+                                    method=method)
+            whole = time.perf_counter() - t0
+            q = r.quality
+            syn, ran = q["synthesis"], q["random tiling"]
+            default = volume.resolve_method(volume.DEFAULT_METHOD, r.volume.slab) == method
+            lines.append(f"| {name} | {method}{' (default)' if default else ''} | {'yes' if r.volume.slab else 'no'} | "
+                         f"{_structure_text(syn['structure'])} | {_structure_text(ran['structure'])} | "
+                         f"{syn['mean']:.0f} / {ran['mean']:.0f} | {syn['mean'] / ran['mean']:.2f} | "
+                         f"{r.timings['synthesis total']:.1f} s | {whole:.1f} s |")
+            print("   ", lines[-1], flush=True)
+    lines += ["", "Targets: elements >= 0.6 (pieces), debris <= 0.5% (one piece), slopes >= 0.8 and overhangs "
+              "within 5 points of the exemplar's (surfaces), block distance ratio <= 0.5, whole run <= 60 s. "
+              "'whole run' includes the exemplar's distance field and the quality numbers (a random-tiling "
+              "synthesis and 100 exact nearest-block searches each way)."]
+    return lines
+
+
 def _options(parser) -> None:
     parser.add_argument("--budget", type=float, default=20.0, help="seconds per search and case (at least one query)")
-    parser.add_argument("--part", choices=["all", "matching", "end-to-end"], default="all")
+    parser.add_argument("--part", choices=["all", "matching", "end-to-end", "quality"], default="all")
     parser.add_argument("--cases", default=None, type=_sides,
                         help="comma-separated matching source sides, e.g. 64,128 (default: 64,128,256)")
 
@@ -265,8 +309,10 @@ def main(argv=None) -> int:
     args = options(argv)
     if args.quick:
         cases, n_queries, exemplars, size, res, cube = [(32, 8)], 4, ["terrain"], 64, 32, False
+        quality_exemplars = ["terrain", "domes"]
     else:
         cases, n_queries, exemplars, size, res, cube = [(64, 8), (128, 16), (256, 32)], 50, list(EXEMPLARS), 128, 64, True
+        quality_exemplars = list(EXEMPLARS)
     if args.cases:
         cases = [case for case in cases if case[0] in args.cases]
         if not cases:
@@ -276,7 +322,10 @@ def main(argv=None) -> int:
     if args.part in ("all", "matching"):
         lines += matching(devices, cases, n_queries, args.budget) + [""]
     if args.part in ("all", "end-to-end"):
-        lines += end_to_end(devices, exemplars, size, res, cube)
+        lines += end_to_end(devices, exemplars, size, res, cube) + [""]
+    if args.part in ("all", "quality"):
+        # the targets are OpenCL's; the fields are the same on every device, the times are not
+        lines += quality(next((d for d in devices if d.startswith("opencl")), devices[0]), quality_exemplars, size, res)
     return finish("\n".join(lines), args)
 
 

@@ -13,16 +13,29 @@ import numpy as np
 
 from geosynth.scoring import candidate_origins
 
-__all__ = ["block_offsets", "block_origins", "box_sums"]
+__all__ = ["block_offsets", "block_origins", "block_shape", "box_sums"]
 
 
-def block_offsets(block: int) -> np.ndarray:
-    """(N^3, 3) int64 offsets (dz, dy, dx) of a block's samples, raster order."""
-    ax = np.arange(block)
-    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+def block_shape(block) -> tuple[int, int, int]:
+    """A block's (bz, by, bx) sides: one integer N is the cube (N, N, N); three are
+    taken as given (an anisotropic block, e.g. a slab's: its full thickness along z)."""
+    if np.ndim(block) == 0:
+        n = int(block)
+        return (n, n, n)
+    sides = tuple(int(v) for v in np.asarray(block).reshape(-1))
+    if len(sides) != 3:
+        raise ValueError(f"a block shape has three sides (z, y, x), got {block!r}.")
+    return sides
 
 
-def block_origins(shape, block: int) -> np.ndarray:
+def block_offsets(block) -> np.ndarray:
+    """(bz * by * bx, 3) int64 offsets (dz, dy, dx) of a block's samples, raster order;
+    ``block`` is N (a cube) or (bz, by, bx)."""
+    axes = [np.arange(n) for n in block_shape(block)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def block_origins(shape, block) -> np.ndarray:
     """(B, 3) int64 origins of every block of a field, in block-index order.
 
     The same as ``geosynth.scoring.candidate_origins(shape, block_offsets(block))``:
@@ -32,18 +45,18 @@ def block_origins(shape, block: int) -> np.ndarray:
 
 
 
-def box_sums(field: np.ndarray, cell: int) -> np.ndarray:
-    """Exact sums over every ``cell``^3 cube of a field.
+def box_sums(field: np.ndarray, cell) -> np.ndarray:
+    """Exact sums over every cell of a field.
 
     Args:
         field: (Z, Y, X) integer array.
-        cell: cube side c >= 1.
+        cell: cube side c >= 1, or a box (cz, cy, cx).
 
     Returns:
-        (Z - c + 1, Y - c + 1, X - c + 1) int64; ``out[p] = field[p : p + c].sum()``.
+        (Z - cz + 1, Y - cy + 1, X - cx + 1) int64; ``out[p] = field[p : p + c].sum()``.
     """
     p = np.zeros(tuple(s + 1 for s in field.shape), np.int64)
     p[1:, 1:, 1:] = np.asarray(field, np.int64).cumsum(0).cumsum(1).cumsum(2)
-    c = int(cell)
-    return (p[c:, c:, c:] - p[:-c, c:, c:] - p[c:, :-c, c:] - p[c:, c:, :-c]
-            + p[:-c, :-c, c:] + p[:-c, c:, :-c] + p[c:, :-c, :-c] - p[:-c, :-c, :-c])
+    a, b, c = block_shape(cell)
+    return (p[a:, b:, c:] - p[:-a, b:, c:] - p[a:, :-b, c:] - p[a:, b:, :-c]
+            + p[:-a, :-b, c:] + p[:-a, b:, :-c] + p[a:, :-b, :-c] - p[:-a, :-b, :-c])

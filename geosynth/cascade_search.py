@@ -16,8 +16,8 @@ import numpy as np
 
 from geosynth import _checks
 from geosynth.arrays import DeviceArray
-from geosynth.blocks import block_offsets, box_sums
-from geosynth.pyramid import check_block, check_field, check_memory, check_query
+from geosynth.blocks import block_offsets, block_shape, box_sums
+from geosynth.pyramid import check_block_shape, check_field, check_memory, check_query
 from geosynth.scoring import GatherScorer
 
 __all__ = ["CascadeSearch"]
@@ -43,6 +43,13 @@ _INT32_MAX = 2**31 - 1
 _NORM_SLACK = 0.08
 
 
+def _divisor_cells(side: int, count: int) -> int:
+    """The cell side along an axis of ``side`` samples split into at most ``count``
+    equal cells (the largest count that divides the side)."""
+    k = max(d for d in range(1, max(1, min(count, side)) + 1) if side % d == 0)
+    return side // k
+
+
 def _centred_norms(sums: np.ndarray, squares: np.ndarray, m: int) -> np.ndarray:
     """Norms of cells minus their mean, sqrt(sum x^2 - (sum x)^2 / m), float64 from exact
     integer sums and sums of squares of m samples each."""
@@ -66,7 +73,11 @@ class CascadeSearch:
 
     Args:
         field: (Z, Y, X) uint8 source.
-        block: the block size N, a power of two <= every side of ``field``.
+        block: the block size N, a power of two <= every side of ``field``; or an
+            anisotropic block (bz, by, bx), each side <= the field's (a slab's block:
+            its full thickness along z). An anisotropic block runs the staged search
+            (no fused kernel) with box cells: each stage's ``bound_cells_per_side``
+            count split per axis into the largest count that divides that side.
         device: a device string; None means ``"auto"``.
         guesses: blocks scored exactly in the guess phase of the staged search (default
             32; the fused search needs none: its work-items share the best SSD found).
@@ -91,7 +102,8 @@ class CascadeSearch:
     cores) 3-4x faster than the staged launches at 64^3 / 8 and 2-3x at 128^3 / 16.
 
     Attributes:
-        stages: the cell sizes of the bound stages, coarse to fine; empty for N <= 2
+        stages: the cell sizes of the bound stages, coarse to fine (an anisotropic
+            block's: (cz, cy, cx) boxes); empty for N <= 2
             and for searches small enough that scoring every block in one launch is
             cheaper (fewer than ``min_work`` comparisons).
         fused: whether the stages run fused in one launch.
@@ -110,27 +122,40 @@ class CascadeSearch:
         from geosynth.arrays import to_device
 
         field = check_field(field)
-        check_block(block, field.shape)
+        block = check_block_shape(block, field.shape)
         self.field = field
-        self.block = int(block)
-        self.lattice = tuple(int(s) - self.block + 1 for s in field.shape)
+        self.block = block  # N for a cube, else (bz, by, bx)
+        self.block_shape = block_shape(block)
+        self.block_samples = int(np.prod(self.block_shape))
+        self.lattice = tuple(int(s) - b + 1 for s, b in zip(field.shape, self.block_shape))
         self.n_blocks = int(np.prod(self.lattice))
         backend = _checks.resolve_backend(device)
-        fused = cells is None and self.block in _FUSED_BLOCKS
-        if cells is None:  # fused, or the backend's choice (Backend.bound_cells_per_side)
-            per_side = (2, 4) if fused else backend.bound_cells_per_side
-            cells = [self.block // n for n in per_side if self.block // n >= 2]
-        cells = [int(c) for c in cells]
-        for c in cells:
-            if c < 2 or c >= self.block or c & (c - 1) or c > _MAX_BOUND_CELL:
-                raise ValueError(f"cells must be powers of two in [2, {min(self.block - 1, _MAX_BOUND_CELL)}] "
-                                 f"for block {self.block}, got {cells}.")
-        if cells != sorted(cells, reverse=True) or len(set(cells)) != len(cells):
-            raise ValueError(f"cells must go coarse to fine (strictly decreasing), got {cells}.")
+        cubic = np.ndim(block) == 0
+        fused = cubic and cells is None and self.block in _FUSED_BLOCKS
+        if not cubic:
+            if cells is not None:
+                raise ValueError(f"cells are chosen for an anisotropic block {self.block}; give cells=None.")
+            boxes = []
+            for n in backend.bound_cells_per_side:
+                box = tuple(_divisor_cells(b, n) for b in self.block_shape)
+                if box != self.block_shape and np.prod(box) >= 2 and box not in boxes:
+                    boxes.append(box)
+            cells = boxes
+        else:
+            if cells is None:  # fused, or the backend's choice (Backend.bound_cells_per_side)
+                per_side = (2, 4) if fused else backend.bound_cells_per_side
+                cells = [self.block // n for n in per_side if self.block // n >= 2]
+            cells = [int(c) for c in cells]
+            for c in cells:
+                if c < 2 or c >= self.block or c & (c - 1) or c > _MAX_BOUND_CELL:
+                    raise ValueError(f"cells must be powers of two in [2, {min(self.block - 1, _MAX_BOUND_CELL)}] "
+                                     f"for block {self.block}, got {cells}.")
+            if cells != sorted(cells, reverse=True) or len(set(cells)) != len(cells):
+                raise ValueError(f"cells must go coarse to fine (strictly decreasing), got {cells}.")
         self.stages = cells
         if min_work is None:
             min_work = _CASCADE_MIN_LAUNCHES * backend.launch_work
-        if self.n_blocks * self.block**3 < min_work:
+        if self.n_blocks * self.block_samples < min_work:
             self.stages = []  # one launch over every block costs less than the stages' launches
             fused = False
         self.fused = fused
@@ -142,7 +167,8 @@ class CascadeSearch:
         self._field_device = to_device(field, dev)
         self._exact_scorer = GatherScorer(self._field_device, block_offsets(self.block))
         self._bound_scorers = {} if fused else {
-            c: GatherScorer(to_device(box_sums(field, c).astype(np.float32), dev), c * block_offsets(self.block // c))
+            c: GatherScorer(to_device(box_sums(field, c).astype(np.float32), dev),
+                            np.asarray(block_shape(c)) * block_offsets(self._cells_per_side(c)))
             for c in self.stages
         }
         if fused:
@@ -150,6 +176,10 @@ class CascadeSearch:
         self.guesses = max(1, int(guesses))
         self.guess_skip = 16384  # blocks under a given threshold above which a guess pays off
         self.last_info: dict = {}
+
+    def _cells_per_side(self, cell) -> tuple[int, int, int]:
+        """Cells of side (or box) ``cell`` per block side, (z, y, x)."""
+        return tuple(b // c for b, c in zip(self.block_shape, block_shape(cell)))
 
     def _fused_setup(self, dev: str) -> None:
         """Cell sums (sides N/2 and N/4) and coarse centred norms at every field position,
@@ -218,7 +248,8 @@ class CascadeSearch:
             bounds = scorer(query_sums[cell])
         else:  # block indices are lattice indices: no origins to gather and check
             bounds = scorer.score_bases(query_sums[cell], scorer.lattice_bases(alive))
-        bounds *= np.float32(1.0 / cell**3)  # c is a power of two: exact
+        # a cube's c^3 is a power of two (exact); a box's 1/m rounds by 2^-24, far inside the margin
+        bounds *= np.float32(1.0 / int(np.prod(block_shape(cell))))
         return bounds
 
     def _exact(self, alive: np.ndarray, query: np.ndarray, threshold=None) -> np.ndarray:
@@ -252,8 +283,8 @@ class CascadeSearch:
         q64 = query.astype(np.int64)
         query_sums = {}
         for c in self.stages:
-            n = self.block // c
-            query_sums[c] = q64.reshape(n, c, n, c, n, c).sum(axis=(1, 3, 5)).reshape(-1).astype(np.float32)
+            (nz, ny, nx), (cz, cy, cx) = self._cells_per_side(c), block_shape(c)
+            query_sums[c] = q64.reshape(nz, cz, ny, cy, nx, cx).sum(axis=(1, 3, 5)).reshape(-1).astype(np.float32)
         bounds = self._bound(self.stages[0], query_sums, None)
         best_ssd = None if threshold is None else int(threshold)
         if best_ssd is None or np.count_nonzero(bounds <= best_ssd * (1 + _BOUND_MARGIN) + 1) > self.guess_skip:
@@ -321,8 +352,8 @@ class CascadeSearch:
             each stage).
         """
         queries = np.asarray(queries)
-        if queries.ndim != 4 or queries.shape[1:] != (self.block,) * 3:
-            raise ValueError(f"queries must have shape (Q, {self.block}, {self.block}, {self.block}), "
+        if queries.ndim != 4 or queries.shape[1:] != self.block_shape:
+            raise ValueError(f"queries must have shape (Q, {', '.join(str(v) for v in self.block_shape)}), "
                              f"got {queries.shape}.")
         n = len(queries)
         origins = np.empty((n, 3), np.int64)

@@ -387,7 +387,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
     from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume import block_text, synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -400,13 +400,20 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
         seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
+        slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
     )
+    say(f"method: {result.method}" + (" (auto: graphcut for a slab, optimize otherwise)" if args.method == "auto"
+                                      else ""))
+    if result.volume.slab:
+        z, y, x = result.volume.source.shape
+        say(f"slab exemplar ({x} x {y} x {z} samples, x y z): blocks span its full thickness along z, "
+            f"grown across only" + (" (chosen automatically)" if getattr(args, "slab", "auto") == "auto" else ""))
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
     say("\nper level:")
     for i, lv in enumerate(result.volume.levels):
         src_xyz, tgt_xyz = (" x ".join(str(v) for v in shape[::-1]) for shape in (lv.source_shape, lv.target_shape))
-        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {lv.block}: "
+        say(f"  level {i + 1}: source {src_xyz}, target {tgt_xyz} (x, y, z), block {block_text(lv.block)}: "
             f"{lv.matches:,} matches, mean best-match distance {lv.mean_match_distance:.1f} per sample, {lv.seconds:.1f} s "
             f"({lv.seconds / max(1, lv.matches) * 1e3:.2f} ms per match)")
         say("    search: " + lv.search.replace("\n", "\n    "))
@@ -558,11 +565,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source-resolution", type=_int_type(8), default=64,
                    help="exemplar samples along its longest side, >= 8 (default 64)")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
-    p.add_argument("--method", choices=["optimize", "graphcut", "paper"], default="optimize",
-                   help="optimize: texture optimization per level (default, keeps structure best); graphcut: the "
-                        "paper's scan with minimum-error cuts; paper: the paper's scan-order copying")
+    p.add_argument("--method", choices=["auto", "optimize", "graphcut", "paper"], default="auto",
+                   help="auto (default): graphcut for a slab exemplar, optimize otherwise (the best structure "
+                        "measured); optimize: texture optimization per level; graphcut: the paper's scan with "
+                        "minimum-error cuts; paper: the paper's scan-order copying")
     p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
+    p.add_argument("--slab", choices=["auto", "yes", "no"], default="auto",
+                   help="blocks through the exemplar's full thickness, grown across only: auto (default: when the "
+                        "exemplar is at least 4x thinner along z than across), yes or no")
     p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
                    help=f"Taubin smoothing iterations, 0 to {MAX_SMOOTH} (default 10)")
     p.add_argument("--quality-samples", type=_int_type(0), default=100,
@@ -721,20 +732,23 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
-    _close_progress_bars()
+    _close_progress_bars(interrupted=code == 130)
     sys.stdout.flush()
     print(line, file=sys.stderr)
     return code
 
 
-def _close_progress_bars() -> None:
+def _close_progress_bars(interrupted: bool = False) -> None:
     """Close the bars an interrupted or failed run left open, so the message that follows
-    starts on a line of its own (a bar's frame may outlive the exception)."""
+    starts on a line of its own (a bar's frame may outlive the exception). An interrupt
+    inside a bar's constructor (after its first display, before it is returned) leaves
+    no bar to close but an open line: after an interrupt the line is ended whenever a
+    bar was ever made."""
     module = sys.modules.get("tqdm")
     bars = list(getattr(module.tqdm, "_instances", ())) if module is not None else []
     for bar in bars:
         bar.close()
-    if bars:  # a bar interrupted mid-write may not have ended its line
+    if bars or (interrupted and module is not None):  # a bar interrupted mid-write may not have ended its line
         sys.stderr.write("\n")
 
 if __name__ == "__main__":

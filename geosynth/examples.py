@@ -14,6 +14,7 @@ __all__ = [
     "EXEMPLARS", "Exemplar", "balls_mesh", "chainmail_exemplar", "chainmail_mesh", "exemplar_field", "exemplar_mesh",
     "fibers_mesh", "grid_mesh", "resolve_exemplar_mesh", "settle_spheres", "spheres_field", "terrain_heights",
     "terrain_mesh", "torus_mesh", "tube_mesh",
+    "domes_mesh", "heightfield_slab", "ring_layer_mesh",
 ]
 
 
@@ -525,6 +526,99 @@ def terrain_mesh(seed: int = 0, size: int = 96, base: float = 0.1, relief: float
     return trimesh.Trimesh(vertices, np.concatenate(faces), process=False)
 
 
+# ------------------------------------------------------------------ slab exemplars
+#
+# Exemplars much thinner along z than across (geosynth.volume.is_slab): the synthesis
+# grows them across only, with blocks that span their full thickness.
+
+
+def heightfield_slab(heights: np.ndarray, base: float, relief: float):
+    """A closed slab over the unit footprint whose top is ``z = base + relief * h``.
+
+    Args:
+        heights: (S, S) heights in [0, 1] on a periodic S x S grid (row i at x = i / S).
+        base: the lowest top height (the slab's thinnest part), > 0.
+        relief: the height of h = 1 above the base.
+
+    Returns:
+        watertight ``trimesh.Trimesh`` (2 S^2 + 12 S faces), flat bottom at z = 0,
+        in [0, 1]^2 x [0, base + relief].
+    """
+    import trimesh
+
+    size = heights.shape[0]
+    n = size + 1
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    top = np.column_stack([i.ravel() / size, j.ravel() / size, base + relief * heights[i % size, j % size].ravel()])
+    idx = i * n + j
+    v00, v10, v01, v11 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    faces = [np.stack([v00, v10, v11], -1).reshape(-1, 3), np.stack([v00, v11, v01], -1).reshape(-1, 3)]
+    loop = np.concatenate([idx[:-1, 0], idx[-1, :-1], idx[:0:-1, -1], idx[0, :0:-1]])  # counter-clockwise
+    m = len(loop)
+    bottom = np.column_stack([top[loop, :2], np.zeros(m)])
+    b = n * n + np.arange(m)
+    centre = n * n + m
+    ta, tb = loop, np.roll(loop, -1)
+    ba, bb = b, np.roll(b, -1)
+    faces += [np.stack([ba, bb, tb], -1), np.stack([ba, tb, ta], -1), np.stack([np.full(m, centre), bb, ba], -1)]
+    vertices = np.vstack([top, bottom, [[0.5, 0.5, 0.0]]])
+    return trimesh.Trimesh(vertices, np.concatenate(faces), process=False)
+
+
+def domes_mesh(seed: int = 0, size: int = 128, cells: int = 5, radius: tuple[float, float] = (0.06, 0.085),
+               jitter: float = 0.02, base: float = 0.05, relief: float = 0.07):
+    """The "domes" slab exemplar: a thin plate with round domes on a jittered lattice.
+
+    ``cells`` x ``cells`` domes (half-ellipsoids of footprint radius drawn from
+    ``radius`` and height ``relief``) on a plate ``base`` thick; centres on the lattice
+    of spacing 1 / cells, moved by up to ``jitter`` per axis; the heights wrap, so the
+    footprint tiles. About 12 samples thick (margins included) of a 64-sample source.
+
+    Returns:
+        watertight ``trimesh.Trimesh`` (2 size^2 + 12 size faces: 34,304 by default) in
+        [0, 1]^2 x [0, base + relief].
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(size) / size
+    x, y = np.meshgrid(t, t, indexing="ij")
+    h = np.zeros((size, size))
+    for a in range(cells):
+        for b in range(cells):
+            cx, cy = (np.array([a, b]) + 0.5) / cells + rng.uniform(-jitter, jitter, 2)
+            r = rng.uniform(*radius)
+            dx = (x - cx + 0.5) % 1.0 - 0.5  # periodic offsets
+            dy = (y - cy + 0.5) % 1.0 - 0.5
+            h = np.maximum(h, np.sqrt(np.clip(1.0 - (dx * dx + dy * dy) / (r * r), 0.0, None)))
+    return heightfield_slab(h, base, relief)
+
+
+def ring_layer_mesh(seed: int = 0, cells: int = 4, major_radius: float = 0.08, minor_radius: float = 0.025,
+                    jitter: float = 0.01, major_sections: int = 32, minor_sections: int = 12):
+    """The "rings" slab exemplar: one layer of separate flat rings (tori around z).
+
+    ``cells`` x ``cells`` rings on a lattice of spacing 1 / cells, each moved by up to
+    ``jitter`` per axis (neighbouring wires stay >= 0.02 apart: separate pieces), fitted
+    to the unit footprint: a layer about 0.05 thick, 8 samples with margins of a
+    64-sample source; a ring is about 14 samples across there.
+
+    Returns:
+        watertight ``trimesh.Trimesh`` (2 major_sections minor_sections faces per ring:
+        12,288 by default) in [0, 1]^2 x [0, ~0.05].
+    """
+    import trimesh
+
+    rng = np.random.default_rng(seed)
+    ring = torus_mesh(major_radius, minor_radius, major_sections, minor_sections)
+    parts = []
+    for a in range(cells):
+        for b in range(cells):
+            c = (np.array([a, b]) + 0.5) / cells + rng.uniform(-jitter, jitter, 2)
+            part = ring.copy()
+            part.apply_translation([c[0], c[1], minor_radius])
+            parts.append(part)
+    return _fit_footprint(trimesh.util.concatenate(parts))
+
+
 @dataclass(frozen=True)
 class Exemplar:
     """A built-in exemplar: how to build it and what to expect of it.
@@ -558,6 +652,10 @@ EXEMPLARS: dict[str, Exemplar] = {
                        (15_000, 35_000)),
     "terrain": Exemplar("terrain", terrain_mesh, "a fractal height field as a closed slab, 1 x 1 x 0.4",
                         (19_584, 19_584)),
+    # slab exemplars (grown across only, blocks through their full thickness)
+    "domes": Exemplar("domes", domes_mesh, "slab: round domes on a thin plate, 1 x 1 x 0.12", (34_304, 34_304)),
+    "rings": Exemplar("rings", ring_layer_mesh, "slab: one layer of 16 separate flat rings, 1 x 1 x 0.05",
+                      (12_288, 12_288)),
 }
 
 

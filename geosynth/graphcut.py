@@ -91,21 +91,25 @@ def min_cut(old: np.ndarray, new: np.ndarray, must_new: np.ndarray, must_old: np
     return take[:n].reshape(shape)
 
 
-def must_keep(done: np.ndarray, origin, block: int, wrap: bool) -> np.ndarray:
-    """(N, N, N) bool: synthesized samples of the block at ``origin`` that touch (6-
+def must_keep(done: np.ndarray, origin, block, wrap: bool) -> np.ndarray:
+    """(bz, by, bx) bool: synthesized samples of the block at ``origin`` that touch (6-
     neighbours) a synthesized sample outside it: the seam may not pass there.
 
     Args:
         done: (Z, Y, X) bool, the target's synthesized samples.
         origin: the block's (z, y, x) origin.
-        block: N.
+        block: N, or (bz, by, bx).
         wrap: the target is periodic (the neighbour across a face is on the other side).
     """
+    from geosynth.blocks import block_shape
+
     shape = done.shape
-    axes = [np.arange(o, o + block) for o in origin]
+    sides = block_shape(block)
+    axes = [np.arange(o, o + b) for o, b in zip(origin, sides)]
     inside = done[np.ix_(*[a % n for a, n in zip(axes, shape)])] if wrap else done[np.ix_(*axes)]
-    keep = np.zeros((block,) * 3, bool)
+    keep = np.zeros(sides, bool)
     for axis in range(3):
+        block = sides[axis]
         for side, face in ((-1, 0), (1, block - 1)):
             j = int(origin[axis]) + (block if side > 0 else -1)
             if not wrap and not 0 <= j < shape[axis]:

@@ -55,7 +55,7 @@ def _refined_sample_cap() -> int:
 def bidirectional_block_distance(
     exemplar: np.ndarray,
     output: np.ndarray,
-    block: int,
+    block,
     *,
     samples: int = 200,
     seed: int | None = 0,
@@ -65,11 +65,11 @@ def bidirectional_block_distance(
 
     For ``samples`` random blocks of the output, the exact nearest block of the
     exemplar; for ``samples`` random blocks of the exemplar, the exact nearest block of
-    the output; distances are SSD / block^3 (squared uint8 units per sample).
+    the output; distances are SSD / block samples (squared uint8 units per sample).
 
     Args:
         exemplar, output: (Z, Y, X) uint8 volumes, each at least ``block`` per side.
-        block: block size.
+        block: block size N, or a slab's block (bz, by, bx).
         samples: blocks drawn from each side (all of them when fewer exist).
         seed: seed of the Generator that draws them.
         device: device of the gather kernel.
@@ -77,23 +77,25 @@ def bidirectional_block_distance(
     Returns:
         {"output_to_exemplar": float, "exemplar_to_output": float, "mean": float}.
     """
+    from geosynth.blocks import block_shape
     from geosynth.cascade_search import CascadeSearch
 
+    bz, by, bx = sides = block_shape(block)
     for name, v in (("exemplar", exemplar), ("output", output)):
-        if v.dtype != np.uint8 or v.ndim != 3 or min(v.shape) < block:
+        if v.dtype != np.uint8 or v.ndim != 3 or any(n < b for n, b in zip(v.shape, sides)):
             raise ValueError(f"{name} must be a uint8 (Z, Y, X) volume of at least {block} per side, got {v.dtype} {v.shape}.")
     rng = np.random.default_rng(seed)
 
     def one_way(queries_from: np.ndarray, search_in: np.ndarray) -> float:
-        counts = [s - block + 1 for s in queries_from.shape]
+        counts = [s - b + 1 for s, b in zip(queries_from.shape, sides)]
         total = int(np.prod(counts))
         picks = rng.choice(total, size=min(samples, total), replace=False)
         search = CascadeSearch(search_in, block, device=device)  # exact nearest block
         dists = []
         for idx in picks:
             z, y, x = np.unravel_index(idx, counts)
-            _, ssd = search.nearest(queries_from[z:z + block, y:y + block, x:x + block])
-            dists.append(ssd / block**3)
+            _, ssd = search.nearest(queries_from[z:z + bz, y:y + by, x:x + bx])
+            dists.append(ssd / (bz * by * bx))
         return float(np.mean(dists))
 
     a = one_way(output, exemplar)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from geosynth.blocks import block_shape
+
 __all__ = ["IRLS_R", "irls_weights", "lattice_positions", "memory_estimate", "optimize_level", "random_blocks", "vote"]
 
 IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
@@ -62,14 +64,14 @@ def level_final(finest: bool) -> str:
     return FINAL_VOTE["finest" if finest else "coarse"]
 
 
-def falloff(block: int, sigma: float | None = None) -> np.ndarray | None:
-    """(N, N, N) Gaussian weights around the block centre (sigma in blocks), or None."""
+def falloff(block, sigma: float | None = None) -> np.ndarray | None:
+    """(bz, by, bx) Gaussian weights around the block centre (sigma in block sides, per
+    axis; ``block`` N or (bz, by, bx)), or None."""
     sigma = FALLOFF_SIGMA if sigma is None else sigma
     if sigma is None:
         return None
-    c = (np.arange(block) - (block - 1) / 2) / (sigma * block)
-    g = np.exp(-0.5 * c**2)
-    return g[:, None, None] * g[None, :, None] * g[None, None, :]
+    gz, gy, gx = (np.exp(-0.5 * ((np.arange(b) - (b - 1) / 2) / (sigma * b)) ** 2) for b in block_shape(block))
+    return gz[:, None, None] * gy[None, :, None] * gx[None, None, :]
 
 
 def level_stride(block: int, finest: bool) -> int:
@@ -77,22 +79,26 @@ def level_stride(block: int, finest: bool) -> int:
     return max(1, block // (FINEST_DIVISOR if finest else COARSE_DIVISOR))
 
 
-def memory_estimate(shape, block: int, stride: int | None = None, wrap: bool = False) -> int:
-    """Bytes :func:`optimize_level` needs beyond its inputs for a (Z, Y, X) target:
-    the vote's accumulators (2 float64 per sample, padded by a block) and a chunk of
-    query copies with their int32 differences (at most CHUNK of the lattice's blocks;
-    ``stride`` None: the finest level's)."""
-    padded = int(np.prod([int(n) + int(block) for n in shape]))
-    stride = level_stride(int(block), True) if stride is None else int(stride)
-    positions = int(np.prod([len(lattice_positions(int(n), int(block), stride, wrap)) for n in shape]))
-    return 2 * 8 * padded + min(CHUNK, positions) * int(block) ** 3 * _QUERY_SAMPLE_BYTES
+def memory_estimate(shape, block, stride: int | None = None, wrap: bool = False) -> int:
+    """Bytes :func:`optimize_level` needs beyond its inputs for a (Z, Y, X) target and a
+    block N or (bz, by, bx): the vote's accumulators (2 float64 per sample, padded by a
+    block) and a chunk of query copies with their int32 differences (at most CHUNK of
+    the lattice's blocks; ``stride`` None: the finest level's)."""
+    bs = block_shape(block)
+    padded = int(np.prod([int(n) + b for n, b in zip(shape, bs)]))
+    stride = level_stride(bs[-1], True) if stride is None else int(stride)
+    positions = int(np.prod([len(lattice_positions(int(n), b, stride, wrap)) for n, b in zip(shape, bs)]))
+    return 2 * 8 * padded + min(CHUNK, positions) * int(np.prod(bs)) * _QUERY_SAMPLE_BYTES
 
 
 def lattice_positions(size: int, block: int, stride: int, wrap: bool) -> list[int]:
     """Block origins along one axis: every ``stride`` from 0; without wrap the last
     block is aligned to the end (so every sample is covered), with wrap blocks run up
-    to the end and cross it."""
+    to the end and cross it. A block that spans the axis (a slab's block along z) has
+    the one origin 0, wrap or not."""
     stride = max(1, int(stride))
+    if block >= size:
+        return [0]
     if wrap:
         return list(range(0, size, stride))
     pos = list(range(0, size - block + 1, stride))
@@ -101,38 +107,39 @@ def lattice_positions(size: int, block: int, stride: int, wrap: bool) -> list[in
     return pos
 
 
-def _positions(shape, block: int, stride: int, wrap: bool) -> np.ndarray:
-    axes = [lattice_positions(n, block, stride, wrap) for n in shape]
+def _positions(shape, block, stride: int, wrap: bool) -> np.ndarray:
+    axes = [lattice_positions(n, b, stride, wrap) for n, b in zip(shape, block_shape(block))]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
     return grid.reshape(-1, 3).astype(np.int64)
 
 
-def _padded(values: np.ndarray, block: int, wrap: bool) -> np.ndarray:
-    return np.pad(values, [(0, block)] * 3, mode="wrap") if wrap else values
+def _padded(values: np.ndarray, block, wrap: bool) -> np.ndarray:
+    return np.pad(values, [(0, b) for b in block_shape(block)], mode="wrap") if wrap else values
 
 
-def _blocks(values: np.ndarray, positions: np.ndarray, block: int) -> np.ndarray:
-    """(Q, N, N, N) copies of the blocks at ``positions`` (already within ``values``)."""
-    out = np.empty((len(positions), block, block, block), values.dtype)
+def _blocks(values: np.ndarray, positions: np.ndarray, block) -> np.ndarray:
+    """(Q, bz, by, bx) copies of the blocks at ``positions`` (already within ``values``)."""
+    bz, by, bx = block_shape(block)
+    out = np.empty((len(positions), bz, by, bx), values.dtype)
     for i, (z, y, x) in enumerate(positions):
-        out[i] = values[z:z + block, y:y + block, x:x + block]
+        out[i] = values[z:z + bz, y:y + by, x:x + bx]
     return out
 
 
 class _SourceBlocks:
     """The source blocks at ``origins``, read one at a time (no (Q, N, N, N) copy)."""
 
-    def __init__(self, source: np.ndarray, origins: np.ndarray, block: int):
-        self.source, self.origins, self.block = source, origins, block
-        self.shape = (len(origins), block, block, block)
+    def __init__(self, source: np.ndarray, origins: np.ndarray, block):
+        self.source, self.origins, self.block = source, origins, block_shape(block)
+        self.shape = (len(origins), *self.block)
 
     def __len__(self) -> int:
         return len(self.origins)
 
     def __iter__(self):
-        b = self.block
+        bz, by, bx = self.block
         for z, y, x in self.origins:
-            yield self.source[z:z + b, y:y + b, x:x + b]
+            yield self.source[z:z + bz, y:y + by, x:x + bx]
 
 
 def irls_weights(ssd: np.ndarray, r: float = IRLS_R) -> np.ndarray:
@@ -149,29 +156,30 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
     Args:
         shape: (Z, Y, X) of the output.
         positions: (Q, 3) block origins (with ``wrap``, blocks may cross the far faces).
-        patches: (Q, N, N, N) uint8 matched source blocks.
+        patches: (Q, bz, by, bx) uint8 matched source blocks.
         weights: (Q,) float weights.
         wrap: the output is periodic.
         fallback: values for samples no patch covers (None: every sample is covered).
-        falloff: (N, N, N) float weights of a block's samples (None: all 1).
+        falloff: (bz, by, bx) float weights of a block's samples (None: all 1).
         mode: "mean" (the weighted mean) or "max" (each sample copies the patch of the
             largest weight there, the first one on ties: whole pieces, no blending).
 
     Returns:
         (Z, Y, X) uint8.
     """
-    block = patches.shape[1]
-    pshape = tuple(n + block for n in shape) if wrap else tuple(shape)
+    bz, by, bx = bs = tuple(patches.shape[1:4])
+    pshape = tuple(n + b for n, b in zip(shape, bs)) if wrap else tuple(shape)
     acc = np.zeros(pshape, np.float64)
     wsum = np.zeros(pshape, np.float64)
-    g = np.ones((block,) * 3) if falloff is None else np.asarray(falloff, np.float64)
+    g = np.ones(bs) if falloff is None else np.asarray(falloff, np.float64)
     if mode == "max":
         return _vote_max(shape, positions, patches, weights, wrap, g, fallback)
     for (z, y, x), patch, w in zip(positions, patches, weights):
-        acc[z:z + block, y:y + block, x:x + block] += (w * g) * patch
-        wsum[z:z + block, y:y + block, x:x + block] += w * g
+        acc[z:z + bz, y:y + by, x:x + bx] += (w * g) * patch
+        wsum[z:z + bz, y:y + by, x:x + bx] += w * g
     if wrap:  # fold the overhang back onto the opposite faces
         for axis, n in enumerate(shape):
+            block = bs[axis]
             for a in (acc, wsum):
                 head = [slice(None)] * 3
                 tail = [slice(None)] * 3
@@ -188,18 +196,19 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
 
 
 def _vote_max(shape, positions, patches, weights, wrap, g, fallback):
-    block = patches.shape[1]
-    pshape = tuple(n + block for n in shape) if wrap else tuple(shape)
+    bz, by, bx = bs = tuple(patches.shape[1:4])
+    pshape = tuple(n + b for n, b in zip(shape, bs)) if wrap else tuple(shape)
     best = np.full(pshape, -1.0)
     value = np.zeros(pshape, np.uint8)
     for (z, y, x), patch, w in zip(positions, patches, weights):
-        sl = (slice(z, z + block), slice(y, y + block), slice(x, x + block))
+        sl = (slice(z, z + bz), slice(y, y + by), slice(x, x + bx))
         wg = w * g
         better = wg > best[sl]
         best[sl] = np.where(better, wg, best[sl])
         value[sl] = np.where(better, patch, value[sl])
     if wrap:  # fold: the overhang's sample wins where its weight is larger (ties: the face's)
         for axis, n in enumerate(shape):
+            block = bs[axis]
             head = [slice(None)] * 3
             tail = [slice(None)] * 3
             head[axis], tail[axis] = slice(0, block), slice(n, n + block)
@@ -214,15 +223,17 @@ def _vote_max(shape, positions, patches, weights, wrap, g, fallback):
     return out
 
 
-def random_blocks(source: np.ndarray, shape, block: int, rng: np.random.Generator, wrap: bool) -> np.ndarray:
-    """An initial target of random source blocks (uint8, ``shape``), tiled edge to edge
-    on a stride-``block`` lattice (the last block aligned to the end)."""
-    pos = _positions(shape, block, block, wrap)
-    last = np.array(source.shape) - block
-    out = np.zeros(tuple(n + block for n in shape) if wrap else tuple(shape), np.uint8)
+def random_blocks(source: np.ndarray, shape, block, rng: np.random.Generator, wrap: bool) -> np.ndarray:
+    """An initial target of random source blocks (uint8, ``shape``; ``block`` N or
+    (bz, by, bx)), tiled edge to edge (the last block aligned to the end)."""
+    bz, by, bx = bs = block_shape(block)
+    axes = [lattice_positions(n, b, b, wrap) for n, b in zip(shape, bs)]
+    pos = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    last = np.array(source.shape) - np.array(bs)
+    out = np.zeros(tuple(n + b for n, b in zip(shape, bs)) if wrap else tuple(shape), np.uint8)
     for z, y, x in pos:
         o = [int(rng.integers(n + 1)) for n in last]
-        out[z:z + block, y:y + block, x:x + block] = source[o[0]:o[0] + block, o[1]:o[1] + block, o[2]:o[2] + block]
+        out[z:z + bz, y:y + by, x:x + bx] = source[o[0]:o[0] + bz, o[1]:o[1] + by, o[2]:o[2] + bx]
     return np.ascontiguousarray(out[:shape[0], :shape[1], :shape[2]])
 
 
@@ -245,7 +256,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
     Args:
         source: (Z, Y, X) uint8 source of this level.
         target: (Z, Y, X) uint8 initialization; overwritten with the result.
-        block: block size N.
+        block: block size N, or an anisotropic block (bz, by, bx).
         search: an object with ``nearest_batch(queries, thresholds)`` returning
             ((Q, 3) origins, (Q,) SSDs, alive) -- :class:`geosynth.cascade_search.CascadeSearch`
             -- or with ``nearest(query, threshold=)`` returning (origin, SSD).
@@ -268,10 +279,11 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         "iteration cap"}.
     """
     shape = target.shape
+    block = block_shape(block)
     r = IRLS_R if r is None else float(r)
-    stride = max(1, block // 4) if stride is None else int(stride)
+    stride = max(1, block[-1] // 4) if stride is None else int(stride)
     positions = _positions(shape, block, stride, wrap)
-    sz, sy, sx = (n - block + 1 for n in source.shape)
+    sz, sy, sx = (n - b + 1 for n, b in zip(source.shape, block))
     prev = prev_index = None
     changed: list[float] = []
     matches = 0
@@ -309,7 +321,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma))
         voted = (origins, ssds)
-        mean = float(ssds.mean()) / block**3
+        mean = float(ssds.mean()) / int(np.prod(block))
         if progress is not None:
             progress(len(positions))
         if share < tolerance:

@@ -50,6 +50,7 @@ __all__ = [
     "block_levels",
     "build_pyramid",
     "check_block",
+    "check_block_shape",
     "compare_level",
     "level_shape",
     "query_arrays",
@@ -257,16 +258,44 @@ def block_levels(query: np.ndarray, block: int) -> list[np.ndarray]:
     return out
 
 
-def check_query(query, block: int) -> np.ndarray:
-    """A (N, N, N) uint8 query block, or a clear error."""
+def check_query(query, block) -> np.ndarray:
+    """A uint8 query block of the block's shape (N: (N, N, N); or (bz, by, bx)), or a clear error."""
     if isinstance(query, DeviceArray):
         raise TypeError("query must be a host NumPy array.")
     query = np.asarray(query)
     if query.dtype != np.uint8:
         raise TypeError(f"query has dtype {query.dtype}: expected uint8, like the source field.")
-    if query.shape != (block,) * 3:
-        raise ValueError(f"query must have shape ({block}, {block}, {block}) to match the block size, got {query.shape}.")
+    want = (int(block),) * 3 if np.ndim(block) == 0 else tuple(int(v) for v in block)
+    if query.shape != want:
+        raise ValueError(f"query must have shape {want} to match the block size, got {query.shape}.")
     return np.ascontiguousarray(query)
+
+
+def check_block_shape(block, shape: tuple[int, ...]):
+    """A cubic block N (checked by :func:`check_block`) or an anisotropic one (bz, by, bx)
+    of positive integers, each no larger than that side of ``shape``.
+
+    Returns:
+        the int N for a cube (three equal sides included), else the (bz, by, bx) tuple.
+
+    Raises:
+        TypeError: a side is not an integer. ValueError: a side < 1 or larger than the field.
+    """
+    if np.ndim(block) == 0:
+        check_block(block, shape)
+        return int(block)
+    sides = list(np.asarray(block, dtype=object).reshape(-1))
+    if len(sides) != 3 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in sides):
+        raise TypeError(f"block must be an integer or three of them (z, y, x), got {block!r}.")
+    sides = tuple(int(v) for v in sides)
+    if len(set(sides)) == 1:
+        check_block(sides[0], shape)
+        return sides[0]
+    if min(sides) < 1:
+        raise ValueError(f"block sides must be >= 1, got {sides}.")
+    if any(b > s for b, s in zip(sides, shape)):
+        raise ValueError(f"block {sides} is larger than the source field {tuple(shape)} along some axis.")
+    return sides
 
 
 def query_arrays(backend, query: np.ndarray, block: int) -> tuple[DeviceArray, DeviceArray]:

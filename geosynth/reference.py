@@ -273,8 +273,7 @@ def nearest_block_naive(field: np.ndarray, query: np.ndarray) -> tuple[tuple[int
     against every block, the smallest, the lowest raster index on ties."""
     from numpy.lib.stride_tricks import sliding_window_view
 
-    n_block = query.shape[0]
-    win = sliding_window_view(field.astype(np.int64), (n_block,) * 3)
+    win = sliding_window_view(field.astype(np.int64), query.shape)  # a cube or a (bz, by, bx) box
     ssd = ((win - query.astype(np.int64)) ** 2).sum(axis=(-3, -2, -1))
     i = int(np.argmin(ssd.reshape(-1)))  # argmin returns the first minimum
     z, y, x = np.unravel_index(i, ssd.shape)

@@ -18,6 +18,12 @@ The method and its parameters are the report's (Sec. 5):
 - Tileable targets wrap: a block that crosses a face continues on the opposite face,
   so copies of the output tile without seams.
 
+Slab exemplars (beyond the paper): when the exemplar is much thinner along z than
+across (:func:`is_slab`) and the target keeps its thickness, every level's block spans
+the level's full thickness along z, (Z_l, B, B), and the synthesis grows across only:
+a block then holds whole columns of the slab (a dome, a ring of a single layer), and
+no block position along z can stack a slab's top on its bottom.
+
 Beyond the paper (``method=``): "graphcut" pastes each block of the same
 scan along a minimum-error cut through the overlap (:mod:`geosynth.graphcut`) instead
 of keeping every synthesized sample; "optimize" replaces the scan by texture
@@ -43,7 +49,7 @@ from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
 from geosynth.memory import require
-from geosynth.blocks import block_offsets
+from geosynth.blocks import block_offsets, block_shape
 from geosynth.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
 
 __all__ = [
@@ -51,8 +57,12 @@ __all__ = [
     "LevelReport",
     "METHODS",
     "VolumeResult",
+    "SLAB_RATIO",
     "block_offsets",
+    "block_text",
     "downsample",
+    "is_slab",
+    "resolve_method",
     "quantize_field",
     "scan_positions",
     "synthesize_volume",
@@ -62,7 +72,36 @@ __all__ = [
 # synthesized samples kept), "graphcut" (the same scan, pasted along a minimum-error
 # cut, geosynth.graphcut), "optimize" (texture optimization, geosynth.optimize).
 METHODS = ("paper", "graphcut", "optimize")
-DEFAULT_METHOD = "optimize"
+# The default, "auto": the method that scores best on the built-in exemplars' structure
+# metrics for the kind of run (bench/bm_volume.py --part quality; opencl, 64 -> 128, 3
+# levels): "graphcut" for a slab (elements: chainmail 0.99 against optimize's 0.74,
+# rings 1.00 against 0.91; domes alike), "optimize" otherwise (balls 0.86 against
+# graphcut's 0.58, fibers 0.48 against 0.43, terrain's debris 0.0% against 0.5% and no
+# overhangs against 10.7%).
+DEFAULT_METHOD = "auto"
+
+
+def resolve_method(method: str, slab: bool) -> str:
+    """The method a run uses: ``method``, or for "auto" "graphcut" on a slab and
+    "optimize" otherwise (see DEFAULT_METHOD)."""
+    if method == "auto":
+        return "graphcut" if slab else "optimize"
+    return method
+# A source is a slab when its across sides are at least this many times its thickness.
+# The built-in sources at 64 samples across: domes 5.3, rings 8 and chainmail 2.7 (one
+# layer of linked rings) are slabs; fibers 2.3 (tubes in every direction), terrain 2,
+# balls 1.8 and grid 1.3 are not. Measured (opencl, 64 -> 128, 3 levels): chainmail's
+# elements 0.49 -> 0.69 as a slab (and 4x faster); fibers' 0.48 -> 0.37 as a slab;
+# terrain the same either way.
+SLAB_RATIO = 2.5
+
+
+def is_slab(source_shape, target_shape) -> bool:
+    """Whether a synthesis from a (Z, Y, X) source to a (Z, Y, X) target is a slab's:
+    the source's thinnest side is z, ``SLAB_RATIO`` times thinner than across, and the
+    target is no thicker than the source (it grows across only)."""
+    z, y, x = (int(v) for v in source_shape)
+    return z * SLAB_RATIO <= min(y, x) and int(target_shape[0]) <= z
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -74,14 +113,16 @@ def downsample(values: np.ndarray) -> np.ndarray:
     return ((s + 4) // 8).astype(np.uint8)
 
 
-def upsample(values: np.ndarray, shape: Sequence[int], wrap: bool) -> np.ndarray:
+def upsample(values: np.ndarray, shape: Sequence[int], wrap) -> np.ndarray:
     """Trilinear x2 upsampling of a uint8 (Z, Y, X) volume to ``shape`` (cell centres
-    aligned; clamped at the faces, or periodic when ``wrap``), in float32, rounded to uint8."""
+    aligned; clamped at the faces, or periodic when ``wrap``: one bool, or one per axis
+    (z, y, x)), in float32, rounded to uint8."""
     out = values.astype(np.float32)
+    wraps = (bool(wrap),) * 3 if np.ndim(wrap) == 0 else tuple(bool(w) for w in wrap)
     for axis, n in enumerate(shape):
         m = out.shape[axis]
         pos = (np.arange(n) + 0.5) * m / n - 0.5
-        out = lerp_axis(out, axis, linear_taps(pos, m, wrap, np.float32, clamp="taps"))
+        out = lerp_axis(out, axis, linear_taps(pos, m, wraps[axis], np.float32, clamp="taps"))
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
@@ -114,9 +155,10 @@ def scan_positions(size: int, block: int, wrap: bool) -> list[int]:
     return lattice_positions(size, block, block // 2, wrap)
 
 
-def _box(origin, block: int, shape, wrap: bool):
-    """Index arrays (np.ix_) for the block at ``origin`` (wrapping when asked)."""
-    axes = [np.arange(o, o + block) % n if wrap else np.arange(o, o + block) for o, n in zip(origin, shape)]
+def _box(origin, block, shape, wrap: bool):
+    """Index arrays (np.ix_) for the block (N or (bz, by, bx)) at ``origin`` (wrapping when asked)."""
+    axes = [np.arange(o, o + b) % n if wrap else np.arange(o, o + b)
+            for o, b, n in zip(origin, block_shape(block), shape)]
     return np.ix_(*axes)
 
 
@@ -126,7 +168,7 @@ class LevelReport:
 
     Attributes:
         source_shape, target_shape: (Z, Y, X) sizes at this level.
-        block: block size N.
+        block: block size N, or (bz, by, bx) for a slab (bz the level's thickness).
         matches: blocks matched (texture optimization: over all its iterations).
         mean_match_distance: mean over matches of SSD / N^3 (squared uint8 units;
             texture optimization: over the last iteration's matches).
@@ -157,7 +199,8 @@ class VolumeResult:
         levels: one LevelReport per level, coarsest first.
         band: the distance band of the quantization.
         timings: seconds per stage.
-        method: the method that made it (:data:`METHODS`), or "random tiling".
+        method: the method that made it (:data:`METHODS`, "auto" resolved), or "random tiling".
+        slab: whether the blocks spanned the full thickness (:func:`is_slab`).
     """
 
     quantized: np.ndarray
@@ -166,7 +209,8 @@ class VolumeResult:
     levels: list[LevelReport]
     band: float
     timings: dict = dc_field(default_factory=dict)
-    method: str = DEFAULT_METHOD
+    method: str = "optimize"
+    slab: bool = False
 
 
 SEARCHES = ("cascade", "tree", "linear")
@@ -247,12 +291,17 @@ def _as_shape(name: str, size) -> tuple[int, int, int]:
     return tuple(int(v) for v in s)
 
 
-def _level_blocks(levels: int, block) -> list[int]:
+def _level_blocks(levels: int, block, slab: bool = False) -> list[int]:
     if np.ndim(block) == 0:
         finest = int(block)
         # Coarser levels: the same block in samples covers twice the space per level;
-        # halve it (not below 4) so the coarsest keeps enough candidates.
-        blocks = [max(4, finest // 2)] * (levels - 1) + [finest]
+        # halve it (not below 4) so the coarsest keeps enough candidates. A slab's
+        # halves it at the coarsest level only: its blocks hold whole columns, and the
+        # finest block across at the levels between keeps more whole pieces (measured,
+        # opencl, 64 -> 128: chainmail elements 0.69 -> 0.74, rings 0.84 -> 0.91, domes
+        # slopes 0.95 -> 0.96).
+        coarse = levels - 1 if not slab else min(1, levels - 1)
+        blocks = [max(4, finest // 2)] * coarse + [finest] * (levels - coarse)
     else:
         blocks = [int(b) for b in block]
         if len(blocks) != levels:
@@ -268,12 +317,15 @@ class _Matcher:
     the search tree, or the plain linear search (every block scored by the gather
     kernel, argmin on the device). All three return the same block."""
 
-    def __init__(self, source: np.ndarray, block: int, device, search: str):
+    def __init__(self, source: np.ndarray, block, device, search: str):
         self.block = block
         self.offsets = block_offsets(block)
         self.search = search
         self.engine = None
         self.alive: list[list[int]] = []  # cascade: blocks alive after each stage, per match
+        if search == "tree" and np.ndim(block) != 0:
+            raise ValueError(f"search='tree' takes cubic blocks only; a slab's block {tuple(block)} needs "
+                             "search='cascade' or 'linear'.")
         if search == "tree":
             from geosynth.tree_search import BlockSearch
 
@@ -296,7 +348,7 @@ class _Matcher:
         if self.search == "cascade" and self.engine.stages and self.alive:
             width = max(len(a) for a in self.alive)
             mean = np.mean([a + [0] * (width - len(a)) for a in self.alive], axis=0)
-            cells = ", ".join(f"{c}^3" for c in self.engine.stages)
+            cells = ", ".join(f"{c}^3" if np.ndim(c) == 0 else "x".join(map(str, c)) for c in self.engine.stages)
             return (f"cascade over {self.engine.n_blocks:,} blocks, bound cells {cells}: mean blocks alive "
                     + " -> ".join(f"{v:,.0f}" for v in mean))
         if self.search == "cascade":
@@ -304,7 +356,7 @@ class _Matcher:
         return "linear"
 
     def nearest_batch(self, queries: np.ndarray, thresholds=None) -> tuple[np.ndarray, np.ndarray, list]:
-        """Exact nearest blocks of (Q, N, N, N) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
+        """Exact nearest blocks of (Q, bz, by, bx) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
         if self.search == "cascade":
             origins, ssds, alive = self.engine.nearest_batch(queries, thresholds)
             self.alive.extend(alive)
@@ -342,7 +394,8 @@ class _Matcher:
 def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False):
     shape = target.shape
     done = np.zeros(shape, bool)
-    axes = [scan_positions(n, block, wrap) for n in shape]
+    sides = block_shape(block)
+    axes = [scan_positions(n, b, wrap) for n, b in zip(shape, sides)]
     positions = [(z, y, x) for z in axes[0] for y in axes[1] for x in axes[2]]
     ssd_sum = 0
     bar = None
@@ -350,53 +403,55 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
         from tqdm import tqdm
 
         bar = tqdm(total=len(positions), desc=label, unit="block", leave=True, dynamic_ncols=True)
-    last_origin = np.array(source.shape) - block
+    last_origin = np.array(source.shape) - np.array(sides)
     matched: dict[tuple[int, int, int], np.ndarray] = {}
 
     def piece_at(origin):
-        return source[origin[0]:origin[0] + block, origin[1]:origin[1] + block, origin[2]:origin[2] + block]
+        return source[origin[0]:origin[0] + sides[0], origin[1]:origin[1] + sides[1], origin[2]:origin[2] + sides[2]]
 
-    for pos in positions:
-        box = _box(pos, block, shape, wrap)
-        query = target[box]
-        fresh = ~done[box]
-        if random_tiles:  # the baseline: a random source block, no matching
-            origin = np.array([rng.integers(n + 1) for n in last_origin])
-            ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
-        else:
-            # Coherence guesses: the earlier neighbours' matches moved on by the same step.
-            # Their best SSD bounds the answer, so the search may drop hopeless blocks
-            # early; the result is the same exact match.
-            threshold = None
-            for axis in range(3):
-                prev = list(pos)
-                i = axes[axis].index(pos[axis])
-                if i == 0:
-                    continue
-                prev[axis] = axes[axis][i - 1]
-                if tuple(prev) in matched:
-                    guess = matched[tuple(prev)].copy()
-                    guess[axis] += pos[axis] - prev[axis] if pos[axis] > prev[axis] else 0
-                    guess = np.clip(guess, 0, last_origin)
-                    g = int(((piece_at(guess).astype(np.int64) - query) ** 2).sum())
-                    threshold = g if threshold is None else min(threshold, g)
-            order = np.argsort(fresh.reshape(-1), kind="stable")  # synthesized samples first
-            origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
-            matched[pos] = np.asarray(origin)
-        piece = piece_at(origin)
-        if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
-            from geosynth.graphcut import min_cut, must_keep
+    try:  # an interrupted scan still ends its bar's line
+        for pos in positions:
+            box = _box(pos, block, shape, wrap)
+            query = target[box]
+            fresh = ~done[box]
+            if random_tiles:  # the baseline: a random source block, no matching
+                origin = np.array([rng.integers(n + 1) for n in last_origin])
+                ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
+            else:
+                # Coherence guesses: the earlier neighbours' matches moved on by the same step.
+                # Their best SSD bounds the answer, so the search may drop hopeless blocks
+                # early; the result is the same exact match.
+                threshold = None
+                for axis in range(3):
+                    prev = list(pos)
+                    i = axes[axis].index(pos[axis])
+                    if i == 0:
+                        continue
+                    prev[axis] = axes[axis][i - 1]
+                    if tuple(prev) in matched:
+                        guess = matched[tuple(prev)].copy()
+                        guess[axis] += pos[axis] - prev[axis] if pos[axis] > prev[axis] else 0
+                        guess = np.clip(guess, 0, last_origin)
+                        g = int(((piece_at(guess).astype(np.int64) - query) ** 2).sum())
+                        threshold = g if threshold is None else min(threshold, g)
+                order = np.argsort(fresh.reshape(-1), kind="stable")  # synthesized samples first
+                origin, ssd = matcher.nearest(query, threshold=threshold, order=order)
+                matched[pos] = np.asarray(origin)
+            piece = piece_at(origin)
+            if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
+                from geosynth.graphcut import min_cut, must_keep
 
-            fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
-        query[fresh] = piece[fresh]
-        target[box] = query
-        done[box] = True
-        ssd_sum += ssd
+                fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
+            query[fresh] = piece[fresh]
+            target[box] = query
+            done[box] = True
+            ssd_sum += ssd
+            if bar is not None:
+                bar.update(1)
+    finally:
         if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    return len(positions), ssd_sum / max(1, len(positions)) / block**3
+            bar.close()
+    return len(positions), ssd_sum / max(1, len(positions)) / int(np.prod(sides))
 
 
 # Per-block bookkeeping of a level's scan (Python objects): the position tuple and its
@@ -404,12 +459,12 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
 _BYTES_PER_BLOCK = 500
 
 
-def _matcher_bytes(shape, block: int, search: str) -> int:
+def _matcher_bytes(shape, block, search: str) -> int:
     """Bytes of one level's search structure on a uint8 source of ``shape`` (device
     buffers included: host memory on Warp CPU and PoCL)."""
     total = int(np.prod(shape, dtype=object))
-    n_blocks = int(np.prod([max(0, int(s) - block + 1) for s in shape], dtype=object))
-    if search == "tree":
+    n_blocks = int(np.prod([max(0, int(s) - b + 1) for s, b in zip(shape, block_shape(block))], dtype=object))
+    if search == "tree" and np.ndim(block) == 0:
         from geosynth.tree_search import BlockSearch
 
         return BlockSearch.memory_estimate(tuple(int(v) for v in shape), int(block))
@@ -421,7 +476,8 @@ def _matcher_bytes(shape, block: int, search: str) -> int:
 def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", float_source: bool = False,
                  baseline: bool = False, method: str = "paper", tileable: bool = False) -> int:
     """Estimated peak bytes of :func:`synthesize_volume` (beyond its input), for a
-    target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first).
+    target (Z, Y, X), a source (Z, Y, X) and the blocks per level (coarsest first;
+    each N or a slab's (bz, by, bx)).
 
     What it counts: the uint8 source pyramid (alive throughout; 13 B per source sample
     more while a float source is quantized); then the largest of the stages, per level
@@ -445,10 +501,11 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     for lvl, (sh, b) in enumerate(zip(sources, blocks)):
         shape = [int(v) // 2 ** (levels - 1 - lvl) for v in target_shape]
         n = int(np.prod(shape, dtype=object))
-        n_blocks = int(np.prod([len(range(0, v, max(1, b // 2))) for v in shape], dtype=object))
+        n_blocks = int(np.prod([len(range(0, v, max(1, s // 2))) for v, s in zip(shape, block_shape(b))],
+                               dtype=object))
         m = 0 if baseline else _matcher_bytes(sh, b, search)
         stages.append(9 * n if lvl == 0 else 15 * n + prev_n + prev_m)
-        vote = (optimize_memory(shape, b, level_stride(b, lvl == levels - 1), tileable)
+        vote = (optimize_memory(shape, b, level_stride(block_shape(b)[-1], lvl == levels - 1), tileable)
                 if method == "optimize" and not baseline else 0)
         stages.append(2 * n + _BYTES_PER_BLOCK * n_blocks + m + vote)
         prev_n, prev_m = n, m
@@ -456,28 +513,45 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     return pyramid + max(stages) + (128 << 10)
 
 
-def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int]) -> list[int]:
+def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int], slab: bool = False) -> list[int]:
     """The block of each level (coarsest first) for a source and target (Z, Y, X):
     ``blocks`` (from :func:`_level_blocks`) with the default scheme's coarse blocks
-    shrunk to fit a thin source or target there (a slab exemplar; sizes given per
-    level are taken as they are). Only shapes are used: nothing is allocated.
+    shrunk to fit a thin source or target there (sizes given per level are taken as
+    they are). With ``slab`` the blocks are the across sides B only (z spans the
+    level's thickness, :func:`level_block_shapes`) and only y and x must hold them.
+    Only shapes are used: nothing is allocated.
 
     Raises:
-        ValueError: a block larger than the source or the target at its level.
+        ValueError: a block larger than the source or the target at its level; a slab
+            target thicker than its source.
     """
     blocks = list(blocks)
     # the source pyramid's shapes (downsample halves each side, dropping an odd sample)
     source_shapes = [tuple(int(v) for v in source_shape)]
     for _ in range(levels - 1):
         source_shapes.insert(0, tuple(v // 2 for v in source_shapes[0]))
+    first = 1 if slab else 0  # the axes a block must fit in
     if np.ndim(block) == 0:
         for lvl, s in enumerate(source_shapes):
             t = [n // 2 ** (levels - 1 - lvl) for n in target_shape]
-            fit = 1 << (int(min(min(s), min(t))).bit_length() - 1)
+            fit = 1 << (int(min(min(s[first:]), min(t[first:]))).bit_length() - 1)
             if lvl < levels - 1 and fit >= 2:
                 blocks[lvl] = min(blocks[lvl], fit)
     for lvl, (s, b) in enumerate(zip(source_shapes, blocks)):
         t = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
+        if slab and t[0] > s[0]:
+            raise ValueError(f"a slab's target is no thicker than its source: level {lvl + 1} has target {t} "
+                             f"and source {s}; give a size of the source's thickness or slab=False.")
+        if slab and b > min(s[1:]):
+            raise ValueError(
+                f"block {b} at level {lvl + 1} is larger across than the slab source there {s}; "
+                "use a smaller block, fewer levels or a larger source."
+            )
+        if slab and b > min(t[1:]):
+            raise ValueError(f"the target at level {lvl + 1} {t} is smaller across than its block {b}; "
+                             "use a larger size.")
+        if slab:
+            continue
         if b > min(s):
             raise ValueError(
                 f"block {b} at level {lvl + 1} is larger than the source there {s}; "
@@ -486,6 +560,18 @@ def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[in
         if b > min(t):
             raise ValueError(f"the target at level {lvl + 1} {t} is smaller than its block {b}; use a larger size.")
     return blocks
+
+
+def level_block_shapes(target_shape, levels: int, blocks: list[int], slab: bool) -> list:
+    """Each level's block (coarsest first): B (a cube) or, for a slab, (Z_l, B, B) with
+    Z_l the target's thickness at that level (a cube again where Z_l = B)."""
+    if not slab:
+        return list(blocks)
+    out = []
+    for lvl, b in enumerate(blocks):
+        z = int(target_shape[0]) // 2 ** (levels - 1 - lvl)
+        out.append(int(b) if z == int(b) else (z, int(b), int(b)))
+    return out
 
 
 def _require_size(size, target_shape, levels: int, estimate, option: str = "size", blocks=None) -> None:
@@ -536,6 +622,7 @@ def synthesize_volume(
     baseline: bool = False,
     method: str = DEFAULT_METHOD,
     iterations=None,
+    slab: bool | None = None,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -547,7 +634,8 @@ def synthesize_volume(
         levels: resolution levels, >= 1 (3 in the paper).
         block: the finest level's block size (a power of two; coarser levels use half
             of it, at least 4, and at most the largest power of two that fits in
-            their source and target), or one size per level, coarsest first.
+            their source and target; a slab's only at the coarsest level), or one
+            size per level, coarsest first. A slab's is its size across.
         tileable: make the target periodic (blocks wrap around its faces).
         seed: seed of the numpy Generator drawing the random initial samples.
         device: a device string for the matching kernels (None: "auto").
@@ -572,12 +660,17 @@ def synthesize_volume(
             :func:`geosynth.optimize.optimize_level`: the coarsest level starts from
             random source blocks, every level iterates exact matches of blocks on a
             stride-N/4 lattice and a robust vote, until under 1% of the matches
-            change or ``iterations``). The default is the one that scores best on the
-            built-in exemplars' structure metrics.
+            change or ``iterations``), or "auto" (the default: "graphcut" for a slab,
+            "optimize" otherwise, the ones that score best on the built-in exemplars'
+            structure metrics; :func:`resolve_method`).
         iterations: the most texture-optimization iterations ("optimize"): one number
             for every level or one per level, coarsest first; None: 12 at the coarsest
             level (cheap, and it sets the layout), 6 in between and 3 at the finest
             (it mostly refines; its searches cost the most); 6 for one level.
+        slab: blocks span each level's full thickness along z, (Z_l, B, B) with B
+            from ``block``, and the synthesis grows across only; None (default):
+            chosen by :func:`is_slab` (a source ``SLAB_RATIO`` times thinner along z
+            than across, a target no thicker). ``result.slab`` says which ran.
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -599,8 +692,12 @@ def synthesize_volume(
     if src.size == 0:
         raise ValueError(f"source is empty (shape {src.shape}).")
     _check_size(size)
-    # Each level halves the source: beyond log2 of its smallest side, no block fits.
-    max_levels = max(1, int(min(src.shape)).bit_length() - 1)
+    # Each level halves the source: beyond log2 of its smallest side, no block fits (a
+    # slab's: of its smallest side across, while its thickness keeps a sample).
+    thin = slab is True or (slab is None and src.shape[0] * SLAB_RATIO <= min(src.shape[1:]))
+    max_levels = max(1, int(min(src.shape[1:] if thin else src.shape)).bit_length() - 1)
+    if thin:
+        max_levels = min(max_levels, int(src.shape[0]).bit_length())
     _check_common(levels, max_levels, f" (each level halves the source {src.shape})", block, tileable, seed,
                   device, search, progress)
     if band is not None:
@@ -620,9 +717,15 @@ def synthesize_volume(
     if any(s % factor for s in target_shape):
         raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
 
-    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
+    if slab is not None:
+        _checks.check_bool("slab", slab)
+    slab = is_slab(src.shape, target_shape) if slab is None else bool(slab)
+    blocks = _level_blocks(levels, block, slab)
+    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks, slab)
+    shapes = level_block_shapes(target_shape, levels, blocks, slab)
+    if method != "auto" and method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
+    method = resolve_method(method, slab)
     optimizing = method == "optimize" and not baseline
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
@@ -632,7 +735,8 @@ def synthesize_volume(
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
 
     def estimate(shape) -> int:
-        return volume_bytes(shape, src.shape, blocks, search, float_source, baseline, method, tileable)
+        return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, slab), search, float_source,
+                            baseline, method, tileable)
 
     _require_size(size, target_shape, levels, estimate, "size", blocks)
 
@@ -645,7 +749,7 @@ def synthesize_volume(
     reports: list[LevelReport] = []
     target = None
     timings = {"prepare": time.perf_counter() - t_start}
-    for lvl, (s, b) in enumerate(zip(sources, blocks)):
+    for lvl, (s, b, across) in enumerate(zip(sources, shapes, blocks)):
         t0 = time.perf_counter()
         shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
         if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
@@ -655,22 +759,22 @@ def synthesize_volume(
         elif target is None:  # random samples of the source
             target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
         else:
-            target = upsample(target, shape, wrap=tileable)
+            target = upsample(target, shape, wrap=(tileable and not slab, tileable, tileable))
         matcher = None if baseline else _Matcher(s, b, device, search)
         t_build = time.perf_counter() - t0
-        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {b})"
+        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {block_text(b)})"
         iters = 1
         if optimizing:
             from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
 
             got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
-                                 stride=level_stride(b, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
+                                 stride=level_stride(across, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
                                  final=level_final(lvl == levels - 1))
             count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
             count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
-                                                 cut=method == "graphcut")
+                                                 cut=method == "graphcut" and not baseline)
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
@@ -682,7 +786,15 @@ def synthesize_volume(
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
     return VolumeResult(target, result_field, src, reports, float(band), timings,
-                        "random tiling" if baseline else method)
+                        "random tiling" if baseline else method, slab)
+
+
+def block_text(block) -> str:
+    """"16" for a cube, "16 x 16 x 6 (x y z)" for a slab's block."""
+    if np.ndim(block) == 0:
+        return str(int(block))
+    z, y, x = block
+    return f"{x} x {y} x {z} (x y z)"
 
 
 @dataclass
@@ -699,7 +811,7 @@ class GeometryResult:
             :func:`geosynth.metrics.structure_report` of that field against the
             exemplar's (print it with :func:`geosynth.metrics.format_structure`);
             "synthesis" also has "method".
-        method: the method that made the volume (:data:`METHODS`).
+        method: the method that made the volume (:data:`METHODS`, "auto" resolved).
         timings: seconds per stage.
     """
 
@@ -708,7 +820,7 @@ class GeometryResult:
     exemplar_field: Field
     quality: dict
     timings: dict
-    method: str = DEFAULT_METHOD
+    method: str = "optimize"
 
 
 def synthesize_geometry(
@@ -728,6 +840,7 @@ def synthesize_geometry(
     drop_degenerate: bool = False,
     method: str = DEFAULT_METHOD,
     iterations=None,
+    slab: bool | None = None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -745,8 +858,10 @@ def synthesize_geometry(
             (:data:`geosynth.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
-        levels, block, tileable, seed, device, search, progress, method, iterations:
-            as in :func:`synthesize_volume`.
+        levels, block, tileable, seed, device, search, progress, method, iterations, slab:
+            as in :func:`synthesize_volume` (a slab exemplar, e.g. a plate with relief
+            or one layer of rings, is found by its source grid's shape; the blocks then
+            span its full padded thickness: ``result.volume.slab``).
         source_resolution: samples along the exemplar's longest side (the grid is
             :func:`exemplar_grid`).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
@@ -783,7 +898,7 @@ def synthesize_geometry(
     mesh = _exemplar_mesh(exemplar, seed)
     check_mesh(mesh, "exemplar", drop_degenerate=drop_degenerate)  # empty, NaN or degenerate meshes: a clear error now
     timings["exemplar"] = time.perf_counter() - t0
-    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method)
+    _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method, slab)
     t0 = time.perf_counter()
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
                                    drop_degenerate=drop_degenerate, device=device)
@@ -796,7 +911,7 @@ def synthesize_geometry(
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                             device=device, search=search, spacing=spacing, progress=progress, method=method,
-                            iterations=iterations)
+                            iterations=iterations, slab=slab)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
     out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
@@ -804,9 +919,10 @@ def synthesize_geometry(
     quality = {}
     if quality_samples:
         t0 = time.perf_counter()
-        finest = _level_blocks(levels, block)[-1]
+        finest = vol.levels[-1].block  # a slab's: the full thickness along z
         base = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
-                                 device=device, search=search, spacing=spacing, progress=False, baseline=True)
+                                 device=device, search=search, spacing=spacing, progress=False, baseline=True,
+                                 slab=vol.slab)
         quality["synthesis"] = bidirectional_block_distance(vol.source, vol.quantized, finest, samples=quality_samples,
                                                             seed=seed, device=device)
         quality["random tiling"] = bidirectional_block_distance(base.source, base.quantized, finest,
@@ -861,7 +977,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
 
 
 def _require_geometry(mesh, size, source_resolution, levels: int, block, search: str, smooth: int,
-                      quality_samples: int, method: str) -> None:
+                      quality_samples: int, method: str, slab: bool | None = None) -> None:
     """Refuse a synthesize_geometry whose estimate exceeds the memory available, naming
     ``size`` when a smaller one fits at this source resolution, else ``source_resolution``."""
     from geosynth.memory import available_memory, largest_fitting
@@ -875,11 +991,14 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
     def estimate(sz, res) -> int:
         shape, _, spacing = _exemplar_grid_geometry(mesh, res, multiple=factor)
         target = target_size(sz, shape, levels)
+        flat = is_slab(shape, target) if slab is None else bool(slab)
         try:
-            blocks = _plan_blocks(shape, target, levels, block, base_blocks)
+            blocks = _plan_blocks(shape, target, levels, block, _level_blocks(levels, block, flat), flat)
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
             blocks = base_blocks
-        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, method)
+        blocks = level_block_shapes(target, levels, blocks, flat)
+        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples,
+                              resolve_method(method, flat))
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
     target = target_size(size, shape, levels)

@@ -7,6 +7,8 @@ from geosynth import examples
 from geosynth.examples import EXEMPLARS, exemplar_field, exemplar_mesh
 
 NAMES = sorted(EXEMPLARS)
+SLABS = {"domes", "rings"}  # the thin slab exemplars
+GROWN_AS_SLABS = SLABS | {"chainmail"}  # geosynth.volume.is_slab at the default resolution
 
 
 @pytest.fixture(scope="module")
@@ -16,7 +18,7 @@ def built():
 
 
 def test_registry_names():
-    assert set(EXEMPLARS) == {"chainmail", "balls", "grid", "fibers", "terrain"}
+    assert set(EXEMPLARS) == {"chainmail", "balls", "grid", "fibers", "terrain", "domes", "rings"}
     for name, ex in EXEMPLARS.items():
         assert ex.name == name and ex.summary and ex.faces[0] <= ex.faces[1]
 
@@ -32,7 +34,7 @@ def test_exemplar_is_a_clean_solid_of_the_documented_size(built, name):
     # units: the footprint is about the unit square, z up, height at most 1
     b = mesh.bounds
     assert np.all(b[0] > -0.05) and np.all(b[1][:2] < 1.05) and b[1][:2].max() > 0.95
-    assert 0.2 < b[1][2] <= 1.0
+    assert (0.03 if name in SLABS else 0.2) < b[1][2] <= (0.2 if name in SLABS else 1.0)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -102,3 +104,14 @@ def test_exemplar_field_from_the_mesh(device):
     # a column through the slab: inside (negative) at the bottom, outside at the top
     k_mid = field.values[:, 8, 8]
     assert k_mid[2] < 0 < k_mid[-1]
+
+
+def test_slab_exemplars_are_slabs_and_the_others_are_not():
+    """The automatic slab choice (geosynth.volume.is_slab) on every built-in exemplar's
+    source grid at the default resolution; the rings are separate pieces."""
+    from geosynth.volume import _exemplar_grid_geometry, is_slab, target_size
+
+    for name in NAMES:
+        shape = _exemplar_grid_geometry(exemplar_mesh(name), 64, multiple=4)[0]
+        assert is_slab(shape, target_size(128, shape, 3)) == (name in GROWN_AS_SLABS), (name, shape)
+    assert len(exemplar_mesh("rings").split(only_watertight=False)) == 16
