@@ -1,0 +1,463 @@
+"""How does a warped patch meet the points already there? The blending step of "Geometry
+texture synthesis with point-set surfaces" (Sec. 5.3, blending; and step 8 of Sec. 4,
+the final border cut).
+
+After warping (Sec. 5.2) small gaps remain between the warped patch F'_k and the
+output's neighbourhood N_k. Blending removes them with a progressive linear
+interpolation over the overlap: each point p' of F'_k moves to
+
+    p'' = (1 - r) p' + r c,        n'' = normalize((1 - r) n' + r n_c)
+
+where r is its interpolation parameter (:func:`overlap_ramp`: 1 at the overlap's outer
+edge, where N_k is kept, 0 where the patch is kept) and c its counterpart on N_k's MLS
+surface with the MLS normal n_c there. The counterpart is the intersection of the line
+through p' along +-n' with the surface (the paper's limited ray intersection, which
+keeps points over a valley from sliding to its sides), else the quasi-orthogonal
+projection of p' (Adamson and Alexa).
+
+The MLS surface is the one of :mod:`geosynth.pointsets` (Gaussian weights of width h cut
+off at 3h, ``a(x)`` the weighted mean of the points, ``n(x)`` the normalized weighted
+mean of the normals, ``f(x) = n(x) . (x - a(x))``), evaluated here on the host in
+float64 over each query's ``MLS_NEIGHBOURS`` nearest points within reach: the blended
+positions are output positions that later searches read, and float64 host arithmetic
+makes them the same bits whichever device runs the rest (the device kernels agree only
+to a few float32 ulps). ``device=`` runs the projection fallback through the device's
+MLS kernel instead (float32; the results then differ across devices by rounding).
+
+Choices where the paper is vague: the line search is the ray-plane iteration of
+Adamson and Alexa's ray tracing of point-set surfaces (``t <- t - f(x + t n') / (n(y) . n')``
+from t = 0), which finds the crossing nearest p' along the line, within ``max_ray``
+spacings; a crossing whose surface faces away from n' (n_c . n' < 0.2) is refused, and
+so is a projection that does.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+__all__ = [
+    "MLSSurface",
+    "border_cut",
+    "blend_patch",
+    "counterparts",
+    "overlap_ramp",
+    "relax_points",
+    "seam_error",
+]
+
+MLS_NEIGHBOURS = 40  # nearest points within reach that enter a host MLS evaluation
+_REACH = 3.0  # weights cut off at 3h, as in geosynth.pointsets
+_TOL = 1e-6  # |f| <= _TOL * h ends a line search or a projection
+_LINE_ITER = 12
+_PROJ_ITER = 20
+_MIN_FACING = 0.2  # a counterpart whose MLS normal faces n' less than this is refused
+_MIN_SLOPE = 0.3  # the line search stops where the line grazes the surface (|n(y) . n'| below)
+
+NO_SURFACE, RAY, PROJECTION = 0, 1, 2
+
+
+# ------------------------------------------------------------------------ input checks
+
+
+def _points(name: str, a, n: int | None = None) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a numeric (N, 3) array, got dtype {arr.dtype}.")
+    arr = arr.astype(np.float64, copy=False)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}.")
+    if n is not None and len(arr) != n:
+        raise ValueError(f"{name} must have {n} rows to match the positions, got {len(arr)}.")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} holds NaN or inf values; remove those points first.")
+    return arr
+
+
+def _unit(name: str, n: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(n, axis=1)
+    bad = length < 1e-12
+    if bad.any():
+        raise ValueError(f"{name} has zero-length normals (first at index {int(np.argmax(bad))}).")
+    return n / length[:, None]
+
+
+def _positive(name: str, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(v).__name__}.")
+    v = float(v)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be a finite number > 0, got {v!r}.")
+    return v
+
+
+def _box(box_min, box_max) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(box_min, np.float64).reshape(-1)
+    hi = np.asarray(box_max, np.float64).reshape(-1)
+    if lo.shape not in ((2,), (3,)) or hi.shape != lo.shape:
+        raise ValueError(f"box_min and box_max must be (2,) or (3,) arrays of the same shape, got {lo.shape} and {hi.shape}.")
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise ValueError("box_min and box_max must be finite.")
+    if not (hi[:2] > lo[:2]).all():
+        raise ValueError(f"the box must have a positive x and y extent, got box_min {lo} and box_max {hi}.")
+    return lo[:2], hi[:2]
+
+
+# ------------------------------------------------------------------------ the ramp
+
+
+_SIDES = ("-x", "+x", "-y", "+y")
+
+
+def overlap_ramp(points, box_min, box_max, overlap_x: float, overlap_y: float,
+                 sides: Iterable[str] = ("-x", "-y")) -> np.ndarray:
+    """Each point's interpolation parameter across the overlap (Sec. 5.3, Fig. 3 c).
+
+    For each listed side of the box, ``1 - d / overlap`` clipped to [0, 1], d the
+    point's distance inside the box from that side (overlap_x for the x sides,
+    overlap_y for the y sides); the largest over the sides. So 1 on the box's edge and
+    beyond it (where N_k is kept), falling linearly to 0 at the overlap's inner edge
+    (where the patch is kept). The scan-line order overlaps the -x and -y sides; a
+    tileable output that wraps adds "+x" and/or "+y".
+
+    Args:
+        points: (M, 2) or (M, 3) float positions (x, y used).
+        box_min, box_max: (2,) or (3,) the patch's box B_k.
+        overlap_x, overlap_y: overlap widths (world units, >= 0; 0 leaves that side out).
+        sides: any of "-x", "+x", "-y", "+y".
+
+    Returns:
+        (M,) float64 in [0, 1].
+    """
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] not in (2, 3):
+        raise ValueError(f"points must have shape (M, 2) or (M, 3), got {p.shape}.")
+    lo, hi = _box(box_min, box_max)
+    sides = tuple(sides)
+    unknown = [s for s in sides if s not in _SIDES]
+    if unknown:
+        raise ValueError(f"sides must be among {_SIDES}, got {unknown}.")
+    widths = {}
+    for name, v in (("overlap_x", overlap_x), ("overlap_y", overlap_y)):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (
+            math.isfinite(float(v)) and float(v) >= 0
+        ):
+            raise ValueError(f"{name} must be a finite number >= 0, got {v!r}.")
+        widths[name] = float(v)
+    ramp = np.zeros(len(p))
+    for s in sides:
+        axis = 0 if s[1] == "x" else 1
+        width = widths["overlap_x" if axis == 0 else "overlap_y"]
+        if width == 0:
+            continue
+        d = p[:, axis] - lo[axis] if s[0] == "-" else hi[axis] - p[:, axis]
+        ramp = np.maximum(ramp, np.clip(1.0 - d / width, 0.0, 1.0))
+    return ramp
+
+
+# ------------------------------------------------------------------------ the MLS surface on the host
+
+
+class MLSSurface:
+    """The MLS surface of an oriented point set, evaluated on the host in float64.
+
+    Args:
+        points, normals: (K, 3) float; normals are normalized.
+        radius: the Gaussian width h (world units).
+        neighbours: the nearest points (within reach 3h) that enter each evaluation.
+    """
+
+    def __init__(self, points, normals, radius: float, neighbours: int = MLS_NEIGHBOURS):
+        from scipy.spatial import cKDTree
+
+        self.p = _points("neighbourhood_points", points)
+        self.n = _unit("neighbourhood_normals", _points("neighbourhood_normals", normals, len(self.p))) if len(self.p) else np.zeros((0, 3))
+        self.h = _positive("radius", radius)
+        self.reach = _REACH * self.h
+        self.k = int(max(1, min(neighbours, len(self.p))))
+        self.tree = cKDTree(self.p) if len(self.p) else None
+
+    def evaluate(self, x: np.ndarray):
+        """``(f, n, support)`` at (m, 3) points: the implicit function (m,), the MLS
+        normal (m, 3) (zero without support) and whether any point lies within reach."""
+        m = len(x)
+        if self.tree is None or m == 0:
+            return np.zeros(m), np.zeros((m, 3)), np.zeros(m, bool)
+        dist, idx = self.tree.query(x, k=self.k, distance_upper_bound=self.reach)
+        dist, idx = dist.reshape(m, self.k), idx.reshape(m, self.k)
+        valid = idx < len(self.p)
+        idx = np.where(valid, idx, 0)
+        w = np.where(valid, np.exp(-(np.where(valid, dist, 0.0) / self.h) ** 2), 0.0)
+        wsum = w.sum(axis=1)
+        support = wsum > 0
+        safe = np.where(support, wsum, 1.0)
+        a = np.einsum("mk,mkj->mj", w, self.p[idx]) / safe[:, None]
+        nn = np.einsum("mk,mkj->mj", w, self.n[idx])
+        length = np.linalg.norm(nn, axis=1)
+        support &= length > 1e-12
+        nn = nn / np.where(support, length, 1.0)[:, None]
+        nn[~support] = 0.0
+        f = np.einsum("mj,mj->m", nn, x - a)
+        return f, nn, support
+
+    def project(self, x: np.ndarray):
+        """Quasi-orthogonal projection (m, 3) -> ``(y, n(y), ok)``."""
+        y = x.copy()
+        normal = np.zeros_like(x)
+        ok = np.zeros(len(x), bool)
+        active = np.arange(len(x))
+        for _ in range(_PROJ_ITER):
+            if active.size == 0:
+                break
+            f, nn, sup = self.evaluate(y[active])
+            done = sup & (np.abs(f) <= _TOL * self.h)
+            normal[active] = nn
+            ok[active[done]] = True
+            step = sup & ~done
+            y[active[step]] -= f[step, None] * nn[step]
+            active = active[step]
+        if active.size:  # the last step's normal, where the iteration ran out
+            f, nn, sup = self.evaluate(y[active])
+            normal[active] = nn
+            ok[active] = sup & (np.abs(f) <= 1e-3 * self.h)
+        return y, normal, ok
+
+    def intersect_line(self, x: np.ndarray, d: np.ndarray, tmax: float):
+        """The crossing of the lines ``x + t d`` (d unit) with the surface nearest x,
+        |t| <= tmax, by the ray-plane iteration: ``(t, n at the crossing, ok)``."""
+        t = np.zeros(len(x))
+        normal = np.zeros_like(x)
+        ok = np.zeros(len(x), bool)
+        active = np.arange(len(x))
+        for _ in range(_LINE_ITER):
+            if active.size == 0:
+                break
+            y = x[active] + t[active, None] * d[active]
+            f, nn, sup = self.evaluate(y)
+            slope = np.einsum("mj,mj->m", nn, d[active])
+            done = sup & (np.abs(f) <= _TOL * self.h)
+            normal[active] = nn
+            ok[active[done]] = True
+            go = sup & ~done & (np.abs(slope) >= _MIN_SLOPE)
+            t[active[go]] -= f[go] / slope[go]
+            inside = np.abs(t[active[go]]) <= tmax
+            active = active[go][inside]
+        return t, normal, ok
+
+
+def _device_projection(surface: MLSSurface, x: np.ndarray, device: str):
+    """The projection fallback through a device's MLS kernel (float32)."""
+    from geosynth import pointsets
+
+    h = surface.h
+    _, grad, proj = pointsets._run_mls(surface.p.astype(np.float32), surface.n.astype(np.float32), h, device,
+                                       queries=x.astype(np.float32), want_proj=True)
+    g = grad.astype(np.float64)
+    length = np.linalg.norm(g, axis=1)
+    ok = length > 0.5  # no point within reach: gradient 0
+    return proj.astype(np.float64), g / np.where(ok, length, 1.0)[:, None], ok
+
+
+# ------------------------------------------------------------------------ counterparts and blending
+
+
+def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing: float,
+                 device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0):
+    """Each point's counterpart on N_k's MLS surface (Sec. 5.3): the crossing of the line
+    through the point along +-its normal nearest to it (within ``max_ray`` spacings),
+    else its projection.
+
+    Args:
+        points, normals: (M, 3) float, the warped patch's points F'_k (normals need not
+            be unit length).
+        neighbourhood_points, neighbourhood_normals: (K, 3) float, N_k.
+        spacing: the point spacing (world units, > 0).
+        device: None (host float64, the same bits on every device) or a device string
+            that runs the projection fallback (float32).
+        radius: the MLS width h, default 2 spacings.
+        max_ray: the line search's reach, in spacings.
+
+    Returns:
+        ``(positions, normals, how)``: (M, 3) float64 counterparts (the point itself
+        where there is none), (M, 3) float64 unit MLS normals there (the point's own
+        normal where there is none), (M,) int8: 1 ray intersection, 2 projection, 0 no
+        usable surface in reach.
+    """
+    p = _points("points", points)
+    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing = _positive("spacing", spacing)
+    h = 2.0 * spacing if radius is None else _positive("radius", radius)
+    max_ray = _positive("max_ray", max_ray)
+    if device is not None:
+        from geosynth.backend import get_backend
+
+        get_backend(device)  # an absent or malformed device fails here, before any work
+    surface = MLSSurface(neighbourhood_points, neighbourhood_normals, h)
+    out_p, out_n = p.copy(), n.copy()
+    how = np.zeros(len(p), np.int8)
+    if len(p) == 0 or surface.tree is None:
+        return out_p, out_n, how
+    t, nc, ok = surface.intersect_line(p, n, max_ray * spacing)
+    ok &= np.einsum("mj,mj->m", nc, n) >= _MIN_FACING
+    out_p[ok] = p[ok] + t[ok, None] * n[ok]
+    out_n[ok] = nc[ok]
+    how[ok] = RAY
+    rest = np.flatnonzero(~ok)
+    if rest.size:
+        if device is None:
+            y, ny, good = surface.project(p[rest])
+        else:
+            y, ny, good = _device_projection(surface, p[rest], device)
+        good &= np.einsum("mj,mj->m", ny, n[rest]) >= _MIN_FACING
+        keep = rest[good]
+        out_p[keep] = y[good]
+        out_n[keep] = ny[good]
+        how[keep] = PROJECTION
+    return out_p, out_n, how
+
+
+def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing: float,
+                device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0):
+    """Blend the warped patch F'_k into N_k (Sec. 5.3): ``p'' = (1 - r) p' + r c`` and
+    ``n'' = normalize((1 - r) n' + r n_c)`` with c, n_c from :func:`counterparts`.
+
+    Args:
+        points, normals: (M, 3) float F'_k.
+        ramp: (M,) float in [0, 1], each point's parameter (:func:`overlap_ramp`).
+        neighbourhood_points, neighbourhood_normals: (K, 3) float N_k (K may be 0).
+        spacing, device, radius, max_ray: as in :func:`counterparts`.
+
+    Returns:
+        ``(points, normals)``: (M, 3) float64 blended positions and unit normals.
+        Points with r == 0, or with no usable surface of N_k in reach, are unchanged.
+    """
+    p = _points("points", points)
+    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    r = np.asarray(ramp, np.float64).reshape(-1)
+    if r.shape != (len(p),):
+        raise ValueError(f"ramp must have shape ({len(p)},) to match points, got {np.shape(ramp)}.")
+    if not (np.isfinite(r).all() and (r >= 0).all() and (r <= 1).all()):
+        raise ValueError("ramp must hold finite values in [0, 1] (see overlap_ramp).")
+    out_p, out_n = p.copy(), n.copy()
+    sel = np.flatnonzero(r > 0)
+    if sel.size == 0 or len(np.asarray(neighbourhood_points).reshape(-1, 3)) == 0:
+        _positive("spacing", spacing)
+        return out_p, out_n
+    c, nc, how = counterparts(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
+                              radius=radius, max_ray=max_ray)
+    rs = r[sel, None]
+    out_p[sel] = (1.0 - rs) * p[sel] + rs * c
+    blended = (1.0 - rs) * n[sel] + rs * nc
+    length = np.linalg.norm(blended, axis=1)
+    good = length > 1e-9
+    out_n[sel[good]] = blended[good] / length[good, None]
+    return out_p, out_n
+
+
+# ------------------------------------------------------------------------ border cut, relaxation, seam error
+
+
+def border_cut(points, normals, box_min, box_max, width: float):
+    """Remove a border ``width`` wide along the output's sides (step 8 of Sec. 4):
+    keep the points with ``box_min + width <= (x, y) <= box_max - width``.
+
+    Args:
+        points, normals: (M, 3) float.
+        box_min, box_max: (2,) or (3,) the output's box (x, y used).
+        width: the border width w_E (world units, >= 0).
+
+    Returns:
+        ``(points, normals)`` of the kept points, float64, in their input order.
+
+    Raises:
+        ValueError: nothing would be left (width at least half the box's smaller side).
+    """
+    p = _points("points", points)
+    n = _points("normals", normals, len(p))
+    lo, hi = _box(box_min, box_max)
+    if isinstance(width, bool) or not isinstance(width, (int, float, np.integer, np.floating)) or not (
+        math.isfinite(float(width)) and float(width) >= 0
+    ):
+        raise ValueError(f"width must be a finite number >= 0, got {width!r}.")
+    w = float(width)
+    if 2 * w >= float((hi - lo).min()):
+        raise ValueError(f"width {w:g} leaves nothing of a box {hi - lo} wide; use a width below half its smaller side.")
+    keep = ((p[:, :2] >= lo + w) & (p[:, :2] <= hi - w)).all(axis=1)
+    return p[keep], n[keep]
+
+
+def relax_points(points, normals, spacing: float, iterations: int = 2, *, device: str | None = None):
+    """A short relaxation of the final point set (Sec. 6: "a relaxation of the point-sets
+    as a post-processing step to improve local sampling density"): each point is pushed
+    away from neighbours closer than ``spacing`` (half the overlap, in its tangent plane),
+    then projected back onto the MLS surface of the points before relaxing, so that the
+    surface stays where it was.
+
+    Args:
+        points, normals: (M, 3) float.
+        spacing: the target spacing (world units, > 0).
+        iterations: relaxation steps (>= 0).
+        device: None (host float64) or a device string for the projections (float32).
+
+    Returns:
+        ``(points, normals)``: (M, 3) float64 relaxed positions and unit MLS normals.
+    """
+    from scipy.spatial import cKDTree
+
+    p = _points("points", points)
+    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing = _positive("spacing", spacing)
+    if not isinstance(iterations, (int, np.integer)) or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}.")
+    if len(p) < 2 or iterations == 0:
+        return p.copy(), n.copy()
+    surface = MLSSurface(p, n, 2.0 * spacing)
+    x, nx = p.copy(), n.copy()
+    k = int(min(9, len(p)))
+    for _ in range(int(iterations)):
+        dist, idx = cKDTree(x).query(x, k=k)
+        dist, idx = dist[:, 1:], idx[:, 1:]
+        push = np.clip(spacing - dist, 0.0, None) / np.where(dist > 0, dist, 1.0)  # overlap / distance
+        push = np.where(dist > 0, push, 0.0)
+        move = 0.5 * np.einsum("mk,mkj->mj", push, x[:, None, :] - x[idx])
+        move -= np.einsum("mj,mj->m", move, nx)[:, None] * nx  # tangential only
+        limit = 0.5 * spacing
+        length = np.linalg.norm(move, axis=1)
+        move *= np.minimum(1.0, limit / np.where(length > 0, length, 1.0))[:, None]
+        moved = x + move
+        if device is None:
+            y, ny, ok = surface.project(moved)
+        else:
+            y, ny, ok = _device_projection(surface, moved, device)
+        ok &= np.einsum("mj,mj->m", ny, nx) > 0
+        x[ok], nx[ok] = y[ok], ny[ok]
+    return x, nx
+
+
+def seam_error(points_a, normals_a, points_b, normals_b, samples, spacing: float) -> float:
+    """How far apart two point sets' surfaces are at some samples: the RMS difference of
+    their MLS implicit functions ``f_a(x) - f_b(x)`` (signed distances near the
+    surfaces) over the samples where both have support, in spacings.
+
+    For the seam error of a pasted patch: a = the patch (warped or blended), b = N_k,
+    samples = points in a thin band along the overlap's outer edge.
+
+    Args:
+        points_a, normals_a, points_b, normals_b: (., 3) float oriented point sets.
+        samples: (L, 3) float sample positions.
+        spacing: the point spacing (world units, > 0); the MLS width is 2 spacings.
+            Evaluated on the host in float64 (the same number on every device).
+
+    Returns:
+        The RMS difference in spacings; NaN when no sample has support in both.
+    """
+    spacing = _positive("spacing", spacing)
+    x = _points("samples", samples)
+    fa, _, sa = MLSSurface(points_a, normals_a, 2.0 * spacing).evaluate(x)
+    fb, _, sb = MLSSurface(points_b, normals_b, 2.0 * spacing).evaluate(x)
+    both = sa & sb
+    if not both.any():
+        return float("nan")
+    return float(np.sqrt(np.mean((fa[both] - fb[both]) ** 2)) / spacing)
