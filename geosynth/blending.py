@@ -48,9 +48,9 @@ __all__ = [
     "seam_error",
 ]
 
-MLS_NEIGHBOURS = 40  # nearest points within reach that enter a host MLS evaluation
+MLS_NEIGHBOURS = 24  # nearest points within reach that enter a host MLS evaluation
 _REACH = 3.0  # weights cut off at 3h, as in geosynth.pointsets
-_TOL = 1e-6  # |f| <= _TOL * h ends a line search or a projection
+_TOL = 1e-3  # |f| <= _TOL * h ends a line search or a projection
 _LINE_ITER = 12
 _PROJ_ITER = 20
 _MIN_FACING = 0.2  # a counterpart whose MLS normal faces n' less than this is refused
@@ -178,72 +178,103 @@ class MLSSurface:
         self.reach = _REACH * self.h
         self.k = int(max(1, min(neighbours, len(self.p))))
         self.tree = cKDTree(self.p) if len(self.p) else None
+        self.pn = np.concatenate([self.p, self.n], axis=1)
 
-    def evaluate(self, x: np.ndarray):
+    def neighbours(self, x: np.ndarray):
+        """``(nb, valid)``: (m, k, 6) positions and normals of each query's k nearest
+        points and (m, k) whether each lies within reach."""
+        m = len(x)
+        _, idx = self.tree.query(x, k=self.k, distance_upper_bound=self.reach)
+        idx = idx.reshape(m, self.k)
+        valid = idx < len(self.p)
+        return self.pn[np.where(valid, idx, 0)], valid
+
+    def evaluate(self, x: np.ndarray, gathered=None):
         """``(f, n, support)`` at (m, 3) points: the implicit function (m,), the MLS
-        normal (m, 3) (zero without support) and whether any point lies within reach."""
+        normal (m, 3) (zero without support) and whether any point lies within reach.
+
+        ``gathered``: ``(nb, valid)`` from :meth:`neighbours` at nearby points, to use
+        instead of each query's own nearest points."""
         m = len(x)
         if self.tree is None or m == 0:
             return np.zeros(m), np.zeros((m, 3)), np.zeros(m, bool)
-        dist, idx = self.tree.query(x, k=self.k, distance_upper_bound=self.reach)
-        dist, idx = dist.reshape(m, self.k), idx.reshape(m, self.k)
-        valid = idx < len(self.p)
-        idx = np.where(valid, idx, 0)
-        w = np.where(valid, np.exp(-(np.where(valid, dist, 0.0) / self.h) ** 2), 0.0)
+        nb, valid = self.neighbours(x) if gathered is None else gathered
+        pos = nb[:, :, :3]
+        d2 = np.einsum("mkj,mkj->mk", pos, pos) - 2.0 * np.einsum("mkj,mj->mk", pos, x) + np.einsum("mj,mj->m", x, x)[:, None]
+        w = np.exp(d2 * (-1.0 / (self.h * self.h)))
+        w[~valid | (d2 > self.reach * self.reach)] = 0.0
         wsum = w.sum(axis=1)
-        support = wsum > 0
-        safe = np.where(support, wsum, 1.0)
-        a = np.einsum("mk,mkj->mj", w, self.p[idx]) / safe[:, None]
-        nn = np.einsum("mk,mkj->mj", w, self.n[idx])
-        length = np.linalg.norm(nn, axis=1)
-        support &= length > 1e-12
+        sums = np.einsum("mk,mkc->mc", w, nb)  # sum w p, sum w n
+        nn = sums[:, 3:]
+        length = np.sqrt(np.einsum("mj,mj->m", nn, nn))
+        support = (wsum > 0) & (length > 1e-12)
         nn = nn / np.where(support, length, 1.0)[:, None]
         nn[~support] = 0.0
-        f = np.einsum("mj,mj->m", nn, x - a)
+        # f = n . (x - a), a = sum w p / sum w
+        f = np.einsum("mj,mj->m", nn, x - sums[:, :3] / np.where(support, wsum, 1.0)[:, None])
         return f, nn, support
 
-    def project(self, x: np.ndarray):
-        """Quasi-orthogonal projection (m, 3) -> ``(y, n(y), ok)``."""
+    def _iterate(self, x, step_fn, max_iter):
+        """Run ``step_fn`` (one projection or line step) from x until each query
+        converges. Each query's neighbours are gathered once, where it starts, and
+        gathered again where it converged if that is more than h away (up to 3
+        times): the surface a query sees is the MLS surface of the k points nearest
+        to a place within h of where it converged."""
         y = x.copy()
         normal = np.zeros_like(x)
         ok = np.zeros(len(x), bool)
-        active = np.arange(len(x))
-        for _ in range(_PROJ_ITER):
-            if active.size == 0:
+        state = np.zeros(len(x))  # the line parameter t (unused by projections)
+        todo = np.arange(len(x))
+        for _round in range(3):
+            if todo.size == 0:
                 break
-            f, nn, sup = self.evaluate(y[active])
-            done = sup & (np.abs(f) <= _TOL * self.h)
-            normal[active] = nn
-            ok[active[done]] = True
-            step = sup & ~done
-            y[active[step]] -= f[step, None] * nn[step]
-            active = active[step]
-        if active.size:  # the last step's normal, where the iteration ran out
-            f, nn, sup = self.evaluate(y[active])
-            normal[active] = nn
-            ok[active] = sup & (np.abs(f) <= 1e-3 * self.h)
+            start = y[todo].copy()
+            nb, valid = self.neighbours(start)
+            active = np.arange(todo.size)
+            conv_here = np.zeros(todo.size, bool)
+            for it in range(max_iter):
+                if active.size == 0:
+                    break
+                q = todo[active]
+                g = (nb, valid) if it == 0 else (nb[active], valid[active])
+                f, nn, sup = self.evaluate(y[q], g)
+                normal[q] = nn
+                conv = sup & (np.abs(f) <= _TOL * self.h)
+                conv_here[active[conv]] = True
+                go = step_fn(q, f, nn, sup & ~conv, y, state)
+                active = active[go]
+            moved = np.linalg.norm(y[todo] - start, axis=1) > self.h
+            ok[todo[conv_here & ~moved]] = True
+            todo = todo[conv_here & moved]
+        ok[todo] = True  # converged again after the last gathering
+        return y, normal, ok, state
+
+    def project(self, x: np.ndarray):
+        """Quasi-orthogonal projection (m, 3) -> ``(y, n(y), ok)``."""
+
+        def step(q, f, nn, go, y, state):
+            y[q[go]] -= f[go, None] * nn[go]
+            return go
+
+        y, normal, ok, _ = self._iterate(x, step, _PROJ_ITER)
         return y, normal, ok
 
     def intersect_line(self, x: np.ndarray, d: np.ndarray, tmax: float):
         """The crossing of the lines ``x + t d`` (d unit) with the surface nearest x,
         |t| <= tmax, by the ray-plane iteration: ``(t, n at the crossing, ok)``."""
-        t = np.zeros(len(x))
-        normal = np.zeros_like(x)
-        ok = np.zeros(len(x), bool)
-        active = np.arange(len(x))
-        for _ in range(_LINE_ITER):
-            if active.size == 0:
-                break
-            y = x[active] + t[active, None] * d[active]
-            f, nn, sup = self.evaluate(y)
-            slope = np.einsum("mj,mj->m", nn, d[active])
-            done = sup & (np.abs(f) <= _TOL * self.h)
-            normal[active] = nn
-            ok[active[done]] = True
-            go = sup & ~done & (np.abs(slope) >= _MIN_SLOPE)
-            t[active[go]] -= f[go] / slope[go]
-            inside = np.abs(t[active[go]]) <= tmax
-            active = active[go][inside]
+
+        def step(q, f, nn, go, y, state):
+            slope = np.einsum("mj,mj->m", nn, d[q])
+            go = go & (np.abs(slope) >= _MIN_SLOPE)
+            qg = q[go]
+            state[qg] -= f[go] / slope[go]
+            inside = np.abs(state[qg]) <= tmax
+            state[qg[~inside]] = 0.0
+            y[qg] = x[qg] + state[qg, None] * d[qg]
+            go[np.flatnonzero(go)[~inside]] = False
+            return go
+
+        _, normal, ok, t = self._iterate(x, step, _LINE_ITER)
         return t, normal, ok
 
 

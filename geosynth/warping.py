@@ -228,15 +228,26 @@ _CANDIDATES = 12  # the nearest sources considered per target of Q
 _LOPSIDED = 0.6  # a target whose k-neighbour centroid is this far (x mean neighbour distance) is an outskirt
 
 
-def _adaptive_clusters(p: np.ndarray, max_size: int) -> np.ndarray:
-    """Hierarchical clustering (Pauly et al. 2002): the index of each cluster's
-    representative (its member nearest the centroid), sorted."""
+def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION) -> np.ndarray:
+    """Hierarchical clustering (Pauly et al. 2002): clusters are split through their
+    centroid across their principal axis while they hold more than ``max_size`` points
+    or their surface variation exceeds ``max_variation`` (and they hold more than 2).
+    Returns the index of each cluster's representative (its member nearest the
+    centroid, the lowest index on ties), sorted."""
     n = len(p)
+    if n == 0:
+        return np.zeros(0, np.int64)
     labels = np.zeros(n, np.int64)
-    n_clusters = 1
-    while True:
+    frozen = np.zeros(1, bool)  # clusters whose points cannot be split (coincident along the axis)
+
+    def stats(n_clusters):
         counts = np.bincount(labels, minlength=n_clusters).astype(np.float64)
         mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
+        return counts, mean
+
+    while True:
+        n_clusters = len(frozen)
+        counts, mean = stats(n_clusters)
         d = p - mean[labels]
         cov = np.zeros((n_clusters, 3, 3))
         for i in range(3):
@@ -245,28 +256,22 @@ def _adaptive_clusters(p: np.ndarray, max_size: int) -> np.ndarray:
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
-        split = (counts > max_size) | ((var > _CLUSTER_VARIATION) & (counts > 2))
+        split = ~frozen & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
         if not split.any():
             break
-        side = np.einsum("ij,ij->i", d, vecs[labels, :, 2]) > 0
-        # The new cluster ids: split clusters send their positive side to a new id.
+        positive = np.einsum("ij,ij->i", d, vecs[labels, :, 2]) > 0
+        n_pos = np.bincount(labels[positive], minlength=n_clusters)
+        real = split & (n_pos > 0) & (n_pos < counts)
+        frozen |= split & ~real
+        if not real.any():
+            continue
         new_id = np.full(n_clusters, -1, np.int64)
-        new_id[split] = n_clusters + np.arange(int(split.sum()))
-        move = split[labels] & side
+        new_id[real] = n_clusters + np.arange(int(real.sum()))
+        move = real[labels] & positive
         labels = np.where(move, new_id[labels], labels)
-        n_clusters += int(split.sum())
-        # A split that left one side empty (all points coincide along the axis) cannot
-        # progress: renumber to drop empty clusters and stop splitting those.
-        counts_new = np.bincount(labels, minlength=n_clusters)
-        if (counts_new == 0).any():
-            keep = counts_new > 0
-            remap = np.cumsum(keep) - 1
-            labels = remap[labels]
-            n_clusters = int(keep.sum())
-            if not (counts_new[new_id[split]] > 0).any():
-                break
-    counts = np.bincount(labels, minlength=n_clusters).astype(np.float64)
-    mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
+        frozen = np.concatenate([frozen, np.zeros(int(real.sum()), bool)])
+    n_clusters = len(frozen)
+    counts, mean = stats(n_clusters)
     dist = np.linalg.norm(p - mean[labels], axis=1)
     order = np.lexsort((np.arange(n), dist, labels))  # by cluster, then distance, then index
     first = np.ones(n, bool)
@@ -551,6 +556,7 @@ def warp_patch(
     target_variation=None,
     iterations: int = 3,
     cluster_size: int = 12,
+    max_pairs: int = 200,
     fixed_corners: bool = True,
     length_unit: float = 32.0,
     smoothing: float = 0.0,
@@ -572,6 +578,8 @@ def warp_patch(
         iterations: greedy passes with the coherence term after the first.
         cluster_size: most points per adaptive cluster of Q (|Q| is about T / cluster_size
             and never more than S).
+        max_pairs: the most targets in Q; larger clusters are used until |Q| fits
+            (the spline's cost grows as S x |Q|).
         fixed_corners: add pairs mapping to themselves in the box's free corners.
         length_unit: the unit of lengths in the costs, in spacings.
         smoothing: thin-plate smoothing (0 interpolates the pairs).
@@ -598,6 +606,8 @@ def warp_patch(
         raise TypeError(f"weights must be a WarpWeights (see WARP_PRESETS), got {type(weights).__name__}.")
     if not isinstance(cluster_size, (int, np.integer)) or cluster_size < 1:
         raise ValueError(f"cluster_size must be an integer >= 1, got {cluster_size!r}.")
+    if not isinstance(max_pairs, (int, np.integer)) or max_pairs < 1:
+        raise ValueError(f"max_pairs must be an integer >= 1, got {max_pairs!r}.")
     empty = np.zeros(0, np.int64)
     if len(ps) == 0 or len(pt) == 0:
         return WarpResult(ps.copy(), ns.copy(), np.zeros((0, 2), np.int64), np.zeros((0, 3)), (0.0,), empty)
@@ -611,7 +621,13 @@ def warp_patch(
     else:
         t_idx = None
         core = np.arange(len(pt))
-    q_index = core[_adaptive_clusters(pt[core], int(cluster_size))]
+    # Start from the cluster size that fits max_pairs, at least cluster_size.
+    size, limit = max(int(cluster_size), int(math.ceil(len(core) / max_pairs))), _CLUSTER_VARIATION
+    q_local = _adaptive_clusters(pt[core], size, limit)
+    while len(q_local) > max_pairs:  # coarser clusters until |Q| <= max_pairs
+        size, limit = int(math.ceil(size * 1.5)), limit * 1.5
+        q_local = _adaptive_clusters(pt[core], size, limit)
+    q_index = core[q_local]
     if len(q_index) > len(ps):  # |Q| <= |S|
         q_index = q_index[np.sort(rng.choice(len(q_index), len(ps), replace=False))]
     pq = pt[q_index]
