@@ -391,6 +391,26 @@ def _stray_share(points, normals, spacing, h, device) -> float:
 
 # ------------------------------------------------------------------ the public function
 
+_BYTES_PER_OUTPUT_POINT = 400  # grid arrays (48 B) at up to 2x capacity, the cut copy, float32 output,
+# the stray-point query and, with quality, the baseline's copy of all of them
+
+
+def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
+    """Refuse an output that cannot fit before growing it (its points from the exemplar's
+    density inside B times the canvas area)."""
+    from geosynth.memory import require
+
+    inside = texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum()
+    density = inside / float(np.prod(texture.extent[:2]))
+    canvas = (lay.cols * lay.step + lay.patch + lay.extra) * (lay.rows * lay.step + lay.patch + lay.extra) * lay.cell ** 2
+
+    def estimate(factor: float = 1.0) -> int:
+        return int(density * canvas * factor * _BYTES_PER_OUTPUT_POINT * (2 if quality else 1))
+
+    require(estimate(), option="size", value=tuple(float(v) for v in lay.size),
+            what=f"an output of {lay.size[0]:.4g} x {lay.size[1]:.4g} (about {int(density * canvas):,} points)")
+
+
 
 def synthesize_point_texture(
     exemplar,
@@ -465,6 +485,7 @@ def synthesize_point_texture(
     backend = _checks.resolve_backend(device)
     device_name = getattr(backend, "device", None) or (device or "auto")
     lay = _layout(texture, size, scale, patch, extra, overlap, resolution, tileable)
+    _require_memory(texture, lay, quality)
     timer = _Timer()
     spacing = texture.spacing
     h = 2.0 * spacing

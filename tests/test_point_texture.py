@@ -190,3 +190,20 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "smaller patch" in r.stderr
+
+
+def test_mesh_of_the_output_is_watertight(one_device, wavy):
+    from geosynth.geometry_texture import output_mesh
+
+    pts, report, _ = synthesize_point_texture(wavy, device=one_device, **SMALL)
+    mesh = output_mesh(pts.positions, pts.normals, report.spacing, resolution=40, device=one_device)
+    assert mesh.is_watertight and len(mesh.faces) > 100
+    lo, hi = mesh.bounds
+    assert hi[0] - lo[0] > 1.1  # spans the output
+
+
+def test_an_output_that_cannot_fit_is_refused(wavy, one_device):
+    from geosynth.memory import MemoryBudgetError
+
+    with pytest.raises(MemoryBudgetError, match="size"):
+        synthesize_point_texture(wavy, size=(3e4, 3e4), device=one_device, quality=False)
