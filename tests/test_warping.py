@@ -248,3 +248,14 @@ def test_bad_input(bad, match):
         warp_patch(**args)
     with pytest.raises(ValueError, match="w_n"):
         WarpWeights(w_n=-1)
+
+
+def test_float32_evaluation_is_within_a_thousandth_of_a_spacing(rng):
+    c = rng.uniform(0, 1, (150, 3)) * [1, 1, 0.1]
+    y = c + rng.normal(scale=0.3 * SP, size=c.shape)
+    x = rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.1]
+    n = np.tile([0.0, 0.0, 1.0], (3000, 1))
+    p64, n64 = ThinPlateSpline(c, y).transform(x, n)
+    p32, n32 = ThinPlateSpline(c, y, dtype=np.float32).transform(x, n)
+    assert np.abs(p32 - p64).max() < 1e-3 * SP
+    assert angle_deg(n32, n64).max() < 0.01
