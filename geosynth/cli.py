@@ -562,7 +562,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     scale = 2.0 if args.scale is None else args.scale
     say(f"geosynth pointtexture: {texture.name} ({len(texture):,} points) -> "
         + (f"{args.size[0]:g} x {args.size[1]:g}" if args.size else f"{scale:g} x the exemplar's box")
-        + f", patch {args.patch:g}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
+        + f", patch {args.patch or 'default'}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
           f"device {args.device or 'auto'}")
     points, report, timings = synthesize_point_texture(
         texture, args.size, scale=scale, patch=args.patch, extra=args.extra, overlap=args.overlap,
@@ -608,8 +608,9 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
                    help="output extent in units of the exemplar's box, > 0 (default 2)")
     p.add_argument("--size", type=_float_type(0, inclusive=False), nargs=2, default=None, metavar=("W", "H"),
                    help="output extent in x and y, world units (instead of --scale)")
-    p.add_argument("--patch", type=_float_type(0, inclusive=False), default=0.4,
-                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default 0.4)")
+    p.add_argument("--patch", type=_float_type(0, inclusive=False), default=None,
+                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default 0.4; "
+                        "flowers 0.3)")
     p.add_argument("--extra", type=_float_type(0, inclusive=False), default=0.2,
                    help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2)")
     p.add_argument("--overlap", type=_float_type(0, inclusive=False), default=0.25,

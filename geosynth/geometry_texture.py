@@ -417,7 +417,7 @@ def synthesize_point_texture(
     size=None,
     *,
     scale: float = 2.0,
-    patch: float = 0.4,
+    patch: float | None = None,
     extra: float = 0.2,
     overlap: float = 0.25,
     resolution: int = 48,
@@ -438,7 +438,8 @@ def synthesize_point_texture(
             (heightfield, chainmail, weave, flowers) or a file (PLY point set or mesh).
         size: (2,) output extent in x and y, world units; default ``scale`` times B's.
         scale: output extent in units of the exemplar box B's (when ``size`` is None).
-        patch: patch side as a fraction of B's shorter side, in (0, 1].
+        patch: patch side as a fraction of B's shorter side, in (0, 1]; default the
+            built-in's own (0.3 for flowers), else 0.4.
         extra: width w_E of the extra region E_k as a fraction of the patch (the paper
             used 1/8 to 1/4), in (0, 0.5].
         overlap: overlap width as a fraction of the patch, in (0, 0.5].
@@ -484,6 +485,11 @@ def synthesize_point_texture(
         raise TypeError(f"weights must be a geosynth.warping.WarpWeights, got {type(weights).__name__}.")
     backend = _checks.resolve_backend(device)
     device_name = getattr(backend, "device", None) or (device or "auto")
+    if patch is None:
+        from geosynth.point_examples import POINT_EXAMPLES
+
+        ex = POINT_EXAMPLES.get(texture.name)
+        patch = ex.patch if ex is not None else 0.4
     lay = _layout(texture, size, scale, patch, extra, overlap, resolution, tileable)
     _require_memory(texture, lay, quality)
     timer = _Timer()

@@ -23,13 +23,15 @@ PAD = 0.25  # geometry beyond B on each side, in units of B's side
 
 @dataclass(frozen=True)
 class PointExample:
-    """A built-in exemplar: its maker, the paper's input point count (Table 1) and the
-    key of its warping weights in :data:`geosynth.warping.WARP_PRESETS`."""
+    """A built-in exemplar: its maker, the paper's input point count (Table 1), the key of
+    its warping weights in :data:`geosynth.warping.WARP_PRESETS` and its default patch
+    size (a fraction of B's side: about two elements and their neighbourhood)."""
 
     make: object
     count: int
     preset: str
     description: str
+    patch: float = 0.4
 
 
 def _rng(seed):
@@ -233,7 +235,8 @@ POINT_EXAMPLES: dict[str, PointExample] = {
     "heightfield": PointExample(heightfield, 33_194, "heightfield", "cobblestones, a height field from a grey image"),
     "chainmail": PointExample(chainmail, 71_454, "chainmail", "linked rings with small spheres"),
     "weave": PointExample(weave, 43_592, "weave", "interlaced threads"),
-    "flowers": PointExample(flowers, 37_473, "flowers", "small disconnected flowers on a plane"),
+    "flowers": PointExample(flowers, 37_473, "flowers", "small disconnected flowers on a plane",
+                            patch=0.3),
 }
 
 
