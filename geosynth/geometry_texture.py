@@ -226,7 +226,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     grid = PointGrid(cell=max(2 * reach, cell * 2), period=lay.period)
     inp, inn = texture.points, texture.normals
     zlo, zhi = search.z0, search.z0 + (search.shape[0] - 1) * cell
-    margin = max(2 * spacing, 0.5 * lay.overlap * cell)
+    margin = 4.0 * spacing  # the warp moves points by at most a few spacings (its pairs are <= 4 apart)
     seams = {"before": [], "after": [], "baseline": []}
     cands = []
     arbitrated = 0
