@@ -322,9 +322,11 @@ def _cut(grid: PointGrid, lay: _Layout, texture: PointTexture, tileable: bool):
     """Step 8: the final border cut (none when tileable); points in output coordinates
     (x and y from the exemplar box's corner)."""
     p, n = grid.all_points()
-    if tileable:
-        return p, n
     lo = texture.box_min[:2]
+    if tileable:  # one period, from B's corner (the grid keeps [0, period))
+        p[:, :2] = lo + np.mod(p[:, :2] - lo, lay.period)
+        p[:, :2] = np.where(p[:, :2] >= lo + lay.period, lo, p[:, :2])
+        return p, n
     hi = lo + lay.size
     keep = ((p[:, :2] >= lo) & (p[:, :2] < hi)).all(axis=1)
     return p[keep], n[keep]

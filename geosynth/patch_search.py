@@ -13,12 +13,15 @@ within_tolerance`) and one is drawn with the seeded generator (step 2 and 3 of S
 
 Identical on every device: the fields are quantized to uint8 (the distance over the band
 [-band, band] and each gradient component over [-1, 1] to the codes 0..254, zero at 127)
-and scored in exact integer arithmetic. A value the kernel gives within ``ARBITER_TOL``
-of a rounding boundary (where two devices' float32 results, a few ulps apart, could round
-apart) is recomputed on the host in float64 (:func:`host_mls`, the same definitions) and
-quantized from there, as are queries whose nearest point lies at the kernel's reach;
-every device then gives the same codes as long as its error stays below ARBITER_TOL of a
-code (2.4e-5 h for the distance, where float32 errors are ~1e-6 h).
+and scored in exact integer arithmetic. The kernel projects with a fixed FIXED_STEPS steps
+(no early stop, which would let two devices stop one step apart); a value it gives within
+ARBITER_TOL of a rounding boundary (where two devices' float32 results, a few ulps apart,
+could round apart), a projection that has not converged (thin sheets closer than the MLS
+width make it oscillate: devices then disagree by more than rounding), and the few
+ambiguous near/far cases are recomputed on the host in float64 (:func:`host_mls`, the same
+definitions and steps) and quantized from there. Every device then gives the same codes as
+long as its error on the rest stays below ARBITER_TOL of a code (7e-7 of the band for the
+distance, where converged float32 projections are good to ~1e-7).
 """
 
 from __future__ import annotations
@@ -30,20 +33,26 @@ import numpy as np
 __all__ = [
     "ARBITER_TOL",
     "CODE_SCALE",
+    "FIXED_STEPS",
+    "RESIDUAL_TOL",
     "PatchSearch",
     "SearchChoice",
     "host_mls",
+    "kernel_mls",
     "quantized_fields",
 ]
 
 CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 127
 ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
+FIXED_STEPS = 12  # projection steps of the coded fields, never fewer (no early stop): devices stop alike
+RESIDUAL_TOL = 1e-5  # of h: a projection one more step would move farther is not converged (host)
 
 
 # ------------------------------------------------------------------ the fields
 
 
-def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, tree=None):
+def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, tree=None,
+             fixed: bool = False):
     """The MLS signed distance and gradient of :func:`geosynth.pointsets.pointset_distance`
     (far="nearest"), vectorized over queries, in float64 on the host.
 
@@ -58,6 +67,8 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
         queries: (M, 3) float query points.
         h: the kernel width.
         tree: an optional ``scipy.spatial.cKDTree`` of ``points``.
+        fixed: FIXED_STEPS projection steps with no early stop, as :func:`kernel_mls`
+            (the codes of :func:`quantized_fields` are made this way).
 
     Returns:
         ((M,) distance, (M, 3) gradient), float64.
@@ -72,7 +83,7 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     x = np.asarray(queries, np.float64).reshape(-1, 3)
     tree = cKDTree(p) if tree is None else tree
     reach = MLS_REACH * h
-    f0, grad, proj = _iterate(p, nrm, tree, x, h)
+    f0, grad, proj = _iterate(p, nrm, tree, x, h, fixed)
     near = ~np.isnan(f0)
     dist = np.full(len(x), reach)
     length = np.minimum(np.linalg.norm(x - proj, axis=1), reach)
@@ -81,7 +92,7 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     if far.size:
         _, nearest = tree.query(x[far], k=1)
         used, inverse = np.unique(nearest, return_inverse=True)
-        _, gn, yp = _iterate(p, nrm, tree, p[used], h)
+        _, gn, yp = _iterate(p, nrm, tree, p[used], h, fixed)
         yv, nv = yp[inverse], gn[inverse]
         v = x[far] - yv
         side = np.where(np.einsum("ij,ij->i", v, nv) < 0, -1.0, 1.0)
@@ -90,19 +101,21 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     return dist, grad
 
 
-def _iterate(p, nrm, tree, q, h):
+def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     """The projection loop: (f at the query (NaN: no point within reach), last MLS normal,
-    projection), float64, for (M, 3) queries."""
+    projection), float64, for (M, 3) queries; ``fixed``: FIXED_STEPS steps, no early stop
+    (as :func:`kernel_mls`)."""
     from geosynth.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
 
     reach = MLS_REACH * h
+    steps, tol = (FIXED_STEPS, 0.0) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
     m = len(q)
     y = q.copy()
     grad = np.zeros((m, 3))
     proj = q.copy()
     f0 = np.full(m, np.nan)
     active = np.arange(m)
-    for _ in range(MLS_MAX_ITER):
+    for _ in range(steps):
         if active.size == 0:
             break
         lists = tree.query_ball_point(y[active], reach * (1 + 1e-9))
@@ -128,7 +141,7 @@ def _iterate(p, nrm, tree, q, h):
         grad[a_idx] = n
         proj[a_idx] = y[a_idx] - f[:, None] * n
         y[a_idx] = proj[a_idx]
-        active = a_idx[np.abs(f) > MLS_TOL * h]
+        active = a_idx[np.abs(f) > tol]
     return f0, grad, proj
 
 
@@ -144,15 +157,56 @@ def _round_codes(v: np.ndarray) -> np.ndarray:
     return (np.clip(np.round(v), -CODE_SCALE, CODE_SCALE) + CODE_SCALE).astype(np.uint8)
 
 
+def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, device, steps: int,
+               cells=None):
+    """The MLS projection by the ``PointsOps.mls_project`` kernel with exactly ``steps``
+    steps (tolerance 0: no early stop, so that every device stops at the same step).
+
+    Args:
+        points, normals: (N, 3) the point set; queries: (M, 3) float positions.
+        h: the kernel width; device: a device string; steps: projection steps, >= 1.
+        cells: the ``cells`` this function returned for the same points, h and device
+            (the points' cell grid, already on the device).
+
+    Returns:
+        ((M,) float32 signed distance (reach where no point is within reach), (M, 3)
+        float32 last MLS normal (0 there), (M, 3) float64 projection, cells).
+    """
+    from geosynth import _checks
+    from geosynth.pointsets import MLS_REACH, _CellGrid
+
+    reach = MLS_REACH * h
+    if cells is None:
+        grid = _CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
+        backend = _checks.resolve_backend(device)
+        cells = (grid, backend, backend.to_device(grid.pn), backend.to_device(grid.cell_start))
+    grid, backend, pn, start = cells
+    m = len(queries)
+    rel = np.ascontiguousarray((np.asarray(queries, np.float64) - grid.shift).astype(np.float32)).reshape(-1)
+    dist = backend.empty((m,), np.float32)
+    grad = backend.empty((m * 3,), np.float32)
+    proj = backend.empty((m * 3,), np.float32)
+    backend.mls_project(pn, start, tuple(grid.origin), 1.0 / grid.cell, tuple(int(d) for d in grid.dims),
+                        1.0 / (h * h), reach, 0.0, int(steps), backend.to_device(rel), None, m, dist, grad, proj)
+    return (dist.numpy(), grad.numpy().reshape(m, 3), proj.numpy().reshape(m, 3).astype(np.float64) + grid.shift,
+            cells)
+
+
 def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, band: float,
                      device: str | None, tree=None) -> tuple[np.ndarray, int]:
     """D(S) at the queries as uint8 codes, the same on every device.
 
-    The kernel (:func:`geosynth.pointsets.pointset_distance`, far="nearest") gives
-    distance and gradient; each is mapped to a code (distance / band and each gradient
-    component times CODE_SCALE, rounded, clamped, shifted to 0..254); values within
-    ARBITER_TOL codes of a rounding boundary, and queries whose nearest point lies within
-    1e-5 of the reach, are recomputed with :func:`host_mls` (float64) and coded from that.
+    The kernel (:func:`kernel_mls`, FIXED_STEPS steps) gives distance and gradient; each
+    is mapped to a code (distance / band and each gradient component times CODE_SCALE,
+    rounded, clamped, shifted to 0..254). A query with no point within reach gets the far
+    value of :func:`geosynth.pointsets.pointset_distance` (far="nearest"): the signed
+    distance to its nearest point's projection, that projection's normal as gradient.
+    Recomputed with :func:`host_mls` (float64, the same fixed steps) and coded from that:
+    values within ARBITER_TOL codes of a rounding boundary; queries whose projection has
+    not converged (one more step would move it by more than RESIDUAL_TOL h: two devices
+    may then disagree by more than rounding); queries whose nearest point lies within
+    1e-5 of the reach (near or far is then a matter of rounding); far queries whose side
+    is nearly tangential or whose nearest point's projection has not converged.
 
     Args:
         points, normals: (N, 3) the point set S (N >= 1) and unit normals.
@@ -166,24 +220,43 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     """
     from scipy.spatial import cKDTree
 
-    from geosynth.pointsets import MLS_REACH, pointset_distance
+    from geosynth.pointsets import MLS_REACH
 
     q = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
     if len(q) == 0:
         return np.zeros((0, 4), np.uint8), 0
     p = np.asarray(points, np.float64)
-    d, g = pointset_distance(p.astype(np.float32), np.asarray(normals, np.float32), q.astype(np.float32),
-                             radius=h, far="nearest", device=device)
+    nrm = np.asarray(normals, np.float64)
+    reach = MLS_REACH * h
+    tree = cKDTree(p) if tree is None else tree
+    nearest_d, nearest = tree.query(q, k=1)
+    # the far queries' nearest points are projected in the same launch as the queries
+    far = np.flatnonzero(nearest_d >= reach)
+    used, inverse = np.unique(nearest[far], return_inverse=True)
+    d, g, proj, cells = kernel_mls(p, nrm, np.concatenate([q, p[used]]), h, device, FIXED_STEPS)
+    m = len(q)
+    gn, yp = g[m:], proj[m:]
+    d, g, proj = d[:m].astype(np.float64), g[:m].astype(np.float64), proj[:m]
+    res, _, _, _ = kernel_mls(p, nrm, np.concatenate([proj, yp]), h, device, 1, cells)
+    rp = res[m:]
+    # near or far is decided by the tree (float64, the same on every device); the kernel agrees
+    # but where the nearest point lies at the reach, to rounding: those go to the host
+    flag = np.abs(nearest_d - reach) <= 1e-5 * reach
+    flag |= (nearest_d < reach) & (~g.any(axis=1) | (np.abs(res[:m]) > RESIDUAL_TOL * h))
+    if far.size:
+        v = q[far] - yp[inverse]
+        nv = gn[inverse].astype(np.float64)
+        along = np.einsum("ij,ij->i", v, nv)
+        length = np.linalg.norm(v, axis=1)
+        d[far] = np.where(along < 0, -length, length)
+        g[far] = nv
+        flag[far] |= (np.abs(along) <= 1e-4 * length) | (np.abs(rp[inverse]) > RESIDUAL_TOL * h) | ~nv.any(axis=1)
     v = _codes(d, g, band)
     frac = np.abs(v - np.floor(v) - 0.5)
-    flag = ((frac < ARBITER_TOL) & (np.abs(v) < CODE_SCALE + 0.5 + ARBITER_TOL)).any(axis=1)
-    tree = cKDTree(p) if tree is None else tree
-    reach = MLS_REACH * h
-    nearest, _ = tree.query(q, k=1)
-    flag |= np.abs(nearest - reach) <= 1e-5 * reach
+    flag |= ((frac < ARBITER_TOL) & (np.abs(v) < CODE_SCALE + 0.5 + ARBITER_TOL)).any(axis=1)
     bad = np.flatnonzero(flag)
     if bad.size:
-        dh, gh = host_mls(p, normals, q[bad], h, tree=tree)
+        dh, gh = host_mls(p, nrm, q[bad], h, tree=tree, fixed=True)
         v[bad] = _codes(dh, gh, band)
     return _round_codes(v), int(bad.size)
 
