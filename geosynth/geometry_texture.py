@@ -77,7 +77,8 @@ class PointTextureReport:
         out = [
             f"exemplar {self.exemplar}: {self.points_in:,} points, spacing {self.spacing:.4g}, MLS width {self.radius:.4g}",
             f"D(T_in): {self.grid[2]} x {self.grid[1]} x {self.grid[0]} samples (x, y, z), cell {self.cell:.4g}; "
-            f"patch {self.patch} cells, extra region {self.extra}, overlap {self.overlap}",
+            f"patch {self.patch} cells, extra region {self.extra}, overlap {self.overlap}; {self.arbitrated:,} field "
+            "samples recomputed on the host (float64) so that every device gives the same codes",
             f"output: {self.size[0]:.4g} x {self.size[1]:.4g}{' (tileable)' if self.tileable else ''}, "
             f"{self.points_out:,} points from {self.patches} patches; {self.candidates:.1f} candidates within "
             f"(1+eps) of the best on average; device {self.device}",
