@@ -33,7 +33,8 @@ Choices where the paper is vague: the line search is the ray-plane iteration of
 Adamson and Alexa's ray tracing of point-set surfaces (``t <- t - f(x + t n') / (n(y) . n')``
 from t = 0), which finds the crossing nearest p' along the line, within ``max_ray``
 spacings; a crossing whose surface faces away from n' (n_c . n' < 0.2) is refused, and
-so is a projection that does.
+so is a projection that does or that lies farther than ``max_ray`` spacings: such a
+point has no counterpart (N_k lacks its geometry there) and is left where the warp put it.
 """
 
 from __future__ import annotations
@@ -298,7 +299,8 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
                  device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0):
     """Each point's counterpart on N_k's MLS surface (Sec. 5.3): the crossing of the line
     through the point along +-its normal nearest to it (within ``max_ray`` spacings),
-    else its projection.
+    else its projection (if within ``max_ray`` spacings too: blending closes small gaps,
+    it does not move geometry N_k lacks onto another part of N_k).
 
     Args:
         points, normals: (M, 3) float, the warped patch's points F'_k (normals need not
@@ -308,7 +310,7 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
         device: the run's device string, only checked: the evaluation runs on the
             host in float64, the same bits on every device (see the module docstring).
         radius: the MLS width h, default 2 spacings.
-        max_ray: the line search's reach, in spacings.
+        max_ray: the line search's reach and the farthest projection, in spacings.
 
     Returns:
         ``(positions, normals, how)``: (M, 3) float64 counterparts (the point itself
@@ -336,6 +338,7 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
     if rest.size:
         y, ny, good = surface.project(p[rest])
         good &= np.einsum("mj,mj->m", ny, n[rest]) >= _MIN_FACING
+        good &= np.linalg.norm(y - p[rest], axis=1) <= max_ray * spacing
         keep = rest[good]
         out_p[keep] = y[good]
         out_n[keep] = ny[good]
