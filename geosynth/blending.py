@@ -228,7 +228,7 @@ class MLSSurface:
         f = np.einsum("mj,mj->m", nn, x - sums[:, :3] / np.where(support, wsum, 1.0)[:, None])
         return f, nn, support
 
-    def _iterate(self, x, step_fn, max_iter):
+    def _iterate(self, x, step_fn, max_iter, gathered=None):
         """Run ``step_fn`` (one projection or line step) from x until each query
         converges. Each query's neighbours are gathered once, where it starts, and
         gathered again where it converged if that is more than h away (up to 3
@@ -243,7 +243,7 @@ class MLSSurface:
             if todo.size == 0:
                 break
             start = y[todo].copy()
-            nb, valid = self.neighbours(start)
+            nb, valid = gathered if (_round == 0 and gathered is not None) else self.neighbours(start)
             active = np.arange(todo.size)
             conv_here = np.zeros(todo.size, bool)
             for it in range(max_iter):
@@ -263,19 +263,26 @@ class MLSSurface:
         ok[todo] = True  # converged again after the last gathering
         return y, normal, ok, state
 
-    def project(self, x: np.ndarray):
-        """Quasi-orthogonal projection (m, 3) -> ``(y, n(y), ok)``."""
+    def project(self, x: np.ndarray, max_move: float = math.inf, gathered=None):
+        """Quasi-orthogonal projection (m, 3) -> ``(y, n(y), ok)``; a query that moves
+        farther than ``max_move`` from x is given up (ok False). ``gathered``: the
+        queries' :meth:`neighbours` at x, when already known."""
 
         def step(q, f, nn, go, y, state):
-            y[q[go]] -= f[go, None] * nn[go]
+            qg = q[go]
+            y[qg] -= f[go, None] * nn[go]
+            if math.isfinite(max_move):
+                far = np.einsum("mj,mj->m", y[qg] - x[qg], y[qg] - x[qg]) > max_move * max_move
+                go[np.flatnonzero(go)[far]] = False
             return go
 
-        y, normal, ok, _ = self._iterate(x, step, _PROJ_ITER)
+        y, normal, ok, _ = self._iterate(x, step, _PROJ_ITER, gathered)
         return y, normal, ok
 
-    def intersect_line(self, x: np.ndarray, d: np.ndarray, tmax: float):
+    def intersect_line(self, x: np.ndarray, d: np.ndarray, tmax: float, gathered=None):
         """The crossing of the lines ``x + t d`` (d unit) with the surface nearest x,
-        |t| <= tmax, by the ray-plane iteration: ``(t, n at the crossing, ok)``."""
+        |t| <= tmax, by the ray-plane iteration: ``(t, n at the crossing, ok)``.
+        ``gathered``: the queries' :meth:`neighbours` at x, when already known."""
 
         def step(q, f, nn, go, y, state):
             slope = np.einsum("mj,mj->m", nn, d[q])
@@ -288,7 +295,7 @@ class MLSSurface:
             go[np.flatnonzero(go)[~inside]] = False
             return go
 
-        _, normal, ok, t = self._iterate(x, step, _LINE_ITER)
+        _, normal, ok, t = self._iterate(x, step, _LINE_ITER, gathered)
         return t, normal, ok
 
 
@@ -329,14 +336,15 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
     how = np.zeros(len(p), np.int8)
     if len(p) == 0 or surface.tree is None:
         return out_p, out_n, how
-    t, nc, ok = surface.intersect_line(p, n, max_ray * spacing)
+    near = surface.neighbours(p)  # both searches start at p
+    t, nc, ok = surface.intersect_line(p, n, max_ray * spacing, near)
     ok &= np.einsum("mj,mj->m", nc, n) >= _MIN_FACING
     out_p[ok] = p[ok] + t[ok, None] * n[ok]
     out_n[ok] = nc[ok]
     how[ok] = RAY
     rest = np.flatnonzero(~ok)
     if rest.size:
-        y, ny, good = surface.project(p[rest])
+        y, ny, good = surface.project(p[rest], max_move=max_ray * spacing, gathered=(near[0][rest], near[1][rest]))
         good &= np.einsum("mj,mj->m", ny, n[rest]) >= _MIN_FACING
         good &= np.linalg.norm(y - p[rest], axis=1) <= max_ray * spacing
         keep = rest[good]
