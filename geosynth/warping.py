@@ -631,12 +631,15 @@ def warp_patch(
     else:
         t_idx = None
         core = np.arange(len(pt))
-    # Start from the cluster size that fits max_pairs, at least cluster_size.
-    size, limit = max(int(cluster_size), int(math.ceil(len(core) / max_pairs))), _CLUSTER_VARIATION
-    q_local = _adaptive_clusters(pt[core], size, limit)
-    while len(q_local) > max_pairs:  # coarser clusters until |Q| <= max_pairs
-        size, limit = int(math.ceil(size * 1.5)), limit * 1.5
-        q_local = _adaptive_clusters(pt[core], size, limit)
+    # Start from the cluster size that fits max_pairs, at least cluster_size; if the
+    # variation criterion still makes too many clusters, cluster by size alone, then
+    # keep an even draw of max_pairs of them.
+    size = max(int(cluster_size), int(math.ceil(len(core) / max_pairs)))
+    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION)
+    if len(q_local) > max_pairs:
+        q_local = _adaptive_clusters(pt[core], max(size, int(math.ceil(1.5 * len(core) / max_pairs))), math.inf)
+    if len(q_local) > max_pairs:
+        q_local = q_local[np.sort(rng.choice(len(q_local), max_pairs, replace=False))]
     q_index = core[q_local]
     if len(q_index) > len(ps):  # |Q| <= |S|
         q_index = q_index[np.sort(rng.choice(len(q_index), len(ps), replace=False))]
