@@ -8,6 +8,10 @@ interpolation over the overlap: each point p' of F'_k moves to
 
     p'' = (1 - r) p' + r c,        n'' = normalize((1 - r) n' + r n_c)
 
+(the paper's form; by default :func:`blend_patch` moves by the gap between the two MLS
+surfaces instead, ``p'' = p' + r (c - c')`` with c' the same construction on F'_k's own
+MLS surface, which leaves a patch that already matches N_k where it is)
+
 where r is its interpolation parameter (:func:`overlap_ramp`: 1 at the overlap's outer
 edge, where N_k is kept, 0 where the patch is kept) and c its counterpart on N_k's MLS
 surface with the MLS normal n_c there. The counterpart is the intersection of the line
@@ -355,15 +359,25 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
 
 
 def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing: float,
-                device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0):
-    """Blend the warped patch F'_k into N_k (Sec. 5.3): ``p'' = (1 - r) p' + r c`` and
+                device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0,
+                relative: bool = True):
+    """Blend the warped patch F'_k into N_k (Sec. 5.3): ``p'' = p' + r (c - c')`` and
     ``n'' = normalize((1 - r) n' + r n_c)`` with c, n_c from :func:`counterparts`.
+
+    ``c'`` is the same construction on F'_k's own MLS surface (the crossing of the same
+    line with it, or its projection onto it): each point moves by the gap between the two
+    MLS surfaces, so that where they already agree nothing moves. With
+    ``relative=False``, ``c' = p'``: the paper's literal ``p'' = (1 - r) p' + r c``, which
+    puts the points of the outer edge on N_k's MLS surface; on curved geometry (rings,
+    threads) that surface lies inside the sampled one by the MLS smoothing, and a blended
+    patch that matched N_k exactly would come out shrunk there.
 
     Args:
         points, normals: (M, 3) float F'_k.
         ramp: (M,) float in [0, 1], each point's parameter (:func:`overlap_ramp`).
         neighbourhood_points, neighbourhood_normals: (K, 3) float N_k (K may be 0).
         spacing, device, radius, max_ray: as in :func:`counterparts`.
+        relative: move by the gap between the surfaces (True) or onto N_k's (False).
 
     Returns:
         ``(points, normals)``: (M, 3) float64 blended positions and unit normals.
@@ -383,8 +397,20 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
         return out_p, out_n
     c, nc, how = counterparts(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
                               radius=radius, max_ray=max_ray)
+    own = p[sel].copy()
+    if relative:
+        from geosynth import _checks
+
+        _checks.check_bool("relative", relative)
+        h = 2.0 * spacing if radius is None else _positive("radius", radius)
+        f_own, n_own, sup = MLSSurface(p, n, h).evaluate(p[sel])
+        slope = np.einsum("mj,mj->m", n_own, n[sel])
+        ray = (how == RAY) & sup & (np.abs(slope) >= _MIN_SLOPE)
+        own[ray] -= (f_own[ray] / slope[ray])[:, None] * n[sel][ray]  # one ray-plane step
+        proj = (how == PROJECTION) & sup
+        own[proj] -= f_own[proj, None] * n_own[proj]  # one projection step
     rs = r[sel, None]
-    out_p[sel] = (1.0 - rs) * p[sel] + rs * c
+    out_p[sel] = p[sel] + rs * (c - own)
     blended = (1.0 - rs) * n[sel] + rs * nc
     length = np.linalg.norm(blended, axis=1)
     good = length > 1e-9

@@ -188,3 +188,22 @@ def test_bad_input(rng):
     bad[3, 1] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         blend_patch(bad, n, np.full(len(p), 0.5), nbp, nbn, SP)
+
+
+def test_relative_blend_leaves_a_matching_patch_alone():
+    # A thin thread (a cylinder 2.5 spacings in radius along y): its MLS surface lies
+    # inside the samples. A patch equal to N_k must not move (relative, the default);
+    # the paper's literal interpolation pulls the outer edge onto N_k's MLS surface.
+    radius = 2.5 * SP
+    ang = np.arange(0, 2 * np.pi, SP / radius)
+    ys = np.arange(-0.3, 0.3, SP)
+    a, y = np.meshgrid(ang, ys)
+    p = np.c_[radius * np.cos(a.ravel()), y.ravel(), radius * np.sin(a.ravel())]
+    n = np.c_[np.cos(a.ravel()), np.zeros(a.size), np.sin(a.ravel())]
+    ramp = np.ones(len(p))
+    rel, _ = blend_patch(p, n, ramp, p, n, SP)
+    lit, _ = blend_patch(p, n, ramp, p, n, SP, relative=False)
+    inner = np.abs(p[:, 1]) < 0.2
+    assert np.linalg.norm(rel - p, axis=1)[inner].max() < 0.02 * SP
+    shrink = radius - np.linalg.norm(lit[inner][:, [0, 2]], axis=1)
+    assert shrink.mean() > 0.05 * SP
