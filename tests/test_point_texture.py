@@ -209,3 +209,12 @@ def test_an_output_that_cannot_fit_is_refused(wavy, one_device):
 
     with pytest.raises(MemoryBudgetError, match="size"):
         synthesize_point_texture(wavy, size=(3e4, 3e4), device=one_device, quality=False)
+
+
+def test_relaxed_plane_stays_a_plane(one_device):
+    rng = np.random.default_rng(4)
+    p = np.c_[rng.uniform(-0.25, 1.25, (4000, 2)), np.zeros(4000)]
+    tex = texture_from_points(p, np.tile([0, 0, 1.0], (len(p), 1)), box=[[0, 0, 0], [1, 1, 0]])
+    pts, report, _ = synthesize_point_texture(tex, device=one_device, relax=True, **SMALL)
+    assert np.abs(pts.positions[:, 2]).max() < 1e-4
+    assert len(pts) > 0.9 * 4000 * 1.44 / 2.25
