@@ -563,6 +563,11 @@ def output_mesh(points, normals, spacing: float, resolution: int = 160, device: 
     from geosynth.pointsets import pointset_distance
     from geosynth.surface import field_to_mesh
 
-    dist, _ = pointset_distance(np.asarray(points, np.float32), np.asarray(normals, np.float32),
-                                resolution=int(resolution), padding=0.02, radius=2.0 * spacing, device=device)
+    p = np.asarray(points, np.float64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    margin = 3.0 * spacing  # room above and below the surface; none in x and y, so that the
+    lo[2] -= margin         # cut edges are capped flat at the output's border
+    hi[2] += margin
+    dist, _ = pointset_distance(p.astype(np.float32), np.asarray(normals, np.float32), resolution=int(resolution),
+                                bounds=np.stack([lo, hi]), padding=0.0, radius=2.0 * spacing, device=device)
     return field_to_mesh(dist, level=0.0, close=True)
