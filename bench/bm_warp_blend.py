@@ -3,7 +3,8 @@ surfaces", Sec. 5.2 and 5.3) on the built-in point textures at the paper's point
 
 Each case builds one patch step as the synthesis does: N_k is a window of the exemplar
 (the output so far, kept on the L-shaped -x / -y side of the patch box and beyond), F_k
-another window of it translated into the box (patch 0.4 of the exemplar's shorter side,
+the window at the same place shifted by up to 3 spacings (a near match, as the search
+returns), translated into the box (patch 0.4 of the exemplar's shorter side,
 extra region 0.2 and overlap 0.25 of the patch, extended by max(2 spacings, half the
 overlap)). Timed: warp_patch (pairing, spline, normals) and blend_patch (line crossings
 and projections on N_k's MLS surface) per patch, best of repeated calls. Reported beside
@@ -50,7 +51,9 @@ def patch_step(name: str, count: int | None, rng: np.random.Generator):
 
     room = ext - side - 2 * (margin + reach)
     o1 = ex.box_min[:2] + margin + reach + rng.uniform(0, 1, 2) * np.maximum(room, 0)
-    o2 = ex.box_min[:2] + margin + reach + rng.uniform(0, 1, 2) * np.maximum(room, 0)
+    # F_k: the same place shifted by up to 3 spacings, a near match as the search finds
+    # one (a random window would not match at all: warping is not meant to fix that).
+    o2 = o1 + rng.uniform(-3, 3, 2) * sp
     # N_k: the output so far around the box's -x / -y sides.
     sel = window(o1, -(margin + reach), hi + margin)
     rel = p[sel, :2] - o1
