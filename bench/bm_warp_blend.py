@@ -109,8 +109,13 @@ def rows_for(name: str, count: int | None, rng, repeats: float) -> list[Row]:
             Row(case, "blend_patch (host, float64)", t_blend, n_o, 0, False, note_b)]
 
 
+def options(argv=None):
+    """The command line (see the module docstring)."""
+    return parse_args(__doc__, argv, quick="the height field and chainmail at a third of their counts, short repeats")
+
+
 def main(argv=None) -> int:
-    args = parse_args(__doc__, argv, quick="the height field and chainmail at a third of their counts, short repeats")
+    args = options(argv)
     start(args)
     rng = np.random.default_rng(0)
     if args.quick:
