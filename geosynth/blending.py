@@ -453,9 +453,12 @@ def border_cut(points, normals, box_min, box_max, width: float):
 def relax_points(points, normals, spacing: float, iterations: int = 2, *, device: str | None = None):
     """A short relaxation of the final point set (Sec. 6: "a relaxation of the point-sets
     as a post-processing step to improve local sampling density"): each point is pushed
-    away from neighbours closer than ``spacing`` (half the overlap, in its tangent plane),
-    then projected back onto the MLS surface of the points before relaxing, so that the
-    surface stays where it was.
+    away from neighbours closer than ``spacing`` (half the overlap, in its tangent plane,
+    at most half a spacing a step), then moved along the MLS normal so that its signed
+    offset ``f`` from the MLS surface of the points before relaxing is what it was before
+    the step. Not projected onto that surface: the MLS surface (width 2 spacings) is a
+    smoothed one, and projecting every point onto it would round off the geometry
+    (stones into soft bumps). Each point keeps its own normal.
 
     Args:
         points, normals: (M, 3) float.
@@ -464,7 +467,8 @@ def relax_points(points, normals, spacing: float, iterations: int = 2, *, device
         device: the run's device string, only checked (host float64, as :func:`counterparts`).
 
     Returns:
-        ``(points, normals)``: (M, 3) float64 relaxed positions and unit MLS normals.
+        ``(points, normals)``: (M, 3) float64 relaxed positions and their unit normals
+        (the input's).
     """
     from scipy.spatial import cKDTree
 
@@ -489,10 +493,11 @@ def relax_points(points, normals, spacing: float, iterations: int = 2, *, device
         limit = 0.5 * spacing
         length = np.linalg.norm(move, axis=1)
         move *= np.minimum(1.0, limit / np.where(length > 0, length, 1.0))[:, None]
+        f0, _, s0 = surface.evaluate(x)
         moved = x + move
-        y, ny, ok = surface.project(moved)
-        ok &= np.einsum("mj,mj->m", ny, nx) > 0
-        x[ok], nx[ok] = y[ok], ny[ok]
+        f1, n1, s1 = surface.evaluate(moved)
+        ok = s0 & s1 & (np.einsum("mj,mj->m", n1, nx) > 0.5)
+        x[ok] = moved[ok] - (f1[ok] - f0[ok])[:, None] * n1[ok]
     return x, nx
 
 

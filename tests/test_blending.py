@@ -207,3 +207,19 @@ def test_relative_blend_leaves_a_matching_patch_alone():
     assert np.linalg.norm(rel - p, axis=1)[inner].max() < 0.02 * SP
     shrink = radius - np.linalg.norm(lit[inner][:, [0, 2]], axis=1)
     assert shrink.mean() > 0.05 * SP
+
+
+def test_relaxation_keeps_curved_geometry(rng):
+    # A thin thread 2.5 spacings in radius, jittered samples: relaxing spreads them
+    # without shrinking the thread onto its (smoothed) MLS surface.
+    radius = 2.5 * SP
+    a = rng.uniform(0, 2 * np.pi, 3000)
+    y = rng.uniform(-0.3, 0.3, 3000)
+    p = np.c_[radius * np.cos(a), y, radius * np.sin(a)]
+    n = np.c_[np.cos(a), np.zeros(3000), np.sin(a)]
+    rp, rn = relax_points(p, n, SP, iterations=2)
+    inner = np.abs(rp[:, 1]) < 0.2
+    r = np.linalg.norm(rp[inner][:, [0, 2]], axis=1)
+    assert abs(np.mean(r - radius)) < 0.01 * SP, np.mean(r - radius) / SP  # no shrinking
+    assert np.abs(r - radius).max() < 0.15 * SP, np.abs(r - radius).max() / SP
+    np.testing.assert_allclose(rn, n, atol=1e-12)
