@@ -362,13 +362,14 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
                 device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0,
                 relative: bool = True):
     """Blend the warped patch F'_k into N_k (Sec. 5.3): ``p'' = p' + r (c - c')`` and
-    ``n'' = normalize((1 - r) n' + r n_c)`` with c, n_c from :func:`counterparts`.
+    ``n'' = normalize(n' + r (n_c - n_c'))`` with c, n_c from :func:`counterparts`.
 
     ``c'`` is the same construction on F'_k's own MLS surface (the crossing of the same
-    line with it, or its projection onto it): each point moves by the gap between the two
-    MLS surfaces, so that where they already agree nothing moves. With
-    ``relative=False``, ``c' = p'``: the paper's literal ``p'' = (1 - r) p' + r c``, which
-    puts the points of the outer edge on N_k's MLS surface; on curved geometry (rings,
+    line with it, or its projection onto it) and n_c' its MLS normal at p': each point
+    moves by the gap between the two MLS surfaces and its normal turns by the difference
+    of their normals, so that where they already agree nothing changes. With
+    ``relative=False``, ``c' = p'``: the paper's literal ``p'' = (1 - r) p' + r c`` and
+    ``n'' = normalize((1 - r) n' + r n_c)``, which puts the points of the outer edge on N_k's MLS surface; on curved geometry (rings,
     threads) that surface lies inside the sampled one by the MLS smoothing, and a blended
     patch that matched N_k exactly would come out shrunk there.
 
@@ -398,6 +399,7 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
     c, nc, how = counterparts(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
                               radius=radius, max_ray=max_ray)
     own = p[sel].copy()
+    rs = r[sel, None]
     if relative:
         from geosynth import _checks
 
@@ -409,9 +411,12 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
         own[ray] -= (f_own[ray] / slope[ray])[:, None] * n[sel][ray]  # one ray-plane step
         proj = (how == PROJECTION) & sup
         own[proj] -= f_own[proj, None] * n_own[proj]  # one projection step
-    rs = r[sel, None]
+        # Normals likewise: turned by the difference of the two MLS normals.
+        turn = np.where((ray | proj)[:, None], nc - n_own, 0.0)
+        blended = n[sel] + rs * turn
+    else:
+        blended = (1.0 - rs) * n[sel] + rs * nc
     out_p[sel] = p[sel] + rs * (c - own)
-    blended = (1.0 - rs) * n[sel] + rs * nc
     length = np.linalg.norm(blended, axis=1)
     good = length > 1e-9
     out_n[sel[good]] = blended[good] / length[good, None]
