@@ -166,18 +166,18 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
         points, normals: (N, 3) the point set; queries: (M, 3) float positions.
         h: the kernel width; device: a device string; steps: projection steps, >= 1.
         cells: the ``cells`` this function returned for the same points, h and device
-            (the points' cell grid, already on the device).
+            (the points' :class:`geosynth.pointsets.CellGrid`, already on the device).
 
     Returns:
         ((M,) float32 signed distance (reach where no point is within reach), (M, 3)
         float32 last MLS normal (0 there), (M, 3) float64 projection, cells).
     """
     from geosynth import _checks
-    from geosynth.pointsets import MLS_REACH, _CellGrid
+    from geosynth.pointsets import MLS_REACH, CellGrid
 
     reach = MLS_REACH * h
     if cells is None:
-        grid = _CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
+        grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
         backend = _checks.resolve_backend(device)
         cells = (grid, backend, backend.to_device(grid.pn), backend.to_device(grid.cell_start))
     grid, backend, pn, start = cells
