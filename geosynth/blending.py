@@ -49,6 +49,9 @@ from collections.abc import Iterable
 import numpy as np
 
 __all__ = [
+    "NO_SURFACE",
+    "PROJECTION",
+    "RAY",
     "MLSSurface",
     "border_cut",
     "blend_patch",
@@ -66,7 +69,7 @@ _PROJ_ITER = 20
 _MIN_FACING = 0.2  # a counterpart whose MLS normal faces n' less than this is refused
 _MIN_SLOPE = 0.3  # the line search stops where the line grazes the surface (|n(y) . n'| below)
 
-NO_SURFACE, RAY, PROJECTION = 0, 1, 2
+NO_SURFACE, RAY, PROJECTION = 0, 1, 2  # how a counterpart was found (counterparts())
 
 
 # ------------------------------------------------------------------------ input checks
