@@ -408,7 +408,10 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
 
         _checks.check_bool("relative", relative)
         h = 2.0 * spacing if radius is None else _positive("radius", radius)
-        f_own, n_own, sup = MLSSurface(p, n, h).evaluate(p[sel])
+        f_own, n_own, sup = np.zeros(sel.size), np.zeros((sel.size, 3)), np.zeros(sel.size, bool)
+        found = np.flatnonzero(how != NO_SURFACE)  # only where N_k gave a counterpart
+        if found.size:
+            f_own[found], n_own[found], sup[found] = MLSSurface(p, n, h).evaluate(p[sel[found]])
         slope = np.einsum("mj,mj->m", n_own, n[sel])
         ray = (how == RAY) & sup & (np.abs(slope) >= _MIN_SLOPE)
         own[ray] -= (f_own[ray] / slope[ray])[:, None] * n[sel][ray]  # one ray-plane step
