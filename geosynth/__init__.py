@@ -9,6 +9,8 @@ The public API; everything else is private. Every operation takes ``device=``
 - M1, volumes and geometry: :func:`synthesize_volume` (:class:`VolumeResult`),
   :func:`synthesize_geometry` (:class:`GeometryResult`).
 - M2, distance fields: :func:`mesh_distance`, :func:`pointset_distance` (:class:`Field`).
+- M2, point-set geometry textures: :func:`synthesize_point_texture` (:class:`PointTextureReport`) from a
+  :class:`PointTexture` (:func:`point_texture_example` for the built-ins).
 - M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
 - Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
   :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
@@ -67,6 +69,11 @@ _LAZY = {
     "exemplar_mesh": "geosynth.examples",
     "exemplar_field": "geosynth.examples",
     "MemoryBudgetError": "geosynth.memory",
+    # M2: point-set geometry textures
+    "synthesize_point_texture": "geosynth.geometry_texture",
+    "PointTextureReport": "geosynth.geometry_texture",
+    "PointTexture": "geosynth.point_textures",
+    "point_texture_example": "geosynth.point_examples",
 }
 
 __all__ = sorted([

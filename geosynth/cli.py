@@ -529,6 +529,119 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------ M2: pointtexture
+
+def _cmd_pointtexture(args: argparse.Namespace) -> int:
+    from geosynth.point_examples import POINT_EXAMPLES
+
+    exemplar, example = args.exemplar, args.example
+    if exemplar is not None and example is None and exemplar in POINT_EXAMPLES and not Path(exemplar).exists():
+        exemplar, example = None, exemplar  # a built-in name given as EXEMPLAR
+    if (exemplar is None) == (example is None):
+        raise ValueError(f"give an EXEMPLAR (a PLY point set or a mesh file) or --example NAME (one of "
+                         f"{', '.join(POINT_EXAMPLES)}), not both or neither.")
+    inputs = []
+    if exemplar is not None:
+        inputs.append(_check_input(exemplar, "EXEMPLAR", "give a PLY point set or a mesh file, or --example NAME "
+                                   f"({', '.join(POINT_EXAMPLES)})"))
+    if args.scale is not None and args.size is not None:
+        raise ValueError("give --scale or --size, not both.")
+    out = Path(args.output)
+    png, png_what = _picture_path(args)
+    outputs = [(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
+    if args.mesh:
+        outputs.append((Path(args.mesh), MESH_OUT, "--mesh"))
+    _check_outputs(outputs, inputs)
+    _check_device(args.device)
+
+    from geosynth.files import write_image
+    from geosynth.geometry_texture import output_mesh, synthesize_point_texture
+    from geosynth.point_examples import point_texture_example
+    from geosynth.point_textures import read_point_texture
+    from geosynth.pointsets import write_point_set
+    from geosynth.render import render_points, side_by_side
+
+    say = (lambda *a, **k: None) if args.quiet else print
+    if example:
+        texture = point_texture_example(example, args.count, seed=args.seed)
+    else:
+        texture = read_point_texture(exemplar, count=args.count or 40_000, seed=args.seed)
+    scale = 2.0 if args.scale is None else args.scale
+    say(f"geosynth pointtexture: {texture.name} ({len(texture):,} points) -> "
+        + (f"{args.size[0]:g} x {args.size[1]:g}" if args.size else f"{scale:g} x the exemplar's box")
+        + f", patch {args.patch or 'default'}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
+          f"device {args.device or 'auto'}")
+    points, report, timings = synthesize_point_texture(
+        texture, args.size, scale=scale, patch=args.patch, extra=args.extra, overlap=args.overlap,
+        resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
+        quality=not args.no_quality, device=args.device, seed=args.seed, progress=not args.quiet,
+    )
+    write_point_set(out, points)
+    for line in report.lines():
+        say(line)
+    say("timings (s): " + "  ".join(f"{k} {timings[k]:.2f}" for k in
+                                    ("precompute", "search", "warp", "blend", "other", "total", "quality")
+                                    if k in timings))
+    say(f"written {out}: {len(points):,} points with normals")
+    if args.mesh:
+        from geosynth.surface import save_mesh
+
+        mesh = output_mesh(points.positions, points.normals, report.spacing, args.mesh_resolution, device=args.device)
+        save_mesh(mesh, args.mesh, inputs=inputs)
+        say(f"mesh: {args.mesh}: {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces "
+            f"(watertight: {bool(mesh.is_watertight)})")
+    inside = texture.inside_mask(texture.points, texture.box_min, texture.box_max)
+    view = (-60, 40)
+    pics = [render_points(texture.points[inside], texture.normals[inside], size=(360, 360), view=view),
+            render_points(points.positions, points.normals, size=(560, 560), view=view)]
+    labels = ["exemplar (inside B)", "synthesized"]
+    if report.baseline is not None:
+        pics.append(render_points(report.baseline.positions, report.baseline.normals, size=(560, 560), view=view))
+        labels.append("random pasting")
+    write_image(png, side_by_side(pics, labels=labels), inputs=inputs)
+    say(f"picture: {png} ({', '.join(labels)})")
+    return 0
+
+
+def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
+    from geosynth.point_examples import POINT_EXAMPLES
+
+    p = sub.add_parser("pointtexture", parents=[common],
+                       help="M2: grow a larger point-set geometry texture from an exemplar (patches, warp, blend)")
+    p.add_argument("exemplar", nargs="?", help="a PLY point set (normals estimated when absent) or a mesh file")
+    p.add_argument("--example", choices=list(POINT_EXAMPLES), help="a built-in exemplar instead")
+    p.add_argument("-o", "--output", required=True, help="the synthesized point set with normals, .ply")
+    p.add_argument("--scale", type=_float_type(0, inclusive=False), default=None,
+                   help="output extent in units of the exemplar's box, > 0 (default 2)")
+    p.add_argument("--size", type=_float_type(0, inclusive=False), nargs=2, default=None, metavar=("W", "H"),
+                   help="output extent in x and y, world units (instead of --scale)")
+    p.add_argument("--patch", type=_float_type(0, inclusive=False), default=None,
+                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default 0.4; "
+                        "flowers 0.3)")
+    p.add_argument("--extra", type=_float_type(0, inclusive=False), default=0.2,
+                   help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2)")
+    p.add_argument("--overlap", type=_float_type(0, inclusive=False), default=0.25,
+                   help="overlap width, a fraction of the patch, in (0, 0.5] (default 0.25)")
+    p.add_argument("--resolution", type=_int_type(8), default=48,
+                   help="D(T_in) samples along the exemplar box's longer side, >= 8 (default 48)")
+    p.add_argument("--eps", type=_float_type(0, inclusive=True), default=0.1,
+                   help="candidates within (1 + eps) of the best are drawn from, >= 0 (default 0.1)")
+    p.add_argument("--count", type=_int_type(1000), default=None,
+                   help="points of a built-in exemplar (default: the paper's Table 1 size) or sampled from a mesh")
+    p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
+    p.add_argument("--relax", action="store_true", help="relax the final point set")
+    p.add_argument("--mesh", default=None, help="also write a watertight mesh of the result (.ply, .obj, .stl)")
+    p.add_argument("--mesh-resolution", type=_int_type(8), default=160,
+                   help="grid samples along the longest axis for --mesh, >= 8 (default 160)")
+    p.add_argument("--no-quality", action="store_true", help="skip the quality numbers and the random-pasting baseline")
+    p.add_argument("--device", **device)
+    p.add_argument("--seed", **seed)
+    p.add_argument("--png", default=None, help="picture of exemplar and result, .png or .jpg "
+                                               "(default: OUTPUT with .png)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_pointtexture)
+
+
 # ------------------------------------------------------------------ the parser
 
 
@@ -656,6 +769,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="demo_out", help="folder for the picture (default demo_out)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)
+    _add_pointtexture_parser(sub, common, seed, device)
     return parser
 
 

@@ -489,6 +489,11 @@ class _CellGrid:
         self.dims = dims
 
 
+# Public for callers that launch PointsOps.mls_project themselves (geosynth.patch_search, M2's
+# fixed-step projections): the points sorted by cell, as the kernels read them.
+CellGrid = _CellGrid
+
+
 def _run_mls(p, nrm, h, device, queries=None, lattice=None, want_proj=False, grid=None):
     """Project the queries ((M, 3) float32) or the lattice ((origin, spacing, shape ZYX));
     ``grid``: the points' _CellGrid for this reach, when already built."""

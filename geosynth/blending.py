@@ -1,0 +1,539 @@
+"""How does a warped patch meet the points already there? The blending step of "Geometry
+texture synthesis with point-set surfaces" (Sec. 5.3, blending; and step 8 of Sec. 4,
+the final border cut).
+
+After warping (Sec. 5.2) small gaps remain between the warped patch F'_k and the
+output's neighbourhood N_k. Blending removes them with a progressive linear
+interpolation over the overlap: each point p' of F'_k moves to
+
+    p'' = (1 - r) p' + r c,        n'' = normalize((1 - r) n' + r n_c)
+
+(the paper's form; by default :func:`blend_patch` moves by the gap between the two MLS
+surfaces instead, ``p'' = p' + r (c - c')`` with c' the same construction on F'_k's own
+MLS surface, which leaves a patch that already matches N_k where it is)
+
+where r is its interpolation parameter (:func:`overlap_ramp`: 1 at the overlap's outer
+edge, where N_k is kept, 0 where the patch is kept) and c its counterpart on N_k's MLS
+surface with the MLS normal n_c there. The counterpart is the intersection of the line
+through p' along +-n' with the surface (the paper's limited ray intersection, which
+keeps points over a valley from sliding to its sides), else the quasi-orthogonal
+projection of p' (Adamson and Alexa).
+
+The MLS surface is the one of :mod:`geosynth.pointsets` (Gaussian weights of width h cut
+off at 3h, ``a(x)`` the weighted mean of the points, ``n(x)`` the normalized weighted
+mean of the normals, ``f(x) = n(x) . (x - a(x))``), evaluated here on the host in
+float64 over each query's ``MLS_NEIGHBOURS`` nearest points within reach: the blended
+positions are output positions that later searches read, and float64 host arithmetic
+makes them the same bits whichever device runs the rest. The device's float32 MLS
+kernel (:func:`geosynth.pointsets.project_points`) agrees with another device's only to
+about 1e-6, and a pipeline that fed such positions to its next search would diverge
+between devices; measured on a typical height-field patch (2,450 overlap points, 4,800
+points of N_k, 2 loaded cores), the host line crossings take about 25 ms and the host
+projection of the ~7% fallback points about 3 ms, where the OpenCL kernel projects all
+2,450 points in 8 ms: it would save little. ``device=`` is therefore only checked (so
+that a bad device string fails here as elsewhere); it never changes the result.
+
+Choices where the paper is vague: the line search is the ray-plane iteration of
+Adamson and Alexa's ray tracing of point-set surfaces (``t <- t - f(x + t n') / (n(y) . n')``
+from t = 0), which finds the crossing nearest p' along the line, within ``max_ray``
+spacings; a crossing whose surface faces away from n' (n_c . n' < 0.2) is refused, and
+so is a projection that does or that lies farther than ``max_ray`` spacings: such a
+point has no counterpart (N_k lacks its geometry there) and is left where the warp put it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+__all__ = [
+    "NO_SURFACE",
+    "PROJECTION",
+    "RAY",
+    "MLSSurface",
+    "border_cut",
+    "blend_patch",
+    "counterparts",
+    "overlap_ramp",
+    "relax_points",
+    "seam_error",
+]
+
+MLS_NEIGHBOURS = 24  # nearest points within reach that enter a host MLS evaluation
+_REACH = 3.0  # weights cut off at 3h, as in geosynth.pointsets
+_TOL = 1e-3  # |f| <= _TOL * h ends a line search or a projection
+_LINE_ITER = 12
+_PROJ_ITER = 20
+_MIN_FACING = 0.2  # a counterpart whose MLS normal faces n' less than this is refused
+_MIN_SLOPE = 0.3  # the line search stops where the line grazes the surface (|n(y) . n'| below)
+
+NO_SURFACE, RAY, PROJECTION = 0, 1, 2  # how a counterpart was found (counterparts())
+
+
+# ------------------------------------------------------------------------ input checks
+
+
+def _points(name: str, a, n: int | None = None) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a numeric (N, 3) array, got dtype {arr.dtype}.")
+    arr = arr.astype(np.float64, copy=False)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}.")
+    if n is not None and len(arr) != n:
+        raise ValueError(f"{name} must have {n} rows to match the positions, got {len(arr)}.")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} holds NaN or inf values; remove those points first.")
+    return arr
+
+
+def _unit(name: str, n: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(n, axis=1)
+    bad = length < 1e-12
+    if bad.any():
+        raise ValueError(f"{name} has zero-length normals (first at index {int(np.argmax(bad))}).")
+    return n / length[:, None]
+
+
+def _positive(name: str, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(v).__name__}.")
+    v = float(v)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be a finite number > 0, got {v!r}.")
+    return v
+
+
+def _box(box_min, box_max) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(box_min, np.float64).reshape(-1)
+    hi = np.asarray(box_max, np.float64).reshape(-1)
+    if lo.shape not in ((2,), (3,)) or hi.shape != lo.shape:
+        raise ValueError(f"box_min and box_max must be (2,) or (3,) arrays of the same shape, got {lo.shape} and {hi.shape}.")
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise ValueError("box_min and box_max must be finite.")
+    if not (hi[:2] > lo[:2]).all():
+        raise ValueError(f"the box must have a positive x and y extent, got box_min {lo} and box_max {hi}.")
+    return lo[:2], hi[:2]
+
+
+def _check_device(device) -> None:
+    """A malformed or absent device string fails here, as in every other call."""
+    if device is not None:
+        from geosynth.backend import get_backend
+
+        get_backend(device)
+
+
+# ------------------------------------------------------------------------ the ramp
+
+
+_SIDES = ("-x", "+x", "-y", "+y")
+
+
+def overlap_ramp(points, box_min, box_max, overlap_x: float, overlap_y: float,
+                 sides: Iterable[str] = ("-x", "-y")) -> np.ndarray:
+    """Each point's interpolation parameter across the overlap (Sec. 5.3, Fig. 3 c).
+
+    For each listed side of the box, ``1 - d / overlap`` clipped to [0, 1], d the
+    point's distance inside the box from that side (overlap_x for the x sides,
+    overlap_y for the y sides); the largest over the sides. So 1 on the box's edge and
+    beyond it (where N_k is kept), falling linearly to 0 at the overlap's inner edge
+    (where the patch is kept). The scan-line order overlaps the -x and -y sides; a
+    tileable output that wraps adds "+x" and/or "+y".
+
+    Args:
+        points: (M, 2) or (M, 3) float positions (x, y used).
+        box_min, box_max: (2,) or (3,) the patch's box B_k.
+        overlap_x, overlap_y: overlap widths (world units, >= 0; 0 leaves that side out).
+        sides: any of "-x", "+x", "-y", "+y".
+
+    Returns:
+        (M,) float64 in [0, 1].
+    """
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] not in (2, 3):
+        raise ValueError(f"points must have shape (M, 2) or (M, 3), got {p.shape}.")
+    lo, hi = _box(box_min, box_max)
+    sides = tuple(sides)
+    unknown = [s for s in sides if s not in _SIDES]
+    if unknown:
+        raise ValueError(f"sides must be among {_SIDES}, got {unknown}.")
+    widths = {}
+    for name, v in (("overlap_x", overlap_x), ("overlap_y", overlap_y)):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (
+            math.isfinite(float(v)) and float(v) >= 0
+        ):
+            raise ValueError(f"{name} must be a finite number >= 0, got {v!r}.")
+        widths[name] = float(v)
+    ramp = np.zeros(len(p))
+    for s in sides:
+        axis = 0 if s[1] == "x" else 1
+        width = widths["overlap_x" if axis == 0 else "overlap_y"]
+        if width == 0:
+            continue
+        d = p[:, axis] - lo[axis] if s[0] == "-" else hi[axis] - p[:, axis]
+        ramp = np.maximum(ramp, np.clip(1.0 - d / width, 0.0, 1.0))
+    return ramp
+
+
+# ------------------------------------------------------------------------ the MLS surface on the host
+
+
+class MLSSurface:
+    """The MLS surface of an oriented point set, evaluated on the host in float64.
+
+    Args:
+        points, normals: (K, 3) float; normals are normalized.
+        radius: the Gaussian width h (world units).
+        neighbours: the nearest points (within reach 3h) that enter each evaluation.
+    """
+
+    def __init__(self, points, normals, radius: float, neighbours: int = MLS_NEIGHBOURS):
+        from scipy.spatial import cKDTree
+
+        self.p = _points("neighbourhood_points", points)
+        self.n = _unit("neighbourhood_normals", _points("neighbourhood_normals", normals, len(self.p))) if len(self.p) else np.zeros((0, 3))
+        self.h = _positive("radius", radius)
+        self.reach = _REACH * self.h
+        self.k = int(max(1, min(neighbours, len(self.p))))
+        self.tree = cKDTree(self.p) if len(self.p) else None
+        self.pn = np.concatenate([self.p, self.n], axis=1)
+
+    def neighbours(self, x: np.ndarray):
+        """``(nb, valid)``: (m, k, 6) positions and normals of each query's k nearest
+        points and (m, k) whether each lies within reach."""
+        m = len(x)
+        _, idx = self.tree.query(x, k=self.k, distance_upper_bound=self.reach)
+        idx = idx.reshape(m, self.k)
+        valid = idx < len(self.p)
+        return self.pn[np.where(valid, idx, 0)], valid
+
+    def evaluate(self, x: np.ndarray, gathered=None):
+        """``(f, n, support)`` at (m, 3) points: the implicit function (m,), the MLS
+        normal (m, 3) (zero without support) and whether any point lies within reach.
+
+        ``gathered``: ``(nb, valid)`` from :meth:`neighbours` at nearby points, to use
+        instead of each query's own nearest points."""
+        m = len(x)
+        if self.tree is None or m == 0:
+            return np.zeros(m), np.zeros((m, 3)), np.zeros(m, bool)
+        nb, valid = self.neighbours(x) if gathered is None else gathered
+        pos = nb[:, :, :3]
+        d2 = np.einsum("mkj,mkj->mk", pos, pos) - 2.0 * np.einsum("mkj,mj->mk", pos, x) + np.einsum("mj,mj->m", x, x)[:, None]
+        w = np.exp(d2 * (-1.0 / (self.h * self.h)))
+        w[~valid | (d2 > self.reach * self.reach)] = 0.0
+        wsum = w.sum(axis=1)
+        sums = np.einsum("mk,mkc->mc", w, nb)  # sum w p, sum w n
+        nn = sums[:, 3:]
+        length = np.sqrt(np.einsum("mj,mj->m", nn, nn))
+        support = (wsum > 0) & (length > 1e-12)
+        nn = nn / np.where(support, length, 1.0)[:, None]
+        nn[~support] = 0.0
+        # f = n . (x - a), a = sum w p / sum w
+        f = np.einsum("mj,mj->m", nn, x - sums[:, :3] / np.where(support, wsum, 1.0)[:, None])
+        return f, nn, support
+
+    def _iterate(self, x, step_fn, max_iter, gathered=None):
+        """Run ``step_fn`` (one projection or line step) from x until each query
+        converges. Each query's neighbours are gathered once, where it starts, and
+        gathered again where it converged if that is more than h away (up to 3
+        times): the surface a query sees is the MLS surface of the k points nearest
+        to a place within h of where it converged."""
+        y = x.copy()
+        normal = np.zeros_like(x)
+        ok = np.zeros(len(x), bool)
+        state = np.zeros(len(x))  # the line parameter t (unused by projections)
+        todo = np.arange(len(x))
+        for _round in range(3):
+            if todo.size == 0:
+                break
+            start = y[todo].copy()
+            nb, valid = gathered if (_round == 0 and gathered is not None) else self.neighbours(start)
+            active = np.arange(todo.size)
+            conv_here = np.zeros(todo.size, bool)
+            for it in range(max_iter):
+                if active.size == 0:
+                    break
+                q = todo[active]
+                g = (nb, valid) if it == 0 else (nb[active], valid[active])
+                f, nn, sup = self.evaluate(y[q], g)
+                normal[q] = nn
+                conv = sup & (np.abs(f) <= _TOL * self.h)
+                conv_here[active[conv]] = True
+                go = step_fn(q, f, nn, sup & ~conv, y, state)
+                active = active[go]
+            moved = np.linalg.norm(y[todo] - start, axis=1) > self.h
+            ok[todo[conv_here & ~moved]] = True
+            todo = todo[conv_here & moved]
+        ok[todo] = True  # converged again after the last gathering
+        return y, normal, ok, state
+
+    def project(self, x: np.ndarray, max_move: float = math.inf, gathered=None):
+        """Quasi-orthogonal projection (m, 3) -> ``(y, n(y), ok)``; a query that moves
+        farther than ``max_move`` from x is given up (ok False). ``gathered``: the
+        queries' :meth:`neighbours` at x, when already known."""
+
+        def step(q, f, nn, go, y, state):
+            qg = q[go]
+            y[qg] -= f[go, None] * nn[go]
+            if math.isfinite(max_move):
+                far = np.einsum("mj,mj->m", y[qg] - x[qg], y[qg] - x[qg]) > max_move * max_move
+                go[np.flatnonzero(go)[far]] = False
+            return go
+
+        y, normal, ok, _ = self._iterate(x, step, _PROJ_ITER, gathered)
+        return y, normal, ok
+
+    def intersect_line(self, x: np.ndarray, d: np.ndarray, tmax: float, gathered=None):
+        """The crossing of the lines ``x + t d`` (d unit) with the surface nearest x,
+        |t| <= tmax, by the ray-plane iteration: ``(t, n at the crossing, ok)``.
+        ``gathered``: the queries' :meth:`neighbours` at x, when already known."""
+
+        def step(q, f, nn, go, y, state):
+            slope = np.einsum("mj,mj->m", nn, d[q])
+            go = go & (np.abs(slope) >= _MIN_SLOPE)
+            qg = q[go]
+            state[qg] -= f[go] / slope[go]
+            inside = np.abs(state[qg]) <= tmax
+            state[qg[~inside]] = 0.0
+            y[qg] = x[qg] + state[qg, None] * d[qg]
+            go[np.flatnonzero(go)[~inside]] = False
+            return go
+
+        _, normal, ok, t = self._iterate(x, step, _LINE_ITER, gathered)
+        return t, normal, ok
+
+
+# ------------------------------------------------------------------------ counterparts and blending
+
+
+def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing: float,
+                 device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0):
+    """Each point's counterpart on N_k's MLS surface (Sec. 5.3): the crossing of the line
+    through the point along +-its normal nearest to it (within ``max_ray`` spacings),
+    else its projection (if within ``max_ray`` spacings too: blending closes small gaps,
+    it does not move geometry N_k lacks onto another part of N_k).
+
+    Args:
+        points, normals: (M, 3) float, the warped patch's points F'_k (normals need not
+            be unit length).
+        neighbourhood_points, neighbourhood_normals: (K, 3) float, N_k.
+        spacing: the point spacing (world units, > 0).
+        device: the run's device string, only checked: the evaluation runs on the
+            host in float64, the same bits on every device (see the module docstring).
+        radius: the MLS width h, default 2 spacings.
+        max_ray: the line search's reach and the farthest projection, in spacings.
+
+    Returns:
+        ``(positions, normals, how)``: (M, 3) float64 counterparts (the point itself
+        where there is none), (M, 3) float64 unit MLS normals there (the point's own
+        normal where there is none), (M,) int8: 1 ray intersection, 2 projection, 0 no
+        usable surface in reach.
+    """
+    p = _points("points", points)
+    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing = _positive("spacing", spacing)
+    h = 2.0 * spacing if radius is None else _positive("radius", radius)
+    max_ray = _positive("max_ray", max_ray)
+    _check_device(device)
+    surface = MLSSurface(neighbourhood_points, neighbourhood_normals, h)
+    out_p, out_n = p.copy(), n.copy()
+    how = np.zeros(len(p), np.int8)
+    if len(p) == 0 or surface.tree is None:
+        return out_p, out_n, how
+    near = surface.neighbours(p)  # both searches start at p
+    t, nc, ok = surface.intersect_line(p, n, max_ray * spacing, near)
+    ok &= np.einsum("mj,mj->m", nc, n) >= _MIN_FACING
+    out_p[ok] = p[ok] + t[ok, None] * n[ok]
+    out_n[ok] = nc[ok]
+    how[ok] = RAY
+    rest = np.flatnonzero(~ok)
+    if rest.size:
+        y, ny, good = surface.project(p[rest], max_move=max_ray * spacing, gathered=(near[0][rest], near[1][rest]))
+        good &= np.einsum("mj,mj->m", ny, n[rest]) >= _MIN_FACING
+        good &= np.linalg.norm(y - p[rest], axis=1) <= max_ray * spacing
+        keep = rest[good]
+        out_p[keep] = y[good]
+        out_n[keep] = ny[good]
+        how[keep] = PROJECTION
+    return out_p, out_n, how
+
+
+def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing: float,
+                device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0,
+                relative: bool = True):
+    """Blend the warped patch F'_k into N_k (Sec. 5.3): ``p'' = p' + r (c - c')`` and
+    ``n'' = normalize(n' + r (n_c - n_c'))`` with c, n_c from :func:`counterparts`.
+
+    ``c'`` is the same construction on F'_k's own MLS surface (the crossing of the same
+    line with it, or its projection onto it) and n_c' its MLS normal at p': each point
+    moves by the gap between the two MLS surfaces and its normal turns by the difference
+    of their normals, so that where they already agree nothing changes. With
+    ``relative=False``, ``c' = p'``: the paper's literal ``p'' = (1 - r) p' + r c`` and
+    ``n'' = normalize((1 - r) n' + r n_c)``, which puts the points of the outer edge on N_k's MLS surface; on curved geometry (rings,
+    threads) that surface lies inside the sampled one by the MLS smoothing, and a blended
+    patch that matched N_k exactly would come out shrunk there.
+
+    Args:
+        points, normals: (M, 3) float F'_k.
+        ramp: (M,) float in [0, 1], each point's parameter (:func:`overlap_ramp`).
+        neighbourhood_points, neighbourhood_normals: (K, 3) float N_k (K may be 0).
+        spacing, device, radius, max_ray: as in :func:`counterparts`.
+        relative: move by the gap between the surfaces (True) or onto N_k's (False).
+
+    Returns:
+        ``(points, normals)``: (M, 3) float64 blended positions and unit normals.
+        Points with r == 0, or with no usable surface of N_k in reach, are unchanged.
+    """
+    p = _points("points", points)
+    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    r = np.asarray(ramp, np.float64).reshape(-1)
+    if r.shape != (len(p),):
+        raise ValueError(f"ramp must have shape ({len(p)},) to match points, got {np.shape(ramp)}.")
+    if not (np.isfinite(r).all() and (r >= 0).all() and (r <= 1).all()):
+        raise ValueError("ramp must hold finite values in [0, 1] (see overlap_ramp).")
+    out_p, out_n = p.copy(), n.copy()
+    sel = np.flatnonzero(r > 0)
+    if sel.size == 0 or len(np.asarray(neighbourhood_points).reshape(-1, 3)) == 0:
+        _positive("spacing", spacing)
+        return out_p, out_n
+    c, nc, how = counterparts(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
+                              radius=radius, max_ray=max_ray)
+    own = p[sel].copy()
+    rs = r[sel, None]
+    if relative:
+        from geosynth import _checks
+
+        _checks.check_bool("relative", relative)
+        h = 2.0 * spacing if radius is None else _positive("radius", radius)
+        f_own, n_own, sup = np.zeros(sel.size), np.zeros((sel.size, 3)), np.zeros(sel.size, bool)
+        found = np.flatnonzero(how != NO_SURFACE)  # only where N_k gave a counterpart
+        if found.size:
+            f_own[found], n_own[found], sup[found] = MLSSurface(p, n, h).evaluate(p[sel[found]])
+        slope = np.einsum("mj,mj->m", n_own, n[sel])
+        ray = (how == RAY) & sup & (np.abs(slope) >= _MIN_SLOPE)
+        own[ray] -= (f_own[ray] / slope[ray])[:, None] * n[sel][ray]  # one ray-plane step
+        proj = (how == PROJECTION) & sup
+        own[proj] -= f_own[proj, None] * n_own[proj]  # one projection step
+        # Normals likewise: turned by the difference of the two MLS normals.
+        turn = np.where((ray | proj)[:, None], nc - n_own, 0.0)
+        blended = n[sel] + rs * turn
+    else:
+        blended = (1.0 - rs) * n[sel] + rs * nc
+    out_p[sel] = p[sel] + rs * (c - own)
+    length = np.linalg.norm(blended, axis=1)
+    good = length > 1e-9
+    out_n[sel[good]] = blended[good] / length[good, None]
+    return out_p, out_n
+
+
+# ------------------------------------------------------------------------ border cut, relaxation, seam error
+
+
+def border_cut(points, normals, box_min, box_max, width: float):
+    """Remove a border ``width`` wide along the output's sides (step 8 of Sec. 4):
+    keep the points with ``box_min + width <= (x, y) <= box_max - width``.
+
+    Args:
+        points, normals: (M, 3) float.
+        box_min, box_max: (2,) or (3,) the output's box (x, y used).
+        width: the border width w_E (world units, >= 0).
+
+    Returns:
+        ``(points, normals)`` of the kept points, float64, in their input order.
+
+    Raises:
+        ValueError: nothing would be left (width at least half the box's smaller side).
+    """
+    p = _points("points", points)
+    n = _points("normals", normals, len(p))
+    lo, hi = _box(box_min, box_max)
+    if isinstance(width, bool) or not isinstance(width, (int, float, np.integer, np.floating)) or not (
+        math.isfinite(float(width)) and float(width) >= 0
+    ):
+        raise ValueError(f"width must be a finite number >= 0, got {width!r}.")
+    w = float(width)
+    if 2 * w >= float((hi - lo).min()):
+        raise ValueError(f"width {w:g} leaves nothing of a box {hi - lo} wide; use a width below half its smaller side.")
+    keep = ((p[:, :2] >= lo + w) & (p[:, :2] <= hi - w)).all(axis=1)
+    return p[keep], n[keep]
+
+
+def relax_points(points, normals, spacing: float, iterations: int = 2, *, device: str | None = None):
+    """A short relaxation of the final point set (Sec. 6: "a relaxation of the point-sets
+    as a post-processing step to improve local sampling density"): each point is pushed
+    away from neighbours closer than ``spacing`` (half the overlap, in its tangent plane,
+    at most half a spacing a step), then moved along the MLS normal so that its signed
+    offset ``f`` from the MLS surface of the points before relaxing is what it was before
+    the step. Not projected onto that surface: the MLS surface (width 2 spacings) is a
+    smoothed one, and projecting every point onto it would round off the geometry
+    (stones into soft bumps). Each point keeps its own normal.
+
+    Args:
+        points, normals: (M, 3) float.
+        spacing: the target spacing (world units, > 0).
+        iterations: relaxation steps (>= 0).
+        device: the run's device string, only checked (host float64, as :func:`counterparts`).
+
+    Returns:
+        ``(points, normals)``: (M, 3) float64 relaxed positions and their unit normals
+        (the input's).
+    """
+    from scipy.spatial import cKDTree
+
+    p = _points("points", points)
+    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing = _positive("spacing", spacing)
+    _check_device(device)
+    if not isinstance(iterations, (int, np.integer)) or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}.")
+    if len(p) < 2 or iterations == 0:
+        return p.copy(), n.copy()
+    surface = MLSSurface(p, n, 2.0 * spacing)
+    x, nx = p.copy(), n.copy()
+    k = int(min(9, len(p)))
+    for _ in range(int(iterations)):
+        dist, idx = cKDTree(x).query(x, k=k)
+        dist, idx = dist[:, 1:], idx[:, 1:]
+        push = np.clip(spacing - dist, 0.0, None) / np.where(dist > 0, dist, 1.0)  # overlap / distance
+        push = np.where(dist > 0, push, 0.0)
+        move = 0.5 * np.einsum("mk,mkj->mj", push, x[:, None, :] - x[idx])
+        move -= np.einsum("mj,mj->m", move, nx)[:, None] * nx  # tangential only
+        limit = 0.5 * spacing
+        length = np.linalg.norm(move, axis=1)
+        move *= np.minimum(1.0, limit / np.where(length > 0, length, 1.0))[:, None]
+        f0, _, s0 = surface.evaluate(x)
+        moved = x + move
+        f1, n1, s1 = surface.evaluate(moved)
+        ok = s0 & s1 & (np.einsum("mj,mj->m", n1, nx) > 0.5)
+        x[ok] = moved[ok] - (f1[ok] - f0[ok])[:, None] * n1[ok]
+    return x, nx
+
+
+def seam_error(points_a, normals_a, points_b, normals_b, samples, spacing: float) -> float:
+    """How far apart two point sets' surfaces are at some samples: the RMS difference of
+    their MLS implicit functions ``f_a(x) - f_b(x)`` (signed distances near the
+    surfaces) over the samples where both have support, in spacings.
+
+    For the seam error of a pasted patch: a = the patch (warped or blended), b = N_k,
+    samples = points in a thin band along the overlap's outer edge.
+
+    Args:
+        points_a, normals_a, points_b, normals_b: (., 3) float oriented point sets.
+        samples: (L, 3) float sample positions.
+        spacing: the point spacing (world units, > 0); the MLS width is 2 spacings.
+            Evaluated on the host in float64 (the same number on every device).
+
+    Returns:
+        The RMS difference in spacings; NaN when no sample has support in both.
+    """
+    spacing = _positive("spacing", spacing)
+    x = _points("samples", samples)
+    fa, _, sa = MLSSurface(points_a, normals_a, 2.0 * spacing).evaluate(x)
+    fb, _, sb = MLSSurface(points_b, normals_b, 2.0 * spacing).evaluate(x)
+    both = sa & sb
+    if not both.any():
+        return float("nan")
+    return float(np.sqrt(np.mean((fa[both] - fb[both]) ** 2)) / spacing)

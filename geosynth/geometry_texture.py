@@ -1,0 +1,573 @@
+"""Which larger point-set texture looks like the exemplar? The synthesis algorithm of
+"Geometry texture synthesis with point-set surfaces", Sec. 4 (steps 1 to 8) with the patch
+processing of Sec. 5 (search 5.1, warping 5.2, blending 5.3).
+
+:func:`synthesize_point_texture` grows the output T_out over the xy plane in scan-line
+order, one patch at a time: the output's neighbourhood N_k of the next patch box gives
+the overlap field D(O^N) (MLS distance + gradient on the overlap's grid samples); the
+patch search (:class:`geosynth.patch_search.PatchSearch`) keeps every exemplar patch
+within (1 + eps) of the best and draws one; the patch with its extra region E_k (F_k),
+translated into place, is warped to N_k by a thin-plate spline
+(:func:`geosynth.warping.warp_patch`), blended into N_k across the overlap
+(:func:`geosynth.blending.blend_patch`) and pasted: the output's points inside F_k's box
+are removed and F''_k's copied in (:class:`geosynth.point_grid.PointGrid`). A border of
+width w_E is cut at the end (step 8); ``tileable=True`` grows a periodic output instead
+(the last column and row overlap the first ones, nothing is cut).
+
+Quality numbers beside a baseline that pastes random patches with no search, warp or
+blend: the bidirectional patch-field distance (every sampled output patch's field
+against its nearest exemplar patch, and the other way), the seam error (RMS MLS distance
+difference between a pasted patch and N_k on the overlap's outer edge, in spacings)
+before and after blending, and the share of stray points (farther than one spacing from
+the MLS surface of the output).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field as dc_field
+
+import numpy as np
+
+from geosynth.point_grid import PointGrid
+from geosynth.point_textures import PointTexture
+
+__all__ = ["PointTextureReport", "synthesize_point_texture", "output_mesh"]
+
+
+@dataclass
+class PointTextureReport:
+    """What a run did and how good it is (see :func:`synthesize_point_texture`).
+
+    Attributes:
+        exemplar: the exemplar's name; points_in, points_out: point counts.
+        size: (2,) output extent in x and y, world units; tileable: periodic output.
+        grid: (nz, ny, nx) of D(T_in); cell: its spacing (world units).
+        patch, extra, overlap: patch side, extra-region width and overlap width, cells.
+        patches: patches pasted; candidates: mean candidates within (1 + eps) of the best.
+        spacing, radius: the exemplar's mean point spacing and the MLS width h.
+        arbitrated: field samples the host recomputed for identical codes on every device.
+        quality: name -> value (see :meth:`lines`).
+        device: the device used.
+        baseline: the random-pasting output as a PointSet (with ``quality``), else None.
+    """
+
+    exemplar: str
+    points_in: int
+    points_out: int
+    size: tuple
+    tileable: bool
+    grid: tuple
+    cell: float
+    patch: int
+    extra: int
+    overlap: int
+    patches: int
+    candidates: float
+    spacing: float
+    radius: float
+    arbitrated: int
+    device: str
+    quality: dict = dc_field(default_factory=dict)
+    baseline: object = None  # the random-pasting output (a PointSet) when quality was asked
+
+    def lines(self) -> list[str]:
+        """The report as printable lines."""
+        out = [
+            f"exemplar {self.exemplar}: {self.points_in:,} points, spacing {self.spacing:.4g}, MLS width {self.radius:.4g}",
+            f"D(T_in): {self.grid[2]} x {self.grid[1]} x {self.grid[0]} samples (x, y, z), cell {self.cell:.4g}; "
+            f"patch {self.patch} cells, extra region {self.extra}, overlap {self.overlap}; {self.arbitrated:,} field "
+            "samples recomputed on the host (float64) so that every device gives the same codes",
+            f"output: {self.size[0]:.4g} x {self.size[1]:.4g}{' (tileable)' if self.tileable else ''}, "
+            f"{self.points_out:,} points from {self.patches} patches; {self.candidates:.1f} candidates within "
+            f"(1+eps) of the best on average; device {self.device}",
+        ]
+        q = self.quality
+        if q:
+            out.append("quality (synthesized vs random pasting without search, warp or blend; lower is better):")
+            if "field_distance" in q:
+                s, b = q["field_distance"], q["field_distance_baseline"]
+                out.append(f"  patch-field distance, mean squared code per sample: output->exemplar {s[0]:.1f} vs "
+                           f"{b[0]:.1f}, exemplar->output {s[1]:.1f} vs {b[1]:.1f}, mean {s[2]:.1f} vs {b[2]:.1f}")
+            if "seam_before" in q:
+                out.append(f"  seam error (RMS distance across patch borders, spacings): after warping "
+                           f"{q['seam_before']:.3f}, after blending {q['seam_after']:.3f}; random pasting "
+                           f"{q['seam_baseline']:.3f}")
+            if "stray" in q:
+                out.append(f"  stray points (farther than one spacing from the MLS surface): {100 * q['stray']:.2f}% "
+                           f"vs {100 * q['stray_baseline']:.2f}%")
+        return out
+
+
+# ------------------------------------------------------------------ parameters
+
+
+def _fraction(name: str, value, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}.")
+    v = float(value)
+    if not (np.isfinite(v) and lo < v <= hi):
+        raise ValueError(f"{name} must be in ({lo:g}, {hi:g}], got {value!r}.")
+    return v
+
+
+@dataclass(frozen=True)
+class _Layout:
+    cell: float
+    patch: int
+    extra: int
+    overlap: int
+    step: int
+    cols: int
+    rows: int
+    canvas_origin: np.ndarray  # (2,) world xy of canvas cell (0, 0)
+    size: np.ndarray  # (2,) the final output's extent
+    period: np.ndarray | None  # tileable: (2,) period
+
+
+def _layout(texture: PointTexture, size, scale, patch, extra, overlap, resolution, tileable) -> _Layout:
+    ext = texture.extent[:2]
+    if not isinstance(resolution, (int, np.integer)) or isinstance(resolution, bool) or resolution < 8:
+        raise ValueError(f"resolution must be an integer >= 8 (field samples along the exemplar box's longer side), "
+                         f"got {resolution!r}.")
+    cell = float(ext.max()) / (int(resolution) - 1)
+    p = _fraction("patch", patch, 0.0, 1.0)
+    pc = int(round(p * float(ext.min()) / cell))
+    if pc < 4:
+        raise ValueError(f"patch {patch!r} is only {pc} field cells wide; use a larger patch or resolution.")
+    ec = max(1, int(round(_fraction("extra", extra, 0.0, 0.5) * pc)))
+    oc = max(1, int(round(_fraction("overlap", overlap, 0.0, 0.5) * pc)))
+    if oc >= pc:
+        raise ValueError(f"overlap ({oc} cells) must be smaller than the patch ({pc} cells).")
+    step = pc - oc
+    if size is not None:
+        s = np.asarray(size, np.float64).reshape(-1)
+        if s.shape != (2,) or not (np.isfinite(s).all() and (s > 0).all()):
+            raise ValueError(f"size must be two numbers > 0 (the output's x and y extent, world units), got {size!r}.")
+    else:
+        sc = _fraction("scale", scale, 0.0, 1e4)
+        s = sc * ext
+    if tileable:
+        counts = np.maximum(1, np.round(s / (step * cell))).astype(np.int64)
+        period = counts * step * cell
+        return _Layout(cell, pc, ec, oc, step, int(counts[0]), int(counts[1]), texture.box_min[:2].copy(), period,
+                       period)
+    canvas = s + 2 * ec * cell
+    counts = np.maximum(1, np.ceil((canvas / cell - pc) / step).astype(np.int64) + 1)
+    return _Layout(cell, pc, ec, oc, step, int(counts[0]), int(counts[1]), texture.box_min[:2] - ec * cell, s, None)
+
+
+def _sides(i, j, lay: _Layout, tileable: bool):
+    sides = []
+    if i > 0:
+        sides.append(("-x", lay.overlap))
+    if j > 0:
+        sides.append(("-y", lay.overlap))
+    if tileable and i == lay.cols - 1 and lay.cols > 1:
+        sides.append(("+x", lay.overlap))
+    if tileable and j == lay.rows - 1 and lay.rows > 1:
+        sides.append(("+y", lay.overlap))
+    return sides
+
+
+# ------------------------------------------------------------------ the growth
+
+
+def _as_texture(exemplar, seed) -> PointTexture:
+    if isinstance(exemplar, PointTexture):
+        return exemplar
+    if isinstance(exemplar, str):
+        from geosynth.point_examples import POINT_EXAMPLES, point_texture_example
+
+        if exemplar in POINT_EXAMPLES:
+            return point_texture_example(exemplar, seed=seed)
+        from geosynth.point_textures import read_point_texture
+
+        return read_point_texture(exemplar, seed=seed)
+    import os
+
+    if isinstance(exemplar, os.PathLike):
+        from geosynth.point_textures import read_point_texture
+
+        return read_point_texture(exemplar, seed=seed)
+    raise TypeError(f"exemplar must be a PointTexture, a built-in name or a file path, got {type(exemplar).__name__}.")
+
+
+def _default_weights(texture: PointTexture):
+    from geosynth.warping import WARP_PRESETS, WarpWeights
+
+    from geosynth.point_examples import POINT_EXAMPLES
+
+    ex = POINT_EXAMPLES.get(texture.name)
+    return WARP_PRESETS[ex.preset] if ex is not None else WarpWeights()
+
+
+class _Timer:
+    def __init__(self):
+        self.t = {"precompute": 0.0, "search": 0.0, "warp": 0.0, "blend": 0.0, "other": 0.0}
+
+    def add(self, key, t0):
+        now = time.perf_counter()
+        self.t[key] += now - t0
+        return now
+
+
+def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer, *,
+          baseline=False, progress=False, label="synthesis"):
+    """Steps 1 to 7 of Sec. 4; returns (PointGrid, stats dict)."""
+    from geosynth.patch_search import quantized_fields
+
+    if not baseline:
+        from geosynth.warping import warp_patch
+        from geosynth.blending import blend_patch, overlap_ramp, seam_error
+
+    cell, pc = lay.cell, lay.patch
+    reach = 3.0 * h
+    grid = PointGrid(cell=max(2 * reach, cell * 2), period=lay.period)
+    inp, inn = texture.points, texture.normals
+    zlo, zhi = search.z0, search.z0 + (search.shape[0] - 1) * cell
+    margin = 4.0 * spacing  # the warp moves points by at most a few spacings (its pairs are <= 4 apart)
+    seams = {"before": [], "after": [], "baseline": []}
+    cands = []
+    arbitrated = 0
+    total = lay.cols * lay.rows
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=label, unit="patch", leave=False, mininterval=0.5, file=sys.stderr)
+    t0 = time.perf_counter()
+    for j in range(lay.rows):
+        for i in range(lay.cols):
+            ox, oy = i * lay.step, j * lay.step
+            lo = lay.canvas_origin + cell * np.array([ox, oy], np.float64)
+            sides = _sides(i, j, lay, tileable)
+            ex_x = 0 if (tileable and i == lay.cols - 1) else lay.extra
+            ex_y = 0 if (tileable and j == lay.rows - 1) else lay.extra
+            hi = lo + cell * np.array([pc + ex_x, pc + ex_y], np.float64)
+            offsets = search.overlap_offsets(sides)
+            # --- search (steps 2 and 3)
+            nb_p = nb_n = None
+            if len(offsets):
+                q = np.column_stack([lo[0] + offsets[:, 2] * cell, lo[1] + offsets[:, 1] * cell,
+                                     search.z0 + offsets[:, 0] * cell])
+                nb_p, nb_n = grid.in_box(q[:, :2].min(0) - 2 * reach - margin, q[:, :2].max(0) + 2 * reach + margin)
+            if baseline or not len(offsets) or len(nb_p) == 0:
+                choice = search.choose(np.zeros((0, 3), np.int64), None, eps, rng)
+            else:
+                values, na = quantized_fields(nb_p, nb_n, q, h, search.band, device)
+                arbitrated += na
+                choice = search.choose(offsets, values, eps, rng)
+                cands.append(choice.candidates)
+            t0 = timer.add("search", t0) if not baseline else t0
+            # --- F_k = P_k + E_k, translated into place, extended by a margin
+            src = search.window_world(search.origins[choice.index])
+            shift = np.r_[lo - src, 0.0]
+            sel = ((inp[:, :2] >= src - margin) & (inp[:, :2] < src + (hi - lo) + margin)).all(axis=1)
+            fp, fn = inp[sel] + shift, inn[sel]
+            box_min, box_max = np.r_[lo, zlo], np.r_[hi, zhi]
+            if not baseline and len(offsets) and len(nb_p):
+                # --- warp (step 4): targets are N_k's points in the overlap
+                ramp_nb = overlap_ramp(nb_p, box_min, box_max, lay.overlap * cell, lay.overlap * cell,
+                                       [s for s, _ in sides])
+                inside = ((nb_p[:, :2] >= lo) & (nb_p[:, :2] <= hi)).all(axis=1) & (ramp_nb > 0)
+                t0 = timer.add("other", t0)
+                wr = warp_patch(fp, fn, nb_p[inside], nb_n[inside], box_min, box_max, weights, spacing, rng,
+                                src_variation=variation[sel])
+                t0 = timer.add("warp", t0)
+                # --- blend (step 5)
+                ramp = overlap_ramp(wr.points, box_min, box_max, lay.overlap * cell, lay.overlap * cell,
+                                    [s for s, _ in sides])
+                bp, bn = blend_patch(wr.points, wr.normals, ramp, nb_p, nb_n, spacing, device)
+                t0 = timer.add("blend", t0)
+                edge = _edge_samples(search, offsets, q, sides)
+                seams["before"].append(seam_error(wr.points, wr.normals, nb_p, nb_n, edge, spacing))
+                seams["after"].append(seam_error(bp, bn, nb_p, nb_n, edge, spacing))
+                fp, fn = bp, bn
+                t0 = time.perf_counter()  # the seam numbers are quality, not synthesis
+            elif baseline and len(offsets) and nb_p is not None and len(nb_p):
+                from geosynth.blending import seam_error as _seam
+
+                edge = _edge_samples(search, offsets, q, sides)
+                seams["baseline"].append(_seam(fp, fn, nb_p, nb_n, edge, spacing))
+            # --- paste (step 6)
+            keep = ((fp[:, :2] >= lo) & (fp[:, :2] < hi)).all(axis=1)
+            grid.remove_box(lo, hi)
+            grid.insert(fp[keep], fn[keep])
+            t0 = timer.add("other", t0) if not baseline else time.perf_counter()
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    return grid, {"seams": seams, "candidates": cands, "arbitrated": arbitrated}
+
+
+def _edge_samples(search, offsets, q, sides):
+    """The overlap's samples on its outer edge (the first column of each side), (L, 3)."""
+    p = search.patch
+    m = np.zeros(len(offsets), bool)
+    for side, _ in sides:
+        if side == "-x":
+            m |= offsets[:, 2] == 0
+        elif side == "+x":
+            m |= offsets[:, 2] == p - 1
+        elif side == "-y":
+            m |= offsets[:, 1] == 0
+        elif side == "+y":
+            m |= offsets[:, 1] == p - 1
+    return q[m]
+
+
+def _cut(grid: PointGrid, lay: _Layout, texture: PointTexture, tileable: bool):
+    """Step 8: the final border cut (none when tileable); points in output coordinates
+    (x and y from the exemplar box's corner)."""
+    p, n = grid.all_points()
+    lo = texture.box_min[:2]
+    if tileable:  # one period, from B's corner (the grid keeps [0, period))
+        p[:, :2] = lo + np.mod(p[:, :2] - lo, lay.period)
+        p[:, :2] = np.where(p[:, :2] >= lo + lay.period, lo, p[:, :2])
+        return p, n
+    hi = lo + lay.size
+    keep = ((p[:, :2] >= lo) & (p[:, :2] < hi)).all(axis=1)
+    return p[keep], n[keep]
+
+
+# ------------------------------------------------------------------ quality
+
+
+def _field_codes(points, normals, lay, search, h, device, lo, size):
+    """D of an output on the search grid's spacing over [lo, lo + size] (codes (nz, ny, nx, 4))."""
+    from geosynth.patch_search import quantized_fields
+
+    cell = lay.cell
+    nx, ny = (int(np.floor(size[a] / cell + 1e-9)) + 1 for a in range(2))
+    nz = search.shape[0]
+    k, jj, ii = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
+    q = np.stack([lo[0] + ii.ravel() * cell, lo[1] + jj.ravel() * cell, search.z0 + k.ravel() * cell], 1)
+    codes, _ = quantized_fields(points, normals, q, h, search.band, device)
+    return codes.reshape(nz, ny, nx, 4)
+
+
+def _nearest_window(grid_codes, origins, offsets, values, device):
+    from geosynth.scoring import score_gather
+
+    s = score_gather(grid_codes, offsets, values, origins=origins, device=device)
+    return float(s.min())
+
+
+def _window_origins(shape, patch, stride):
+    nz, ny, nx = shape
+    oy, ox = np.meshgrid(np.arange(0, ny - patch + 1, stride), np.arange(0, nx - patch + 1, stride), indexing="ij")
+    return np.stack([np.zeros(ox.size, np.int64), oy.ravel(), ox.ravel()], 1)
+
+
+def _field_distance(out_codes, in_codes, patch, samples, rng, device):
+    """Bidirectional patch-field distance: (output->exemplar, exemplar->output, mean), mean
+    squared code difference per field value."""
+    nz = in_codes.shape[0]
+    jy, ix = np.meshgrid(np.arange(patch), np.arange(patch), indexing="ij")
+    off = np.column_stack([np.repeat(np.arange(nz), patch * patch), np.tile(jy.ravel(), nz), np.tile(ix.ravel(), nz)])
+    per = len(off) * 4
+    res = []
+    for a, b in ((out_codes, in_codes), (in_codes, out_codes)):
+        src = _window_origins(a.shape[:3], patch, 1)
+        dst = _window_origins(b.shape[:3], patch, 2 if b is out_codes else 1)
+        pick = src[rng.choice(len(src), size=min(samples, len(src)), replace=False)]
+        vals = []
+        for o in pick:
+            win = a[o[0] + off[:, 0], o[1] + off[:, 1], o[2] + off[:, 2]]
+            vals.append(_nearest_window(b, dst, off, win, device) / per)
+        res.append(float(np.mean(vals)))
+    return res[0], res[1], 0.5 * (res[0] + res[1])
+
+
+def _stray_share(points, normals, spacing, h, device) -> float:
+    from geosynth.pointsets import pointset_distance
+
+    if len(points) < 4:
+        return 1.0
+    d, _ = pointset_distance(points.astype(np.float32), normals.astype(np.float32), points.astype(np.float32),
+                             radius=h, far="reach", device=device)
+    return float(np.mean(np.abs(d) > spacing))
+
+
+# ------------------------------------------------------------------ the public function
+
+_BYTES_PER_OUTPUT_POINT = 400  # grid arrays (48 B) at up to 2x capacity, the cut copy, float32 output,
+# the stray-point query and, with quality, the baseline's copy of all of them
+
+
+def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
+    """Refuse an output that cannot fit before growing it (its points from the exemplar's
+    density inside B times the canvas area)."""
+    from geosynth.memory import require
+
+    inside = texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum()
+    density = inside / float(np.prod(texture.extent[:2]))
+    canvas = (lay.cols * lay.step + lay.patch + lay.extra) * (lay.rows * lay.step + lay.patch + lay.extra) * lay.cell ** 2
+
+    def estimate(factor: float = 1.0) -> int:
+        return int(density * canvas * factor * _BYTES_PER_OUTPUT_POINT * (2 if quality else 1))
+
+    require(estimate(), option="size", value=tuple(float(v) for v in lay.size),
+            what=f"an output of {lay.size[0]:.4g} x {lay.size[1]:.4g} (about {int(density * canvas):,} points)")
+
+
+
+def synthesize_point_texture(
+    exemplar,
+    size=None,
+    *,
+    scale: float = 2.0,
+    patch: float | None = None,
+    extra: float = 0.2,
+    overlap: float = 0.25,
+    resolution: int = 48,
+    weights=None,
+    eps: float = 0.1,
+    tileable: bool = False,
+    relax: bool = False,
+    quality: bool = True,
+    quality_samples: int = 16,
+    device: str | None = None,
+    seed: int = 0,
+    progress: bool = False,
+):
+    """Grow a larger point-set geometry texture from an exemplar (Sec. 4 and 5).
+
+    Args:
+        exemplar: a :class:`geosynth.point_textures.PointTexture`, a built-in name
+            (heightfield, chainmail, weave, flowers) or a file (PLY point set or mesh).
+        size: (2,) output extent in x and y, world units; default ``scale`` times B's.
+        scale: output extent in units of the exemplar box B's (when ``size`` is None).
+        patch: patch side as a fraction of B's shorter side, in (0, 1]; default the
+            built-in's own (0.3 for flowers), else 0.4.
+        extra: width w_E of the extra region E_k as a fraction of the patch (the paper
+            used 1/8 to 1/4), in (0, 0.5].
+        overlap: overlap width as a fraction of the patch, in (0, 0.5].
+        resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
+            51 to 84).
+        weights: a :class:`geosynth.warping.WarpWeights`; default the paper's preset for
+            a built-in, else WarpWeights().
+        eps: the relative tolerance of the candidate set (step 2), >= 0.
+        tileable: grow a periodic output (its opposite borders continue each other).
+        relax: relax the final point set (:func:`geosynth.blending.relax_points`).
+        quality: compute the quality numbers and the random-pasting baseline.
+        quality_samples: patches sampled per direction for the patch-field distance.
+        device: a device string; None means "auto".
+        seed: seed of every random choice.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        ``(points, report, timings)``: a :class:`geosynth.pointsets.PointSet` (float32
+        positions and unit normals, x and y from B's corner to B's corner + size), a
+        :class:`PointTextureReport`, and seconds per stage (precompute, search, warp,
+        blend, other, total; quality apart).
+
+    Raises:
+        ValueError: a patch larger than the exemplar box (with its extra region), bad
+            numbers, and the input errors of :class:`PointTexture`.
+        TypeError: arguments of the wrong type.
+    """
+    from geosynth import _checks
+    from geosynth.patch_search import PatchSearch
+    from geosynth.pointsets import MLS_REACH, PointSet
+    from geosynth.warping import WarpWeights, surface_variation
+
+    t_start = time.perf_counter()
+    texture = _as_texture(exemplar, seed)
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
+    if not (isinstance(eps, (int, float, np.integer, np.floating)) and np.isfinite(eps) and eps >= 0):
+        raise ValueError(f"eps must be a finite number >= 0, got {eps!r}.")
+    tileable = _checks.check_bool("tileable", tileable)
+    if weights is None:
+        weights = _default_weights(texture)
+    elif not isinstance(weights, WarpWeights):
+        raise TypeError(f"weights must be a geosynth.warping.WarpWeights, got {type(weights).__name__}.")
+    backend = _checks.resolve_backend(device)
+    device_name = getattr(backend, "device", None) or (device or "auto")
+    if patch is None:
+        from geosynth.point_examples import POINT_EXAMPLES
+
+        ex = POINT_EXAMPLES.get(texture.name)
+        patch = ex.patch if ex is not None else 0.4
+    lay = _layout(texture, size, scale, patch, extra, overlap, resolution, tileable)
+    _require_memory(texture, lay, quality)
+    timer = _Timer()
+    spacing = texture.spacing
+    h = 2.0 * spacing
+    band = MLS_REACH * h
+    search = PatchSearch(texture, lay.cell, lay.patch, lay.extra, h, band, device)
+    variation = surface_variation(texture.points)
+    timer.add("precompute", t_start)
+    rng = np.random.default_rng(seed)
+    grid, stats = _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer,
+                        progress=progress)
+    t0 = time.perf_counter()
+    p, n = _cut(grid, lay, texture, tileable)
+    if relax:
+        from geosynth.blending import relax_points
+
+        p, n = relax_points(p, n, spacing, device=device)
+    timer.add("other", t0)
+    timings = dict(timer.t)
+    timings["total"] = time.perf_counter() - t_start
+    report = PointTextureReport(
+        exemplar=texture.name, points_in=len(texture), points_out=len(p), size=tuple(float(v) for v in lay.size),
+        tileable=tileable, grid=search.shape, cell=lay.cell, patch=lay.patch, extra=lay.extra, overlap=lay.overlap,
+        patches=lay.cols * lay.rows, candidates=float(np.mean(stats["candidates"])) if stats["candidates"] else 0.0,
+        spacing=spacing, radius=h, arbitrated=search.arbitrated + stats["arbitrated"], device=str(device_name),
+    )
+    if quality:
+        tq = time.perf_counter()
+        base_grid, base_stats = _grow(texture, search, lay, weights, eps, tileable, np.random.default_rng(seed + 1),
+                                      device, spacing, h, variation, _Timer(), baseline=True)
+        bp, bn = _cut(base_grid, lay, texture, tileable)
+        qrng = np.random.default_rng(seed)
+        lo = texture.box_min[:2]
+        out_codes = _field_codes(p, n, lay, search, h, device, lo, lay.size)
+        base_codes = _field_codes(bp, bn, lay, search, h, device, lo, lay.size)
+        q = report.quality
+        q["field_distance"] = _field_distance(out_codes, search.codes, lay.patch, quality_samples, qrng, device)
+        q["field_distance_baseline"] = _field_distance(base_codes, search.codes, lay.patch, quality_samples,
+                                                       np.random.default_rng(seed), device)
+        s = stats["seams"]
+        if s["before"]:
+            q["seam_before"] = float(np.sqrt(np.mean(np.square(s["before"]))))
+            q["seam_after"] = float(np.sqrt(np.mean(np.square(s["after"]))))
+            q["seam_baseline"] = float(np.sqrt(np.mean(np.square(base_stats["seams"]["baseline"]))))
+        q["stray"] = _stray_share(p, n, spacing, h, device)
+        q["stray_baseline"] = _stray_share(bp, bn, spacing, h, device)
+        report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32))
+        timings["quality"] = time.perf_counter() - tq
+    points = PointSet(p.astype(np.float32), n.astype(np.float32))
+    return points, report, timings
+
+
+def output_mesh(points, normals, spacing: float, resolution: int = 160, device: str | None = None):
+    """A watertight mesh of a synthesized point set (item 7 of the method): the MLS signed
+    distance sampled on a grid over its bounds (:func:`geosynth.pointsets.pointset_distance`)
+    and marching cubes closed at the grid's border (:func:`geosynth.surface.field_to_mesh`).
+
+    Args:
+        points, normals: (N, 3) the point set.
+        spacing: its mean point spacing (sets the MLS width, 2 x spacing).
+        resolution: grid samples along the longest axis, >= 8.
+        device: a device string.
+
+    Returns:
+        A ``trimesh.Trimesh``.
+    """
+    from geosynth.pointsets import pointset_distance
+    from geosynth.surface import field_to_mesh
+
+    p = np.asarray(points, np.float64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    margin = 3.0 * spacing  # room above and below the surface; none in x and y, so that the
+    lo[2] -= margin         # cut edges are capped flat at the output's border
+    hi[2] += margin
+    dist, _ = pointset_distance(p.astype(np.float32), np.asarray(normals, np.float32), resolution=int(resolution),
+                                bounds=np.stack([lo, hi]), padding=0.0, radius=2.0 * spacing, device=device)
+    return field_to_mesh(dist, level=0.0, close=True)

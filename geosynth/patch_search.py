@@ -1,0 +1,407 @@
+"""Which exemplar patch best continues the output here? Finding a similar patch, Sec. 5.1 of
+"Geometry texture synthesis with point-set surfaces".
+
+D(S) is the MLS signed distance of a point set S plus its gradient (4 channels) on a
+regular grid (the quasi-orthogonal projection of Adamson and Alexa, through
+:func:`geosynth.pointsets.pointset_distance`, i.e. the ``PointsOps.mls_project`` kernel).
+D(T_in) is computed once on a coarse grid over the whole exemplar box B; every candidate
+patch's overlap field D(O^P) is read from it by the gather SSD kernel
+(:class:`geosynth.scoring.GatherScorer`: the windows are never unpacked); D(O^N) of the
+output neighbourhood's overlap is computed on the fly from the output's points near it.
+The candidates within (1 + eps) of the best score are kept (:func:`geosynth.selection.
+within_tolerance`) and one is drawn with the seeded generator (step 2 and 3 of Sec. 4).
+
+Identical on every device: the fields are quantized to uint8 (the distance over the band
+[-band, band] and each gradient component over [-1, 1] to the codes 0..254, zero at 127)
+and scored in exact integer arithmetic. The kernel projects with a fixed FIXED_STEPS steps
+(no early stop, which would let two devices stop one step apart); a value it gives within
+ARBITER_TOL of a rounding boundary (where two devices' float32 results, a few ulps apart,
+could round apart), a projection that has not converged (thin sheets closer than the MLS
+width make it oscillate: devices then disagree by more than rounding), and the few
+ambiguous near/far cases are recomputed on the host in float64 (:func:`host_mls`, the same
+definitions and steps) and quantized from there. Every device then gives the same codes as
+long as its error on the rest stays below ARBITER_TOL of a code (7e-7 of the band for the
+distance, where converged float32 projections are good to ~1e-7).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "ARBITER_TOL",
+    "CODE_SCALE",
+    "FIXED_STEPS",
+    "RESIDUAL_TOL",
+    "PatchSearch",
+    "SearchChoice",
+    "host_mls",
+    "kernel_mls",
+    "quantized_fields",
+]
+
+CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 127
+ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
+FIXED_STEPS = 12  # projection steps of the coded fields, never fewer (no early stop): devices stop alike
+RESIDUAL_TOL = 1e-5  # of h: a projection one more step would move farther is not converged (host)
+
+
+# ------------------------------------------------------------------ the fields
+
+
+def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, tree=None,
+             fixed: bool = False):
+    """The MLS signed distance and gradient of :func:`geosynth.pointsets.pointset_distance`
+    (far="nearest"), vectorized over queries, in float64 on the host.
+
+    The same definitions as the kernel and :func:`geosynth.reference.mls_project_naive`:
+    Gaussian weights of width h cut off at MLS_REACH * h, ``f(y) = n(y) . (y - a(y))``,
+    steps ``y <- y - f n`` until ``|f| <= MLS_TOL h`` or MLS_MAX_ITER steps, distance
+    ``sign(f(x)) min(|x - proj|, reach)``, gradient the last MLS normal; a query with no
+    point within reach gets the signed distance to its nearest point's projection.
+
+    Args:
+        points, normals: (N, 3) float positions and unit normals.
+        queries: (M, 3) float query points.
+        h: the kernel width.
+        tree: an optional ``scipy.spatial.cKDTree`` of ``points``.
+        fixed: FIXED_STEPS projection steps with no early stop, as :func:`kernel_mls`
+            (the codes of :func:`quantized_fields` are made this way).
+
+    Returns:
+        ((M,) distance, (M, 3) gradient), float64.
+    """
+    from scipy.spatial import cKDTree
+
+    from geosynth.pointsets import MLS_REACH
+
+    p = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    x = np.asarray(queries, np.float64).reshape(-1, 3)
+    tree = cKDTree(p) if tree is None else tree
+    reach = MLS_REACH * h
+    f0, grad, proj = _iterate(p, nrm, tree, x, h, fixed)
+    near = ~np.isnan(f0)
+    dist = np.full(len(x), reach)
+    length = np.minimum(np.linalg.norm(x - proj, axis=1), reach)
+    dist[near] = np.where(f0[near] < 0, -length[near], length[near])
+    far = np.flatnonzero(~near)
+    if far.size:
+        _, nearest = tree.query(x[far], k=1)
+        used, inverse = np.unique(nearest, return_inverse=True)
+        _, gn, yp = _iterate(p, nrm, tree, p[used], h, fixed)
+        yv, nv = yp[inverse], gn[inverse]
+        v = x[far] - yv
+        side = np.where(np.einsum("ij,ij->i", v, nv) < 0, -1.0, 1.0)
+        dist[far] = side * np.linalg.norm(v, axis=1)
+        grad[far] = nv
+    return dist, grad
+
+
+def _iterate(p, nrm, tree, q, h, fixed: bool = False):
+    """The projection loop: (f at the query (NaN: no point within reach), last MLS normal,
+    projection), float64, for (M, 3) queries; ``fixed``: FIXED_STEPS steps, no early stop
+    (as :func:`kernel_mls`)."""
+    from geosynth.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
+
+    reach = MLS_REACH * h
+    steps, tol = (FIXED_STEPS, 0.0) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
+    m = len(q)
+    y = q.copy()
+    grad = np.zeros((m, 3))
+    proj = q.copy()
+    f0 = np.full(m, np.nan)
+    active = np.arange(m)
+    for _ in range(steps):
+        if active.size == 0:
+            break
+        lists = tree.query_ball_point(y[active], reach * (1 + 1e-9))
+        counts = np.fromiter((len(v) for v in lists), np.int64, len(lists))
+        width = max(1, int(counts.max(initial=0)))
+        idx = np.zeros((len(lists), width), np.int64)
+        valid = np.arange(width)[None, :] < counts[:, None]
+        if counts.sum():
+            idx[valid] = np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)])
+        diff = p[idx] - y[active, None, :]
+        d2 = (diff * diff).sum(axis=2)
+        w = np.where(valid & (d2 < reach * reach), np.exp(-d2 / (h * h)), 0.0)
+        ws = w.sum(axis=1)
+        msum = np.einsum("mk,mkc->mc", w, nrm[idx])
+        mlen = np.linalg.norm(msum, axis=1)
+        ok = (ws > 0) & (mlen > 0)
+        a_idx = active[ok]
+        n = msum[ok] / mlen[ok, None]
+        a = np.einsum("mk,mkc->mc", w[ok], p[idx[ok]]) / ws[ok, None]
+        f = np.einsum("mc,mc->m", n, y[a_idx] - a)
+        first = np.isnan(f0[a_idx])
+        f0[a_idx[first]] = f[first]
+        grad[a_idx] = n
+        proj[a_idx] = y[a_idx] - f[:, None] * n
+        y[a_idx] = proj[a_idx]
+        active = a_idx[np.abs(f) > tol]
+    return f0, grad, proj
+
+
+def _codes(d: np.ndarray, g: np.ndarray, band: float) -> np.ndarray:
+    """(M, 4) float64 unrounded codes of distance and gradient."""
+    v = np.empty((len(d), 4))
+    v[:, 0] = np.asarray(d, np.float64) / band * CODE_SCALE
+    v[:, 1:] = np.asarray(g, np.float64) * CODE_SCALE
+    return v
+
+
+def _round_codes(v: np.ndarray) -> np.ndarray:
+    return (np.clip(np.round(v), -CODE_SCALE, CODE_SCALE) + CODE_SCALE).astype(np.uint8)
+
+
+def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, device, steps: int,
+               cells=None):
+    """The MLS projection by the ``PointsOps.mls_project`` kernel with exactly ``steps``
+    steps (tolerance 0: no early stop, so that every device stops at the same step).
+
+    Args:
+        points, normals: (N, 3) the point set; queries: (M, 3) float positions.
+        h: the kernel width; device: a device string; steps: projection steps, >= 1.
+        cells: the ``cells`` this function returned for the same points, h and device
+            (the points' :class:`geosynth.pointsets.CellGrid`, already on the device).
+
+    Returns:
+        ((M,) float32 signed distance (reach where no point is within reach), (M, 3)
+        float32 last MLS normal (0 there), (M, 3) float64 projection, cells).
+    """
+    from geosynth import _checks
+    from geosynth.pointsets import MLS_REACH, CellGrid
+
+    reach = MLS_REACH * h
+    if cells is None:
+        grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
+        backend = _checks.resolve_backend(device)
+        cells = (grid, backend, backend.to_device(grid.pn), backend.to_device(grid.cell_start))
+    grid, backend, pn, start = cells
+    m = len(queries)
+    rel = np.ascontiguousarray((np.asarray(queries, np.float64) - grid.shift).astype(np.float32)).reshape(-1)
+    dist = backend.empty((m,), np.float32)
+    grad = backend.empty((m * 3,), np.float32)
+    proj = backend.empty((m * 3,), np.float32)
+    backend.mls_project(pn, start, tuple(grid.origin), 1.0 / grid.cell, tuple(int(d) for d in grid.dims),
+                        1.0 / (h * h), reach, 0.0, int(steps), backend.to_device(rel), None, m, dist, grad, proj)
+    return (dist.numpy(), grad.numpy().reshape(m, 3), proj.numpy().reshape(m, 3).astype(np.float64) + grid.shift,
+            cells)
+
+
+def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, band: float,
+                     device: str | None, tree=None) -> tuple[np.ndarray, int]:
+    """D(S) at the queries as uint8 codes, the same on every device.
+
+    The kernel (:func:`kernel_mls`, FIXED_STEPS steps) gives distance and gradient; each
+    is mapped to a code (distance / band and each gradient component times CODE_SCALE,
+    rounded, clamped, shifted to 0..254). A query with no point within reach gets the far
+    value of :func:`geosynth.pointsets.pointset_distance` (far="nearest"): the signed
+    distance to its nearest point's projection, that projection's normal as gradient.
+    Recomputed with :func:`host_mls` (float64, the same fixed steps) and coded from that:
+    values within ARBITER_TOL codes of a rounding boundary; queries whose projection has
+    not converged (one more step would move it by more than RESIDUAL_TOL h: two devices
+    may then disagree by more than rounding); queries whose nearest point lies within
+    1e-5 of the reach (near or far is then a matter of rounding); far queries whose side
+    is nearly tangential or whose nearest point's projection has not converged.
+
+    Args:
+        points, normals: (N, 3) the point set S (N >= 1) and unit normals.
+        queries: (M, 3) where to sample, world units.
+        h: MLS kernel width; band: the distance at which the code saturates (> 0).
+        device: a device string (None: "auto").
+        tree: an optional cKDTree of ``points``.
+
+    Returns:
+        ((M, 4) uint8 codes (distance, gx, gy, gz), how many queries the host recomputed).
+    """
+    from scipy.spatial import cKDTree
+
+    from geosynth.pointsets import MLS_REACH
+
+    q = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
+    if len(q) == 0:
+        return np.zeros((0, 4), np.uint8), 0
+    p = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    reach = MLS_REACH * h
+    tree = cKDTree(p) if tree is None else tree
+    nearest_d, nearest = tree.query(q, k=1)
+    # the far queries' nearest points are projected in the same launch as the queries
+    far = np.flatnonzero(nearest_d >= reach)
+    used, inverse = np.unique(nearest[far], return_inverse=True)
+    d, g, proj, cells = kernel_mls(p, nrm, np.concatenate([q, p[used]]), h, device, FIXED_STEPS)
+    m = len(q)
+    gn, yp = g[m:], proj[m:]
+    d, g, proj = d[:m].astype(np.float64), g[:m].astype(np.float64), proj[:m]
+    res, _, _, _ = kernel_mls(p, nrm, np.concatenate([proj, yp]), h, device, 1, cells)
+    rp = res[m:]
+    # near or far is decided by the tree (float64, the same on every device); the kernel agrees
+    # but where the nearest point lies at the reach, to rounding: those go to the host
+    flag = np.abs(nearest_d - reach) <= 1e-5 * reach
+    flag |= (nearest_d < reach) & (~g.any(axis=1) | (np.abs(res[:m]) > RESIDUAL_TOL * h))
+    if far.size:
+        v = q[far] - yp[inverse]
+        nv = gn[inverse].astype(np.float64)
+        along = np.einsum("ij,ij->i", v, nv)
+        length = np.linalg.norm(v, axis=1)
+        d[far] = np.where(along < 0, -length, length)
+        g[far] = nv
+        flag[far] |= (np.abs(along) <= 1e-4 * length) | (np.abs(rp[inverse]) > RESIDUAL_TOL * h) | ~nv.any(axis=1)
+    v = _codes(d, g, band)
+    frac = np.abs(v - np.floor(v) - 0.5)
+    flag |= ((frac < ARBITER_TOL) & (np.abs(v) < CODE_SCALE + 0.5 + ARBITER_TOL)).any(axis=1)
+    bad = np.flatnonzero(flag)
+    if bad.size:
+        dh, gh = host_mls(p, nrm, q[bad], h, tree=tree, fixed=True)
+        v[bad] = _codes(dh, gh, band)
+    return _round_codes(v), int(bad.size)
+
+
+# ------------------------------------------------------------------ the search
+
+
+@dataclass(frozen=True)
+class SearchChoice:
+    """One search's outcome: the chosen candidate (index into ``PatchSearch.origins``),
+    its score, the best score, and how many candidates were within (1 + eps) of the best."""
+
+    index: int
+    score: int
+    best: int
+    candidates: int
+
+
+class PatchSearch:
+    """D(T_in) on a grid over the exemplar box, and the patch search against it.
+
+    The grid: samples every ``cell`` from ``(box_min x, box_min y, z0)``, (nz, ny, nx)
+    of them, covering B in x and y and B's height plus one cell above and below.
+    A patch of ``patch`` cells (plus ``extra`` cells of E) has its origin at a grid
+    sample; the candidates are every origin whose patch plus extra region lies in the
+    grid (in B).
+
+    Args:
+        texture: the :class:`geosynth.point_textures.PointTexture`.
+        cell: grid spacing, world units.
+        patch, extra: patch side and extra-region width, in cells.
+        h: MLS kernel width; band: the distance code's saturation distance.
+        device: a device string.
+
+    Attributes:
+        codes: (nz, ny, nx, 4) uint8, D(T_in).
+        origins: (C, 3) int64 candidate origins (z, y, x) in grid samples (z always 0).
+        z0: height of the grid's first layer; shape: (nz, ny, nx).
+        arbitrated: samples of D(T_in) the host recomputed.
+    """
+
+    def __init__(self, texture, cell: float, patch: int, extra: int, h: float, band: float, device):
+        self.texture, self.cell, self.patch, self.extra = texture, float(cell), int(patch), int(extra)
+        self.h, self.band, self.device = float(h), float(band), device
+        lo, hi = texture.box_min, texture.box_max
+        nx = int(np.floor((hi[0] - lo[0]) / cell + 1e-9)) + 1
+        ny = int(np.floor((hi[1] - lo[1]) / cell + 1e-9)) + 1
+        nz = int(np.ceil((hi[2] - lo[2]) / cell - 1e-9)) + 3
+        self.z0 = float(lo[2] - cell)
+        self.shape = (nz, ny, nx)
+        span = self.patch + self.extra + 1
+        if span > min(nx, ny):
+            raise ValueError(
+                f"the patch ({self.patch} cells) plus its extra region ({self.extra}) spans {span} samples but the "
+                f"exemplar's box is only {nx} x {ny} samples of the search grid; use a smaller patch (or a larger "
+                "exemplar box / resolution).")
+        self.origin_xy = lo[:2].copy()
+        pts = self.sample_points(np.zeros(3, np.int64), np.array(self.shape))
+        from scipy.spatial import cKDTree
+
+        self.tree = cKDTree(texture.points)
+        codes, self.arbitrated = quantized_fields(texture.points, texture.normals, pts, self.h, self.band, device,
+                                                  tree=self.tree)
+        self.codes = codes.reshape(nz, ny, nx, 4)
+        oy, ox = np.meshgrid(np.arange(ny - span + 1), np.arange(nx - span + 1), indexing="ij")
+        self.origins = np.stack([np.zeros(ox.size, np.int64), oy.ravel(), ox.ravel()], axis=1)
+        self._scorers: dict = {}
+        self._grid_dev = None
+
+    def sample_points(self, start: np.ndarray, count: np.ndarray) -> np.ndarray:
+        """World positions of the grid samples ``start + (k, j, i)`` for (k, j, i) < count,
+        in (z, y, x) C order, (prod(count), 3) float64."""
+        k, j, i = np.meshgrid(*(start[a] + np.arange(count[a]) for a in range(3)), indexing="ij")
+        return np.stack([self.origin_xy[0] + i.ravel() * self.cell, self.origin_xy[1] + j.ravel() * self.cell,
+                         self.z0 + k.ravel() * self.cell], axis=1)
+
+    def window_world(self, origin: np.ndarray) -> np.ndarray:
+        """(2,) world xy of candidate origin (z, y, x)'s first sample."""
+        return self.origin_xy + self.cell * np.array([origin[2], origin[1]], np.float64)
+
+    def overlap_offsets(self, sides) -> np.ndarray:
+        """(K, 3) int64 offsets (dz, dy, dx) of the overlap samples of a patch: the columns
+        within ``width`` cells of each given side ((side, width) with side in "-x", "-y",
+        "+x", "+y"), every height; K = 0 for no side."""
+        p = self.patch
+        jy, ix = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
+        mask = np.zeros((p, p), bool)
+        for side, width in sides:
+            w = int(width)
+            if side == "-x":
+                mask |= ix < w
+            elif side == "+x":
+                mask |= ix >= p - w
+            elif side == "-y":
+                mask |= jy < w
+            elif side == "+y":
+                mask |= jy >= p - w
+            else:
+                raise ValueError(f"side must be one of -x, +x, -y, +y, got {side!r}.")
+        cols = np.argwhere(mask)  # (dy, dx)
+        nz = self.shape[0]
+        dz = np.repeat(np.arange(nz), len(cols))
+        return np.column_stack([dz, np.tile(cols[:, 0], nz), np.tile(cols[:, 1], nz)]).astype(np.int64)
+
+    def _scorer(self, offsets: np.ndarray):
+        from geosynth.arrays import to_device
+        from geosynth.scoring import GatherScorer
+
+        key = offsets.tobytes()
+        s = self._scorers.get(key)
+        if s is None:
+            if self._grid_dev is None:
+                self._grid_dev = to_device(self.codes, self.device)
+            s = GatherScorer(self._grid_dev, offsets, device=self.device)
+            self._scorers[key] = s
+        return s
+
+    def scores(self, offsets: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(C,) uint32 SSD of the query codes ``values`` ((K, 4) uint8 at ``offsets``)
+        against every candidate's window of D(T_in), by the gather kernel."""
+        return self._scorer(offsets)(values, origins=self.origins)
+
+    def choose(self, offsets: np.ndarray, values: np.ndarray, eps: float, rng: np.random.Generator) -> SearchChoice:
+        """Steps 2 and 3 of Sec. 4: the candidates within (1 + eps) of the best score,
+        one drawn with ``rng``. With no offsets (the seed patch) every candidate is in."""
+        from geosynth.selection import argmin, random_pick, within_tolerance
+
+        if len(offsets) == 0:
+            i = random_pick(np.arange(len(self.origins)), rng)
+            return SearchChoice(i, 0, 0, len(self.origins))
+        sc = self._scorer(offsets)(values, origins=self.origins, keep_on_device=True)
+        best = argmin(sc)
+        near = within_tolerance(sc, eps)
+        i = random_pick(near, rng)
+        host = sc.numpy()
+        return SearchChoice(int(i), int(host[i]), int(host[best]), int(len(near)))
+
+
+def brute_force_scores(codes: np.ndarray, origins: np.ndarray, offsets: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The search's scores in plain NumPy (int64), for tests: for each origin, the sum of
+    squared code differences over the offsets and the 4 channels."""
+    out = np.zeros(len(origins), np.int64)
+    v = values.astype(np.int64)
+    for c, o in enumerate(origins):
+        idx = o[None, :] + offsets
+        win = codes[idx[:, 0], idx[:, 1], idx[:, 2]].astype(np.int64)
+        out[c] = int(((win - v) ** 2).sum())
+    return out

@@ -1,0 +1,318 @@
+"""What is a point-set geometry texture? The input texture T_in of "Geometry texture
+synthesis with point-set surfaces", Sec. 3 (texture representation).
+
+A :class:`PointTexture` is an oriented point set (unit normals), an axis-aligned box B
+whose xy extent is the texture and whose z extent is its height (the reference plane is
+xy, the height axis z), with geometry that extends beyond B in x and y (the padding the
+paper asks for, so that MLS projections near B's border see the surface beyond it).
+
+Constructors: :func:`texture_from_points` (an oriented point set; normals estimated by
+:func:`geosynth.pointsets.estimate_normals` when absent), :func:`read_point_texture` (a PLY
+point set or any mesh trimesh reads, meshes sampled uniformly by area),
+:func:`texture_from_mesh`, :func:`texture_from_image` (a grey image as a height field,
+the paper's first example, Sec. 6).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "PointTexture",
+    "read_point_texture",
+    "texture_from_image",
+    "texture_from_mesh",
+    "texture_from_points",
+]
+
+HEIGHT_AXIS = 2  # the height axis is z; the reference plane is xy
+MIN_POINTS = 16  # fewer points cannot give a neighbourhood for normals or MLS
+
+
+@dataclass(frozen=True)
+class PointTexture:
+    """An input geometry texture (Sec. 3).
+
+    Attributes:
+        points: (N, 3) float64 positions, world units.
+        normals: (N, 3) float64 unit normals.
+        box_min, box_max: (3,) float64 corners of the box B; B's xy extent is the
+            texture, its z extent the height. Points may (and should) lie outside B in
+            x and y: that is the padding.
+        name: a label for reports.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    box_min: np.ndarray
+    box_max: np.ndarray
+    name: str = "texture"
+
+    def __post_init__(self):
+        p = np.asarray(self.points, np.float64)
+        n = np.asarray(self.normals, np.float64)
+        lo = np.asarray(self.box_min, np.float64).reshape(-1)
+        hi = np.asarray(self.box_max, np.float64).reshape(-1)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"points must have shape (N, 3), got {p.shape}.")
+        if len(p) < MIN_POINTS:
+            raise ValueError(f"points holds {len(p)} points; a point texture needs at least {MIN_POINTS}.")
+        if n.shape != p.shape:
+            raise ValueError(f"normals must have shape {p.shape} to match points, got {n.shape}.")
+        bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
+        if bad.size:
+            raise ValueError(f"points has {bad.size} position(s) with NaN or inf, the first at index {int(bad[0])}; "
+                             "drop or fix them.")
+        bad = np.flatnonzero(~np.isfinite(n).all(axis=1))
+        if bad.size:
+            raise ValueError(f"normals has {bad.size} normal(s) with NaN or inf, the first at index {int(bad[0])}; "
+                             "re-estimate them (give no normals).")
+        length = np.linalg.norm(n, axis=1)
+        bad = np.flatnonzero(length < 1e-12)
+        if bad.size:
+            raise ValueError(f"normals has {bad.size} zero-length normal(s), the first at index {int(bad[0])}; "
+                             "re-estimate them (give no normals).")
+        if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+            raise ValueError(f"box_min and box_max must be finite (3,) corners, got {lo} and {hi}.")
+        if not (hi[:2] > lo[:2]).all() or not hi[2] >= lo[2]:
+            raise ValueError(f"the box B from {lo.tolist()} to {hi.tolist()} is empty; give box_max > box_min in x "
+                             "and y (and >= in z).")
+        inside = self.inside_mask(p, lo, hi)
+        if inside.sum() < MIN_POINTS:
+            raise ValueError(f"the box B from {lo.tolist()} to {hi.tolist()} holds {int(inside.sum())} of the "
+                             f"{len(p)} points; it must hold at least {MIN_POINTS}: give a box around the geometry.")
+        object.__setattr__(self, "points", np.ascontiguousarray(p))
+        object.__setattr__(self, "normals", np.ascontiguousarray(n / length[:, None]))
+        object.__setattr__(self, "box_min", lo.copy())
+        object.__setattr__(self, "box_max", hi.copy())
+
+    @staticmethod
+    def inside_mask(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """(N,) bool: the points whose x and y lie in B (the height is not tested)."""
+        return ((points[:, :2] >= lo[:2]) & (points[:, :2] <= hi[:2])).all(axis=1)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @property
+    def extent(self) -> np.ndarray:
+        """(3,) float64 size of B."""
+        return self.box_max - self.box_min
+
+    @property
+    def spacing(self) -> float:
+        """The mean nearest-neighbour distance of the points (world units)."""
+        from scipy.spatial import cKDTree
+
+        pick = self.points[np.linspace(0, len(self) - 1, min(len(self), 20_000)).astype(np.int64)]
+        d, _ = cKDTree(self.points).query(pick, k=2)
+        return float(d[:, 1].mean())
+
+    def padding(self) -> np.ndarray:
+        """(2,) how far (x, y) the geometry extends beyond B on its narrower side, >= 0."""
+        lo, hi = self.points[:, :2].min(axis=0), self.points[:, :2].max(axis=0)
+        return np.maximum(0.0, np.minimum(self.box_min[:2] - lo, hi - self.box_max[:2]))
+
+
+def _box(points: np.ndarray, box, padding: float):
+    """B from ``box`` ((2, 3)), or the points' bounds shrunk in x and y by ``padding`` of
+    their extent on each side (the geometry beyond is the padding)."""
+    if box is not None:
+        b = np.asarray(box, np.float64)
+        if b.shape != (2, 3):
+            raise ValueError(f"box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], shape (2, 3), got {b.shape}.")
+        return b[0], b[1]
+    if not (0 <= padding < 0.5):
+        raise ValueError(f"padding must be in [0, 0.5) (a fraction of the extent on each side), got {padding!r}.")
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    ext = hi - lo
+    lo2, hi2 = lo.copy(), hi.copy()
+    lo2[:2] += padding * ext[:2]
+    hi2[:2] -= padding * ext[:2]
+    return lo2, hi2
+
+
+def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2, k: int = 16,
+                        name: str = "texture") -> PointTexture:
+    """A point texture from an oriented point set.
+
+    Args:
+        points: (N, 3) float positions (N >= 16), or a :class:`geosynth.pointsets.PointSet`
+            (its normals are used unless ``normals`` is given).
+        normals: (N, 3) normals; None estimates them (PCA over ``k`` neighbours,
+            oriented towards +z for a sheet: :func:`geosynth.pointsets.estimate_normals`).
+        box: (2, 3) the box B; default the points' bounds, shrunk in x and y by
+            ``padding`` of the extent on each side.
+        padding: see ``box``, in [0, 0.5).
+        k: neighbours for normal estimation, >= 3.
+        name: a label for reports.
+
+    Returns:
+        The :class:`PointTexture`.
+
+    Raises:
+        ValueError: fewer than 16 points, NaN/inf positions, normals of the wrong shape or
+            zero length, no normals and too few neighbours to estimate them (collinear or
+            coincident neighbourhoods), an empty box or one holding too few points.
+    """
+    from geosynth.pointsets import PointSet, estimate_normals
+
+    if isinstance(points, PointSet):
+        normals = points.normals if normals is None else normals
+        points = points.positions
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {p.shape}.")
+    if len(p) < MIN_POINTS:
+        raise ValueError(f"points holds {len(p)} points; a point texture needs at least {MIN_POINTS}.")
+    bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
+    if bad.size:
+        raise ValueError(f"points has {bad.size} position(s) with NaN or inf, the first at index {int(bad[0])}; "
+                         "drop or fix them.")
+    if normals is None:
+        try:
+            normals = estimate_normals(p, k=k)
+        except ValueError as exc:
+            raise ValueError(f"the points have no normals and they cannot be estimated: {exc}") from None
+    lo, hi = _box(p, box, padding)
+    return PointTexture(p, np.asarray(normals, np.float64), lo, hi, name=name)
+
+
+def _sample_mesh(mesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` points uniformly by area on a triangle mesh, with the faces' normals."""
+    v = np.asarray(mesh.vertices, np.float64)
+    f = np.asarray(mesh.faces, np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    cross = np.cross(b - a, c - a)
+    area = np.linalg.norm(cross, axis=1)
+    if not area.sum() > 0:
+        raise ValueError("the mesh has no area (every face is degenerate); give a mesh with faces.")
+    rng = np.random.default_rng(seed)
+    face = rng.choice(len(f), size=count, p=area / area.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    s = np.sqrt(r1)
+    u, w = 1 - s, s * r2
+    pts = a[face] * u[:, None] + b[face] * (s * (1 - r2))[:, None] + c[face] * w[:, None]
+    good = area[face] > 0
+    nrm = cross[face] / np.where(good, area[face], 1.0)[:, None]
+    return pts[good], nrm[good]
+
+
+def texture_from_mesh(mesh, count: int = 40_000, *, box=None, padding: float = 0.2, seed: int = 0,
+                      name: str = "mesh") -> PointTexture:
+    """A point texture sampled uniformly by area from a triangle mesh (normals from the faces,
+    as the mesh winds them).
+
+    Args:
+        mesh: a ``trimesh.Trimesh`` (or anything with ``vertices`` and ``faces``).
+        count: points to sample, >= 16.
+        box, padding, name: as :func:`texture_from_points`.
+        seed: seed of the sampling.
+
+    Returns:
+        The :class:`PointTexture`.
+    """
+    if not isinstance(count, (int, np.integer)) or count < MIN_POINTS:
+        raise ValueError(f"count must be an integer >= {MIN_POINTS}, got {count!r}.")
+    pts, nrm = _sample_mesh(mesh, int(count), seed)
+    lo, hi = _box(pts, box, padding)
+    return PointTexture(pts, nrm, lo, hi, name=name)
+
+
+def read_point_texture(path: str | os.PathLike, *, box=None, padding: float = 0.2, count: int = 40_000,
+                       seed: int = 0) -> PointTexture:
+    """A point texture from a file: a PLY point set (normals estimated when absent) or a mesh
+    (any format :func:`geosynth.pointsets.read_geometry` reads), sampled uniformly.
+
+    Args:
+        path: the file.
+        box, padding: as :func:`texture_from_points`.
+        count: points sampled from a mesh.
+        seed: seed of the mesh sampling.
+
+    Raises:
+        FileNotFoundError, ValueError: as :func:`geosynth.pointsets.read_geometry`, and as
+            :func:`texture_from_points` (each message starting with the file's name).
+    """
+    from geosynth.pointsets import PointSet, read_geometry
+
+    g = read_geometry(path)
+    name = os.path.basename(str(path))
+    try:
+        if isinstance(g, PointSet):
+            return texture_from_points(g.positions, g.normals, box=box, padding=padding, name=name)
+        return texture_from_mesh(g, count, box=box, padding=padding, seed=seed, name=name)
+    except ValueError as exc:
+        raise ValueError(f"{str(path)!r}: {exc}") from None
+
+
+def texture_from_image(image, *, width: float = 1.0, relief: float = 0.12, count: int = 33_000,
+                       padding: float = 0.2, seed: int = 0, name: str = "heightfield") -> PointTexture:
+    """A height-field point texture from a grey image (Sec. 6, the first example).
+
+    The image spans ``width`` along x (its aspect kept along y); grey 0..1 maps to height
+    0..``relief``. Points are jittered samples of the surface z = relief * grey(x, y)
+    (bilinear), about ``count`` of them, with normals from the height field's gradient
+    (pointing to +z). B is the image shrunk by ``padding`` on each side in x and y.
+
+    Args:
+        image: (H, W) or (H, W, 3) array (uint8 0..255 or float 0..1), H, W >= 8.
+        width: the x extent of the image, world units, > 0.
+        relief: the height of grey 1, > 0.
+        count: about this many points, >= 64.
+        padding: fraction of the image beyond B on each side, in [0, 0.5).
+        seed: seed of the jitter.
+
+    Returns:
+        The :class:`PointTexture`.
+
+    Raises:
+        ValueError: a constant image (no relief to synthesize), a wrong shape, NaN, bad numbers.
+    """
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        img = img[:, :, :3].astype(np.float64).mean(axis=2)
+    if img.ndim != 2 or min(img.shape) < 8:
+        raise ValueError(f"image must be an (H, W) grey or (H, W, 3) picture with H, W >= 8, got shape {img.shape}.")
+    g = img.astype(np.float64)
+    if not np.isfinite(g).all():
+        raise ValueError("image holds NaN or inf; give a picture of finite grey values.")
+    if np.asarray(image).dtype == np.uint8 or g.max() > 1.0:
+        g = g / 255.0
+    if float(g.max() - g.min()) < 1e-6:
+        raise ValueError("image is constant (one grey level): a flat height field has no relief to synthesize; "
+                         "give a picture with some variation.")
+    if not (width > 0 and relief > 0 and count >= 64):
+        raise ValueError(f"width and relief must be > 0 and count >= 64, got {width!r}, {relief!r}, {count!r}.")
+    h, w = g.shape
+    height_extent = width * (h - 1) / (w - 1)
+    area = width * height_extent
+    s = np.sqrt(area / count)
+    nx, ny = int(round(width / s)) + 1, int(round(height_extent / s)) + 1
+    rng = np.random.default_rng(seed)
+    gx, gy = np.meshgrid(np.arange(nx) * (width / (nx - 1)), np.arange(ny) * (height_extent / (ny - 1)))
+    jitter = 0.25 * s
+    x = np.clip(gx.ravel() + rng.uniform(-jitter, jitter, gx.size), 0, width)
+    y = np.clip(gy.ravel() + rng.uniform(-jitter, jitter, gy.size), 0, height_extent)
+    # bilinear height and its gradient
+    u, v = x / width * (w - 1), y / height_extent * (h - 1)
+    i0, j0 = np.minimum(np.floor(u).astype(np.int64), w - 2), np.minimum(np.floor(v).astype(np.int64), h - 2)
+    fu, fv = u - i0, v - j0
+    z00, z10, z01, z11 = g[j0, i0], g[j0, i0 + 1], g[j0 + 1, i0], g[j0 + 1, i0 + 1]
+    z = relief * ((1 - fu) * (1 - fv) * z00 + fu * (1 - fv) * z10 + (1 - fu) * fv * z01 + fu * fv * z11)
+    # gradient of a smoothed copy (bilinear facets' normals are blocky)
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    gs = gaussian_filter(g, 0.7)
+    dzdu = np.gradient(gs, axis=1) * relief / (width / (w - 1))
+    dzdv = np.gradient(gs, axis=0) * relief / (height_extent / (h - 1))
+    dx = map_coordinates(dzdu, [v, u], order=1)
+    dy = map_coordinates(dzdv, [v, u], order=1)
+    nrm = np.stack([-dx, -dy, np.ones_like(dx)], axis=1)
+    pts = np.stack([x, y, z], axis=1)
+    lo, hi = _box(pts, None, padding)
+    lo[2], hi[2] = 0.0, relief
+    return PointTexture(pts, nrm, lo, hi, name=name)

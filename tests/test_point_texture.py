@@ -1,0 +1,222 @@
+"""M2, geometry texture synthesis on point-set surfaces: the search against brute force, the
+patch field cut from D(T_in), synthesis on a flat plane, determinism across devices and
+seeds, tileable output, and bad input."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from geosynth.geometry_texture import synthesize_point_texture
+from geosynth.patch_search import PatchSearch, brute_force_scores, host_mls, quantized_fields
+from geosynth.point_examples import point_texture_example
+from geosynth.point_textures import PointTexture, texture_from_image, texture_from_points
+from geosynth.pointsets import MLS_REACH, pointset_distance
+
+SMALL = dict(scale=1.2, patch=0.5, resolution=24, quality=False)
+
+
+def _wavy(n_side=70, pad=0.25, seed=0):
+    """A small wavy height field over [0, 1]^2 plus padding, with analytic normals."""
+    rng = np.random.default_rng(seed)
+    u = np.linspace(-pad, 1 + pad, n_side)
+    x, y = np.meshgrid(u, u)
+    s = u[1] - u[0]
+    x = x.ravel() + rng.uniform(-0.2, 0.2, x.size) * s
+    y = y.ravel() + rng.uniform(-0.2, 0.2, y.size) * s
+    k = 2 * np.pi * 2.5
+    z = 0.04 * np.sin(k * x) * np.cos(k * y)
+    n = np.stack([-0.04 * k * np.cos(k * x) * np.cos(k * y), 0.04 * k * np.sin(k * x) * np.sin(k * y),
+                  np.ones_like(x)], 1)
+    return PointTexture(np.c_[x, y, z], n, [0, 0, -0.04], [1, 1, 0.04], name="wavy")
+
+
+@pytest.fixture(scope="module")
+def wavy():
+    return _wavy()
+
+
+@pytest.fixture(scope="module")
+def small_weave():
+    return point_texture_example("weave", count=10_000)
+
+
+def _search(tex, device, resolution=16, patch=6, extra=2):
+    cell = 1.0 / (resolution - 1)
+    h = 2 * tex.spacing
+    return PatchSearch(tex, cell, patch, extra, h, MLS_REACH * h, device)
+
+
+def test_host_mls_matches_the_kernel(wavy, one_device, rng):
+    q = rng.uniform([0.1, 0.1, -0.08], [0.9, 0.9, 0.08], (200, 3))
+    h = 2 * wavy.spacing
+    d, g = host_mls(wavy.points, wavy.normals, q, h)
+    dk, gk = pointset_distance(wavy.points.astype(np.float32), wavy.normals.astype(np.float32), q.astype(np.float32),
+                               radius=h, device=one_device)
+    np.testing.assert_allclose(d, dk, atol=2e-5 * h)
+    np.testing.assert_allclose(g, gk, atol=2e-5)
+
+
+def test_patch_field_cut_from_d_tin_equals_the_direct_field(wavy, device):
+    s = _search(wavy, device)
+    o = s.origins[len(s.origins) // 2 + 3]
+    lo = s.window_world(o)
+    span = (s.patch + s.extra) * s.cell
+    reach = s.band
+    # the patch's own points (with a margin), moved far away, as a pasted patch would be
+    sel = ((wavy.points[:, :2] >= lo - 2 * reach) & (wavy.points[:, :2] <= lo + span + 2 * reach)).all(axis=1)
+    shift = np.array([5.0, -3.0, 0.0])
+    k, j, i = np.meshgrid(*(np.arange(c) for c in (s.shape[0], s.patch, s.patch)), indexing="ij")
+    world = np.stack([lo[0] + i.ravel() * s.cell, lo[1] + j.ravel() * s.cell, s.z0 + k.ravel() * s.cell], 1)
+    direct, _ = quantized_fields(wavy.points[sel] + shift, wavy.normals[sel], world + shift, s.h, s.band, device)
+    cut = s.codes[o[0] + k.ravel(), o[1] + j.ravel(), o[2] + i.ravel()]
+    assert cut.std() > 5  # the field is not constant
+    np.testing.assert_array_equal(direct, cut)
+
+
+def test_search_equals_brute_force(wavy, device):
+    s = _search(wavy, device)
+    sides = [("-x", 2), ("-y", 2)]
+    off = s.overlap_offsets(sides)
+    assert len(off) == s.shape[0] * (2 * 6 * 2 - 4)
+    values = s.codes[off[:, 0], 4 + off[:, 1], 3 + off[:, 2]].copy()  # a candidate's window...
+    values[::7] = 255 - values[::7]  # ...changed, so that the best is not an exact copy
+    want = brute_force_scores(s.codes, s.origins, off, values)
+    got = s.scores(off, values)
+    np.testing.assert_array_equal(got.astype(np.int64), want)
+    eps = 0.5
+    choice = s.choose(off, values, eps, np.random.default_rng(7))
+    near = np.flatnonzero(want <= np.floor((1 + eps) * want.min()))
+    assert choice.best == want.min() > 0
+    assert choice.candidates == len(near)
+    assert choice.index == near[np.random.default_rng(7).integers(len(near))]
+
+
+def test_flat_plane_gives_a_flat_plane(one_device):
+    rng = np.random.default_rng(3)
+    u = np.linspace(-0.25, 1.25, 60)
+    x, y = np.meshgrid(u, u)
+    p = np.c_[x.ravel() + rng.uniform(-0.004, 0.004, x.size), y.ravel() + rng.uniform(-0.004, 0.004, x.size),
+              np.zeros(x.size)]
+    tex = texture_from_points(p, np.tile([0, 0, 1.0], (len(p), 1)), box=[[0, 0, 0], [1, 1, 0]])
+    pts, report, _ = synthesize_point_texture(tex, device=one_device, **SMALL)
+    z = pts.positions[:, 2]
+    assert np.abs(z).max() < 1e-4
+    assert np.abs(pts.normals[:, 2]).min() > 0.999
+    # the plane is covered: every 0.05 cell of the output holds points
+    cells = np.floor(pts.positions[:, :2] / 0.05).astype(int)
+    assert len(np.unique(cells, axis=0)) == int(np.ceil(1.2 / 0.05)) ** 2
+    assert report.points_out == len(pts)
+
+
+@pytest.mark.parametrize("name", ["weave", "flowers"])  # flowers: thin petals, slow MLS convergence
+def test_same_seed_same_points_on_every_device(device_pair, name):
+    tex = point_texture_example(name, count=10_000)
+    a, _, _ = synthesize_point_texture(tex, device=device_pair[0], seed=5, **SMALL)
+    b, _, _ = synthesize_point_texture(tex, device=device_pair[1], seed=5, **SMALL)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.normals, b.normals)
+
+
+def test_the_seed_decides_the_points(one_device, small_weave):
+    a, _, _ = synthesize_point_texture(small_weave, device=one_device, seed=5, **SMALL)
+    again, _, _ = synthesize_point_texture(small_weave, device=one_device, seed=5, **SMALL)
+    other, _, _ = synthesize_point_texture(small_weave, device=one_device, seed=6, **SMALL)
+    np.testing.assert_array_equal(a.positions, again.positions)
+    assert a.positions.shape != other.positions.shape or not np.array_equal(a.positions, other.positions)
+
+
+def test_synthesis_beats_random_pasting(one_device, small_weave):
+    _, report, timings = synthesize_point_texture(small_weave, device=one_device, seed=1,
+                                                  **{**SMALL, "quality": True, "quality_samples": 6})
+    q = report.quality
+    assert q["field_distance"][2] < q["field_distance_baseline"][2]
+    assert q["seam_after"] < q["seam_before"] < q["seam_baseline"]
+    assert q["stray"] < 0.1
+    assert set(timings) >= {"search", "warp", "blend", "other", "total"}
+
+
+def test_tileable_output_continues_across_its_borders(one_device, wavy):
+    pts, report, _ = synthesize_point_texture(wavy, device=one_device, tileable=True, **SMALL)
+    assert report.tileable
+    w = np.asarray(report.size)
+    p, n = pts.positions.astype(np.float64), pts.normals
+    assert p[:, 0].min() >= 0 and p[:, 0].max() < w[0]
+    h = 2 * report.spacing
+    # the points near the right border, moved by one period, lie on the surface of those near the left
+    right = p[:, 0] > w[0] - 2 * h
+    left = p[:, 0] < 4 * h
+    moved = p[right] - [w[0], 0, 0]
+    d, _ = pointset_distance(np.r_[p[left], moved].astype(np.float32), np.r_[n[left], n[right]],
+                             moved.astype(np.float32), radius=h, device=one_device)
+    assert np.median(np.abs(d)) < 0.3 * report.spacing
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_no_normals_and_too_few_neighbours():
+    p = np.c_[np.linspace(0, 1, 40), np.zeros(40), np.zeros(40)]  # collinear: no plane to fit
+    with pytest.raises(ValueError, match="no normals and they cannot be estimated"):
+        texture_from_points(p)
+
+
+def test_empty_box(wavy):
+    with pytest.raises(ValueError, match="is empty"):
+        PointTexture(wavy.points, wavy.normals, [0.5, 0.5, 0], [0.5, 0.9, 0])
+
+
+def test_patch_larger_than_the_exemplar(wavy, one_device):
+    with pytest.raises(ValueError, match="use a smaller patch"):
+        synthesize_point_texture(wavy, patch=1.0, device=one_device, quality=False)
+
+
+def test_nan_positions(wavy):
+    p = wavy.points.copy()
+    p[7, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN or inf, the first at index 7"):
+        texture_from_points(p, wavy.normals)
+
+
+def test_constant_image():
+    with pytest.raises(ValueError, match="constant"):
+        texture_from_image(np.full((32, 32), 128, np.uint8))
+
+
+def test_cli_bad_input_is_one_line_exit_2(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "geosynth", "pointtexture", "--example", "weave", "-o",
+                        str(tmp_path / "o.ply"), "--patch", "1.0", "--count", "2000", "--no-quality"],
+                       capture_output=True, text=True, timeout=120,
+                       env={k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"})  # set by --verbose tests
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "smaller patch" in r.stderr
+
+
+def test_mesh_of_the_output_is_watertight(one_device, wavy):
+    from geosynth.geometry_texture import output_mesh
+
+    pts, report, _ = synthesize_point_texture(wavy, device=one_device, **SMALL)
+    mesh = output_mesh(pts.positions, pts.normals, report.spacing, resolution=40, device=one_device)
+    assert mesh.is_watertight and len(mesh.faces) > 100
+    lo, hi = mesh.bounds
+    assert hi[0] - lo[0] > 1.1  # spans the output
+
+
+def test_an_output_that_cannot_fit_is_refused(wavy, one_device):
+    from geosynth.memory import MemoryBudgetError
+
+    with pytest.raises(MemoryBudgetError, match="size"):
+        synthesize_point_texture(wavy, size=(3e4, 3e4), device=one_device, quality=False)
+
+
+def test_relaxed_plane_stays_a_plane(one_device):
+    rng = np.random.default_rng(4)
+    p = np.c_[rng.uniform(-0.25, 1.25, (4000, 2)), np.zeros(4000)]
+    tex = texture_from_points(p, np.tile([0, 0, 1.0], (len(p), 1)), box=[[0, 0, 0], [1, 1, 0]])
+    pts, report, _ = synthesize_point_texture(tex, device=one_device, relax=True, **SMALL)
+    assert np.abs(pts.positions[:, 2]).max() < 1e-4
+    assert len(pts) > 0.9 * 4000 * 1.44 / 2.25

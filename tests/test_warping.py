@@ -1,0 +1,261 @@
+"""M2 warping (Sec. 5.2): a rigidly moved patch is moved back, the thin-plate spline
+interpolates its pairs and keeps its fixed corner pairs, its Jacobian gives the analytic
+normals of a known warp, the greedy pairing respects the thresholds and never raises its
+cost. Host-only code: no device is involved."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geosynth.warping import (
+    WARP_PRESETS,
+    ThinPlateSpline,
+    WarpWeights,
+    greedy_pairing,
+    surface_variation,
+    warp_patch,
+)
+
+SP = 1.0 / 30  # grid spacing of the test patches
+
+
+def height(xy):
+    return 0.06 * np.sin(6 * xy[:, 0]) * np.cos(5 * xy[:, 1])
+
+
+def normal(xy):
+    hx = 0.06 * 6 * np.cos(6 * xy[:, 0]) * np.cos(5 * xy[:, 1])
+    hy = -0.06 * 5 * np.sin(6 * xy[:, 0]) * np.sin(5 * xy[:, 1])
+    n = np.c_[-hx, -hy, np.ones(len(xy))]
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def bumpy_patch(lo=0.0, hi=1.0):
+    g = np.arange(lo, hi + 1e-9, SP)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    return np.c_[xy, height(xy)], normal(xy)
+
+
+BOX = (np.array([0.0, 0.0, -0.2]), np.array([1.0, 1.0, 0.2]))
+
+
+def rigid(points, normals, degrees, shift):
+    th = np.deg2rad(degrees)
+    rot = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    c = points.mean(axis=0)
+    return (points - c) @ rot.T + c + np.asarray(shift) * SP, normals @ rot.T
+
+
+def angle_deg(a, b):
+    return np.rad2deg(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1, 1)))
+
+
+def test_presets_are_the_papers_weights():
+    got = {k: (w.w_p, w.w_n, w.w_v, w.w_l, w.w_d) for k, w in WARP_PRESETS.items()}
+    assert got == {"heightfield": (1, 3, 30, 9, 7), "chainmail": (1, 1, 10, 8, 6),
+                   "weave": (1, 2, 15, 6, 5), "flowers": (1, 2, 2, 6, 6)}
+
+
+def test_rigidly_moved_copy_is_moved_back():
+    p, n = bumpy_patch()
+    s, ns = rigid(p, n, 0.5, [0.3, -0.2, 0.3])
+    res = warp_patch(s, ns, p, n, *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0))
+    assert len(res.fixed) == 0  # the targets cover the box: no free corner
+    inner = ((p[:, :2] > 0.1) & (p[:, :2] < 0.9)).all(axis=1)
+    before = np.linalg.norm(s - p, axis=1)[inner].mean() / SP
+    err = np.linalg.norm(res.points - p, axis=1)[inner] / SP
+    assert before > 0.4
+    assert err.mean() < 0.02 and err.max() < 0.1, (err.mean(), err.max())
+    assert angle_deg(res.normals, n)[inner].max() < 1.0
+
+
+def test_larger_rotation_lands_on_the_surface():
+    # Beyond half a spacing per point the pairs are no longer the true correspondences
+    # (any shift along the surface fits as well); the warped points still lie on the
+    # target surface with its normals.
+    p, n = bumpy_patch()
+    s, ns = rigid(p, n, 3.0, [0.3, -0.2, 0.5])
+    res = warp_patch(s, ns, p, n, *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0))
+    w = res.points
+    inner = ((w[:, :2] > 0.1) & (w[:, :2] < 0.9)).all(axis=1)
+    off_before = np.abs(s[:, 2] - height(s[:, :2]))[inner].mean() / SP
+    off = np.abs(w[:, 2] - height(w[:, :2]))[inner] / SP
+    assert off_before > 0.3
+    assert off.mean() < 0.02 and off.max() < 0.1, (off.mean(), off.max())
+    nerr = angle_deg(res.normals, normal(w[:, :2]))[inner]
+    assert nerr.mean() < 0.5 and nerr.max() < 3.0, (nerr.mean(), nerr.max())
+
+
+def test_spline_interpolates_its_pairs(rng):
+    c = rng.uniform(-1, 1, (60, 3))
+    y = c + 0.1 * rng.normal(size=c.shape)
+    spline = ThinPlateSpline(c, y)
+    np.testing.assert_allclose(spline(c), y, atol=1e-9)
+    # An affine map is reproduced exactly, with its Jacobian.
+    a = np.array([[1.1, 0.2, 0.0], [-0.1, 0.9, 0.3], [0.05, 0.0, 1.2]])
+    spline = ThinPlateSpline(c, c @ a.T + [0.3, -0.2, 0.1])
+    x = rng.uniform(-1, 1, (50, 3))
+    np.testing.assert_allclose(spline(x), x @ a.T + [0.3, -0.2, 0.1], atol=1e-9)
+    np.testing.assert_allclose(spline.jacobian(x), np.broadcast_to(a, (50, 3, 3)), atol=1e-9)
+
+
+def test_degenerate_pairs_leave_the_undetermined_direction_alone():
+    # Pairs on one plane (z = 0) moved up by 0.1: the affine part along z is undetermined;
+    # the least-norm solution moves the plane and leaves no NaN.
+    g = np.stack(np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 6)), -1).reshape(-1, 2)
+    c = np.c_[g, np.zeros(len(g))]
+    spline = ThinPlateSpline(c, c + [0, 0, 0.1])
+    out = spline(np.array([[0.5, 0.5, 0.0], [0.2, 0.7, 0.0]]))
+    assert np.isfinite(out).all()
+    np.testing.assert_allclose(out[:, 2], 0.1, atol=1e-6)
+
+
+def test_jacobian_normals_match_a_known_smooth_warp():
+    # W0(x, y, z) = (x + 0.03 sin 2y, y, z + 0.05 sin 3x cos 2y), sampled at a 3D grid of
+    # pairs; the spline's normals of the plane z = 0 against the analytic ones, J0^-T n.
+    def w0(p):
+        x, y, z = p.T
+        return np.c_[x + 0.03 * np.sin(2 * y), y, z + 0.05 * np.sin(3 * x) * np.cos(2 * y)]
+
+    def j0(p):
+        x, y, _ = p.T
+        j = np.zeros((len(p), 3, 3))
+        j[:, 0, 0] = 1
+        j[:, 0, 1] = 0.06 * np.cos(2 * y)
+        j[:, 1, 1] = 1
+        j[:, 2, 0] = 0.15 * np.cos(3 * x) * np.cos(2 * y)
+        j[:, 2, 1] = -0.1 * np.sin(3 * x) * np.sin(2 * y)
+        j[:, 2, 2] = 1
+        return j
+
+    g = np.linspace(-0.2, 1.2, 9)
+    c = np.stack(np.meshgrid(g, g, [-0.2, 0.0, 0.2]), -1).reshape(-1, 3)
+    spline = ThinPlateSpline(c, w0(c))
+    xy = np.stack(np.meshgrid(np.linspace(0.1, 0.9, 15), np.linspace(0.1, 0.9, 15)), -1).reshape(-1, 2)
+    p = np.c_[xy, np.zeros(len(xy))]
+    n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    wp, wn = spline.transform(p, n)
+    want = np.einsum("mkj,mk->mj", np.linalg.inv(j0(p)), n)  # J^-T n
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    assert np.abs(wp - w0(p)).max() < 2e-3
+    assert angle_deg(wn, want).max() < 0.5
+    # Against a finite-difference Jacobian of the spline itself: the analytic one is exact.
+    eps = 1e-6
+    fd = np.stack([(spline(p + eps * e) - spline(p - eps * e)) / (2 * eps) for e in np.eye(3)], axis=2)
+    np.testing.assert_allclose(spline.jacobian(p), fd, atol=1e-6)
+
+
+def test_corner_pairs_stay_fixed():
+    # Targets only in the -x strip: the two +x corners are free and keep their points.
+    p, n = bumpy_patch()
+    t_sel = p[:, 0] < 0.25
+    s = p + [0.0, 0.0, 0.4 * SP]  # the patch sits 0.4 spacing too high
+    corners = np.array([[1.0, 0.0, -0.2], [1.0, 1.0, -0.2], [1.0, 0.0, 0.2], [1.0, 1.0, 0.2]])
+    src = np.concatenate([s, corners])
+    nsrc = np.concatenate([n, np.tile([0.0, 0.0, 1.0], (4, 1))])
+    res = warp_patch(src, nsrc, p[t_sel], n[t_sel], *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0))
+    assert len(res.fixed) == 4
+    assert {tuple(np.round(f, 9)) for f in res.fixed} == {tuple(c) for c in corners}
+    np.testing.assert_allclose(res.points[-4:], corners, atol=1e-9)
+    # The overlap is pulled onto the targets; the far side moves less.
+    moved = res.points[:-4] - s
+    near, far = p[:, 0] < 0.2, p[:, 0] > 0.8
+    assert np.abs(res.points[:-4][near, 2] - p[near, 2]).mean() < 0.05 * SP
+    assert np.abs(moved[far, 2]).mean() < np.abs(moved[near, 2]).mean()
+
+
+def test_pairing_respects_thresholds_and_never_raises_cost(rng):
+    ps = rng.uniform(0, 1, (400, 3)) * [1, 1, 0.1]
+    ns = rng.normal(size=(400, 3)) + [0, 0, 2]
+    ns /= np.linalg.norm(ns, axis=1, keepdims=True)
+    q = rng.choice(400, 80, replace=False)
+    pq = ps[q] + rng.normal(scale=0.02, size=(80, 3))
+    nq = ns[q] + rng.normal(scale=0.3, size=(80, 3))
+    nq /= np.linalg.norm(nq, axis=1, keepdims=True)
+    vs, vq = surface_variation(ps), rng.uniform(0, 0.2, 80)
+    w = WarpWeights(1, 2, 15, 6, 5, max_distance=2.0, max_normal=0.3, max_variation=0.08)
+    spacing = 0.05
+    pairs, costs = greedy_pairing(ps, ns, vs, pq, nq, vq, w, spacing, np.random.default_rng(3), iterations=4)
+    assert len(pairs) > 20
+    s, t = pairs[:, 0], pairs[:, 1]
+    assert len(np.unique(s)) == len(s) and len(np.unique(t)) == len(t)
+    assert (np.linalg.norm(ps[s] - pq[t], axis=1) <= w.max_distance * spacing + 1e-12).all()
+    assert (1 - np.einsum("ij,ij->i", ns[s], nq[t]) <= w.max_normal + 1e-12).all()
+    assert (np.abs(vs[s] - vq[t]) <= w.max_variation + 1e-12).all()
+    assert all(b <= a for a, b in zip(costs, costs[1:]))
+
+
+def test_first_pass_is_the_sequential_greedy(rng):
+    # The vectorized first pass equals scanning the allowed pairs in increasing cost.
+    ps = rng.uniform(0, 1, (120, 3))
+    ns = np.tile([0.0, 0.0, 1.0], (120, 1))
+    pq = rng.uniform(0, 1, (40, 3))
+    nq = ns[:40]
+    v = np.zeros(120)
+    w = WarpWeights(1, 1, 1, 1, 1, max_distance=5.0)
+    spacing = 0.05
+    pairs, _ = greedy_pairing(ps, ns, v, pq, nq, v[:40], w, spacing, np.random.default_rng(0), iterations=0, candidates=120)
+    d = np.linalg.norm(pq[:, None] - ps[None], axis=2)
+    edges = sorted((d[i, j], i, j) for i in range(40) for j in range(120) if d[i, j] <= 5 * spacing)
+    used_q, used_s, want = set(), set(), []
+    for _, i, j in edges:
+        if i not in used_q and j not in used_s:
+            used_q.add(i)
+            used_s.add(j)
+            want.append((j, i))
+    assert sorted(map(tuple, pairs.tolist())) == sorted(want)
+
+
+def test_same_seed_same_warp():
+    p, n = bumpy_patch()
+    s, ns = rigid(p, n, 1.0, [0.2, 0.1, 0.3])
+    a = warp_patch(s, ns, p[p[:, 1] < 0.3], n[p[:, 1] < 0.3], *BOX, WARP_PRESETS["weave"], SP, np.random.default_rng(5))
+    b = warp_patch(s, ns, p[p[:, 1] < 0.3], n[p[:, 1] < 0.3], *BOX, WARP_PRESETS["weave"], SP, np.random.default_rng(5))
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.normals, b.normals)
+    assert np.array_equal(a.pairs, b.pairs)
+
+
+def test_surface_variation():
+    p, _ = bumpy_patch()
+    flat = np.c_[p[:, :2], np.zeros(len(p))]
+    assert np.abs(surface_variation(flat)).max() < 1e-12
+    rng = np.random.default_rng(0)
+    blob = rng.normal(size=(500, 3))
+    v = surface_variation(blob)
+    assert 0.1 < v.mean() <= 1 / 3 + 1e-12
+
+
+def test_no_target_is_the_identity():
+    p, n = bumpy_patch()
+    res = warp_patch(p, n, np.zeros((0, 3)), np.zeros((0, 3)), *BOX, WarpWeights(), SP, np.random.default_rng(0))
+    np.testing.assert_array_equal(res.points, p)
+    assert len(res.pairs) == 0
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(spacing=0.0), "spacing"),
+    (dict(src_points=np.full((3, 3), np.nan)), "NaN"),
+    (dict(box_max=np.array([0.0, 1.0, 0.2])), "extent"),
+    (dict(src_normals=np.zeros((3, 3))), "zero-length"),
+])
+def test_bad_input(bad, match):
+    args = dict(src_points=np.eye(3), src_normals=np.tile([0, 0, 1.0], (3, 1)), target_points=np.eye(3),
+                target_normals=np.tile([0, 0, 1.0], (3, 1)), box_min=BOX[0], box_max=BOX[1],
+                weights=WarpWeights(), spacing=SP, rng=np.random.default_rng(0))
+    args.update(bad)
+    with pytest.raises(ValueError, match=match):
+        warp_patch(**args)
+    with pytest.raises(ValueError, match="w_n"):
+        WarpWeights(w_n=-1)
+
+
+def test_float32_evaluation_is_within_a_thousandth_of_a_spacing(rng):
+    c = rng.uniform(0, 1, (150, 3)) * [1, 1, 0.1]
+    y = c + rng.normal(scale=0.3 * SP, size=c.shape)
+    x = rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.1]
+    n = np.tile([0.0, 0.0, 1.0], (3000, 1))
+    p64, n64 = ThinPlateSpline(c, y).transform(x, n)
+    p32, n32 = ThinPlateSpline(c, y, dtype=np.float32).transform(x, n)
+    assert np.abs(p32 - p64).max() < 1e-3 * SP
+    assert angle_deg(n32, n64).max() < 0.01
