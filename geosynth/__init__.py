@@ -10,6 +10,7 @@ The public API; everything else is private. Every operation takes ``device=``
   :func:`synthesize_geometry` (:class:`GeometryResult`).
 - M2, distance fields: :func:`mesh_distance`, :func:`pointset_distance` (:class:`Field`).
 - M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
+- M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`).
 - Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
   :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
   ``Field.load`` / ``Field.save``.
@@ -67,6 +68,8 @@ _LAZY = {
     "exemplar_mesh": "geosynth.examples",
     "exemplar_field": "geosynth.examples",
     "MemoryBudgetError": "geosynth.memory",
+    "complete_surface": "geosynth.completion",
+    "CompletionReport": "geosynth.completion",
 }
 
 __all__ = sorted([
