@@ -309,6 +309,9 @@ def fit_surface(points: np.ndarray, kind: str | None = None, normals: np.ndarray
     extent = float(np.linalg.norm(p.max(0) - p.min(0)))
     if extent <= 0:
         raise ValueError("the capture's points all coincide; no surface can be fitted.")
+    spread = np.linalg.svd(p - p.mean(0), compute_uv=False)
+    if spread[1] <= 1e-9 * spread[0]:
+        raise ValueError("the capture's points lie on a line; no surface can be fitted (give a surface patch).")
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != p.shape or not np.isfinite(normals).all():
@@ -319,7 +322,7 @@ def fit_surface(points: np.ndarray, kind: str | None = None, normals: np.ndarray
         got = make()
         if isinstance(got, str):
             reasons[name] = got
-        elif got.radius > _FLAT_RADIUS * extent and kind != name:
+        elif got.radius > _FLAT_RADIUS * extent:
             reasons[name] = f"radius {got.radius:.4g} is over {_FLAT_RADIUS:g}x the extent (a plane)"
         else:
             fits[name] = got
