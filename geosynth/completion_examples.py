@@ -132,10 +132,10 @@ def golf_example(seed: int = 0, delta: float = 0.065, dimples: int = 72) -> Comp
                   "golf ball, a cap missing (Fig. 1)")
 
 
-def bark_example(seed: int = 0, delta: float = 0.06, height: float = 1.6) -> CompletionExample:
+def bark_example(seed: int = 0, delta: float = 0.06, height: float = 1.6, fraction: float = 0.5) -> CompletionExample:
     """Tree bark (Figs. 9, 11, 12): a unit cylinder with wandering ridges and cracks along
-    the axis and bark colours (dark cracks, lighter grey-brown ridges); half the
-    circumference captured."""
+    the axis and bark colours (dark cracks, lighter grey-brown ridges); ``fraction`` of the
+    circumference captured (default half)."""
     rng = np.random.default_rng(seed)
     n_a = int(2 * math.pi / delta)
     dz = delta * math.sqrt(3) / 2
@@ -151,7 +151,7 @@ def bark_example(seed: int = 0, delta: float = 0.06, height: float = 1.6) -> Com
         w = rng.uniform(0.06, 0.1)
         h += rng.uniform(0.03, 0.05) * np.exp(-(dist / w) ** 2)
     # cracks: short breaks across the ridges
-    for _ in range(60):
+    for _ in range(int(round(60 * height / 1.6))):
         ac, zc = rng.uniform(0, 2 * math.pi), rng.uniform(0, height)
         dist_a = np.angle(np.exp(1j * (a - ac)))
         h -= 0.03 * np.exp(-(dist_a / 0.12) ** 2 - ((z - zc) / 0.03) ** 2)
@@ -160,7 +160,7 @@ def bark_example(seed: int = 0, delta: float = 0.06, height: float = 1.6) -> Com
     colors = _colour_ramp(t, (52, 34, 22), (150, 128, 104), rng, 8.0)
     r = 1 + h
     points = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
-    captured = a < math.pi
+    captured = a < 2 * math.pi * fraction
     return _split("bark", points, colors, captured, "cylinder", None, 3, 0.5,
                   "tree bark on a cylinder, half missing (Figs. 9, 11, 12)")
 
