@@ -17,11 +17,13 @@ from geosynth._backends.opencl_backend import OpenCLBackend
 from geosynth._backends.opencl_growth import OpenCLGrowthOps
 from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
+from geosynth._backends.opencl_relief import OpenCLReliefOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
 from geosynth._backends.warp_backend import WarpBackend
 from geosynth._backends.warp_growth import WarpGrowthOps
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
+from geosynth._backends.warp_relief import WarpReliefOps
 from geosynth._backends.warp_texel import WarpTexelOps
 
 # (interface, Warp implementation, OpenCL implementation)
@@ -31,6 +33,7 @@ FAMILIES = [
     (ifc.PointsOps, WarpPointsOps, OpenCLPointsOps),
     (ifc.TexelOps, WarpTexelOps, OpenCLTexelOps),
     (ifc.GrowthOps, WarpGrowthOps, OpenCLGrowthOps),
+    (ifc.ReliefOps, WarpReliefOps, OpenCLReliefOps),
 ]
 IDS = [f[0].__name__ for f in FAMILIES]
 
@@ -87,6 +90,7 @@ KERNEL_GROUPS = [
     ("growth", "match_coherent", (ifc.MatchInputs, ifc.MatchState, ifc.MatchScratch)),
     ("sdf_mesh", "mesh_distance_points", (ifc.MeshArrays,)),
     ("sdf_mesh", "mesh_distance_grid", (ifc.MeshArrays,)),
+    ("relief", "relief_scores", (ifc.ReliefIndexArrays, ifc.ReliefQueryArrays)),
 ]
 _WARP_NAMES = {"nxt": "next", "prv": "prev"}
 
