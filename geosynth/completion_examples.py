@@ -84,8 +84,9 @@ def _plane_example(name: str, height_fn, seed: int, size: float, delta: float, k
 
 
 def wave_example(seed: int = 0, delta: float = 0.05) -> CompletionExample:
-    """A plane with a periodic wave relief (Fig. 8 top): h = A sin(2 pi x / L), A = 0.08, L = 0.5."""
-    return _plane_example("wave", lambda q, rng: 0.08 * np.sin(2 * math.pi * q[:, 0] / 0.5), seed, 2.0, delta, 0.5,
+    """A plane with a periodic wave relief (Fig. 8 top): h = A cos(2 pi x / L), A = 0.08, L = 0.5
+    (even about the capture's centre, so that the least-squares plane is level)."""
+    return _plane_example("wave", lambda q, rng: 0.08 * np.cos(2 * math.pi * q[:, 0] / 0.5), seed, 2.0, delta, 0.5,
                           3, "plane, sine wave relief (Fig. 8)")
 
 

@@ -375,7 +375,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     sample_pos = np.concatenate([capture.positions, mid])
     colors = None
     if capture.colors is not None:
-        new = _gaussian_knn_colours(capture.positions, capture.colors, mid, sigma=med)
+        new = _gaussian_knn_colours(capture.positions, capture.colors, mid, sigma=0.5 * med)
         colors = np.concatenate([capture.colors, new])
     sample_base = fit.project(sample_pos)
     n_samples = len(sample_pos)

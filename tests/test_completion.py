@@ -25,10 +25,11 @@ def _hex(width, height, delta):
 
 
 def _wave_capture(seed=0, width=1.0, height=0.6, delta=0.05):
-    """Two periods of h = A sin(2 pi x / L) on [0, 1) x [0, 0.6], colours following h."""
+    """Two periods of h = A cos(2 pi x / L) on [0, 1) x [0, 0.6] (even about the centre, so the
+    least-squares plane is level), colours following h."""
     rng = np.random.default_rng(seed)
     q = _hex(width - delta / 2, height, delta)
-    h = AMPLITUDE * np.sin(2 * math.pi * q[:, 0] / PERIOD)
+    h = AMPLITUDE * np.cos(2 * math.pi * q[:, 0] / PERIOD)
     t = (h / AMPLITUDE + 1) / 2
     col = np.clip(np.stack([60 + 160 * t, 80 + 100 * t, 160 - 80 * t], 1) + rng.normal(0, 4, (len(q), 3)), 0, 255)
     return Capture(np.stack([q[:, 0], q[:, 1], h], 1), col.astype(np.uint8))
