@@ -434,8 +434,9 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
         if len(nb) == 0:
             _fail("targets", f"target {int(t)} has no textured neighbour", "score only boundary targets")
         rel_b = index.base[nb] - index.base[t]
-        w = np.exp(-np.einsum("ij,ij->i", rel_b, rel_b) / (2.0 * sigma * sigma))
-        wi = np.maximum(1, np.rint(WEIGHT_ONE * w / w.max())).astype(np.int64)
+        d2 = np.einsum("ij,ij->i", rel_b, rel_b)
+        w = np.exp(-(d2 - d2.min()) / (2.0 * sigma * sigma))  # relative to the largest weight
+        wi = np.maximum(1, np.rint(WEIGHT_ONE * w)).astype(np.int64)
         order = np.lexsort((nb, -wi))
         nb, rel_b, wi = nb[order], rel_b[order], wi[order]
         f = index.frames[t]
