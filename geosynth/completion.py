@@ -385,7 +385,7 @@ def _vertex_normals(positions: np.ndarray, faces: np.ndarray, fallback: np.ndarr
 def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, window: int = DEFAULT_WINDOW,
                      rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
-                     max_targets: int | None = 200_000):
+                     max_targets: int | None = 200_000, oversample: str = "butterfly"):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -405,6 +405,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         seed: seed of the random picks (an int >= 0).
         progress: show a progress bar over the targets.
         max_targets: refuse a completion with more targets (None: no limit).
+        oversample: "butterfly" (default) or "midpoint" (the paper's coplanar midpoints);
+            see :func:`geosynth.relief_prep.prepare_relief`.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -435,7 +437,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     else:
         raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
     t1 = time.perf_counter()
-    rs = prepare_relief(cap, sf, region, max_targets=max_targets)
+    rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
     t2 = time.perf_counter()
     samples = np.arange(rs.n_samples, dtype=np.int64)
     textured0 = np.zeros(rs.n_vertices, dtype=bool)

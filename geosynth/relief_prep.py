@@ -336,7 +336,39 @@ def _gaussian_knn_colours(points: np.ndarray, colors: np.ndarray, queries: np.nd
     return np.clip(np.round((w[:, :, None] * colors[i].astype(np.float64)).sum(1)), 0, 255).astype(np.uint8)
 
 
-def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: int | None = None) -> ReliefSurface:
+def _edge_points(points: np.ndarray, faces: np.ndarray, edges: np.ndarray, fit: SurfaceFit) -> np.ndarray:
+    """(E, 3) new vertices of the 1-to-4 subdivision: on the fit below each edge's midpoint,
+    at the height (signed distance to the fit) of the interpolating butterfly rule of Dyn,
+    Levin and Gregory (1/2 the edge's ends, 1/8 the two opposite vertices, -1/16 the four
+    wing vertices); the chord midpoint where the stencil is incomplete (the border)."""
+    h = fit.distance(points)
+    opposite: dict[tuple[int, int], list[int]] = {}
+    for a, b, c in faces.tolist():
+        for x, y, z in ((a, b, c), (b, c, a), (c, a, b)):
+            opposite.setdefault((min(x, y), max(x, y)), []).append(z)
+
+    def other(x: int, y: int, not_z: int):
+        o = [z for z in opposite.get((min(x, y), max(x, y)), ()) if z != not_z]
+        return o[0] if len(o) == 1 else None
+
+    out = 0.5 * (points[edges[:, 0]] + points[edges[:, 1]])
+    base = fit.project(out)
+    normal = fit.normal(out)
+    for i, (a, b) in enumerate(edges.tolist()):
+        opp = opposite.get((a, b), ())
+        if len(opp) != 2:
+            continue
+        c, d = opp
+        wings = [other(a, c, b), other(b, c, a), other(a, d, b), other(b, d, a)]
+        if any(w is None for w in wings):
+            continue
+        hh = 0.5 * (h[a] + h[b]) + 0.125 * (h[c] + h[d]) - 0.0625 * sum(h[w] for w in wings)
+        out[i] = base[i] + hh * normal[i]
+    return out
+
+
+def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: int | None = None,
+                   oversample: str = "butterfly") -> ReliefSurface:
     """Samples, targets and their triangulation for a capture over its fit (Sec. 3, 4, 6).
 
     Args:
@@ -346,6 +378,11 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
             lengths; sphere: azimuth, polar angle; cylinder: angle, height), or None for
             :meth:`SurfaceFit.default_region`.
         max_targets: refuse more targets than this (None: no limit).
+        oversample: "butterfly" (default): each new vertex at the butterfly rule's height
+            over the fit (an interpolating subdivision: it adds no detail, but the paper's
+            coplanar midpoints lie on chords and lowered the mean relief height of the
+            samples by 2-11% on the built-ins, a bias every copy inherits); "midpoint":
+            the paper's coplanar midpoints.
 
     Returns:
         The :class:`ReliefSurface`.
@@ -356,6 +393,8 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     """
     from scipy.spatial import cKDTree
 
+    if oversample not in ("butterfly", "midpoint"):
+        raise ValueError(f"oversample must be 'butterfly' or 'midpoint', got {oversample!r}.")
     base0 = fit.project(capture.positions)
     param0 = fit.to_param(capture.positions)
     faces0 = _capture_faces(capture, fit, base0, param0)
@@ -371,7 +410,8 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
 
     # Sec. 4: oversample the capture once, 1-to-4 (a new vertex at each edge's midpoint).
     n0 = len(capture.positions)
-    mid = 0.5 * (capture.positions[e[:, 0]] + capture.positions[e[:, 1]])
+    mid = _edge_points(capture.positions, faces0, e, fit) if oversample == "butterfly" else \
+        0.5 * (capture.positions[e[:, 0]] + capture.positions[e[:, 1]])
     sample_pos = np.concatenate([capture.positions, mid])
     colors = None
     if capture.colors is not None:
