@@ -727,6 +727,7 @@ def relief_scores_reference(index, queries, limits=None, slots=None) -> np.ndarr
     nr = queries.rotations
     out = np.empty((queries.n_queries, len(cand), nr), np.uint32)
     s = np.repeat(cand, nr)
+    slot_of = np.repeat(slots, nr)
     r = np.tile(np.arange(nr), len(cand))
     frame = h.frame[s]  # (L, 3, 3) rows u, v, n
     half = rm.FRAME_ONE // 2
@@ -752,6 +753,8 @@ def relief_scores_reference(index, queries, limits=None, slots=None) -> np.ndarr
             m = h.base[s] + to_world(rel[:, :3])
             p = m + to_world(rel[:, 3:])
             cur = prev.copy() if queries.chain[j] else s.copy()
+            k0 = queries.cell[j, r]
+            cur = np.where(k0 >= 0, h.stencil[slot_of, np.maximum(k0, 0)], cur)
             moving = alive.copy()
             for _ in range(rm.MAX_WALK):
                 if not moving.any():

@@ -42,6 +42,7 @@ WEIGHT_ONE = 4096  # the largest weight of a query
 CLAMP = 1 << 13  # |p - partner| components clamp here (quanta)
 QUANTA_PER_LENGTH = 1 << 11  # quanta per max(longest edge, shape normalization)
 MAX_WALK = 256  # most steps of one partner walk
+STENCIL_K = 6  # walk-start stencil: (2K+1)^2 points a median edge apart in each sample's tangent plane
 COLOUR_RANGE2 = 3 * 255 * 255
 
 
@@ -117,6 +118,9 @@ class _Host:
     adj: np.ndarray  # (A,) int32, sorted by id within a vertex
     fan_start: np.ndarray  # (V + 1,) int32
     fan: np.ndarray  # (F, 2) int32 the other two corners of each triangle around a vertex
+    samples: np.ndarray  # (S,) int32 vertex ids
+    stencil: np.ndarray  # (S, (2K+1)^2) int32 walk starts
+    cell: float  # stencil spacing, world
 
 
 class ReliefIndex:
@@ -244,14 +248,14 @@ class ReliefIndex:
             _fail("base", f"the surface spans {extent.max():.3g} quanta of {quantum:.3g} (the longest edge / 2048)",
                   "the triangulation is too coarse for its extent: subdivide it")
         usable = tex.copy() if partners == "textured" else np.isin(np.arange(v), samples)
-        host = cls._quantize(base, frames, pos, col, usable, tris, origin, quantum)
+        host = cls._quantize(base, frames, pos, col, usable, tris, origin, quantum, samples)
         backend = get_backend(device)
         arrays = _upload_index(backend, host)
         return cls(device, backend, samples, quantum, origin, shape_norm, frames, base, disp.copy(), host, arrays,
                    tex.copy(), partners)
 
     @staticmethod
-    def _quantize(base, frames, pos, col, usable, tris, origin, quantum) -> _Host:
+    def _quantize(base, frames, pos, col, usable, tris, origin, quantum, samples) -> _Host:
         v = len(base)
         bq = np.rint((base - origin) / quantum).astype(np.int64)
         pq = np.rint((pos - origin) / quantum).astype(np.int64)
@@ -270,7 +274,18 @@ class ReliefIndex:
         order = np.lexsort((tri_of, keys))
         fan_start, _ = _csr(keys[order], pairs[order], v)
         fan = pairs[order]
-        return _Host(bq, fq, pq, cq, usable.copy(), adj_start, adj.astype(np.int32), fan_start, fan.astype(np.int32))
+        # walk starts (a hint only: any start gives a deterministic partner, the same on every device)
+        from scipy.spatial import cKDTree
+
+        cell = float(np.median(np.linalg.norm(base[e[:, 0]] - base[e[:, 1]], axis=1)))
+        cell = cell if cell > 0 else quantum
+        k = np.arange(-STENCIL_K, STENCIL_K + 1) * cell
+        a, b = np.meshgrid(k, k, indexing="ij")
+        pts = (base[samples, None, :] + a.reshape(1, -1, 1) * frames[samples, None, 0]
+               + b.reshape(1, -1, 1) * frames[samples, None, 1])
+        stencil = cKDTree(base).query(pts.reshape(-1, 3))[1].reshape(len(samples), -1)
+        return _Host(bq, fq, pq, cq, usable.copy(), adj_start, adj.astype(np.int32), fan_start, fan.astype(np.int32),
+                     samples.astype(np.int32), stencil.astype(np.int32), cell)
 
     def update(self, ids, displacements, colours=None) -> None:
         """Label vertices textured with their new displacements (and colours).
@@ -323,12 +338,12 @@ class ReliefIndex:
         return np.einsum("nji,nj->ni", self.frames[t], back)
 
     def candidates(self, stride: int) -> tuple[np.ndarray, DeviceArray]:
-        """(slots (k,) int64 positions in samples, device (k,) int32 vertex ids) of every
-        ``stride``-th sample."""
+        """(slots (k,) int64 positions in samples, the same on the device as int32) of
+        every ``stride``-th sample."""
         got = self._cand.get(stride)
         if got is None:
             slots = np.arange(0, len(self.samples), stride)
-            got = self._cand[stride] = (slots, self.backend.to_device(self.samples[slots].astype(np.int32)))
+            got = self._cand[stride] = (slots, self.backend.to_device(slots.astype(np.int32)))
         return got
 
 
@@ -350,7 +365,8 @@ def _upload_index(backend, host: _Host):
         base=up(host.base.astype(i32).reshape(-1)), frame=up(host.frame.astype(i32).reshape(-1)),
         pos=up(host.pos.astype(i32).reshape(-1)), colour=up(host.colour.astype(i32).reshape(-1)),
         usable=up(host.usable.astype(i32)), adj_start=up(host.adj_start), adj=up(host.adj),
-        fan_start=up(host.fan_start), fan=up(host.fan.reshape(-1)))
+        fan_start=up(host.fan_start), fan=up(host.fan.reshape(-1)), samples=up(host.samples),
+        stencil=up(host.stencil.reshape(-1)))
 
 
 @dataclass(frozen=True)
@@ -363,7 +379,9 @@ class ReliefQueries:
         entries: (E,) int64 neighbour vertex ids, by decreasing weight within a query.
         rel: (E, R, 6) int32 per rotation: the moved base's and the displacement's
             components in the candidate's frame (quanta).
-        chain: (E,) int32 1: the partner walk starts at the previous entry's partner; 0: at s.
+        chain: (E,) int32 1: the partner walk starts at the previous entry's partner; 0: at s
+            (where cell is -1).
+        cell: (E, R) int32 stencil cell of the walk's start (-1: outside the stencil).
         colour: (E, 3) int32 0..255; weight: (E,) int32 1..WEIGHT_ONE.
         ks, kc: (Q,) float64 the code's coefficients (CONTRACT.md).
         rotations: R; mu: shape weight; sigma: Gaussian sigma (world).
@@ -374,6 +392,7 @@ class ReliefQueries:
     entries: np.ndarray
     rel: np.ndarray
     chain: np.ndarray
+    cell: np.ndarray
     colour: np.ndarray
     weight: np.ndarray
     ks: np.ndarray
@@ -427,7 +446,8 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
     tex = index.textured
     c, s = _cos_sin(np.arange(rotations), rotations)
     qstart = [0]
-    ent, rel, chain, col, wq, ks, kc = [], [], [], [], [], [], []
+    ent, rel, chain, cells, col, wq, ks, kc = [], [], [], [], [], [], [], []
+    side = 2 * STENCIL_K + 1
     for i, t in enumerate(targets):
         nb = np.unique(nbr[starts[i]:starts[i + 1]])
         nb = nb[tex[nb] & (nb != t)]
@@ -451,6 +471,10 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
             _fail("nbr", f"target {int(t)}'s neighbourhood spans {np.abs(r6).max():.3g} quanta",
                   "pass a smaller window (the neighbourhood must stay within ~8000 edge lengths)")
         rel.append(r6.astype(np.int32))
+        cu = np.rint(ro[..., 0] * q / index.host.cell).astype(np.int64)
+        cv = np.rint(ro[..., 1] * q / index.host.cell).astype(np.int64)
+        inside = (np.abs(cu) <= STENCIL_K) & (np.abs(cv) <= STENCIL_K)
+        cells.append(np.where(inside, (cu + STENCIL_K) * side + cv + STENCIL_K, -1).astype(np.int32))
         ch = np.zeros(len(nb), np.int32)
         if len(nb) > 1:
             step = np.linalg.norm(o[1:] - o[:-1], axis=1)
@@ -464,7 +488,7 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
         kc.append((1.0 - mu) * SCORE_ONE / (total * COLOUR_RANGE2))
         qstart.append(qstart[-1] + len(nb))
     return ReliefQueries(targets=targets, qstart=np.asarray(qstart, np.int32), entries=np.concatenate(ent),
-                         rel=np.concatenate(rel), chain=np.concatenate(chain), colour=np.concatenate(col),
+                         rel=np.concatenate(rel), chain=np.concatenate(chain), cell=np.concatenate(cells), colour=np.concatenate(col),
                          weight=np.concatenate(wq), ks=np.asarray(ks, np.float64), kc=np.asarray(kc, np.float64),
                          rotations=int(rotations), mu=float(mu), sigma=float(sigma))
 
@@ -475,7 +499,7 @@ def _upload_queries(backend, queries: ReliefQueries, limits: np.ndarray):
     up = backend.to_device
     return ReliefQueryArrays(
         qstart=up(queries.qstart), rel=up(np.ascontiguousarray(queries.rel, np.int32).reshape(-1)),
-        chain=up(queries.chain), qcolour=up(queries.colour.reshape(-1)), qweight=up(queries.weight),
+        chain=up(queries.chain), cell=up(np.ascontiguousarray(queries.cell).reshape(-1)), qcolour=up(queries.colour.reshape(-1)), qweight=up(queries.weight),
         ks=up(queries.ks), kc=up(queries.kc), limit=up(np.asarray(limits, np.int64)))
 
 
@@ -522,7 +546,7 @@ def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_can
     nq, r = queries.n_queries, queries.rotations
     qa = _upload_queries(b, queries, limits)
     out = b.empty((nq * n_cand * r,), np.uint32)
-    b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, out)
+    b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, index.host.stencil.shape[1], out)
     return b.to_host(out).reshape(nq, n_cand, r)
 
 

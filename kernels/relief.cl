@@ -97,24 +97,29 @@ __kernel void relief_scores(
     __global const int* adj,        // (A,) neighbour ids
     __global const int* fan_start,  // (V + 1,) first fan triangle of each vertex
     __global const int* fan,        // (F * 2,) other two corners of each fan triangle
+    __global const int* samples,    // (S,) vertex id of each sample
+    __global const int* stencil,    // (S * n_cells,) walk starts per sample and cell
     __global const int* qstart,     // (Q + 1,) first entry of each query
     __global const int* rel,        // (E * R * 6,) moved-base and displacement coefficients
     __global const int* chain,      // (E,) 1: walk from the previous partner
+    __global const int* cell,       // (E * R,) stencil cell of the walk's start, -1: none
     __global const int* qcolour,    // (E * 3,) entry colours 0..255
     __global const int* qweight,    // (E,) entry weights
     __global const double* ks,      // (Q,) shape coefficient of the code
     __global const double* kc,      // (Q,) colour coefficient of the code
     __global const long* limit,     // (Q,) running codes above it stop as OVER
-    __global const int* cand,       // (n_cand,) candidate vertex ids
+    __global const int* cand,       // (n_cand,) candidate sample slots
     const int n_cand,               // candidates
     const int n_query,              // queries
     const int rotations,            // R
+    const int n_cells,              // stencil cells per sample
     __global uint* out)             // (Q * n_cand * R,) codes
 {
     const int g = get_global_id(0), q = get_global_id(1);
     if (g >= n_cand * rotations || q >= n_query) return;
     const int c = g / rotations, r = g - c * rotations;
-    const int s = cand[c];
+    const int slot = cand[c];
+    const int s = samples[slot];
     const l3 fu = l3_at(frame, 3 * s), fv = l3_at(frame, 3 * s + 1), fn = l3_at(frame, 3 * s + 2);
     const l3 bs = l3_at(base, s);
     const double ksq = ks[q], kcq = kc[q];
@@ -126,7 +131,8 @@ __kernel void relief_scores(
         const __global int* o = rel + (size_t)(j * rotations + r) * 6;
         const l3 m = l3_add(bs, to_world(o[0], o[1], o[2], fu, fv, fn));
         const l3 p = l3_add(m, to_world(o[3], o[4], o[5], fu, fv, fn));
-        int cur = chain[j] ? prev : s;
+        const int k0 = cell[j * rotations + r];
+        int cur = k0 >= 0 ? stencil[(size_t)slot * n_cells + k0] : (chain[j] ? prev : s);
         for (int steps = 0; steps < R_MAX_WALK; ++steps) {
             int best = cur;
             const l3 dc = l3_sub(l3_at(base, cur), m);

@@ -14,8 +14,8 @@ geosynth.reference.relief_scores_reference is the NumPy twin).
 - ``relief_scores_kernel`` (launched over (Q, n_cand, R)): for query q, candidate s =
   cand[c], rotation r, each entry j of q in order: the moved base m = base[s] + the
   entry's first three coefficients on s's frame rows (rounded: (x + 2^13) >> 14), the
-  moved point p = m + the last three; the partner = a greedy walk over adj from s (or
-  from the previous entry's partner when chain[j]) to the vertex of smallest (squared
+  moved point p = m + the last three; the partner = a greedy walk over adj from
+  stencil[slot, cell[j, r]] (else from the previous entry's partner when chain[j], else s) to the vertex of smallest (squared
   distance of its base to m, id); INVALID if the partner is not usable (a sample, or textured: ReliefIndex.build's partners); add the colour
   term w * |c_j - colour[partner]|^2, stop as OVER if the code passes limit[q]; add
   w * trunc(min over the partner's fan of the squared distance from p to the triangle),
@@ -121,22 +121,27 @@ def relief_scores_kernel(
     adj: wp.array(dtype=wp.int32),  # (A,) neighbour ids
     fan_start: wp.array(dtype=wp.int32),  # (V + 1,) first fan triangle of each vertex
     fan: wp.array(dtype=wp.int32),  # (F * 2,) other two corners of each fan triangle
+    samples: wp.array(dtype=wp.int32),  # (S,) vertex id of each sample
+    stencil: wp.array(dtype=wp.int32),  # (S * n_cells,) walk starts per sample and cell
     qstart: wp.array(dtype=wp.int32),  # (Q + 1,) first entry of each query
     rel: wp.array(dtype=wp.int32),  # (E * R * 6,) moved-base and displacement coefficients
     chain: wp.array(dtype=wp.int32),  # (E,) 1: walk from the previous partner
+    cell: wp.array(dtype=wp.int32),  # (E * R,) stencil cell of the walk's start, -1: none
     qcolour: wp.array(dtype=wp.int32),  # (E * 3,) entry colours 0..255
     qweight: wp.array(dtype=wp.int32),  # (E,) entry weights
     ks: wp.array(dtype=wp.float64),  # (Q,) shape coefficient of the code
     kc: wp.array(dtype=wp.float64),  # (Q,) colour coefficient of the code
     limit: wp.array(dtype=wp.int64),  # (Q,) running codes above it stop as OVER
-    cand: wp.array(dtype=wp.int32),  # (n_cand,) candidate vertex ids
+    cand: wp.array(dtype=wp.int32),  # (n_cand,) candidate sample slots
     n_cand: int,  # candidates
     n_query: int,  # queries
     rotations: int,  # R
+    n_cells: int,  # stencil cells per sample
     out: wp.array(dtype=wp.uint32),  # (Q * n_cand * R,) codes
 ):
     q, c, r = wp.tid()
-    s = cand[c]
+    slot = cand[c]
+    s = samples[slot]
     fu = _at3(frame, 3 * s)
     fv = _at3(frame, 3 * s + 1)
     fn = _at3(frame, 3 * s + 2)
@@ -153,7 +158,10 @@ def relief_scores_kernel(
         m = bs + _to_world(wp.int64(rel[o]), wp.int64(rel[o + 1]), wp.int64(rel[o + 2]), fu, fv, fn)
         p = m + _to_world(wp.int64(rel[o + 3]), wp.int64(rel[o + 4]), wp.int64(rel[o + 5]), fu, fv, fn)
         cur = s
-        if chain[j] != 0:
+        k0 = cell[j * rotations + r]
+        if k0 >= 0:
+            cur = stencil[slot * n_cells + k0]
+        elif chain[j] != 0:
             cur = prev
         steps = int(0)
         while steps < MAX_WALK:

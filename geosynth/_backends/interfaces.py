@@ -379,6 +379,9 @@ class ReliefIndexArrays(ArrayGroup):
         adj_start: (V + 1,) first neighbour of each vertex in adj; adj: (A,) vertex ids.
         fan_start: (V + 1,) first triangle of each vertex in fan; fan: (F * 2,) the other
             two corners of each triangle around a vertex.
+        samples: (S,) vertex id of each candidate sample.
+        stencil: (S * n_cells,) where a partner walk starts: the vertex nearest each point
+            of a (2K+1)^2 grid in the sample's tangent plane.
     """
 
     base: DeviceArray
@@ -390,6 +393,8 @@ class ReliefIndexArrays(ArrayGroup):
     adj: DeviceArray
     fan_start: DeviceArray
     fan: DeviceArray
+    samples: DeviceArray
+    stencil: DeviceArray
 
 
 @dataclass(frozen=True)
@@ -401,7 +406,8 @@ class ReliefQueryArrays(ArrayGroup):
         rel: (E * R * 6,) int32 per entry and rotation: moved-base coefficients (3) and
             displacement coefficients (3) on the candidate's frame rows, quanta.
         chain: (E,) int32 1: the partner walk starts at the previous entry's partner, 0: at
-            the candidate.
+            the candidate (where cell is -1).
+        cell: (E * R,) int32 the stencil cell the walk starts at, -1: none.
         qcolour: (E * 3,) int32 RGB 0..255; qweight: (E,) int32 weights.
         ks, kc: (Q,) float64 code coefficients of the shape and colour sums.
         limit: (Q,) int64 a running code above it stops as OVER.
@@ -410,6 +416,7 @@ class ReliefQueryArrays(ArrayGroup):
     qstart: DeviceArray
     rel: DeviceArray
     chain: DeviceArray
+    cell: DeviceArray
     qcolour: DeviceArray
     qweight: DeviceArray
     ks: DeviceArray
@@ -423,11 +430,11 @@ class ReliefOps(ABC):
 
     @abstractmethod
     def relief_scores(self, index: ReliefIndexArrays, queries: ReliefQueryArrays, cand: DeviceArray, n_cand: int,
-                      n_query: int, rotations: int, out: DeviceArray) -> None:
+                      n_query: int, rotations: int, n_cells: int, out: DeviceArray) -> None:
         """out (n_query * n_cand * rotations,) uint32 <- the code of query q against
-        candidate cand[c] (a vertex id; cand: (n_cand,) int32) at rotation r, at
-        (q * n_cand + c) * rotations + r: a score code, OVER or INVALID
-        (geosynth.relief_match)."""
+        candidate sample index.samples[cand[c]] (cand: (n_cand,) int32 sample slots) at
+        rotation r, at (q * n_cand + c) * rotations + r: a score code, OVER or INVALID
+        (geosynth.relief_match); n_cells: stencil cells per sample."""
 
     @abstractmethod
     def relief_update(self, ids: DeviceArray, pos: DeviceArray, colour: DeviceArray, n: int, mark: int,
