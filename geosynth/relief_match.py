@@ -42,7 +42,7 @@ WEIGHT_ONE = 4096  # the largest weight of a query
 CLAMP = 1 << 13  # |p - partner| components clamp here (quanta)
 QUANTA_PER_LENGTH = 1 << 11  # quanta per max(longest edge, shape normalization)
 MAX_WALK = 256  # most steps of one partner walk
-STENCIL_K = 6  # walk-start stencil: (2K+1)^2 points a median edge apart in each sample's tangent plane
+STENCIL_K = 5  # walk-start stencil: (2K+1)^2 points a median edge apart in each sample's tangent plane
 COLOUR_RANGE2 = 3 * 255 * 255
 
 
@@ -275,7 +275,7 @@ class ReliefIndex:
         fan_start, _ = _csr(keys[order], pairs[order], v)
         fan = pairs[order]
         # walk starts (a hint only: any start gives a deterministic partner, the same on every device)
-        from scipy.spatial import cKDTree
+        from pykdtree.kdtree import KDTree
 
         cell = float(np.median(np.linalg.norm(base[e[:, 0]] - base[e[:, 1]], axis=1)))
         cell = cell if cell > 0 else quantum
@@ -283,7 +283,7 @@ class ReliefIndex:
         a, b = np.meshgrid(k, k, indexing="ij")
         pts = (base[samples, None, :] + a.reshape(1, -1, 1) * frames[samples, None, 0]
                + b.reshape(1, -1, 1) * frames[samples, None, 1])
-        stencil = cKDTree(base).query(pts.reshape(-1, 3))[1].reshape(len(samples), -1)
+        stencil = KDTree(base).query(pts.reshape(-1, 3), k=1)[1].reshape(len(samples), -1)
         return _Host(bq, fq, pq, cq, usable.copy(), adj_start, adj.astype(np.int32), fan_start, fan.astype(np.int32),
                      samples.astype(np.int32), stencil.astype(np.int32), cell)
 
