@@ -133,10 +133,10 @@ __kernel void relief_scores(
         const l3 p = l3_add(m, to_world(o[3], o[4], o[5], fu, fv, fn));
         const int k0 = cell[j * rotations + r];
         int cur = k0 >= 0 ? stencil[(size_t)slot * n_cells + k0] : (chain[j] ? prev : s);
+        const l3 dc = l3_sub(l3_at(base, cur), m);
+        long bd = l3_dot(dc, dc);  // the current vertex's distance, carried between steps
         for (int steps = 0; steps < R_MAX_WALK; ++steps) {
             int best = cur;
-            const l3 dc = l3_sub(l3_at(base, cur), m);
-            long bd = l3_dot(dc, dc);
             const int k1 = adj_start[cur + 1];
             for (int k = adj_start[cur]; k < k1; ++k) {
                 const int u = adj[k];

@@ -164,9 +164,9 @@ def relief_scores_kernel(
         elif chain[j] != 0:
             cur = prev
         steps = int(0)
+        bd = _len2(_at3(base, cur) - m)
         while steps < MAX_WALK:
             best = cur
-            bd = _len2(_at3(base, cur) - m)
             for k in range(adj_start[cur], adj_start[cur + 1]):
                 u = adj[k]
                 du = _len2(_at3(base, u) - m)
