@@ -10,12 +10,14 @@ the 2-ring neighbourhoods of boundary targets (sigma = 5 * spacing / 6.4). Rows:
 - ``score``: every query against every sample and rotation, no limit (the whole
   neighbourhood evaluated for every valid triple);
 - ``find_matches``: the same queries as GrowSurface asks them (MaxErrThreshold 0.1,
-  tolerance 1.1): probe passes on every 64th and 8th sample set each query's limit, then
+  tolerance 1.1): probe passes on every 256th and 16th sample set each query's limit, then
   the pruned full pass (the same BestMatches as ``score``, checked here);
 - ``oracle``: the NumPy twin on a subset of the samples.
 
-The last column projects the whole completion's FindMatches (7,200 targets x 12,852
-samples x 4) at the row's rate. Usage: python bench/bm_relief_match.py [--quick]
+The note projects the whole completion's FindMatches (7,200 targets x 12,852 samples x 4)
+at the row's rate, by wall time and by CPU time (process time, all threads: the machine
+is shared, so wall times vary with the other load; 2 idle cores give ~CPU s / 2 for
+opencl, CPU s for Warp's one-thread cpu). Usage: python bench/bm_relief_match.py [--quick]
 [--devices cpu,opencl:0:0] [--out FILE]
 """
 
@@ -94,6 +96,18 @@ def boundary_queries(index, triangles, count: int, spacing: float, w: int = 2):
                                     rotations=4, mu=0.5)
 
 
+def _cpu_time(fn, repeats: int) -> float:
+    """Smallest process time (all threads) of ``fn()`` over ``repeats`` calls, after one
+    warm-up call."""
+    fn()
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        best = min(best, time.process_time() - t0)
+    return best
+
+
 def main(argv=None) -> int:
     from geosynth import relief_match as rm
     from geosynth.reference import relief_scores_reference
@@ -115,13 +129,16 @@ def main(argv=None) -> int:
         codes_by_device[dev] = full.codes
         t_score = time_call(lambda: rm.score(index, q), min_time=0.5, max_repeats=5)
         t_find = time_call(lambda: rm.find_matches(index, q, 0.1), min_time=0.5, max_repeats=5)
+        c_score = _cpu_time(lambda: rm.score(index, q), 2)
+        c_find = _cpu_time(lambda: rm.find_matches(index, q, 0.1), 5)
         got = rm.find_matches(index, q, 0.1)
         same = all(np.array_equal(m.code, full.codes[i][full.codes[i] <= np.floor(1.1 * full.codes[i][full.valid[i]].min())])
                    for i, m in enumerate(got) if len(m.code))
         entries = np.diff(q.qstart).mean()
-        for name, t in (("score", t_score), ("find_matches", t_find)):
+        for name, t, c in (("score", t_score, c_score), ("find_matches", t_find, c_find)):
             rows.append(Row("FindMatches", f"geosynth {dev} {name}", t, triples, 0, False,
-                            f"Fig. 9 FindMatches ~{FIG9_TRIPLES / (triples / t):.0f} s"))
+                            f"CPU {c * 1e3:.0f} ms/call; Fig. 9 FindMatches ~{FIG9_TRIPLES * t / triples:.0f} s wall, "
+                            f"~{FIG9_TRIPLES * c / triples:.0f} CPU s"))
         notes.append(f"- {dev}: index build {build:.2f} s (V = {index.n_vertices}, S = {len(index.samples)}), "
                      f"{entries:.1f} textured neighbours a query, valid triples {full.valid.mean():.1%}, "
                      f"find_matches = unpruned selection: {same}, matches a query "
