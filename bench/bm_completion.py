@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     lines += ["", f"Paper, Table 1 (% difference of the volume integral): {PAPER_TABLE1}. Targets: volume "
               f"difference <= {VOLUME_TARGET_PCT:g}% and below the random baseline's; RGB histogram distance below "
               "the baseline's. The baseline gives each target a uniformly random sample's displacement and colour. "
-              "Slope = mean |h_i - h_j| / |b_i - b_j| over the edges within a part (random copies break it)."]
+              "Slope = mean |h_i - h_j| / |b_i - b_j| over vertex pairs of a part about one target spacing apart (random copies break it)."]
     scale_text = "--quick" if args.quick else "full size"
     return finish("\n".join(lines), args, title=f"# bm_completion: M4 relief and colour completion ({scale_text})")
 

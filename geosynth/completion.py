@@ -28,8 +28,9 @@ Quality (printed with every run, :class:`CompletionReport`): the paper's mean in
 (mean |h| of the signed distance h to the fit) of the captured part and of the completed
 part with the % difference; the RGB histogram distance (16 bins a channel, half the L1
 distance of the normalized histograms, mean over R, G, B, in [0, 1]); the mean relief
-slope |h_i - h_j| / |b_i - b_j| over the triangulation's edges within each part (which sees
-whether neighbouring displacements fit together); each beside a baseline that gives every
+slope |h_i - h_j| / |b_i - b_j| over pairs of vertices of a part about one target spacing
+apart (the capture's own vertices, the completed targets; it sees whether neighbouring
+displacements fit together); each beside a baseline that gives every
 target the displacement (in the frames) and colour of a uniformly random sample.
 """
 
@@ -146,7 +147,7 @@ class CompletionReport:
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
                        f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline "
                        f"{q['volume_baseline']:.5g} ({q['volume_baseline_diff_pct']:.2f}%)")
-            out.append(f"relief slope across edges: original {q['slope_original']:.4g}, completed "
+            out.append(f"relief slope at the target spacing: original {q['slope_original']:.4g}, completed "
                        f"{q['slope_completed']:.4g} ({q['slope_diff_pct']:.1f}% difference); random baseline "
                        f"{q['slope_baseline']:.4g} ({q['slope_baseline_diff_pct']:.1f}%)")
             if q.get("hist_distance") is not None:
@@ -322,13 +323,24 @@ def _histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _slopes(rs: ReliefSurface, h: np.ndarray, part: np.ndarray) -> float:
-    f = rs.faces
-    e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
-    e = e[part[e[:, 0]] & part[e[:, 1]]]
-    if len(e) == 0:
+    """Mean |h_i - h_j| / |b_i - b_j| over the pairs of the part's vertices whose base
+    positions lie 0.7 to 1.3 target spacings apart (one scale for every part, so that the
+    oversampled capture and the coarser targets compare)."""
+    from scipy.spatial import cKDTree
+
+    ids = np.flatnonzero(part)
+    if len(ids) < 2:
         return float("nan")
-    length = np.linalg.norm(rs.base[e[:, 0]] - rs.base[e[:, 1]], axis=1)
-    return float(np.mean(np.abs(h[e[:, 0]] - h[e[:, 1]]) / np.maximum(length, 1e-300)))
+    b = rs.base[ids]
+    pairs = cKDTree(b).query_pairs(1.3 * rs.spacing, output_type="ndarray")
+    if len(pairs) == 0:
+        return float("nan")
+    length = np.linalg.norm(b[pairs[:, 0]] - b[pairs[:, 1]], axis=1)
+    keep = length >= 0.7 * rs.spacing
+    if not keep.any():
+        return float("nan")
+    hi, hj = h[ids[pairs[keep, 0]]], h[ids[pairs[keep, 1]]]
+    return float(np.mean(np.abs(hi - hj) / length[keep]))
 
 
 def _pct(a: float, b: float) -> float:
@@ -350,7 +362,7 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
     hb = h.copy()
     hb[tgt] = fit.distance(rs.base[tgt] + dbase)
     orig = np.zeros(rs.n_vertices, bool)
-    orig[:n_s] = True
+    orig[:n0] = True  # the capture's own vertices
     part = np.zeros(rs.n_vertices, bool)
     part[done] = True
     allt = np.zeros(rs.n_vertices, bool)
@@ -524,45 +536,61 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
 TINT = np.array([230, 90, 40], dtype=np.float64)
 
 
-def _view_for(surface: CompletedSurface):
-    """(azimuth, elevation) looking at the completed part's centre from outside."""
+def _direction_view(d: np.ndarray, lift: float = 0.35):
+    d = d / max(np.linalg.norm(d), 1e-12) + lift * np.array([0.0, 0.0, 1.0])
+    d = d / np.linalg.norm(d)
+    return math.degrees(math.atan2(d[1], d[0])), float(np.clip(math.degrees(math.asin(np.clip(d[2], -1, 1))), -80, 80))
+
+
+def _views(surface: CompletedSurface):
+    """(azimuth, elevation) of three views: the captured part from outside, the completed
+    part from outside, and a view across the border between them."""
     fit = surface.fit
     p = surface.positions.astype(np.float64)
-    centre = 0.5 * (p.min(0) + p.max(0))
     if fit.kind == "plane":
-        n = fit.axis
+        n = fit.axis if fit.axis[2] >= 0 else -fit.axis
         d = n + 0.6 * np.array([0.0, -1.0, 0.0]) if abs(n[2]) > 0.5 else n
-    else:
-        d = p[surface.completed].mean(0) - centre if surface.completed.any() else np.array([1.0, 0, 0])
+        v = _direction_view(d, 0.0)
+        return v, v, v
+    centre = fit.center if fit.kind == "sphere" else fit.center + (p - fit.center).mean(0) @ fit.axis * fit.axis
+
+    def outward(mask):
+        d = p[mask].mean(0) - centre if mask.any() else np.array([1.0, 0, 0])
         if fit.kind == "cylinder":
             d = d - (d @ fit.axis) * fit.axis
-        d = d / max(np.linalg.norm(d), 1e-12)
-        d = d + 0.35 * np.array([0.0, 0.0, 1.0])
-    d = d / np.linalg.norm(d)
-    az = math.degrees(math.atan2(d[1], d[0]))
-    el = math.degrees(math.asin(np.clip(d[2], -1, 1)))
-    return az, float(np.clip(el, -80, 80))
+        if np.linalg.norm(d) < 1e-9:
+            d = fit.basis[0]
+        return d / np.linalg.norm(d)
+
+    a, b = outward(~surface.completed), outward(surface.completed)
+    mid = a + b
+    if np.linalg.norm(mid) < 1e-6:  # opposite halves: look across the border
+        mid = np.cross(fit.axis if fit.kind == "cylinder" else np.array([0.0, 0, 1]), a)
+    return _direction_view(a), _direction_view(b), _direction_view(mid)
 
 
 def completion_picture(surface: CompletedSurface, size=(420, 380)) -> np.ndarray:
-    """The captured part, the completion, and the completion with the completed part
-    tinted orange, side by side, each seen from the completed part's side.
+    """Three views side by side: the captured part seen from its outside, the completion
+    seen from the completed part's side, and the completion across the border with the
+    completed part tinted orange.
 
     Returns:
         (H, W, 3) uint8 picture.
     """
     from geosynth.render import render_mesh, side_by_side
 
-    view = _view_for(surface)
+    v_cap, v_done, v_border = _views(surface)
     grey = np.full((len(surface), 3), 200, np.uint8)
     colors = surface.colors if surface.colors is not None else grey
     keep = ~surface.completed[surface.faces].any(1)
     bounds = np.stack([surface.positions.min(0), surface.positions.max(0)])
-    captured = render_mesh((surface.positions, surface.faces[keep]), size=size, view=view, vertex_colors=colors,
+    captured = render_mesh((surface.positions, surface.faces[keep]), size=size, view=v_cap, vertex_colors=colors,
                            bounds=bounds)
-    full = render_mesh((surface.positions, surface.faces), size=size, view=view, vertex_colors=colors, bounds=bounds)
+    full = render_mesh((surface.positions, surface.faces), size=size, view=v_done, vertex_colors=colors,
+                       bounds=bounds)
     tinted = colors.astype(np.float64)
     tinted[surface.completed] = 0.45 * tinted[surface.completed] + 0.55 * TINT
-    tint = render_mesh((surface.positions, surface.faces), size=size, view=view,
+    tint = render_mesh((surface.positions, surface.faces), size=size, view=v_border,
                        vertex_colors=np.clip(np.round(tinted), 0, 255).astype(np.uint8), bounds=bounds)
-    return side_by_side([captured, full, tint], labels=["captured", "completed", "completed part tinted"])
+    return side_by_side([captured, full, tint], labels=["captured", "completion (completed side)",
+                                                        "completed part tinted"])
