@@ -542,8 +542,12 @@ def _check_pair(index: ReliefIndex, queries: ReliefQueries) -> None:
 
 def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_cand: int,
             limits: np.ndarray) -> np.ndarray:
+    from geosynth.memory import require
+
     b = index.backend
     nq, r = queries.n_queries, queries.rotations
+    per_query = 3 * n_cand * r * 4  # the device codes, their host copy and one array the caller derives
+    require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query, what=f"FindMatches codes of {nq} queries x {n_cand} samples x {r}")
     qa = _upload_queries(b, queries, limits)
     out = b.empty((nq * n_cand * r,), np.uint32)
     b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, index.host.stencil.shape[1], out)

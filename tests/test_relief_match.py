@@ -240,3 +240,15 @@ def test_bad_input_one_line_errors(one_device):
     err(lambda: rm.score(index, q, limits=[1, 2]), "limits")
     err(lambda: rm.find_matches(index, q, float("nan")), "max_err")
     err(lambda: index.update([1], [[np.nan, 0, 0]]), "displacements", "not finite")
+
+
+def test_too_many_queries_for_memory_is_refused_up_front(one_device, monkeypatch):
+    from geosynth import memory
+
+    kw = _plane(n=8)
+    index = rm.ReliefIndex.build(**kw, device=one_device)
+    q = _queries(index, kw, count=3)
+    monkeypatch.setattr(memory, "available_memory", lambda: 2 * 3 * len(index.samples) * 4 * 4)
+    with pytest.raises(memory.MemoryBudgetError) as e:
+        rm.score(index, q)
+    assert e.value.option == "queries" and e.value.largest == 2 and "\n" not in str(e.value)
