@@ -366,7 +366,7 @@ def _upload_index(backend, host: _Host):
         pos=up(host.pos.astype(i32).reshape(-1)), colour=up(host.colour.astype(i32).reshape(-1)),
         usable=up(host.usable.astype(i32)), adj_start=up(host.adj_start), adj=up(host.adj),
         fan_start=up(host.fan_start), fan=up(host.fan.reshape(-1)), samples=up(host.samples),
-        stencil=up(host.stencil.reshape(-1)))
+        stencil=up(np.ascontiguousarray(host.stencil.T).reshape(-1)))
 
 
 @dataclass(frozen=True)
@@ -550,7 +550,7 @@ def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_can
     require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query, what=f"FindMatches codes of {nq} queries x {n_cand} samples x {r}")
     qa = _upload_queries(b, queries, limits)
     out = b.empty((nq * n_cand * r,), np.uint32)
-    b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, index.host.stencil.shape[1], out)
+    b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, len(index.samples), out)
     return b.to_host(out).reshape(nq, n_cand, r)
 
 

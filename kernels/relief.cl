@@ -98,7 +98,7 @@ __kernel void relief_scores(
     __global const int* fan_start,  // (V + 1,) first fan triangle of each vertex
     __global const int* fan,        // (F * 2,) other two corners of each fan triangle
     __global const int* samples,    // (S,) vertex id of each sample
-    __global const int* stencil,    // (S * n_cells,) walk starts per sample and cell
+    __global const int* stencil,    // (n_cells * S,) walk starts, cell-major
     __global const int* qstart,     // (Q + 1,) first entry of each query
     __global const int* rel,        // (E * R * 6,) moved-base and displacement coefficients
     __global const int* chain,      // (E,) 1: walk from the previous partner
@@ -112,7 +112,7 @@ __kernel void relief_scores(
     const int n_cand,               // candidates
     const int n_query,              // queries
     const int rotations,            // R
-    const int n_cells,              // stencil cells per sample
+    const int n_samples,            // S (the stencil's row length)
     __global uint* out)             // (Q * n_cand * R,) codes
 {
     const int g = get_global_id(0), q = get_global_id(1);
@@ -132,7 +132,7 @@ __kernel void relief_scores(
         const l3 m = l3_add(bs, to_world(o[0], o[1], o[2], fu, fv, fn));
         const l3 p = l3_add(m, to_world(o[3], o[4], o[5], fu, fv, fn));
         const int k0 = cell[j * rotations + r];
-        int cur = k0 >= 0 ? stencil[(size_t)slot * n_cells + k0] : (chain[j] ? prev : s);
+        int cur = k0 >= 0 ? stencil[(size_t)k0 * n_samples + slot] : (chain[j] ? prev : s);
         const l3 dc = l3_sub(l3_at(base, cur), m);
         long bd = l3_dot(dc, dc);  // the current vertex's distance, carried between steps
         for (int steps = 0; steps < R_MAX_WALK; ++steps) {

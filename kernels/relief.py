@@ -122,7 +122,7 @@ def relief_scores_kernel(
     fan_start: wp.array(dtype=wp.int32),  # (V + 1,) first fan triangle of each vertex
     fan: wp.array(dtype=wp.int32),  # (F * 2,) other two corners of each fan triangle
     samples: wp.array(dtype=wp.int32),  # (S,) vertex id of each sample
-    stencil: wp.array(dtype=wp.int32),  # (S * n_cells,) walk starts per sample and cell
+    stencil: wp.array(dtype=wp.int32),  # (n_cells * S,) walk starts, cell-major
     qstart: wp.array(dtype=wp.int32),  # (Q + 1,) first entry of each query
     rel: wp.array(dtype=wp.int32),  # (E * R * 6,) moved-base and displacement coefficients
     chain: wp.array(dtype=wp.int32),  # (E,) 1: walk from the previous partner
@@ -136,7 +136,7 @@ def relief_scores_kernel(
     n_cand: int,  # candidates
     n_query: int,  # queries
     rotations: int,  # R
-    n_cells: int,  # stencil cells per sample
+    n_samples: int,  # S (the stencil's row length)
     out: wp.array(dtype=wp.uint32),  # (Q * n_cand * R,) codes
 ):
     q, c, r = wp.tid()
@@ -160,7 +160,7 @@ def relief_scores_kernel(
         cur = s
         k0 = cell[j * rotations + r]
         if k0 >= 0:
-            cur = stencil[slot * n_cells + k0]
+            cur = stencil[k0 * n_samples + slot]
         elif chain[j] != 0:
             cur = prev
         steps = int(0)

@@ -380,8 +380,9 @@ class ReliefIndexArrays(ArrayGroup):
         fan_start: (V + 1,) first triangle of each vertex in fan; fan: (F * 2,) the other
             two corners of each triangle around a vertex.
         samples: (S,) vertex id of each candidate sample.
-        stencil: (S * n_cells,) where a partner walk starts: the vertex nearest each point
-            of a (2K+1)^2 grid in the sample's tangent plane.
+        stencil: (n_cells * S,) where a partner walk starts, cell-major (neighbouring
+            work-items read neighbouring entries): the vertex nearest each point of a
+            (2K+1)^2 grid in the sample's tangent plane.
     """
 
     base: DeviceArray
@@ -430,11 +431,11 @@ class ReliefOps(ABC):
 
     @abstractmethod
     def relief_scores(self, index: ReliefIndexArrays, queries: ReliefQueryArrays, cand: DeviceArray, n_cand: int,
-                      n_query: int, rotations: int, n_cells: int, out: DeviceArray) -> None:
+                      n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
         """out (n_query * n_cand * rotations,) uint32 <- the code of query q against
         candidate sample index.samples[cand[c]] (cand: (n_cand,) int32 sample slots) at
         rotation r, at (q * n_cand + c) * rotations + r: a score code, OVER or INVALID
-        (geosynth.relief_match); n_cells: stencil cells per sample."""
+        (geosynth.relief_match); n_samples: S, the stencil's row length."""
 
     @abstractmethod
     def relief_update(self, ids: DeviceArray, pos: DeviceArray, colour: DeviceArray, n: int, mark: int,
