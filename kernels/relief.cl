@@ -86,7 +86,8 @@ R_INLINE long code_of(long acc_s, long acc_c, double ks, double kc)
 }
 
 // Range: (round_up(n_cand * rotations, 64), n_query), local (64, 1); work-item
-// (c * rotations + r, q).
+// (r * n_cand + c, q): neighbouring work-items share the rotation, so they read the same
+// query entries and neighbouring stencil entries.
 __kernel void relief_scores(
     __global const int* base,       // (V * 3,) base positions, quanta
     __global const int* frame,      // (V * 9,) frame rows u, v, n, FRAME_ONE scale
@@ -117,7 +118,7 @@ __kernel void relief_scores(
 {
     const int g = get_global_id(0), q = get_global_id(1);
     if (g >= n_cand * rotations || q >= n_query) return;
-    const int c = g / rotations, r = g - c * rotations;
+    const int r = g / n_cand, c = g - r * n_cand;
     const int slot = cand[c];
     const int s = samples[slot];
     const l3 fu = l3_at(frame, 3 * s), fv = l3_at(frame, 3 * s + 1), fn = l3_at(frame, 3 * s + 2);

@@ -11,7 +11,8 @@ are single IEEE double multiplications and divisions of exact integers, truncate
 every device returns the same bits (geosynth.relief_match defines the codes and
 geosynth.reference.relief_scores_reference is the NumPy twin).
 
-- ``relief_scores_kernel`` (launched over (Q, n_cand, R)): for query q, candidate s =
+- ``relief_scores_kernel`` (launched over (Q, R, n_cand): neighbouring threads share the
+  rotation, as the OpenCL work-items): for query q, candidate s =
   cand[c], rotation r, each entry j of q in order: the moved base m = base[s] + the
   entry's first three coefficients on s's frame rows (rounded: (x + 2^13) >> 14), the
   moved point p = m + the last three; the partner = a greedy walk over adj from
@@ -139,7 +140,7 @@ def relief_scores_kernel(
     n_samples: int,  # S (the stencil's row length)
     out: wp.array(dtype=wp.uint32),  # (Q * n_cand * R,) codes
 ):
-    q, c, r = wp.tid()
+    q, r, c = wp.tid()
     slot = cand[c]
     s = samples[slot]
     fu = _at3(frame, 3 * s)
