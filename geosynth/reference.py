@@ -712,7 +712,8 @@ def relief_scores_reference(index, queries, limits=None, slots=None) -> np.ndarr
     from geosynth import relief_match as rm
 
     h = index.host
-    lim = rm._check_limits(limits, queries.n_queries)
+    lim = (np.full(queries.n_queries, rm.CODE_CAP, np.int64) if limits is None
+           else np.clip(np.asarray(limits).astype(np.int64), -1, rm.CODE_CAP))
     slots = np.arange(len(index.samples)) if slots is None else np.asarray(slots)
     cand = index.samples[slots].astype(np.int64)
     v = len(h.base)
