@@ -114,6 +114,9 @@ class CompletionReport:
             ``slope_completed``, ``slope_diff_pct``, ``slope_baseline``,
             ``slope_baseline_diff_pct``.
         device: the device string the matching ran on.
+        picked_original: the fraction of completed targets that copied one of the
+            capture's own vertices (the rest copied oversampling vertices); n_original: how
+            many of the samples are the capture's own vertices.
     """
 
     fit: str
@@ -132,6 +135,8 @@ class CompletionReport:
     failed_matches: int
     quality: dict = dc_field(default_factory=dict)
     device: str = "cpu"
+    picked_original: float = float("nan")
+    n_original: int = 0
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
@@ -142,7 +147,9 @@ class CompletionReport:
                f"{self.device}",
                f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
                f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
-               f"{self.final_max_error:.4g}), {self.unreached} targets unreached"]
+               f"{self.final_max_error:.4g}), {self.unreached} targets unreached; "
+               f"{self.picked_original:.0%} of the copies from the capture's own vertices "
+               f"({self.samples and self.n_original / self.samples:.0%} of the samples)"]
         if q:
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
                        f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline "
@@ -213,6 +220,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
     sigmas = {w: (2 * w + 1) * rs.spacing / 6.4 for w in range(1, window + 1)}
     err = float(max_error)
     stats = dict(lists=0, passes_without_progress=0, failed_matches=0)
+    picked = np.full(n_v, -1, dtype=np.int64)  # the sample each target copied
     per_launch = max(1, min(_MAX_BATCH, _BATCH_CODES // max(1, n_s * rotations)))
     bar = None
     if progress:
@@ -269,6 +277,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                             asmp = np.asarray(accepted_s, dtype=np.int64)
                             d = index.transfer(asmp, np.asarray(accepted_r, dtype=np.int64), at, rotations)
                             rs.displacement[at] = d
+                            picked[at] = asmp
                             col = None
                             if rs.colors is not None:
                                 rs.colors[at] = rs.colors[asmp]
@@ -285,6 +294,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
         if bar is not None:
             bar.close()
     stats["final_max_error"] = err
+    stats["picked"] = picked
     return textured, stats
 
 
@@ -480,7 +490,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         spacing=rs.spacing, window=int(window), rotations=int(rotations), mu=use_mu, max_error=float(max_error),
         final_max_error=stats["final_max_error"], lists=stats["lists"],
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
-        quality=quality, device=str(dev))
+        quality=quality, device=str(dev), n_original=rs.n_original,
+        picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
+        if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,
                    total=time.perf_counter() - t0)
     timings["targets_per_s"] = rs.n_targets / max(timings["grow"], 1e-9)
