@@ -12,6 +12,7 @@ The public API; everything else is private. Every operation takes ``device=``
 - M2, point-set geometry textures: :func:`synthesize_point_texture` (:class:`PointTextureReport`) from a
   :class:`PointTexture` (:func:`point_texture_example` for the built-ins).
 - M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
+- M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`).
 - Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
   :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
   ``Field.load`` / ``Field.save``.
@@ -74,6 +75,8 @@ _LAZY = {
     "PointTextureReport": "geosynth.geometry_texture",
     "PointTexture": "geosynth.point_textures",
     "point_texture_example": "geosynth.point_examples",
+    "complete_surface": "geosynth.completion",
+    "CompletionReport": "geosynth.completion",
 }
 
 __all__ = sorted([

@@ -642,6 +642,58 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
     p.set_defaults(func=_cmd_pointtexture)
 
 
+# ------------------------------------------------------------------ complete (M4)
+
+
+def _cmd_complete(args: argparse.Namespace) -> int:
+    from geosynth.completion_examples import COMPLETION_EXAMPLES
+
+    if (args.input is None) == (args.example is None):
+        raise ValueError(f"give an INPUT capture (a mesh or a PLY point set, colours optional) or --example NAME "
+                         f"(one of {', '.join(COMPLETION_EXAMPLES)}), not both or neither.")
+    inputs = []
+    if args.input is not None:
+        inputs.append(_check_input(args.input, "INPUT", "give a mesh or PLY point set of the captured part, or "
+                                   f"--example NAME ({', '.join(COMPLETION_EXAMPLES)})"))
+    out = Path(args.output)
+    png, png_what = _picture_path(args)
+    _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    _check_device(args.device)
+
+    from geosynth.completion import complete_surface, completion_picture, write_completion
+    from geosynth.completion_examples import completion_example
+    from geosynth.files import write_image
+
+    say = (lambda *a, **k: None) if args.quiet else print
+    region = None
+    if args.example:
+        ex = completion_example(args.example, seed=args.seed)
+        capture, label, region = ex.capture, f"example {args.example} ({ex.note})", ex.region
+        fit = args.fit or ex.fit
+        window = args.window or ex.window
+    else:
+        from geosynth.pointsets import read_geometry
+
+        capture, label, fit, window = read_geometry(args.input), args.input, args.fit, args.window or 3
+    mu = args.mu if args.mu is not None else 0.5
+    say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
+        f"captured points, fit {fit or 'by residual'}, window {window}, rotations {args.rotations}, mu {mu:g}, "
+        f"seed {args.seed}, device {args.device or 'auto'}")
+    surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
+                                                rotations=args.rotations, mu=mu, max_error=args.max_error,
+                                                device=args.device, seed=args.seed, progress=not args.quiet)
+    for line in report.lines():
+        say(line)
+    say("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items() if k != "targets_per_s")
+        + f"; {timings['targets_per_s']:.1f} targets/s")
+    write_completion(out, surface, inputs=inputs)
+    say(f"written {out}: {len(surface):,} vertices ({int(surface.completed.sum()):,} completed), "
+        f"{len(surface.faces):,} faces")
+    write_image(png, completion_picture(surface), inputs=inputs)
+    say(f"picture: {png} (captured part, completion, completed part tinted)")
+    return 0
+
+
 # ------------------------------------------------------------------ the parser
 
 
@@ -756,6 +808,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--png", default=None, help="picture of the slices, .png or .jpg (default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_field)
+
+    p = sub.add_parser("complete", parents=[common],
+                       help="M4: complete the relief and colour of a partly captured surface")
+    p.add_argument("input", nargs="?", help="the captured part: a mesh or a PLY point set (colours optional)")
+    p.add_argument("--example", choices=["golf", "bark", "wave", "noise", "tower", "flat"],
+                   help="a built-in capture instead of INPUT")
+    p.add_argument("-o", "--output", required=True, help="the completed surface, .ply (mesh with colours)")
+    p.add_argument("--fit", choices=["plane", "sphere", "cylinder"], default=None,
+                   help="the underlying surface (default: chosen by residual; built-ins: their own)")
+    p.add_argument("--window", type=_int_type(1, 12), default=None,
+                   help="neighbourhood window W in edge rings, 1 to 12 (default 3; built-ins: their own)")
+    p.add_argument("--rotations", type=_int_type(1, 64), default=4,
+                   help="orientations tried about the normal, 1 to 64 (default 4)")
+    p.add_argument("--mu", type=_float_type(0, inclusive=True), default=None,
+                   help="weight of shape against colour, 0 to 1 (1: relief only; default 0.5)")
+    p.add_argument("--max-error", type=_float_type(0, inclusive=False), default=0.1,
+                   help="initial MaxErrThreshold on the normalized ssd, > 0 (default 0.1)")
+    p.add_argument("--device", **device)
+    p.add_argument("--seed", **seed)
+    p.add_argument("--png", default=None, help="picture: captured, completed, completed part tinted; .png or .jpg "
+                                               "(default: OUTPUT with .png)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_complete)
 
     p = sub.add_parser("demo", parents=[common], help="nearest-block search on a generated field, on every device")
     p.add_argument("--device", type=_device_type(allow_all=True), default="all",

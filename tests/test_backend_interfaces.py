@@ -19,6 +19,7 @@ from geosynth._backends.opencl_growth import OpenCLGrowthOps
 from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
 from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
+from geosynth._backends.opencl_relief import OpenCLReliefOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
 from geosynth._backends.warp_backend import WarpBackend
 from geosynth._backends.warp_cascade import WarpCascadeOps
@@ -26,6 +27,7 @@ from geosynth._backends.warp_growth import WarpGrowthOps
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
 from geosynth._backends.warp_pyramid import WarpPyramidOps
+from geosynth._backends.warp_relief import WarpReliefOps
 from geosynth._backends.warp_texel import WarpTexelOps
 
 # (interface, Warp implementation, OpenCL implementation)
@@ -37,6 +39,7 @@ FAMILIES = [
     (ifc.GrowthOps, WarpGrowthOps, OpenCLGrowthOps),
     (ifc.PyramidOps, WarpPyramidOps, OpenCLPyramidOps),
     (ifc.CascadeOps, WarpCascadeOps, OpenCLCascadeOps),
+    (ifc.ReliefOps, WarpReliefOps, OpenCLReliefOps),
 ]
 IDS = [f[0].__name__ for f in FAMILIES]
 
@@ -91,6 +94,7 @@ KERNEL_GROUPS = [
     ("growth", "match_coherent", (ifc.MatchInputs, ifc.MatchState, ifc.MatchScratch)),
     ("sdf_mesh", "mesh_distance_points", (ifc.MeshArrays,)),
     ("sdf_mesh", "mesh_distance_grid", (ifc.MeshArrays,)),
+    ("relief", "relief_scores", (ifc.ReliefIndexArrays, ifc.ReliefQueryArrays)),
 ]
 _WARP_NAMES = {"nxt": "next", "prv": "prev"}
 

@@ -460,3 +460,86 @@ class CascadeOps(ABC):
             out: (items * 3,) int32, per item its best SSD, that block's lattice index (-1:
                 none within the threshold) and the count of blocks it scored exactly.
         """
+# ------------------------------------------------------------------ M4 FindMatches (kernels/relief.*)
+# Breckon and Fisher, "3D Surface Relief and Colour Completion", Sec. 3, 6 and Appendix A.
+# Integer positions (quanta), frames (FRAME_ONE = 2^14 scale) and colours; the arithmetic
+# is geosynth.relief_match's (and docs/relief_match.md's).
+
+
+@dataclass(frozen=True)
+class ReliefIndexArrays(ArrayGroup):
+    """The triangulation FindMatches searches, V vertices, all int32, flat.
+
+    Attributes:
+        base: (V * 3,) base positions v - D(v), quanta.
+        frame: (V * 9,) rows u, v, n of each vertex's frame, FRAME_ONE scale.
+        pos: (V * 3,) full positions base + D, quanta (updated as targets get textured).
+        colour: (V * 3,) RGB 0..255 (updated).
+        usable: (V,) 0/1 may be a partner or a closest-triangle corner (the samples;
+            with partners="textured" also the textured targets, updated).
+        adj_start: (V + 1,) first neighbour of each vertex in adj; adj: (A,) vertex ids.
+        fan_start: (V + 1,) first triangle of each vertex in fan; fan: (F * 2,) the other
+            two corners of each triangle around a vertex.
+        samples: (S,) vertex id of each candidate sample.
+        stencil: (n_cells * S,) where a partner walk starts, cell-major (neighbouring
+            work-items read neighbouring entries): the vertex nearest each point of a
+            (2K+1)^2 grid in the sample's tangent plane.
+    """
+
+    base: DeviceArray
+    frame: DeviceArray
+    pos: DeviceArray
+    colour: DeviceArray
+    usable: DeviceArray
+    adj_start: DeviceArray
+    adj: DeviceArray
+    fan_start: DeviceArray
+    fan: DeviceArray
+    samples: DeviceArray
+    stencil: DeviceArray
+
+
+@dataclass(frozen=True)
+class ReliefQueryArrays(ArrayGroup):
+    """A batch of Q target neighbourhoods, E entries in all (R rotations).
+
+    Attributes:
+        qstart: (Q + 1,) int32 first entry of each query.
+        rel: (E * R * 6,) int32 per entry and rotation: moved-base coefficients (3) and
+            displacement coefficients (3) on the candidate's frame rows, quanta.
+        chain: (E,) int32 1: the partner walk starts at the previous entry's partner, 0: at
+            the candidate (where cell is -1).
+        cell: (E * R,) int32 the stencil cell the walk starts at, -1: none.
+        qcolour: (E * 3,) int32 RGB 0..255; qweight: (E,) int32 weights.
+        ks, kc: (Q,) float64 code coefficients of the shape and colour sums.
+        limit: (Q,) int64 a running code above it stops as OVER.
+    """
+
+    qstart: DeviceArray
+    rel: DeviceArray
+    chain: DeviceArray
+    cell: DeviceArray
+    qcolour: DeviceArray
+    qweight: DeviceArray
+    ks: DeviceArray
+    kc: DeviceArray
+    limit: DeviceArray
+
+
+class ReliefOps(ABC):
+    """M4's FindMatches: every query against every candidate sample and rotation (one
+    work-item per triple), and the scattered updates of texturing."""
+
+    @abstractmethod
+    def relief_scores(self, index: ReliefIndexArrays, queries: ReliefQueryArrays, cand: DeviceArray, n_cand: int,
+                      n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
+        """out (n_query * n_cand * rotations,) uint32 <- the code of query q against
+        candidate sample index.samples[cand[c]] (cand: (n_cand,) int32 sample slots) at
+        rotation r, at (q * n_cand + c) * rotations + r: a score code, OVER or INVALID
+        (geosynth.relief_match); n_samples: S, the stencil's row length."""
+
+    @abstractmethod
+    def relief_update(self, ids: DeviceArray, pos: DeviceArray, colour: DeviceArray, n: int, mark: int,
+                      index: ReliefIndexArrays) -> None:
+        """Vertices ids (n,) int32 get textured: index.pos <- pos (n * 3,) int32,
+        index.colour <- colour (n * 3,) int32, and index.usable <- 1 when mark is 1."""

@@ -21,6 +21,7 @@ from geosynth._backends.opencl_growth import OpenCLGrowthOps
 from geosynth._backends.opencl_mesh import OpenCLMeshOps
 from geosynth._backends.opencl_points import OpenCLPointsOps
 from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
+from geosynth._backends.opencl_relief import OpenCLReliefOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
 from geosynth.arrays import DeviceArray
 
@@ -73,6 +74,7 @@ def _read_source(name: str) -> str:
 PROGRAMS: tuple[tuple[str, bool], ...] = (
     ("ssd", False), ("ssd", True), ("growth", False), ("sdf_mesh", False), ("sdf_points", False),
     ("pyramid", True), ("cascade", True), ("texel", True),
+    ("relief", False),
 )
 
 
@@ -150,7 +152,7 @@ def build_all(platform_index: int, device_index: int) -> None:
             programs[pkey] = build_program(context, *pkey)
 
 
-class OpenCLBackend(OpenCLCascadeOps, OpenCLGrowthOps, OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexelOps, Backend):
+class OpenCLBackend(OpenCLCascadeOps, OpenCLGrowthOps, OpenCLMeshOps, OpenCLPointsOps, OpenCLPyramidOps, OpenCLTexelOps, OpenCLReliefOps, Backend):
     """PyOpenCL on ``"opencl:P:D"`` (platform P, device D)."""
 
     def __init__(self, platform_index: int, device_index: int):

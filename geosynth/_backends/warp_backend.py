@@ -17,6 +17,7 @@ from geosynth._backends.warp_growth import WarpGrowthOps
 from geosynth._backends.warp_mesh import WarpMeshOps
 from geosynth._backends.warp_points import WarpPointsOps
 from geosynth._backends.warp_pyramid import WarpPyramidOps
+from geosynth._backends.warp_relief import WarpReliefOps
 from geosynth._backends.warp_texel import WarpTexelOps
 from geosynth.arrays import DeviceArray
 from geosynth.kernels import ssd as ssd_kernels
@@ -31,7 +32,7 @@ _WARP_DTYPES = {
 }
 
 
-class WarpBackend(WarpCascadeOps, WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, Backend):
+class WarpBackend(WarpCascadeOps, WarpGrowthOps, WarpMeshOps, WarpPointsOps, WarpPyramidOps, WarpTexelOps, WarpReliefOps, Backend):
     """Warp on ``"cpu"`` or ``"cuda:N"``."""
 
     def __init__(self, name: str):

@@ -1,0 +1,608 @@
+"""How is the missing part grown? Breckon and Fisher, "Plausible 3D colour surface completion
+using non-parametric techniques": GrowSurface of Appendix A (Sec. 3), with the colour
+extension of Sec. 6, and the evaluation of Sec. 5 (Table 1: the mean integral of the
+volume between the fit and the surface, original vs completed part) and Sec. 6 (Fig. 13:
+RGB histograms of the original and completed parts).
+
+:func:`complete_surface` fits the underlying surface (:mod:`geosynth.surface_fit`),
+prepares samples, targets and their triangulation (:mod:`geosynth.relief_prep`), uploads
+the samples once (:class:`geosynth.relief_match.ReliefIndex`) and grows:
+
+- L = the untextured targets with a textured vertex among their edge neighbours, sorted
+  by decreasing number of textured vertices in their W_t-ring neighbourhood;
+- for each t in L: its matches (every sample x R rotations, within 1.1x the best score,
+  :func:`geosynth.relief_match.find_matches`), one picked with the seeded generator; if
+  its score is below MaxErrThreshold, t gets the match's displacement (and colour) and is
+  textured; otherwise t is skipped and its window W_t shrinks by one ring (not below 1);
+- a whole list without progress raises MaxErrThreshold by 10%.
+
+Batches. Ties in the count are broken by a greedy colouring in id order: targets of one
+count level are split into classes none of whose members lies within another's window
+(ring distance <= max(W_a, W_b)), processed class after class, by id within a class. A
+class is then scored in one launch per window size; the picks are made in list order
+afterwards. Since no member of a class is in another's neighbourhood, and a partner is
+valid only when it is a captured sample, this gives the same result as one target at a
+time in that order.
+
+Quality (printed with every run, :class:`CompletionReport`): the paper's mean integral
+(mean |h| of the signed distance h to the fit) of the captured part and of the completed
+part with the % difference; the RGB histogram distance (16 bins a channel, half the L1
+distance of the normalized histograms, mean over R, G, B, in [0, 1]); the mean relief
+slope |h_i - h_j| / |b_i - b_j| over pairs of vertices of a part about one target spacing
+apart (the capture's own vertices, the completed targets; it sees whether neighbouring
+displacements fit together); each beside a baseline that gives every
+target the displacement (in the frames) and colour of a uniformly random sample.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from geosynth.relief_prep import Capture, ReliefSurface, as_capture, prepare_relief, ring_neighbourhoods
+from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_surface, tangent_frames
+
+__all__ = ["CompletedSurface", "CompletionReport", "complete_surface", "completion_picture", "write_completion"]
+
+DEFAULT_WINDOW = 3
+DEFAULT_ROTATIONS = 4
+DEFAULT_MU = 0.5
+DEFAULT_MAX_ERROR = 0.1  # MaxErrThreshold on the [0, 1] normalized ssd (Efros and Leung's 0.1)
+TOLERANCE = 1.1  # matches within 1.1x the best (Appendix A)
+RELAX = 1.1  # MaxErrThreshold x 1.1 after a list without progress
+HIST_BINS = 16
+_MAX_BATCH = 64
+_BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
+
+
+@dataclass
+class CompletedSurface:
+    """The completed surface: the oversampled capture and the completed targets in one mesh.
+
+    Attributes:
+        positions: (V, 3) float32 positions ``base + D``.
+        normals: (V, 3) float32 unit vertex normals of the mesh.
+        colors: (V, 3) uint8 colours, or None when the capture had none.
+        faces: (F, 3) int32 triangles.
+        completed: (V,) bool, True for the targets (the completed part).
+        captured: (V,) bool, True for the capture's own vertices (not the oversampling's).
+        textured: (V,) bool, False only for targets the growth could not reach.
+        fit: the :class:`~geosynth.surface_fit.SurfaceFit`.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    colors: np.ndarray | None
+    faces: np.ndarray
+    completed: np.ndarray
+    captured: np.ndarray
+    textured: np.ndarray
+    fit: SurfaceFit
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def to_mesh(self):
+        """A ``trimesh.Trimesh`` (unprocessed) with the vertex colours."""
+        import trimesh
+
+        kw = {}
+        if self.colors is not None:
+            kw["vertex_colors"] = np.hstack([self.colors, np.full((len(self), 1), 255, np.uint8)])
+        return trimesh.Trimesh(self.positions, self.faces, process=False, **kw)
+
+
+@dataclass
+class CompletionReport:
+    """What a completion did and how good it is (:func:`complete_surface`).
+
+    Attributes:
+        fit: the fit's one-line description.
+        samples, targets, textured, unreached: counts (``samples`` after oversampling).
+        spacing: the target spacing (world units).
+        window, rotations, mu, max_error: the parameters; ``final_max_error`` the
+            MaxErrThreshold at the end.
+        lists, passes_without_progress, failed_matches: growth statistics.
+        quality: name -> value; keys ``volume_original``, ``volume_completed``,
+            ``volume_diff_pct``, ``volume_baseline``, ``volume_baseline_diff_pct``,
+            ``hist_distance``, ``hist_baseline`` (None without colour), ``slope_original``,
+            ``slope_completed``, ``slope_diff_pct``, ``slope_baseline``,
+            ``slope_baseline_diff_pct``.
+        device: the device string the matching ran on.
+        picked_original: the fraction of completed targets that copied one of the
+            capture's own vertices (the rest copied oversampling vertices); n_original: how
+            many of the samples are the capture's own vertices.
+    """
+
+    fit: str
+    samples: int
+    targets: int
+    textured: int
+    unreached: int
+    spacing: float
+    window: int
+    rotations: int
+    mu: float
+    max_error: float
+    final_max_error: float
+    lists: int
+    passes_without_progress: int
+    failed_matches: int
+    quality: dict = dc_field(default_factory=dict)
+    device: str = "cpu"
+    picked_original: float = float("nan")
+    n_original: int = 0
+
+    def lines(self) -> list[str]:
+        """The report as printed by the CLI."""
+        q = self.quality
+        out = [f"fit: {self.fit}",
+               f"samples {self.samples:,} (captured part oversampled once), targets {self.targets:,} at spacing "
+               f"{self.spacing:.4g}; window {self.window}, rotations {self.rotations}, mu {self.mu:g}, device "
+               f"{self.device}",
+               f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
+               f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
+               f"{self.final_max_error:.4g}), {self.unreached} targets unreached; "
+               f"{self.picked_original:.0%} of the copies from the capture's own vertices "
+               f"({self.samples and self.n_original / self.samples:.0%} of the samples)"]
+        if q:
+            out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
+                       f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline "
+                       f"{q['volume_baseline']:.5g} ({q['volume_baseline_diff_pct']:.2f}%)")
+            out.append(f"relief slope at the target spacing: original {q['slope_original']:.4g}, completed "
+                       f"{q['slope_completed']:.4g} ({q['slope_diff_pct']:.1f}% difference); random baseline "
+                       f"{q['slope_baseline']:.4g} ({q['slope_baseline_diff_pct']:.1f}%)")
+            if q.get("hist_distance") is not None:
+                out.append(f"RGB histogram distance original vs completed: {q['hist_distance']:.4f}; random "
+                           f"baseline {q['hist_baseline']:.4f} (0 = same histograms, 1 = disjoint)")
+        return out
+
+
+# ---------------------------------------------------------------------- checks
+
+
+def _check_params(window, rotations, mu, max_error, seed) -> None:
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+        raise ValueError(f"window must be an integer >= 1 (edge rings), got {window!r}.")
+    if isinstance(rotations, bool) or not isinstance(rotations, (int, np.integer)) or not 1 <= rotations <= 64:
+        raise ValueError(f"rotations must be an integer from 1 to 64, got {rotations!r}.")
+    if not isinstance(mu, (int, float, np.floating)) or not 0 <= float(mu) <= 1:
+        raise ValueError(f"mu must be a number in [0, 1] (1: relief only), got {mu!r}.")
+    if not isinstance(max_error, (int, float, np.floating)) or not (0 < float(max_error) < math.inf):
+        raise ValueError(f"max_error must be a finite number > 0, got {max_error!r}.")
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
+
+
+# ---------------------------------------------------------------------- growth
+
+
+def _classes(members: np.ndarray, w_t: np.ndarray, ring_ptr, ring_idx, ring_d, slot_of: np.ndarray) -> list[np.ndarray]:
+    """Greedy colouring, in id order, of targets none of which lies in another's window."""
+    colour = {}
+    classes: list[list[int]] = []
+    member_set = set(int(m) for m in members)
+    for t in sorted(member_set):
+        k = slot_of[t]
+        lo, hi = ring_ptr[k], ring_ptr[k + 1]
+        banned = set()
+        for a, d in zip(ring_idx[lo:hi], ring_d[lo:hi]):
+            a = int(a)
+            if a in colour and d <= max(w_t[k], w_t[slot_of[a]]):
+                banned.add(colour[a])
+        c = 0
+        while c in banned:
+            c += 1
+        colour[t] = c
+        if c == len(classes):
+            classes.append([])
+        classes[c].append(t)
+    return [np.asarray(c, dtype=np.int64) for c in classes]
+
+
+def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, max_error: float,
+          rng: np.random.Generator, progress: bool):
+    """GrowSurface (Appendix A); returns (textured (V,) bool, stats dict). Updates rs in place."""
+    n_v, n_s = rs.n_vertices, rs.n_samples
+    targets = np.arange(n_s, n_v, dtype=np.int64)
+    slot_of = np.full(n_v, -1, dtype=np.int64)
+    slot_of[targets] = np.arange(len(targets))
+    ring_ptr, ring_idx, ring_d = ring_neighbourhoods(rs.adjacency, targets, window)
+    adj_ptr, adj_idx = rs.adjacency
+    textured = np.zeros(n_v, dtype=bool)
+    textured[:n_s] = True
+    w_t = np.full(len(targets), window, dtype=np.int64)
+    sigmas = {w: (2 * w + 1) * rs.spacing / 6.4 for w in range(1, window + 1)}
+    err = float(max_error)
+    stats = dict(lists=0, passes_without_progress=0, failed_matches=0)
+    picked = np.full(n_v, -1, dtype=np.int64)  # the sample each target copied
+    per_launch = max(1, min(_MAX_BATCH, _BATCH_CODES // max(1, n_s * rotations)))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(targets), unit="target", desc="completion", leave=False)
+    try:
+        while True:
+            left = targets[~textured[targets]]
+            if len(left) == 0:
+                break
+            # boundary: untextured targets with a textured edge neighbour
+            deg = np.diff(adj_ptr)[left]
+            owner = np.repeat(np.arange(len(left)), deg)
+            nb = adj_idx[np.concatenate([np.arange(adj_ptr[t], adj_ptr[t + 1]) for t in left])] if len(left) else []
+            has = np.zeros(len(left), dtype=bool)
+            np.logical_or.at(has, owner, textured[nb])
+            boundary = left[has]
+            if len(boundary) == 0:
+                break  # the rest is not connected to the textured part
+            stats["lists"] += 1
+            # textured count in each one's W_t-ring
+            slots = slot_of[boundary]
+            counts = np.empty(len(boundary), dtype=np.int64)
+            for i, k in enumerate(slots):
+                lo, hi = ring_ptr[k], ring_ptr[k + 1]
+                sel = ring_d[lo:hi] <= w_t[k]
+                counts[i] = int(textured[ring_idx[lo:hi][sel]].sum())
+            progress_made = False
+            for level in np.unique(counts)[::-1]:
+                members = boundary[counts == level]
+                for cls in _classes(members, w_t, ring_ptr, ring_idx, ring_d, slot_of):
+                    for start in range(0, len(cls), per_launch):
+                        chunk = cls[start:start + per_launch]
+                        got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
+                                           rotations, mu, err)
+                        accepted_t, accepted_s, accepted_r = [], [], []
+                        for t, m in zip(chunk, got):  # picks in list order (one draw per non-empty match set)
+                            k = slot_of[t]
+                            if len(m.sample) == 0:
+                                stats["failed_matches"] += 1
+                                w_t[k] = max(1, w_t[k] - 1)
+                                continue
+                            j = int(rng.integers(len(m.sample)))
+                            if bool(m.accepted[j]):
+                                accepted_t.append(int(t))
+                                accepted_s.append(int(m.sample[j]))
+                                accepted_r.append(int(m.rotation[j]))
+                            else:
+                                stats["failed_matches"] += 1
+                                w_t[k] = max(1, w_t[k] - 1)
+                        if accepted_t:
+                            at = np.asarray(accepted_t, dtype=np.int64)
+                            asmp = np.asarray(accepted_s, dtype=np.int64)
+                            d = index.transfer(asmp, np.asarray(accepted_r, dtype=np.int64), at, rotations)
+                            rs.displacement[at] = d
+                            picked[at] = asmp
+                            col = None
+                            if rs.colors is not None:
+                                rs.colors[at] = rs.colors[asmp]
+                                col = rs.colors[at].astype(np.float64) / 255.0
+                            index.update(at, d, col)
+                            textured[at] = True
+                            progress_made = True
+                            if bar is not None:
+                                bar.update(len(at))
+            if not progress_made:
+                stats["passes_without_progress"] += 1
+                err *= RELAX
+    finally:
+        if bar is not None:
+            bar.close()
+    stats["final_max_error"] = err
+    stats["picked"] = picked
+    return textured, stats
+
+
+def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err):
+    """find_matches for a chunk of one class, one launch per window size; in chunk order."""
+    out = [None] * len(chunk)
+    ks = slot_of[chunk]
+    for w in np.unique(w_t[ks]):
+        pos = np.flatnonzero(w_t[ks] == w)
+        starts, lists = [0], []
+        for p in pos:
+            k = ks[p]
+            lo, hi = ring_ptr[k], ring_ptr[k + 1]
+            nbr = ring_idx[lo:hi][ring_d[lo:hi] <= w]
+            lists.append(nbr)
+            starts.append(starts[-1] + len(nbr))
+        queries = rm.neighbourhood_queries(index, chunk[pos], np.asarray(starts, dtype=np.int64),
+                                           np.concatenate(lists).astype(np.int64), sigmas[int(w)],
+                                           rotations=rotations, mu=mu)
+        for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=TOLERANCE)):
+            out[p] = m
+    return out
+
+
+# ---------------------------------------------------------------------- quality
+
+
+def _histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
+    edges = np.linspace(0, 256, HIST_BINS + 1)
+    total = 0.0
+    for c in range(3):
+        ha = np.histogram(a[:, c], edges)[0] / max(1, len(a))
+        hb = np.histogram(b[:, c], edges)[0] / max(1, len(b))
+        total += 0.5 * np.abs(ha - hb).sum()
+    return total / 3
+
+
+def _slopes(rs: ReliefSurface, h: np.ndarray, part: np.ndarray) -> float:
+    """Mean |h_i - h_j| / |b_i - b_j| over the pairs of the part's vertices whose base
+    positions lie 0.7 to 1.3 target spacings apart (one scale for every part, so that the
+    oversampled capture and the coarser targets compare)."""
+    from scipy.spatial import cKDTree
+
+    ids = np.flatnonzero(part)
+    if len(ids) < 2:
+        return float("nan")
+    b = rs.base[ids]
+    pairs = cKDTree(b).query_pairs(1.3 * rs.spacing, output_type="ndarray")
+    if len(pairs) == 0:
+        return float("nan")
+    length = np.linalg.norm(b[pairs[:, 0]] - b[pairs[:, 1]], axis=1)
+    keep = length >= 0.7 * rs.spacing
+    if not keep.any():
+        return float("nan")
+    hi, hj = h[ids[pairs[keep, 0]]], h[ids[pairs[keep, 1]]]
+    return float(np.mean(np.abs(hi - hj) / length[keep]))
+
+
+def _pct(a: float, b: float) -> float:
+    return 100.0 * abs(b - a) / abs(a) if a != 0 else (0.0 if b == 0 else math.inf)
+
+
+def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
+    fit = rs.fit
+    n_s, n0 = rs.n_samples, rs.n_original
+    tgt = np.arange(n_s, rs.n_vertices)
+    done = tgt[textured[tgt]]
+    h = fit.distance(rs.positions)
+    # baseline: each target takes a uniformly random sample's displacement (frame components) and colour
+    brng = np.random.default_rng([seed, 1])
+    pick = brng.integers(0, n_s, len(tgt))
+    comp = np.stack([(rs.displacement[pick] * rs.frame_u[pick]).sum(1), (rs.displacement[pick] * rs.frame_v[pick]).sum(1),
+                     (rs.displacement[pick] * rs.normals[pick]).sum(1)], 1)
+    dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
+    hb = h.copy()
+    hb[tgt] = fit.distance(rs.base[tgt] + dbase)
+    orig = np.zeros(rs.n_vertices, bool)
+    orig[:n0] = True  # the capture's own vertices
+    part = np.zeros(rs.n_vertices, bool)
+    part[done] = True
+    allt = np.zeros(rs.n_vertices, bool)
+    allt[tgt] = True
+    vo = float(np.mean(np.abs(h[:n0])))
+    vc = float(np.mean(np.abs(h[done]))) if len(done) else float("nan")
+    vb = float(np.mean(np.abs(hb[tgt])))
+    so, sc, sb = _slopes(rs, h, orig), _slopes(rs, h, part), _slopes(rs, hb, allt)
+    q = dict(volume_original=vo, volume_completed=vc, volume_diff_pct=_pct(vo, vc), volume_baseline=vb,
+             volume_baseline_diff_pct=_pct(vo, vb), slope_original=so, slope_completed=sc,
+             slope_diff_pct=_pct(so, sc), slope_baseline=sb, slope_baseline_diff_pct=_pct(so, sb),
+             hist_distance=None, hist_baseline=None)
+    if rs.colors is not None:
+        q["hist_distance"] = _histogram_distance(rs.colors[:n0], rs.colors[done])
+        q["hist_baseline"] = _histogram_distance(rs.colors[:n0], rs.colors[pick])
+    return q
+
+
+# ---------------------------------------------------------------------- the public function
+
+
+def _vertex_normals(positions: np.ndarray, faces: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    a, b, c = (positions[faces[:, i]] for i in range(3))
+    fn = np.cross(b - a, c - a)
+    vn = np.zeros_like(positions)
+    for i in range(3):
+        np.add.at(vn, faces[:, i], fn)
+    length = np.linalg.norm(vn, axis=1, keepdims=True)
+    return np.where(length > 0, vn / np.maximum(length, 1e-300), fallback)
+
+
+def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, window: int = DEFAULT_WINDOW,
+                     rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
+                     device: str | None = None, seed: int = 0, progress: bool = False,
+                     max_targets: int | None = 200_000, oversample: str = "butterfly"):
+    """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
+
+    Args:
+        capture: the captured part: a :class:`~geosynth.relief_prep.Capture`, a
+            ``trimesh.Trimesh`` (vertex colours kept), a :class:`~geosynth.pointsets.PointSet`
+            or an (N, 3) array; optional colours (N, 3) uint8.
+        fit: None (chosen by residual), "plane", "sphere", "cylinder", or a SurfaceFit.
+        region: ((low, high), (low, high)) parameter ranges to complete (plane: u, v
+            lengths with u = x, v = y for a plane z = c; sphere: azimuth and polar angle,
+            radians; cylinder: angle (radians) and height), or None: the plane's bounding
+            box, the cylinder's full circle over the captured height, the whole sphere.
+        window: W, the neighbourhood radius in edge rings (>= 1).
+        rotations: R, orientations tried about the normal (1..64).
+        mu: weight of shape against colour in [0, 1] (1: relief only).
+        max_error: the initial MaxErrThreshold on the [0, 1] normalized ssd.
+        device: the matching device ("cpu", "opencl", "cuda", "auto"/None).
+        seed: seed of the random picks (an int >= 0).
+        progress: show a progress bar over the targets.
+        max_targets: refuse a completion with more targets (None: no limit).
+        oversample: "butterfly" (default) or "midpoint" (the paper's coplanar midpoints);
+            see :func:`geosynth.relief_prep.prepare_relief`.
+
+    Returns:
+        (surface, report, timings): the :class:`CompletedSurface`, the
+        :class:`CompletionReport` (quality numbers included) and a dict of seconds
+        (``fit``, ``prepare``, ``index``, ``grow``, ``quality``, ``total``) plus
+        ``targets_per_s``.
+
+    Raises:
+        ValueError: bad parameters; a capture with NaN positions, colours of the wrong
+            length or fewer points than one neighbourhood; a fit that does not converge or
+            a named fit far from the data (with its residual); an empty region.
+    """
+    from geosynth import relief_match as rm
+    from geosynth.backend import resolve_device
+
+    t0 = time.perf_counter()
+    _check_params(window, rotations, mu, max_error, seed)
+    cap = as_capture(capture)
+    need = 3 * window * (window + 1) + 1  # vertices of one W-ring neighbourhood of a regular triangulation
+    if len(cap) < need:
+        raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {window} "
+                         f"({need} vertices); give a larger capture or a smaller window.")
+    dev = resolve_device(device or "auto")
+    if isinstance(fit, SurfaceFit):
+        sf = fit
+    elif fit is None or fit in FIT_KINDS:
+        sf = fit_surface(cap.positions, fit, normals=cap.normals)
+    else:
+        raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
+    t1 = time.perf_counter()
+    rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
+    t2 = time.perf_counter()
+    samples = np.arange(rs.n_samples, dtype=np.int64)
+    textured0 = np.zeros(rs.n_vertices, dtype=bool)
+    textured0[: rs.n_samples] = True
+    colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
+    use_mu = float(mu) if rs.colors is not None else 1.0
+    index = rm.ReliefIndex.build(rs.base, rs.normals, rs.displacement, textured0, rs.faces, samples,
+                                 colours=colours, device=dev)
+    t3 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress)
+    t4 = time.perf_counter()
+    quality = _quality(rs, textured, int(seed))
+    t5 = time.perf_counter()
+    positions = rs.positions
+    completed = np.zeros(rs.n_vertices, bool)
+    completed[rs.n_samples:] = True
+    captured = np.zeros(rs.n_vertices, bool)
+    captured[: rs.n_original] = True
+    surface = CompletedSurface(
+        positions=positions.astype(np.float32),
+        normals=_vertex_normals(positions, rs.faces, rs.normals).astype(np.float32),
+        colors=None if rs.colors is None else rs.colors.copy(),
+        faces=rs.faces.astype(np.int32), completed=completed, captured=captured, textured=textured.copy(), fit=sf)
+    report = CompletionReport(
+        fit=sf.describe(), samples=rs.n_samples, targets=rs.n_targets,
+        textured=int(textured[rs.n_samples:].sum()), unreached=int((~textured[rs.n_samples:]).sum()),
+        spacing=rs.spacing, window=int(window), rotations=int(rotations), mu=use_mu, max_error=float(max_error),
+        final_max_error=stats["final_max_error"], lists=stats["lists"],
+        passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
+        quality=quality, device=str(dev), n_original=rs.n_original,
+        picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
+        if textured[rs.n_samples:].any() else float("nan"))
+    timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,
+                   total=time.perf_counter() - t0)
+    timings["targets_per_s"] = rs.n_targets / max(timings["grow"], 1e-9)
+    return surface, report, timings
+
+
+# ---------------------------------------------------------------------- output
+
+
+def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inputs=()) -> Path:
+    """Write the completed surface as a binary PLY mesh, atomically.
+
+    Vertex properties: x, y, z, nx, ny, nz (float32), red, green, blue (uchar, when
+    coloured), completed (uchar: 1 for the completed part); faces as vertex_indices.
+
+    Args:
+        path: the .ply file.
+        surface: the :class:`CompletedSurface`.
+        inputs: files never to overwrite.
+
+    Returns:
+        The path written.
+    """
+    from plyfile import PlyData, PlyElement
+
+    from geosynth.files import atomic_write, check_output
+
+    out = check_output(path, inputs=inputs, suffixes=(".ply",), what="completion output")
+    layout = [(c, "<f4") for c in ("x", "y", "z", "nx", "ny", "nz")]
+    if surface.colors is not None:
+        layout += [(c, "u1") for c in ("red", "green", "blue")]
+    layout.append(("completed", "u1"))
+    v = np.empty(len(surface), dtype=layout)
+    for i, c in enumerate("xyz"):
+        v[c] = surface.positions[:, i]
+    for i, c in enumerate(("nx", "ny", "nz")):
+        v[c] = surface.normals[:, i]
+    if surface.colors is not None:
+        for i, c in enumerate(("red", "green", "blue")):
+            v[c] = surface.colors[:, i]
+    v["completed"] = surface.completed.astype(np.uint8)
+    f = np.empty(len(surface.faces), dtype=[("vertex_indices", "i4", (3,))])
+    f["vertex_indices"] = surface.faces
+    data = PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(f, "face")], text=False, byte_order="<")
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as fh:
+            data.write(fh)
+
+    return atomic_write(out, write, inputs=inputs)
+
+
+TINT = np.array([230, 90, 40], dtype=np.float64)
+
+
+def _direction_view(d: np.ndarray, lift: float = 0.35):
+    d = d / max(np.linalg.norm(d), 1e-12) + lift * np.array([0.0, 0.0, 1.0])
+    d = d / np.linalg.norm(d)
+    return math.degrees(math.atan2(d[1], d[0])), float(np.clip(math.degrees(math.asin(np.clip(d[2], -1, 1))), -80, 80))
+
+
+def _views(surface: CompletedSurface):
+    """(azimuth, elevation) of three views: the captured part from outside, the completed
+    part from outside, and a view across the border between them."""
+    fit = surface.fit
+    p = surface.positions.astype(np.float64)
+    if fit.kind == "plane":
+        n = fit.axis if fit.axis[2] >= 0 else -fit.axis
+        d = n + 0.6 * np.array([0.0, -1.0, 0.0]) if abs(n[2]) > 0.5 else n
+        v = _direction_view(d, 0.0)
+        return v, v, v
+    centre = fit.center if fit.kind == "sphere" else fit.center + (p - fit.center).mean(0) @ fit.axis * fit.axis
+
+    def outward(mask):
+        d = p[mask].mean(0) - centre if mask.any() else np.array([1.0, 0, 0])
+        if fit.kind == "cylinder":
+            d = d - (d @ fit.axis) * fit.axis
+        if np.linalg.norm(d) < 1e-9:
+            d = fit.basis[0]
+        return d / np.linalg.norm(d)
+
+    a, b = outward(~surface.completed), outward(surface.completed)
+    mid = a + b
+    if np.linalg.norm(mid) < 1e-6:  # opposite halves: look across the border
+        mid = np.cross(fit.axis if fit.kind == "cylinder" else np.array([0.0, 0, 1]), a)
+    return _direction_view(a), _direction_view(b), _direction_view(mid)
+
+
+def completion_picture(surface: CompletedSurface, size=(420, 380)) -> np.ndarray:
+    """Three views side by side: the captured part seen from its outside, the completion
+    seen from the completed part's side, and the completion across the border with the
+    completed part tinted orange.
+
+    Returns:
+        (H, W, 3) uint8 picture.
+    """
+    from geosynth.render import render_mesh, side_by_side
+
+    v_cap, v_done, v_border = _views(surface)
+    grey = np.full((len(surface), 3), 200, np.uint8)
+    colors = surface.colors if surface.colors is not None else grey
+    keep = ~surface.completed[surface.faces].any(1)
+    bounds = np.stack([surface.positions.min(0), surface.positions.max(0)])
+    captured = render_mesh((surface.positions, surface.faces[keep]), size=size, view=v_cap, vertex_colors=colors,
+                           bounds=bounds)
+    full = render_mesh((surface.positions, surface.faces), size=size, view=v_done, vertex_colors=colors,
+                       bounds=bounds)
+    tinted = colors.astype(np.float64)
+    tinted[surface.completed] = 0.45 * tinted[surface.completed] + 0.55 * TINT
+    tint = render_mesh((surface.positions, surface.faces), size=size, view=v_border,
+                       vertex_colors=np.clip(np.round(tinted), 0, 255).astype(np.uint8), bounds=bounds)
+    return side_by_side([captured, full, tint], labels=["captured", "completion (completed side)",
+                                                        "completed part tinted"])

@@ -1,0 +1,342 @@
+"""Which smooth surface underlies the capture? Breckon and Fisher, "Plausible 3D colour
+surface completion using non-parametric techniques", Sec. 3 (the underlying geometric
+surface fit and its completion) and Sec. 3's deterministic local reference frames.
+
+Least-squares fits of a plane, a sphere or a cylinder to captured points, chosen by
+residual or named; the projection of points onto the fit, its normal, a 2D parameter
+domain in length units (plane: (u, v); sphere: (azimuth, polar) angles; cylinder:
+(angle, height)), the paper's tangent frame and the region of the fit to complete.
+
+- Plane: centroid + the singular vector of least variance.
+- Sphere: the algebraic fit ``|p|^2 = 2 c . p + d`` refined by Gauss-Newton on the
+  geometric distance ``|p - c| - r`` (``scipy.optimize.least_squares``).
+- Cylinder: axis candidates (the direction of least variance of the normals, and the
+  three principal axes of the points), a circle fitted to the points projected along
+  each, then the geometric distance ``dist(p, axis) - r`` refined over direction,
+  centre and radius; the candidate with the lowest residual wins.
+- Choice (``kind=None``): the simplest model (plane, sphere, cylinder in that order)
+  whose RMS residual is within 25% of the best one's; a sphere or cylinder whose
+  radius is over 50x the capture's extent is a plane and is dropped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["FIT_KINDS", "SurfaceFit", "fit_surface", "tangent_frames"]
+
+FIT_KINDS = ("plane", "sphere", "cylinder")
+_CHOICE_SLACK = 1.25  # a simpler model within 25% of the best residual is preferred
+_FLAT_RADIUS = 50.0  # radius / extent above which a sphere or cylinder is a plane
+_FAR_RELATIVE = 0.05  # a named fit is far when its RMS > 5% of the extent ...
+_FAR_FACTOR = 3.0  # ... and > 3x the best fit's RMS
+
+
+def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's deterministic frames (Sec. 3): for a unit normal n = (x, y, z), if |x|
+    is the smallest component u = (0, -z, y); if |y|, u = (z, 0, -x); if |z|, u = (-y, x, 0)
+    (the same construct cyclically);
+    u normalized and v = n x u. Ties go to the first axis.
+
+    Args:
+        normals: (N, 3) unit normals (float64 or float32).
+
+    Returns:
+        (u, v): two (N, 3) float64 arrays, unit, orthogonal to n and to each other.
+    """
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    a = np.abs(n)
+    k = np.argmin(a, axis=1)  # first minimum on ties
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    zero = np.zeros_like(x)
+    u = np.where((k == 0)[:, None], np.stack([zero, -z, y], 1),
+                 np.where((k == 1)[:, None], np.stack([z, zero, -x], 1), np.stack([-y, x, zero], 1)))
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    v = np.cross(n, u)
+    return u, v
+
+
+@dataclass(frozen=True)
+class SurfaceFit:
+    """A fitted plane, sphere or cylinder.
+
+    Attributes:
+        kind: "plane", "sphere" or "cylinder".
+        center: (3,) float64: the plane's point nearest the world origin, the sphere's
+            centre, or a point on the cylinder's axis (at height 0).
+        axis: (3,) unit float64: the plane's normal, the cylinder's axis direction
+            (the sphere's polar axis, for its angles).
+        radius: the sphere's or cylinder's radius (inf for a plane).
+        basis: (2, 3) float64: two unit vectors orthogonal to ``axis`` (the plane's u and
+            v directions: u along world axis k+1 (cyclically) projected, where k is the
+            normal's largest component, so that a plane z = c has u = x, v = y; the zero azimuth of a sphere or cylinder is basis[0]).
+        rms: RMS geometric residual of the capture to the fit (the capture's units).
+        extent: the capture's bounding-box diagonal.
+    """
+
+    kind: str
+    center: np.ndarray
+    axis: np.ndarray
+    radius: float
+    basis: np.ndarray
+    rms: float
+    extent: float
+
+    # ------------------------------------------------------------------ geometry
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance of (N, 3) points to the fit, positive on the normal's side (outside)."""
+        p = np.asarray(points, dtype=np.float64) - self.center
+        if self.kind == "plane":
+            return p @ self.axis
+        if self.kind == "sphere":
+            return np.linalg.norm(p, axis=1) - self.radius
+        radial = p - np.outer(p @ self.axis, self.axis)
+        return np.linalg.norm(radial, axis=1) - self.radius
+
+    def normal(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 unit outward normals of the fit at the points' projections."""
+        p = np.asarray(points, dtype=np.float64) - self.center
+        if self.kind == "plane":
+            return np.broadcast_to(self.axis, p.shape).copy()
+        if self.kind == "cylinder":
+            p = p - np.outer(p @ self.axis, self.axis)
+        r = np.linalg.norm(p, axis=1, keepdims=True)
+        out = p / np.maximum(r, 1e-300)
+        bad = r[:, 0] < 1e-12  # on the axis / at the centre: any direction orthogonal to the axis
+        out[bad] = self.basis[0]
+        return out
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 closest points of the fit to (N, 3) points."""
+        p = np.asarray(points, dtype=np.float64)
+        return p - self.distance(p)[:, None] * self.normal(p)
+
+    def to_param(self, points: np.ndarray) -> np.ndarray:
+        """(N, 2) float64 parameters of the points' projections.
+
+        plane: (u, v) lengths along ``basis``; sphere: (azimuth in [0, 2 pi), polar angle in
+        [0, pi] from ``axis``); cylinder: (angle in [0, 2 pi), height along ``axis``).
+        """
+        p = np.asarray(points, dtype=np.float64) - self.center
+        a, b = p @ self.basis[0], p @ self.basis[1]
+        if self.kind == "plane":
+            return np.stack([a, b], 1)
+        az = np.mod(np.arctan2(b, a), 2 * np.pi)
+        h = p @ self.axis
+        if self.kind == "cylinder":
+            return np.stack([az, h], 1)
+        polar = np.arctan2(np.hypot(a, b), h)
+        return np.stack([az, polar], 1)
+
+    def from_param(self, param: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 points of the fit at (N, 2) parameters (the inverse of :meth:`to_param`)."""
+        q = np.asarray(param, dtype=np.float64).reshape(-1, 2)
+        e0, e1 = self.basis
+        if self.kind == "plane":
+            return self.center + q[:, :1] * e0 + q[:, 1:] * e1
+        ca, sa = np.cos(q[:, :1]), np.sin(q[:, :1])
+        if self.kind == "cylinder":
+            return self.center + self.radius * (ca * e0 + sa * e1) + q[:, 1:] * self.axis
+        sp, cp = np.sin(q[:, 1:]), np.cos(q[:, 1:])
+        return self.center + self.radius * (sp * (ca * e0 + sa * e1) + cp * self.axis)
+
+    def describe(self) -> str:
+        """One line: the kind, its parameters and the residual."""
+        c = ", ".join(f"{x:.4g}" for x in self.center)
+        a = ", ".join(f"{x:.3f}" for x in self.axis)
+        if self.kind == "plane":
+            return f"plane through ({c}), normal ({a}), RMS residual {self.rms:.4g}"
+        if self.kind == "sphere":
+            return f"sphere centre ({c}), radius {self.radius:.4g}, RMS residual {self.rms:.4g}"
+        return f"cylinder axis ({a}) through ({c}), radius {self.radius:.4g}, RMS residual {self.rms:.4g}"
+
+    def default_region(self, param: np.ndarray) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The region completed by default, from the captured part's (N, 2) parameters:
+        the plane's bounding box; the cylinder's full circle over the captured height
+        range; the whole sphere."""
+        if self.kind == "plane":
+            return (float(param[:, 0].min()), float(param[:, 0].max())), (float(param[:, 1].min()),
+                                                                          float(param[:, 1].max()))
+        if self.kind == "cylinder":
+            return (0.0, 2 * math.pi), (float(param[:, 1].min()), float(param[:, 1].max()))
+        return (0.0, 2 * math.pi), (0.0, math.pi)
+
+
+# ---------------------------------------------------------------------- fitting
+
+
+def _canonical(d: np.ndarray) -> np.ndarray:
+    """A unit direction with its largest-magnitude component positive (a sign convention)."""
+    d = d / np.linalg.norm(d)
+    return -d if d[np.argmax(np.abs(d))] < 0 else d
+
+
+def _orthonormal(axis: np.ndarray) -> np.ndarray:
+    u, v = tangent_frames(axis[None])
+    return np.stack([u[0], v[0]])
+
+
+def _plane(p: np.ndarray, normals: np.ndarray | None, extent: float) -> SurfaceFit:
+    c = p.mean(0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    n = _canonical(vt[2])
+    if normals is not None and float(np.sum(normals @ n)) < 0:
+        n = -n  # the capture's normals say which side is outside
+    # (u, v) in world terms: with the normal mostly along world axis k, u is world axis
+    # k+1 (cyclically) projected into the plane and v = n x u, so that a plane z = c has
+    # u = x, v = y; the origin is the plane's point nearest the world origin.
+    k = (int(np.argmax(np.abs(n))) + 1) % 3
+    e0 = np.eye(3)[k] - n[k] * n
+    e0 /= np.linalg.norm(e0)
+    basis = np.stack([e0, np.cross(n, e0)])
+    rms = float(np.sqrt(np.mean(((p - c) @ n) ** 2)))
+    return SurfaceFit("plane", n * float(c @ n), n, math.inf, basis, rms, extent)
+
+
+def _sphere(p: np.ndarray, extent: float) -> SurfaceFit | str:
+    from scipy.optimize import least_squares
+
+    a = np.hstack([2 * p, np.ones((len(p), 1))])
+    sol, *_ = np.linalg.lstsq(a, (p ** 2).sum(1), rcond=None)
+    c0 = sol[:3]
+    r2 = sol[3] + c0 @ c0
+    if not np.isfinite(r2) or r2 <= 0:
+        return "the algebraic sphere fit has no real radius (the points may be coplanar)"
+    x0 = np.concatenate([c0, [math.sqrt(r2)]])
+
+    def res(x):
+        return np.linalg.norm(p - x[:3], axis=1) - x[3]
+
+    out = least_squares(res, x0, method="lm", max_nfev=200, x_scale="jac")
+    if not out.success or not np.all(np.isfinite(out.x)) or out.x[3] <= 0:
+        return f"Gauss-Newton did not converge ({out.message})"
+    c, r = out.x[:3], float(out.x[3])
+    axis = np.array([0.0, 0.0, 1.0])
+    rms = float(np.sqrt(np.mean(res(out.x) ** 2)))
+    return SurfaceFit("sphere", c, axis, r, _orthonormal(axis), rms, extent)
+
+
+def _circle(q: np.ndarray) -> tuple[np.ndarray, float] | None:
+    a = np.hstack([2 * q, np.ones((len(q), 1))])
+    sol, *_ = np.linalg.lstsq(a, (q ** 2).sum(1), rcond=None)
+    r2 = sol[2] + sol[:2] @ sol[:2]
+    if not np.isfinite(r2) or r2 <= 0:
+        return None
+    return sol[:2], math.sqrt(r2)
+
+
+def _cylinder_from(p: np.ndarray, d: np.ndarray, extent: float):
+    from scipy.optimize import least_squares
+
+    d = d / np.linalg.norm(d)
+    basis = _orthonormal(d)
+    q = p @ basis.T
+    circ = _circle(q)
+    if circ is None:
+        return None, "the circle fit across the axis has no real radius"
+    cq, r0 = circ
+    c0 = cq @ basis
+    # Parameters: axis direction as d + a*b0 + b*b1 (normalized), centre as c0 + e*b0 + f*b1, radius.
+    def unpack(x):
+        dd = d + x[0] * basis[0] + x[1] * basis[1]
+        dd = dd / np.linalg.norm(dd)
+        return dd, c0 + x[2] * basis[0] + x[3] * basis[1], x[4]
+
+    def res(x):
+        dd, cc, r = unpack(x)
+        w = p - cc
+        radial = w - np.outer(w @ dd, dd)
+        return np.linalg.norm(radial, axis=1) - r
+
+    out = least_squares(res, np.array([0, 0, 0, 0, r0], dtype=np.float64), method="lm", max_nfev=400,
+                        x_scale="jac")
+    if not out.success or not np.all(np.isfinite(out.x)) or out.x[4] <= 0:
+        return None, f"Gauss-Newton did not converge ({out.message})"
+    dd, cc, r = unpack(out.x)
+    dd = _canonical(dd)
+    # centre: the axis point level with the capture's lowest point along the axis (height 0 there)
+    cc = cc + ((p - cc) @ dd).min() * dd
+    rms = float(np.sqrt(np.mean(res(out.x) ** 2)))
+    return SurfaceFit("cylinder", cc, dd, float(r), _orthonormal(dd), rms, extent), None
+
+
+def _cylinder(p: np.ndarray, normals: np.ndarray | None, extent: float) -> SurfaceFit | str:
+    c = p.mean(0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    candidates = [vt[0], vt[1], vt[2]]
+    if normals is not None:
+        nn = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+        _, vecs = np.linalg.eigh(nn.T @ nn)
+        candidates.insert(0, vecs[:, 0])
+    best, why = None, "no axis candidate gave a cylinder"
+    for d in candidates:
+        fit, reason = _cylinder_from(p, d, extent)
+        if fit is None:
+            why = reason
+        elif best is None or fit.rms < best.rms:
+            best = fit
+    return best if best is not None else why
+
+
+def fit_surface(points: np.ndarray, kind: str | None = None, normals: np.ndarray | None = None) -> SurfaceFit:
+    """Fit the underlying smooth surface to a capture by least squares (Sec. 3).
+
+    Args:
+        points: (N, 3) finite positions of the captured part, N >= 6.
+        kind: "plane", "sphere", "cylinder", or None to choose by residual (the simplest
+            model within 25% of the lowest RMS residual).
+        normals: optional (N, 3) normals; they give the cylinder its first axis candidate.
+
+    Returns:
+        The :class:`SurfaceFit`.
+
+    Raises:
+        ValueError: an unknown kind; fewer than 6 points; a fit that does not converge
+            (the reason); a named fit far from the data: RMS residual over 5% of the
+            capture's extent and over 3x the best model's, with both residuals.
+    """
+    if kind is not None and kind not in FIT_KINDS:
+        raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)} or None (chosen by residual), got {kind!r}.")
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 6:
+        raise ValueError(f"a surface fit needs at least 6 points of shape (N, 3), got shape {p.shape}.")
+    if not np.isfinite(p).all():
+        raise ValueError("the capture's positions have NaN or inf values; remove those points.")
+    extent = float(np.linalg.norm(p.max(0) - p.min(0)))
+    if extent <= 0:
+        raise ValueError("the capture's points all coincide; no surface can be fitted.")
+    spread = np.linalg.svd(p - p.mean(0), compute_uv=False)
+    if spread[1] <= 1e-9 * spread[0]:
+        raise ValueError("the capture's points lie on a line; no surface can be fitted (give a surface patch).")
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != p.shape or not np.isfinite(normals).all():
+            normals = None
+    fits: dict[str, SurfaceFit] = {"plane": _plane(p, normals, extent)}
+    reasons: dict[str, str] = {}
+    for name, make in (("sphere", lambda: _sphere(p, extent)), ("cylinder", lambda: _cylinder(p, normals, extent))):
+        got = make()
+        if isinstance(got, str):
+            reasons[name] = got
+        elif got.radius > _FLAT_RADIUS * extent:
+            reasons[name] = f"radius {got.radius:.4g} is over {_FLAT_RADIUS:g}x the extent (a plane)"
+        else:
+            fits[name] = got
+    if kind is not None and kind not in fits:
+        raise ValueError(f"the {kind} fit did not converge: {reasons[kind]}; name another fit or leave it to the "
+                         f"residual (fit=None).")
+    best = min(fits.values(), key=lambda f: f.rms)
+    if kind is None:
+        for name in FIT_KINDS:
+            if name in fits and fits[name].rms <= _CHOICE_SLACK * best.rms + 1e-12 * extent:
+                return fits[name]
+    chosen = fits[kind]
+    if chosen.rms > _FAR_RELATIVE * extent and chosen.rms > _FAR_FACTOR * best.rms:
+        raise ValueError(f"the named {kind} fit is far from the capture: RMS residual {chosen.rms:.4g} "
+                         f"({chosen.rms / extent:.1%} of the capture's extent {extent:.4g}), while the {best.kind} "
+                         f"fit has {best.rms:.4g}; name the {best.kind} fit or leave it to the residual (fit=None).")
+    return chosen

@@ -1,0 +1,181 @@
+"""End-to-end relief and colour completion (Breckon and Fisher, "Plausible 3D colour surface
+completion using non-parametric techniques", Sec. 3-6 and Appendix A): the wave keeps its
+amplitude and period, a flat capture completes flat, seeds and devices, bad input, files."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import ONE_DEVICE
+from geosynth.completion import complete_surface, completion_picture, write_completion
+from geosynth.relief_prep import Capture
+
+AMPLITUDE, PERIOD = 0.08, 0.5
+
+
+def _hex(width, height, delta):
+    dy = delta * math.sqrt(3) / 2
+    j, i = np.mgrid[0:int(round(height / dy)) + 1, 0:int(round(width / delta)) + 1]
+    x = (i + 0.5 * (j % 2)) * delta
+    q = np.stack([x.ravel(), (j * dy).ravel()], 1)
+    return q[q[:, 0] <= width + 1e-9]
+
+
+def _wave_capture(seed=0, width=1.0, height=0.6, delta=0.05):
+    """Two periods of h = A cos(2 pi x / L) on [0, 1) x [0, 0.6] (even about the centre, so the
+    least-squares plane is level), colours following h."""
+    rng = np.random.default_rng(seed)
+    q = _hex(width - delta / 2, height, delta)
+    h = AMPLITUDE * np.cos(2 * math.pi * q[:, 0] / PERIOD)
+    t = (h / AMPLITUDE + 1) / 2
+    col = np.clip(np.stack([60 + 160 * t, 80 + 100 * t, 160 - 80 * t], 1) + rng.normal(0, 4, (len(q), 3)), 0, 255)
+    return Capture(np.stack([q[:, 0], q[:, 1], h], 1), col.astype(np.uint8))
+
+
+WAVE_REGION = ((0.0, 1.5), (0.0, 0.6))
+
+
+def _sine_fit(x, h):
+    """(amplitude, period) of the best sine h ~ a sin(2 pi x / L) + b cos(...) + c over L."""
+    best = None
+    for period in np.linspace(0.3, 0.8, 501):
+        k = 2 * math.pi / period
+        a = np.stack([np.sin(k * x), np.cos(k * x), np.ones_like(x)], 1)
+        coef, res, *_ = np.linalg.lstsq(a, h, rcond=None)
+        r = float(((a @ coef - h) ** 2).sum())
+        if best is None or r < best[0]:
+            best = (r, math.hypot(coef[0], coef[1]), period)
+    return best[1], best[2]
+
+
+@pytest.fixture(scope="module")
+def wave_run():
+    return complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3, device=ONE_DEVICE, seed=0)
+
+
+def test_wave_keeps_amplitude_and_period(wave_run):
+    surface, report, timings = wave_run
+    assert report.unreached == 0 and report.targets > 50
+    done = surface.completed
+    p = surface.positions[done].astype(np.float64)
+    h = surface.fit.distance(p)
+    x = surface.fit.to_param(p)[:, 0]
+    amp, period = _sine_fit(x, h)
+    assert abs(amp - AMPLITUDE) <= 0.1 * AMPLITUDE, amp
+    assert abs(period - PERIOD) <= 0.1 * PERIOD, period
+    q = report.quality
+    assert q["volume_diff_pct"] < 10
+    assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"]  # neighbours fit together, unlike random copies
+    assert q["hist_distance"] is not None and q["hist_distance"] < 0.5
+    assert timings["grow"] > 0 and timings["targets_per_s"] > 0
+
+
+def test_report_lines_and_outputs(wave_run, tmp_path):
+    surface, report, _ = wave_run
+    text = "\n".join(report.lines())
+    assert "volume integral" in text and "random baseline" in text and "RGB histogram" in text
+    out = write_completion(tmp_path / "w.ply", surface)
+    from plyfile import PlyData
+
+    ply = PlyData.read(str(out))
+    assert ply["vertex"].count == len(surface) and ply["face"].count == len(surface.faces)
+    assert int(np.asarray(ply["vertex"]["completed"]).sum()) == int(surface.completed.sum())
+    img = completion_picture(surface, size=(160, 140))
+    assert img.dtype == np.uint8 and img.shape[2] == 3 and img.shape[1] > 3 * 160
+    with pytest.raises(ValueError, match="must end in .ply"):
+        write_completion(tmp_path / "w.obj", surface)
+
+
+def test_flat_input_completes_flat(one_device):
+    j, i = np.mgrid[0:12, 0:12]
+    p = np.stack([i.ravel() * 0.05, j.ravel() * 0.05, np.full(144, 0.3)], 1)
+    surface, report, _ = complete_surface(p, fit="plane", region=((0.0, 0.85), (0.0, 0.55)), window=2,
+                                          device=one_device)
+    assert report.targets > 20 and report.unreached == 0
+    assert np.abs(surface.positions[surface.completed, 2] - 0.3).max() < 1e-6
+    assert report.quality["hist_distance"] is None  # no colour given
+
+
+def _small(seed):
+    rng = np.random.default_rng(seed)
+    q = _hex(0.6, 0.45, 0.05)
+    h = 0.03 * rng.standard_normal(len(q))
+    col = rng.integers(0, 256, (len(q), 3)).astype(np.uint8)
+    return Capture(np.stack([q[:, 0], q[:, 1], h], 1), col)
+
+
+def test_same_seed_same_output_on_every_device(device_pair):
+    a, b = device_pair
+    cap, region = _small(3), ((0.0, 0.9), (0.0, 0.45))
+    sa, ra, _ = complete_surface(cap, fit="plane", region=region, window=2, device=a, seed=5)
+    sb, rb, _ = complete_surface(cap, fit="plane", region=region, window=2, device=b, seed=5)
+    assert np.array_equal(sa.positions, sb.positions)
+    assert np.array_equal(sa.colors, sb.colors)
+    assert ra.failed_matches == rb.failed_matches and ra.lists == rb.lists
+
+
+def test_a_different_seed_differs(one_device):
+    cap, region = _small(3), ((0.0, 0.9), (0.0, 0.45))
+    s0, _, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=0)
+    s0b, _, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=0)
+    s1, _, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=1)
+    assert np.array_equal(s0.positions, s0b.positions) and np.array_equal(s0.colors, s0b.colors)
+    assert not np.array_equal(s0.colors, s1.colors)
+
+
+def test_bad_input(one_device):
+    cap = _small(0)
+    region = ((0.0, 0.9), (0.0, 0.45))
+    with pytest.raises(ValueError, match="fewer than one neighbourhood"):
+        complete_surface(cap.positions[:20], fit="plane", window=3, device=one_device)
+    bad = cap.positions.copy()
+    bad[7, 1] = np.nan
+    with pytest.raises(ValueError, match=r"NaN or inf coordinates \(the first: index 7\)"):
+        complete_surface(bad, device=one_device)
+    with pytest.raises(ValueError, match=r"colours must have shape \(\d+, 3\)"):
+        complete_surface(Capture(cap.positions, cap.colors[:-1]), device=one_device)
+    with pytest.raises(ValueError, match=r"far from the capture: RMS residual"):
+        d = np.random.default_rng(0).normal(size=(400, 3))
+        complete_surface(d / np.linalg.norm(d, axis=1, keepdims=True), fit="plane", device=one_device)
+    t = np.linspace(0, 1, 60)
+    thin = np.stack([t, 2 * t, 3 * t], 1) + np.random.default_rng(0).normal(0, 1e-3, (60, 3))
+    with pytest.raises(ValueError, match="did not converge"):
+        complete_surface(thin, fit="sphere", device=one_device)
+    with pytest.raises(ValueError, match="is empty"):
+        complete_surface(cap, fit="plane", region=((0.1, 0.3), (0.1, 0.3)), device=one_device)
+    with pytest.raises(ValueError, match="is empty"):
+        complete_surface(cap, fit="plane", region=((0.5, 0.1), (0.0, 0.3)), device=one_device)
+    for kw, msg in [(dict(window=0), "window"), (dict(rotations=0), "rotations"), (dict(mu=1.5), "mu"),
+                    (dict(seed=-1), "seed"), (dict(fit="cone"), "fit")]:
+        with pytest.raises(ValueError, match=msg):
+            complete_surface(cap, region=region, device=one_device, **kw)
+
+
+def test_cli_complete(tmp_path, capsys):
+    from geosynth.cli import main
+
+    out = tmp_path / "flat.ply"
+    assert main(["complete", "--example", "flat", "-o", str(out), "--device", ONE_DEVICE, "--quiet"]) == 0
+    assert out.exists() and out.with_suffix(".png").exists()
+    assert main(["complete", "-o", str(tmp_path / "x.ply")]) == 2
+    assert "give an INPUT capture" in capsys.readouterr().err
+    assert main(["complete", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "x.ply")]) == 2
+    assert main(["complete", "--example", "flat", "-o", str(tmp_path / "x.obj")]) == 2
+    assert main(["complete", "--example", "flat", "-o", str(tmp_path / "y.ply"), "--mu", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "mu must be" in err and err.count("\n") <= 3
+
+
+def test_batched_classes_equal_one_target_at_a_time(one_device, monkeypatch):
+    """Targets of a class lie outside each other's windows (and partners are captured
+    samples only), so scoring a class in one launch equals the sequential order."""
+    import geosynth.completion as completion
+
+    cap, region = _small(4), ((0.0, 0.9), (0.0, 0.45))
+    sa, ra, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=2)
+    monkeypatch.setattr(completion, "_MAX_BATCH", 1)
+    sb, rb, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=2)
+    assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
