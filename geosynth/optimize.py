@@ -237,9 +237,27 @@ def _nearest_batch(search, queries: np.ndarray, thresholds):
     return origins, ssds, []
 
 
+def _free_positions(target: np.ndarray, positions: np.ndarray, block: int, wrap: bool, fixed) -> tuple:
+    """The lattice blocks covering at least one free (not ``fixed``) sample, and
+    (mask, values) of the fixed samples to restore after each vote."""
+    mask = np.asarray(fixed)
+    if mask.shape != target.shape or mask.dtype != np.bool_:
+        raise ValueError(f"fixed must be a bool mask of the target's shape {target.shape}, got "
+                         f"{mask.dtype} {mask.shape}.")
+    free = _padded((~mask).astype(np.int64), block, wrap)
+    table = np.zeros(tuple(n + 1 for n in free.shape), np.int64)  # summed-volume table of free samples
+    table[1:, 1:, 1:] = free.cumsum(0).cumsum(1).cumsum(2)
+    z, y, x = positions.T
+    b = block
+    count = (table[z + b, y + b, x + b] - table[z, y + b, x + b] - table[z + b, y, x + b] - table[z + b, y + b, x]
+             + table[z, y, x + b] + table[z, y + b, x] + table[z + b, y, x] - table[z, y, x])
+    return positions[count > 0], (mask.copy(), target[mask].copy())
+
+
 def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *, stride: int | None = None,
                    wrap: bool = False, iterations: int = 8, tolerance: float = 0.01, r: float | None = None,
-                   progress=None, sigma: float | None = None, final: str = "mean") -> dict:
+                   progress=None, sigma: float | None = None, final: str = "mean",
+                   fixed: np.ndarray | None = None) -> dict:
     """Texture optimization of one level, in place on ``target``.
 
     Args:
@@ -258,6 +276,10 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         sigma: the falloff of each block's vote, in blocks (None: FALLOFF_SIGMA).
         final: "mean", or "max": the last vote again with each sample copied from the
             one patch of largest weight (sharp, unblended pieces).
+        fixed: (Z, Y, X) bool, or None: samples that are given (constrained synthesis,
+            e.g. a neighbouring tile's finished border): they enter the queries of the
+            blocks that cover them and those blocks' votes for the other samples, but
+            keep their values; lattice blocks made only of fixed samples are skipped.
 
     Returns:
         {"iterations": int, "matches": int (block searches made), "changed": [share of
@@ -271,6 +293,12 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
     r = IRLS_R if r is None else float(r)
     stride = max(1, block // 4) if stride is None else int(stride)
     positions = _positions(shape, block, stride, wrap)
+    given = None
+    if fixed is not None:
+        positions, given = _free_positions(target, positions, block, wrap, fixed)
+        if len(positions) == 0:  # nothing free: the target is the given samples
+            return {"iterations": 0, "matches": 0, "changed": [], "mean_distance": 0.0, "alive": [],
+                    "energy": [], "stopped": "all fixed"}
     sz, sy, sx = (n - block + 1 for n in source.shape)
     prev = prev_index = None
     changed: list[float] = []
@@ -308,6 +336,8 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         before = target.copy()
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma))
+        if given is not None:
+            target[given[0]] = given[1]
         voted = (origins, ssds)
         mean = float(ssds.mean()) / block**3
         if progress is not None:
@@ -319,5 +349,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         origins, ssds = voted
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma), mode="max")
+        if given is not None:
+            target[given[0]] = given[1]
     return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
             "alive": alive, "energy": energy, "stopped": stopped}
