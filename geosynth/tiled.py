@@ -307,7 +307,7 @@ def _engine(scheduler, workers: int):
         from distributed import LocalCluster
 
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
         return _Distributed(Client(cluster), cluster)
     if not isinstance(scheduler, str) or "://" not in scheduler:
         raise ValueError(f"scheduler must be 'threads', a distributed.Client, None (a LocalCluster) or an address "
