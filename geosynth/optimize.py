@@ -239,7 +239,7 @@ def _nearest_batch(search, queries: np.ndarray, thresholds):
 
 def _free_positions(target: np.ndarray, positions: np.ndarray, block: int, wrap: bool, fixed) -> tuple:
     """The lattice blocks covering at least one free (not ``fixed``) sample, and
-    (mask, values) of the fixed samples to restore after each vote."""
+    (mask, values, feathering) of the fixed samples to restore after each vote."""
     mask = np.asarray(fixed)
     if mask.shape != target.shape or mask.dtype != np.bool_:
         raise ValueError(f"fixed must be a bool mask of the target's shape {target.shape}, got "
@@ -251,7 +251,48 @@ def _free_positions(target: np.ndarray, positions: np.ndarray, block: int, wrap:
     b = block
     count = (table[z + b, y + b, x + b] - table[z, y + b, x + b] - table[z + b, y, x + b] - table[z + b, y + b, x]
              + table[z, y, x + b] + table[z, y + b, x] + table[z + b, y, x] - table[z, y, x])
-    return positions[count > 0], (mask.copy(), target[mask].copy())
+    positions = positions[count > 0]
+    # The free samples near the given ones take a share of the given samples' residual
+    # (given value - vote there), falling off linearly over a block: a hard constraint
+    # otherwise leaves a step of the size of the match error where the two meet.
+    covered = np.zeros(free.shape, bool)
+    for z0, y0, x0 in positions:
+        covered[z0:z0 + b, y0:y0 + b, x0:x0 + b] = True
+    if wrap:
+        covered = _fold_any(covered, target.shape, b)
+    anchors = mask & covered
+    feather = None
+    if anchors.any():
+        from scipy import ndimage
+
+        dist, nearest = ndimage.distance_transform_edt(~anchors, return_indices=True)
+        weight = np.clip(1.0 - dist / b, 0.0, 1.0) * ~mask
+        near = weight > 0
+        feather = (near, weight[near], tuple(i[near] for i in nearest), anchors)
+    return positions, (mask.copy(), target[mask].copy(), feather)
+
+
+def _fold_any(values: np.ndarray, shape, block: int) -> np.ndarray:
+    """A padded periodic bool field folded back onto ``shape`` (or over the faces)."""
+    out = values.copy()
+    for axis, n in enumerate(shape):
+        head = [slice(None)] * 3
+        tail = [slice(None)] * 3
+        head[axis], tail[axis] = slice(0, block), slice(n, n + block)
+        out[tuple(head)] |= out[tuple(tail)]
+    return out[:shape[0], :shape[1], :shape[2]]
+
+
+def _restore(target: np.ndarray, given) -> None:
+    """Put the given samples back after a vote, feathering their residual into their free neighbours."""
+    mask, values, feather = given
+    if feather is not None:
+        near, weight, nearest, anchors = feather
+        residual = np.zeros(target.shape, np.float64)
+        residual[mask] = values.astype(np.float64) - target[mask]
+        moved = target[near] + weight * residual[nearest]
+        target[near] = np.clip(np.floor(moved + 0.5), 0, 255).astype(np.uint8)
+    target[mask] = values
 
 
 def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *, stride: int | None = None,
@@ -337,7 +378,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma))
         if given is not None:
-            target[given[0]] = given[1]
+            _restore(target, given)
         voted = (origins, ssds)
         mean = float(ssds.mean()) / block**3
         if progress is not None:
@@ -350,6 +391,6 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma), mode="max")
         if given is not None:
-            target[given[0]] = given[1]
+            _restore(target, given)
     return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
             "alive": alive, "energy": energy, "stopped": stopped}

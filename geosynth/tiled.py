@@ -834,9 +834,13 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: in
     border between two tile cores of the finest level are "seam", those within one core
     are "interior".
 
+    The block distance is blind to a small step between two good halves, so the mean
+    absolute difference of neighbouring samples across the borders ("step_seam") is given
+    beside its mean between all other neighbouring columns and rows ("step_interior").
+
     Returns:
         {"seam": mean, "interior": mean, "ratio": seam / interior, "seam_blocks",
-        "interior_blocks"}.
+        "interior_blocks", "step_seam", "step_interior", "step_ratio"}.
     """
     from geosynth.cascade_search import CascadeSearch
 
@@ -859,5 +863,16 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: in
         for kind, d in zip(kinds[lo:lo + 512], ssds):
             sums[kind].append(d / block**3)
     seam, interior = float(np.mean(sums["seam"])), float(np.mean(sums["interior"]))
+    # the step between neighbouring samples across a border against between any other two
+    steps = {"seam": [], "interior": []}
+    f = field.astype(np.int16)
+    for axis, edges in ((1, set(ys)), (2, set(xs))):
+        d = np.abs(np.diff(f, axis=axis)).mean(axis=tuple(a for a in range(3) if a != axis))  # d[i]: i -> i + 1
+        for i, v in enumerate(d):
+            steps["seam" if i + 1 in edges else "interior"].append(float(v))
+    step_seam = float(np.mean(steps["seam"])) if steps["seam"] else 0.0
+    step_in = float(np.mean(steps["interior"]))
     return {"seam": seam, "interior": interior, "ratio": seam / interior if interior else float("inf"),
-            "seam_blocks": len(sums["seam"]), "interior_blocks": len(sums["interior"])}
+            "seam_blocks": len(sums["seam"]), "interior_blocks": len(sums["interior"]),
+            "step_seam": step_seam, "step_interior": step_in,
+            "step_ratio": step_seam / step_in if step_in else float("inf")}
