@@ -101,6 +101,10 @@ def _crop(result, core: Region, part: Region):
     return part, np.ascontiguousarray(result[0][core.local(part)])
 
 
+def _identity(obj):
+    return obj
+
+
 def _info(result) -> dict:
     return result[1]
 
@@ -241,7 +245,13 @@ class _Distributed:
         self.client, self.cluster = client, cluster
 
     def scatter(self, obj):
-        return self.client.scatter(obj, broadcast=True, hash=False)
+        # a task holding the data (not client.scatter): should every worker holding it die,
+        # the scheduler can make it again from its spec; then one copy to every worker
+        future = self.client.submit(_identity, obj, pure=False)
+        distributed_wait = __import__("distributed").wait
+        distributed_wait([future])
+        self.client.replicate([future])
+        return future
 
     def compute(self, graphs: list, bar=None) -> list:
         from distributed import as_completed
@@ -648,7 +658,7 @@ def synthesize_volume_tiled(
         moved0 = engine.transfers()
         ex_ref = engine.scatter(ex)
         result = _run(engine, ex_ref, grid, run, progress, phases)
-        levels_info, finest = result
+        levels_info, finest, held = result
         timings.update({f"level {i + 1}": lv["seconds"] for i, lv in enumerate(levels_info)})
 
         # outputs of the finest level
@@ -733,7 +743,9 @@ def synthesize_volume_tiled(
 
 def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
     """Every level's tile tasks, level after level; returns (per-level info, the finest
-    level's results by tile: futures or values)."""
+    level's results by tile: futures or values, every level's results). A level's
+    results are kept (on the workers) until the outputs are written: should a worker die,
+    Dask recomputes what it held from them (coarser levels are 1/8 of a finer one each)."""
     from dask import delayed
 
     bar = None
@@ -744,6 +756,7 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                    dynamic_ncols=True)
     prev: dict = {}
     levels = []
+    held = []
     try:
         for level in range(grid.levels):
             t0 = time.perf_counter()
@@ -777,11 +790,12 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                            "task_seconds": float(sum(i["seconds"] for i in got)),
                            "mean_distance": float(np.mean([i["mean_distance"] for i in got])),
                            "tiles": got})
-            prev = results  # the level before is released here
+            held.append(results)  # every level stays known until the end: a lost result is recomputed from them
+            prev = results
     finally:
         if bar is not None:
             bar.close()
-    return levels, prev
+    return levels, prev, held
 
 
 def _merge(pieces, smooth: int):

@@ -23,6 +23,7 @@ from geosynth.volume import synthesize_volume, upsample
 distributed = pytest.importorskip("distributed")
 
 KW = dict(levels=2, block=8, seed=3, progress=False, iterations=2, device=ONE_DEVICE)
+FAST = dict(KW, iterations=1)  # the bit-identity tests: one iteration per level is as telling and cheaper
 
 
 def _cluster(workers: int, processes: bool = False):
@@ -71,9 +72,9 @@ def test_grid_partitions_and_checkerboard():
 
 
 def test_upsample_window_is_the_whole_upsampling_cut(rng):
-    coarse = rng.integers(0, 256, (6, 20, 24), dtype=np.uint8)
-    whole = upsample(coarse, (12, 40, 48), wrap=False)
-    g = TileGrid.make((12, 40, 48), (3, 2), (4, 8), coarse_whole=False)
+    coarse = rng.integers(0, 256, (6, 24, 36), dtype=np.uint8)
+    whole = upsample(coarse, (12, 48, 72), wrap=False)
+    g = TileGrid.make((12, 48, 72), (3, 2), (4, 8), coarse_whole=False)
     for t in range(g.count):
         fine, box = g.region(1, t), g.upsample_source(1, t)
         got = upsample_window(coarse[:, box.y0:box.y1, box.x0:box.x1], box, coarse.shape, fine, whole.shape)
@@ -94,20 +95,20 @@ def test_one_tile_is_the_untiled_result(terrain):
 @pytest.mark.parametrize("tiles", [(2, 2), (3, 2)])
 def test_same_bits_with_any_engine_and_workers(terrain, clients, tiles):
     shape = _shape(terrain, *tiles)
-    ref = synthesize_volume_tiled(terrain, shape, tiles, scheduler="threads", workers=1, **KW)
+    ref = synthesize_volume_tiled(terrain, shape, tiles, scheduler="threads", workers=1, **FAST)
     assert ref.levels[-1]["tasks"] == tiles[0] * tiles[1]
-    runs = [synthesize_volume_tiled(terrain, shape, tiles, scheduler="threads", workers=w, **KW) for w in (2, 4)]
-    runs += [synthesize_volume_tiled(terrain, shape, tiles, scheduler=clients[w], **KW) for w in (1, 2, 4)]
+    runs = [synthesize_volume_tiled(terrain, shape, tiles, scheduler="threads", workers=w, **FAST) for w in (2, 4)]
+    runs += [synthesize_volume_tiled(terrain, shape, tiles, scheduler=clients[w], **FAST) for w in (1, 2, 4)]
     for r in runs:
         assert np.array_equal(r.quantized, ref.quantized)
     # the tiling matters (it is not the untiled field under another name), the workers do not
-    untiled = synthesize_volume(terrain, shape, **KW)
+    untiled = synthesize_volume(terrain, shape, **FAST)
     assert not np.array_equal(untiled.quantized, ref.quantized)
 
 
 def test_every_level_tiled_same_bits(terrain, clients):
     shape = (terrain.shape[0] // 2 * 2, 48, 48)
-    kw = dict(KW, coarse_whole=False)
+    kw = dict(FAST, coarse_whole=False)
     a = synthesize_volume_tiled(terrain, shape, (2, 2), scheduler="threads", workers=1, **kw)
     b = synthesize_volume_tiled(terrain, shape, (2, 2), scheduler=clients[2], **kw)
     assert [lv["tasks"] for lv in a.levels] == [4, 4]
@@ -141,10 +142,14 @@ def test_seams_as_good_as_inside(clients):
     for name in ("terrain", "chainmail"):
         src, _, _ = exemplar_source(name, 32, 2)
         shape = (src.shape[0] // 2 * 2, 64, 64)
-        r = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], **dict(KW, iterations=(4, 2), seed=1))
+        r = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], **dict(KW, iterations=2, seed=1))
         s = seam_report(r.source, r.quantized, r.grid, 8, stride=2, device=ONE_DEVICE)
         assert s["seam_blocks"] > 100 and s["interior_blocks"] > 100
         assert s["ratio"] <= 1.10, (name, s)
+        if name == "terrain":
+            # one smooth surface: a step at the borders would show. Measured 1.21; the same columns of the
+            # untiled field 1.42, independent tiles (phases=1) 1.46, the schedule without feathering 1.79.
+            assert s["step_ratio"] <= 1.35, s
 
 
 def test_killed_worker_leaves_the_output_identical(terrain):
@@ -157,7 +162,10 @@ def test_killed_worker_leaves_the_output_identical(terrain):
         out = {}
 
         def run():
-            out["result"] = synthesize_volume_tiled(terrain, shape, (2, 2), scheduler=client, **kw)
+            try:
+                out["result"] = synthesize_volume_tiled(terrain, shape, (2, 2), scheduler=client, **kw)
+            except BaseException as exc:  # shown by the assertion below
+                out["error"] = exc
 
         worker = threading.Thread(target=run)
         worker.start()
@@ -172,6 +180,7 @@ def test_killed_worker_leaves_the_output_identical(terrain):
             time.sleep(0.01)
         worker.join(timeout=180)
         assert killed is not None, "no finest-level tile was seen running"
+        assert "error" not in out, str(out.get("error"))
         assert np.array_equal(out["result"].quantized, ref.quantized)
         assert pids[killed] not in client.run(os.getpid).values()  # the process did die (the nanny started another)
     finally:
