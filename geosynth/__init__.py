@@ -67,6 +67,7 @@ _LAZY = {
     "exemplar_mesh": "geosynth.examples",
     "exemplar_field": "geosynth.examples",
     "MemoryBudgetError": "geosynth.memory",
+    "synthesize_volume_tiled": "geosynth.tiled",
 }
 
 __all__ = sorted([

@@ -345,8 +345,9 @@ class TiledResult:
         source: the finest uint8 source the synthesis matched against.
         grid: the :class:`geosynth.tiling.TileGrid`.
         band: the quantization band (samples); spacing: world size of a sample.
-        levels: per level {"seconds" (wall), "tasks", "whole", "matches", "task_seconds"
-            (summed), "mean_distance"}, coarsest first.
+        levels: per level {"seconds" (wall), "tasks" (tiles), "graph_tasks" (tiles, crops
+            and the small info tasks), "whole", "matches", "task_seconds" (summed),
+            "mean_distance", "tiles" (each tile task's info)}, coarsest first.
         tasks: tile tasks run (all levels); bytes_moved: bytes sent between workers
             (0 on the threaded scheduler); peak_rss: worker address -> peak resident
             bytes (worker processes only); tile_estimate: estimated peak bytes of one
@@ -762,6 +763,7 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
             t0 = time.perf_counter()
             tasks: dict = {}
             order = grid.tasks(level)
+            graph_tasks = len(order)  # the info tasks; tiles and crops are counted as they are made
 
             def phase(t):
                 return PHASE_A if phases == 1 else grid.phase(t)
@@ -781,6 +783,7 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                                  for u, part in grid.fixed_parts(level, t)]
                     tasks[t] = delayed(_tile_task, pure=False)(ex_ref, grid, level, t, init, fixed,
                                                                dask_key_name=f"tile-{run}-{level}-{t}")
+                    graph_tasks += 1 + len(init) + len(fixed)
             infos = [delayed(_info, pure=False)(tasks[t], dask_key_name=f"info-{run}-{level}-{t}") for t in order]
             done = engine.compute([tasks[t] for t in order] + infos, bar=bar)
             results = dict(zip(order, done[:len(order)]))
@@ -789,6 +792,7 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                            "matches": int(sum(i["matches"] for i in got)),
                            "task_seconds": float(sum(i["seconds"] for i in got)),
                            "mean_distance": float(np.mean([i["mean_distance"] for i in got])),
+                           "graph_tasks": graph_tasks,
                            "tiles": got})
             held.append(results)  # every level stays known until the end: a lost result is recomputed from them
             prev = results
