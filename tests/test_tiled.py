@@ -230,3 +230,22 @@ def test_tile_beyond_a_workers_memory_is_refused(terrain, monkeypatch):
     with pytest.raises(MemoryBudgetError, match=r"one tile task needs about .* more than a worker's") as err:
         synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), (2, 2), scheduler="threads", workers=4, **KW)
     assert err.value.option == "tiles" and err.value.estimate > err.value.available
+
+
+def test_cli_tiles_bad_input_exit_2(tmp_path, capsys):
+    from geosynth.cli import main
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    base = ["volume", "--example", "terrain", "-o", str(tmp_path / "t.ply"), "--size", "32", "--levels", "2",
+            "--block", "8", "--source-resolution", "32", "--quiet", "--device", ONE_DEVICE]
+    assert main(base + ["--tiles", "2by2"]) == 2
+    assert "--tiles takes NXxNY" in capsys.readouterr().err
+    assert main(base + ["--tiles", "2x2", "--tileable"]) == 2
+    assert "--tileable cannot be tiled" in capsys.readouterr().err
+    assert main(base + ["--tiles", "2x2", "--scheduler", f"tcp://127.0.0.1:{port}", "--store",
+                        str(tmp_path / "t.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert "does not answer" in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
