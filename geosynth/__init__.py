@@ -68,6 +68,7 @@ _LAZY = {
     "exemplar_field": "geosynth.examples",
     "MemoryBudgetError": "geosynth.memory",
     "synthesize_volume_tiled": "geosynth.tiled",
+    "exemplar_source": "geosynth.tiled",
 }
 
 __all__ = sorted([

@@ -439,7 +439,7 @@ def _cmd_volume_any(args: argparse.Namespace) -> int:
 
 def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.tiled.synthesize_volume_tiled`."""
-    from geosynth.tiled import _parse_tiles
+    from geosynth.tiled import parse_tiles
 
     exemplar, example = args.exemplar, args.example
     if exemplar is not None and example is None and exemplar in EXEMPLARS and not Path(exemplar).exists():
@@ -448,7 +448,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), "
                          "not both or neither.")
     try:
-        tiles = _parse_tiles(args.tiles)
+        tiles = parse_tiles(args.tiles)
     except (TypeError, ValueError):
         raise ValueError(f"--tiles takes NXxNY, two integers >= 1 (e.g. 4x4), got {args.tiles!r}.") from None
     if args.tileable:

@@ -49,7 +49,7 @@ import numpy as np
 
 from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, assemble, tile_rng, upsample_window
 
-__all__ = ["TiledResult", "exemplar_source", "seam_report", "synthesize_volume_tiled", "tile_bytes"]
+__all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes"]
 
 # How long a scheduler given by address may take to answer before the run is refused.
 CONNECT_TIMEOUT_S = 5.0
@@ -81,18 +81,18 @@ class _Exemplar:
     key: str  # digest of the sources and parameters: the worker's search cache key
 
 
-_CACHE: dict = {}  # (key, level) -> geosynth.volume._Matcher, per worker process
+_CACHE: dict = {}  # (key, level) -> geosynth.volume.Matcher, per worker process
 _LOCK = threading.Lock()  # one tile at a time per process: the searches' device queues are not shared
 
 
 def _matcher(ex: _Exemplar, level: int):
-    from geosynth.volume import _Matcher
+    from geosynth.volume import Matcher
 
     k = (ex.key, level)
     if k not in _CACHE:
         for old in [c for c in _CACHE if c[0] != ex.key]:  # one exemplar at a time
             del _CACHE[old]
-        _CACHE[k] = _Matcher(ex.sources[level], ex.blocks[level], ex.device, ex.search)
+        _CACHE[k] = Matcher(ex.sources[level], ex.blocks[level], ex.device, ex.search)
     return _CACHE[k]
 
 
@@ -396,12 +396,12 @@ class TiledResult:
 def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool = False,
                faces_per_sample: float = 0.0) -> int:
     """Estimated peak bytes of the largest tile task of ``grid`` (any level): the
-    exemplar's pyramid, the level's search (:func:`geosynth.volume._matcher_bytes`),
+    exemplar's pyramid, the level's search (:func:`geosynth.volume.matcher_bytes`),
     ~20 B per sample of the tile's region (upsampling, target, copies, inputs) and the
     vote's accumulators and query chunk (:func:`geosynth.optimize.memory_estimate`);
     with ``mesh``, the tile's marching cubes too (:data:`MERGE_FACE_BYTES` per face)."""
     from geosynth.optimize import level_stride, memory_estimate
-    from geosynth.volume import _matcher_bytes
+    from geosynth.volume import matcher_bytes
 
     shapes = [tuple(int(v) for v in source_shape)]
     for _ in range(grid.levels - 1):
@@ -415,7 +415,7 @@ def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool
         n = int(np.prod(shape))
         b = grid.blocks[level]
         need = (_TILE_SAMPLE_BYTES * n + memory_estimate(shape, b, level_stride(b, level == grid.levels - 1))
-                + _matcher_bytes(shapes[level], b, search))
+                + matcher_bytes(shapes[level], b, search))
         if mesh and level == grid.levels - 1:
             need = max(need, 4 * n + int(faces_per_sample * n * MERGE_FACE_BYTES))
         worst = max(worst, need)
@@ -438,7 +438,7 @@ def _faces_per_sample(source: np.ndarray) -> float:
 # ------------------------------------------------------------------ checks
 
 
-def _parse_tiles(tiles) -> tuple[int, int]:
+def parse_tiles(tiles) -> tuple[int, int]:
     if isinstance(tiles, str):
         parts = tiles.lower().split("x")
         if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
@@ -455,23 +455,23 @@ def _parse_tiles(tiles) -> tuple[int, int]:
 
 
 def _check_store(store, inputs) -> str:
-    """A zarr store path that is no input, and either absent or an older zarr store."""
-    from geosynth.files import _is_input, _resolved, check_output
+    """A zarr store path that is no input (nor holds one), and either absent or an older zarr store."""
+    from geosynth.files import check_output
 
-    real = _resolved(store)
-    source = _is_input(real, inputs)
-    if source is not None:
-        raise ValueError(f"store {str(store)!r} is an input ({source!r}); choose another path "
-                         "(inputs are never overwritten).")
+    real = os.path.realpath(os.fspath(store))
     p = Path(real)
-    if p.exists():
-        if not p.is_dir():
-            raise ValueError(f"store {str(store)!r} is a file, not a zarr store; choose another path.")
+    if p.exists() and p.is_dir():
+        for item in inputs or ():
+            if item is not None and os.path.realpath(os.fspath(item)).startswith(real + os.sep):
+                raise ValueError(f"store {str(store)!r} holds an input ({os.fspath(item)!r}); choose another path "
+                                 "(inputs are never overwritten).")
         if not any((p / name).exists() for name in ("zarr.json", ".zarray", ".zgroup")):
             raise ValueError(f"store {str(store)!r} is a folder that holds no zarr store; refusing to replace it, "
                              "choose another path.")
-    else:
-        check_output(store, inputs=inputs, what="store")
+        return real
+    check_output(store, inputs=inputs, what="store")  # an input file, an unwritable folder: refused here
+    if p.exists():
+        raise ValueError(f"store {str(store)!r} is a file, not a zarr store; choose another path.")
     return real
 
 
@@ -562,38 +562,38 @@ def synthesize_volume_tiled(
     """
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume import (_as_shape, _check_common, _check_scale, _check_size, _level_blocks, _plan_blocks,
+    from geosynth.volume import (as_shape, check_common, check_scale, check_size, level_blocks, plan_blocks,
                                  downsample, quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
     if src.ndim != 3 or src.size == 0:
         raise ValueError(f"source must be a non-empty (Z, Y, X) volume, got shape {src.shape}.")
-    _check_size(size)
-    _check_common(levels, max(1, int(min(src.shape)).bit_length() - 1), f" (each level halves the source {src.shape})",
+    check_size(size)
+    check_common(levels, max(1, int(min(src.shape)).bit_length() - 1), f" (each level halves the source {src.shape})",
                   block, False, seed, device, search, progress)
     _checks.check_bool("mesh", mesh)
     _checks.check_bool("coarse_whole", coarse_whole)
     if phases not in (1, 2):
         raise ValueError(f"phases must be 1 or 2, got {phases!r}.")
     if band is not None:
-        _check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
-    _check_scale("spacing", spacing, "the world size of one sample")
+        check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
+    check_scale("spacing", spacing, "the world size of one sample")
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
-    nx, ny = _parse_tiles(tiles)
-    blocks = _level_blocks(levels, block)
+    nx, ny = parse_tiles(tiles)
+    blocks = level_blocks(levels, block)
     if band is None:
         band = blocks[-1] / 2
     if src.dtype != np.uint8:
         if not np.issubdtype(src.dtype, np.floating):
             raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
         _checks.check_finite("source", src)
-    target_shape = _as_shape("size", size)
+    target_shape = as_shape("size", size)
     factor = 2 ** (levels - 1)
     if any(s % factor for s in target_shape):
         raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
-    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks)
+    blocks = plan_blocks(src.shape, target_shape, levels, block, blocks)
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
     caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
