@@ -846,7 +846,7 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: in
                 device: str | None = None) -> dict:
     """Block distance at the seams against inside the tiles.
 
-    For every block of ``field`` on a lattice of ``stride`` (x-y) and ``block`` (z), the
+    For every block of ``field`` on a lattice of ``stride`` (x-y, from stride // 2) and ``block`` (z), the
     exact nearest block of ``source`` (SSD / block^3, squared uint8 units per sample,
     :class:`geosynth.cascade_search.CascadeSearch`); blocks whose x-y footprint crosses a
     border between two tile cores of the finest level are "seam", those within one core
@@ -870,9 +870,10 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: in
     Z, Y, X = field.shape
     sums = {"seam": [], "interior": []}
     queries, kinds = [], []
+    start = stride // 2  # an odd offset: with any stride some blocks straddle each border
     for z in range(0, Z - block + 1, block):
-        for y in range(0, Y - block + 1, stride):
-            for x in range(0, X - block + 1, stride):
+        for y in range(start, Y - block + 1, stride):
+            for x in range(start, X - block + 1, stride):
                 crosses = any(y < e < y + block for e in ys) or any(x < e < x + block for e in xs)
                 queries.append(field[z:z + block, y:y + block, x:x + block])
                 kinds.append("seam" if crosses else "interior")
