@@ -77,6 +77,8 @@ _LAZY = {
     "point_texture_example": "geosynth.point_examples",
     "complete_surface": "geosynth.completion",
     "CompletionReport": "geosynth.completion",
+    "synthesize_volume_tiled": "geosynth.tiled",
+    "exemplar_source": "geosynth.tiled",
 }
 
 __all__ = sorted([

@@ -439,6 +439,89 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_volume_any(args: argparse.Namespace) -> int:
+    """``geosynth volume``: untiled, or with --tiles the tiled synthesis on Dask."""
+    return _cmd_volume_tiled(args) if args.tiles else _cmd_volume(args)
+
+
+def _cmd_volume_tiled(args: argparse.Namespace) -> int:
+    """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.tiled.synthesize_volume_tiled`."""
+    from geosynth.tiled import parse_tiles
+
+    exemplar, example = args.exemplar, args.example
+    if exemplar is not None and example is None and exemplar in EXEMPLARS and not Path(exemplar).exists():
+        exemplar, example = None, exemplar
+    if (exemplar is None) == (example is None):
+        raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), "
+                         "not both or neither.")
+    try:
+        tiles = parse_tiles(args.tiles)
+    except (TypeError, ValueError):
+        raise ValueError(f"--tiles takes NXxNY, two integers >= 1 (e.g. 4x4), got {args.tiles!r}.") from None
+    if args.tileable:
+        raise ValueError("--tileable cannot be tiled yet (the tiles' margins would wrap); drop --tiles or --tileable.")
+    if args.method not in ("optimize", "auto"):  # auto: tiles run texture optimization (the only tiled method)
+        raise ValueError(f"--tiles runs --method optimize only, got --method {args.method}.")
+    inputs = []
+    if exemplar is not None:
+        inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
+                                   f"NAME ({', '.join(EXEMPLARS)})"))
+    size, block = _volume_shape(args)
+    out = Path(args.output)
+    png, png_what = _picture_path(args)
+    _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    if args.store is not None and os.path.realpath(args.store) in (os.path.realpath(out), os.path.realpath(png)):
+        raise ValueError(f"--store {args.store!r} is another output's path; give it its own name.")
+    _check_device(args.device)
+
+    from geosynth.examples import resolve_exemplar_mesh
+    from geosynth.files import write_image
+    from geosynth.memory import available_memory
+    from geosynth.render import render_mesh, side_by_side
+    from geosynth.surface import save_mesh
+    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
+    from geosynth.volume import target_size
+
+    say = (lambda *a, **k: None) if args.quiet else print
+    label = example or exemplar
+    source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
+                                         args.device)
+    shape = target_size(size, source.shape, args.levels)
+    engine = args.scheduler or f"a LocalCluster of {args.workers} workers"
+    say(f"geosynth volume: {label} -> {shape[2]} x {shape[1]} x {shape[0]} samples in {tiles[0]}x{tiles[1]} tiles on "
+        f"{engine}, {args.levels} levels, block {block}, seed {args.seed}, device {args.device or 'auto'}")
+    gather = bool(args.quality_samples) and 2 * int(np.prod(shape)) < available_memory() // 4
+    result = synthesize_volume_tiled(
+        source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
+        search=args.search, spacing=spacing, workers=args.workers, scheduler=args.scheduler, store=args.store,
+        gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs,
+        progress=not args.quiet)
+    save_mesh(result.mesh, out, inputs=inputs)
+    say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces (tiles merged)")
+    if result.store:
+        say(f"store {result.store}: the uint8 field, chunks of {result.grid.core[1]} x {result.grid.core[0]} (x y)")
+    if result.tile_meshes:
+        say(f"tile meshes: {len(result.tile_meshes)} PLY files in {args.tile_meshes}")
+    for line in result.lines():
+        say("  " + line)
+    say("timings:")
+    for k, v in result.timings.items():
+        say(f"  {k:<34} {v:8.2f} s")
+    if gather:
+        finest = result.grid.blocks[-1]
+        q = seam_report(result.source, result.quantized, result.grid, finest, stride=max(1, finest // 2),
+                        device=args.device)
+        say(f"seams (block distance, squared uint8 units per sample; interior blocks are the baseline): across tile "
+            f"borders {q['seam']:.1f}, inside tiles {q['interior']:.1f} (ratio {q['ratio']:.2f}); step across "
+            f"borders {q['step_seam']:.2f}, elsewhere {q['step_interior']:.2f}")
+    exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
+    picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)],
+                           labels=["exemplar", f"synthesized, {tiles[0]}x{tiles[1]} tiles"])
+    write_image(png, picture, inputs=inputs)
+    say(f"picture: {png} (exemplar left, result right)")
+    return 0
+
+
 def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
     """--texture-size, --count, -k and --levels checked against each other where known now."""
     name, size = args.texture_example, args.texture_size
@@ -751,6 +834,17 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_volume)
+    # tiled synthesis on Dask (geosynth.tiled)
+    p.add_argument("--tiles", default=None, metavar="NXxNY",
+                   help="synthesize in NX x NY tiles on Dask (two-phase schedule, same result with any workers)")
+    p.add_argument("--workers", type=_int_type(1, 1024), default=2,
+                   help="workers of the local Dask cluster started for --tiles (default 2)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="a running Dask scheduler for --tiles (tcp://host:port; workers must share the file "
+                        "system), or 'threads'")
+    p.add_argument("--store", default=None, metavar="OUT.zarr", help="with --tiles: the field as a zarr store")
+    p.add_argument("--tile-meshes", default=None, metavar="DIR", help="with --tiles: one PLY per tile in DIR")
+    p.set_defaults(func=_cmd_volume_any)
 
     p = sub.add_parser("texture", parents=[common],
                        help="M3: colour a point model from a sample texture (parameterization, matching, hybrid)")

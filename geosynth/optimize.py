@@ -183,7 +183,7 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
             for a in (acc, wsum):
                 head = [slice(None)] * 3
                 tail = [slice(None)] * 3
-                head[axis], tail[axis] = slice(0, block), slice(n, n + block)
+                head[axis], tail[axis] = slice(0, block[axis]), slice(n, n + block[axis])
                 a[tuple(head)] += a[tuple(tail)]
         acc, wsum = acc[:shape[0], :shape[1], :shape[2]], wsum[:shape[0], :shape[1], :shape[2]]
     covered = wsum > 0
@@ -211,7 +211,7 @@ def _vote_max(shape, positions, patches, weights, wrap, g, fallback):
             block = bs[axis]
             head = [slice(None)] * 3
             tail = [slice(None)] * 3
-            head[axis], tail[axis] = slice(0, block), slice(n, n + block)
+            head[axis], tail[axis] = slice(0, block[axis]), slice(n, n + block[axis])
             h, t = tuple(head), tuple(tail)
             better = best[t] > best[h]
             best[h] = np.where(better, best[t], best[h])
@@ -248,9 +248,70 @@ def _nearest_batch(search, queries: np.ndarray, thresholds):
     return origins, ssds, []
 
 
+def _free_positions(target: np.ndarray, positions: np.ndarray, block: tuple[int, int, int], wrap: bool,
+                     fixed) -> tuple:
+    """The lattice blocks covering at least one free (not ``fixed``) sample, and
+    (mask, values, feathering) of the fixed samples to restore after each vote."""
+    mask = np.asarray(fixed)
+    if mask.shape != target.shape or mask.dtype != np.bool_:
+        raise ValueError(f"fixed must be a bool mask of the target's shape {target.shape}, got "
+                         f"{mask.dtype} {mask.shape}.")
+    free = _padded((~mask).astype(np.int64), block, wrap)
+    table = np.zeros(tuple(n + 1 for n in free.shape), np.int64)  # summed-volume table of free samples
+    table[1:, 1:, 1:] = free.cumsum(0).cumsum(1).cumsum(2)
+    z, y, x = positions.T
+    bz, by, bx = block
+    count = (table[z + bz, y + by, x + bx] - table[z, y + by, x + bx] - table[z + bz, y, x + bx]
+             - table[z + bz, y + by, x] + table[z, y, x + bx] + table[z, y + by, x] + table[z + bz, y, x]
+             - table[z, y, x])
+    positions = positions[count > 0]
+    # The free samples near the given ones take a share of the given samples' residual
+    # (given value - vote there), falling off linearly over a block: a hard constraint
+    # otherwise leaves a step of the size of the match error where the two meet.
+    covered = np.zeros(free.shape, bool)
+    for z0, y0, x0 in positions:
+        covered[z0:z0 + bz, y0:y0 + by, x0:x0 + bx] = True
+    if wrap:
+        covered = _fold_any(covered, target.shape, block)
+    anchors = mask & covered
+    feather = None
+    if anchors.any():
+        from scipy import ndimage
+
+        dist, nearest = ndimage.distance_transform_edt(~anchors, return_indices=True)
+        weight = np.clip(1.0 - dist / max(block[1:]), 0.0, 1.0) * ~mask  # over a block across
+        near = weight > 0
+        feather = (near, weight[near], tuple(i[near] for i in nearest), anchors)
+    return positions, (mask.copy(), target[mask].copy(), feather)
+
+
+def _fold_any(values: np.ndarray, shape, block: tuple[int, int, int]) -> np.ndarray:
+    """A padded periodic bool field folded back onto ``shape`` (or over the faces)."""
+    out = values.copy()
+    for axis, n in enumerate(shape):
+        head = [slice(None)] * 3
+        tail = [slice(None)] * 3
+        head[axis], tail[axis] = slice(0, block[axis]), slice(n, n + block[axis])
+        out[tuple(head)] |= out[tuple(tail)]
+    return out[:shape[0], :shape[1], :shape[2]]
+
+
+def _restore(target: np.ndarray, given) -> None:
+    """Put the given samples back after a vote, feathering their residual into their free neighbours."""
+    mask, values, feather = given
+    if feather is not None:
+        near, weight, nearest, anchors = feather
+        residual = np.zeros(target.shape, np.float64)
+        residual[mask] = values.astype(np.float64) - target[mask]
+        moved = target[near] + weight * residual[nearest]
+        target[near] = np.clip(np.floor(moved + 0.5), 0, 255).astype(np.uint8)
+    target[mask] = values
+
+
 def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *, stride: int | None = None,
                    wrap: bool = False, iterations: int = 8, tolerance: float = 0.01, r: float | None = None,
-                   progress=None, sigma: float | None = None, final: str = "mean") -> dict:
+                   progress=None, sigma: float | None = None, final: str = "mean",
+                   fixed: np.ndarray | None = None) -> dict:
     """Texture optimization of one level, in place on ``target``.
 
     Args:
@@ -269,6 +330,10 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         sigma: the falloff of each block's vote, in blocks (None: FALLOFF_SIGMA).
         final: "mean", or "max": the last vote again with each sample copied from the
             one patch of largest weight (sharp, unblended pieces).
+        fixed: (Z, Y, X) bool, or None: samples that are given (constrained synthesis,
+            e.g. a neighbouring tile's finished border): they enter the queries of the
+            blocks that cover them and those blocks' votes for the other samples, but
+            keep their values; lattice blocks made only of fixed samples are skipped.
 
     Returns:
         {"iterations": int, "matches": int (block searches made), "changed": [share of
@@ -283,6 +348,12 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
     r = IRLS_R if r is None else float(r)
     stride = max(1, block[-1] // 4) if stride is None else int(stride)
     positions = _positions(shape, block, stride, wrap)
+    given = None
+    if fixed is not None:
+        positions, given = _free_positions(target, positions, block, wrap, fixed)
+        if len(positions) == 0:  # nothing free: the target is the given samples
+            return {"iterations": 0, "matches": 0, "changed": [], "mean_distance": 0.0, "alive": [],
+                    "energy": [], "stopped": "all fixed"}
     sz, sy, sx = (n - b + 1 for n, b in zip(source.shape, block))
     prev = prev_index = None
     changed: list[float] = []
@@ -320,6 +391,8 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         before = target.copy()
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma))
+        if given is not None:
+            _restore(target, given)
         voted = (origins, ssds)
         mean = float(ssds.mean()) / int(np.prod(block))
         if progress is not None:
@@ -331,5 +404,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         origins, ssds = voted
         target[...] = vote(shape, positions, _SourceBlocks(source, origins, block), irls_weights(ssds, r), wrap,
                            falloff=falloff(block, sigma), mode="max")
+        if given is not None:
+            _restore(target, given)
     return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
             "alive": alive, "energy": energy, "stopped": stopped}

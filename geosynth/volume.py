@@ -1080,3 +1080,15 @@ def target_size(size, source_shape, levels: int) -> tuple[int, int, int]:
         return (z, int(size), int(size))
     return _as_shape("size", size)
 
+
+
+# Public names for geosynth.tiled, which runs this module's synthesis tile by tile and so
+# shares its checks, level plan, search and estimates (the same objects, not copies).
+Matcher = _Matcher  # exact nearest block of a uint8 source (cascade, tree or linear)
+matcher_bytes = _matcher_bytes  # bytes of one level's search structure
+as_shape = _as_shape  # a size as (z, y, x)
+check_common = _check_common  # the options synthesize_volume and synthesize_geometry share
+check_scale = _check_scale  # a band or spacing in range
+check_size = _check_size  # one positive integer or three
+level_blocks = _level_blocks  # the block of each level from ``block``
+plan_blocks = _plan_blocks  # those blocks shrunk to a thin source or target

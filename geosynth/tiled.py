@@ -1,0 +1,897 @@
+"""M1 beyond one process: how is a large volume synthesized tile by tile on Dask, with the
+same answer whatever the number of workers?
+
+:func:`synthesize_volume_tiled` runs the M1 synthesis of :func:`geosynth.volume.synthesize_volume`
+(texture optimization per level, Kwatra, Essa, Bobick and Kwatra, "Texture Optimization
+for Example-based Synthesis", SIGGRAPH 2005, on the multiresolution block pyramid of
+Lagae, Dumont and Dutre, "Geometry Synthesis", Sec. 5.2) as a task graph on
+``dask.distributed``: the tiles, margins and the two-phase (checkerboard) schedule of
+:mod:`geosynth.tiling`; phase B tiles are constrained syntheses
+(:func:`geosynth.optimize.optimize_level` with ``fixed``) against their phase-A
+neighbours' results.
+
+- The engine: a ``LocalCluster`` by default (``workers`` processes of one thread), any
+  running scheduler by address (``scheduler="tcp://..."``), an existing
+  ``distributed.Client``, or Dask's threaded scheduler (``scheduler="threads"``). The
+  exemplar's pyramid is scattered to every worker once; each worker builds each level's
+  search (the exemplar on its device) once and keeps it for all its tiles.
+- Each tile of each level is one task. Its inputs are crops: the samples of the coarser
+  level that its upsampling reads and, in phase B, the parts of its margins that lie in
+  phase-A neighbours' cores. A crop runs where its tile's result lies, so only margins
+  travel between workers. Levels run one after another; the results of a level stay on
+  the workers until the next level has read them.
+- Output that need not fit in one process: a zarr store (the finest level's tile cores
+  are its chunks; ``zarr.open_array(path)[...]`` or ``dask.array.from_zarr(path)``
+  read it), per-tile meshes (marching cubes over the tile's core and one sample of its
+  +x / +y neighbours, capped only at the target's faces, so neighbouring tiles'
+  vertices coincide exactly along shared borders), one merged mesh when it fits in
+  memory, and the field in memory when asked and it fits; anything that does not fit is
+  refused before the run starts, with the estimate.
+- Random draws come from (seed, level, tile index) (:func:`geosynth.tiling.tile_rng`);
+  every vote and cut runs in a fixed order, so the result depends only on the seed and
+  the tiling: not on the number of workers, the engine, nor the order tasks finish in.
+  One tile is exactly :func:`geosynth.volume.synthesize_volume`'s result.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, assemble, tile_rng, upsample_window
+
+__all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes"]
+
+# How long a scheduler given by address may take to answer before the run is refused.
+CONNECT_TIMEOUT_S = 5.0
+# Marching-cubes faces per target sample, from the exemplar's own faces per sample: the
+# synthesis roughens the surface (measured 1.0-1.4x on the built-in terrain and chainmail).
+FACES_GROWTH = 1.5
+# Peak bytes per face of a mesh held and merged on the client (vertices, faces and the
+# vertex de-duplication; geosynth.volume measures 96-105 B per face for marching cubes).
+MERGE_FACE_BYTES = 160
+# Per target sample of a tile: the float32 upsampling (15 B, geosynth.volume's figure),
+# the uint8 target, its copy before each vote, the fixed mask and its values, the
+# assembled inputs (5 B); the vote's accumulators and query chunk come on top.
+_TILE_SAMPLE_BYTES = 20
+
+
+# ------------------------------------------------------------------ what every task reads
+
+
+@dataclass
+class _Exemplar:
+    """The exemplar's pyramid and the run's parameters: scattered to every worker once."""
+
+    sources: list  # uint8 (Z, Y, X) per level, coarsest first
+    blocks: list
+    caps: list
+    device: str | None
+    search: str
+    seed: int
+    key: str  # digest of the sources and parameters: the worker's search cache key
+
+
+_CACHE: dict = {}  # (key, level) -> geosynth.volume.Matcher, per worker process
+_LOCK = threading.Lock()  # one tile at a time per process: the searches' device queues are not shared
+
+
+def _matcher(ex: _Exemplar, level: int):
+    from geosynth.volume import Matcher
+
+    k = (ex.key, level)
+    if k not in _CACHE:
+        for old in [c for c in _CACHE if c[0] != ex.key]:  # one exemplar at a time
+            del _CACHE[old]
+        _CACHE[k] = Matcher(ex.sources[level], ex.blocks[level], ex.device, ex.search)
+    return _CACHE[k]
+
+
+def _crop(result, core: Region, part: Region):
+    """(part, samples of ``part``) from a tile result (core array, info)."""
+    return part, np.ascontiguousarray(result[0][core.local(part)])
+
+
+def _identity(obj):
+    return obj
+
+
+def _info(result) -> dict:
+    return result[1]
+
+
+def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list, fixed: list):
+    """Synthesize one tile of one level; returns (core (Z, rows, columns) uint8, info)."""
+    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level, random_blocks
+
+    start = time.time()
+    with _LOCK:
+        t0 = time.perf_counter()
+        region, core = grid.region(level, index), grid.core_region(level, index)
+        shape = grid.level_shape(level)
+        source, b = ex.sources[level], ex.blocks[level]
+        if level == 0:
+            rng = np.random.default_rng(ex.seed) if grid.whole(level) else tile_rng(ex.seed, level, index)
+            target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
+        else:
+            cbox = grid.upsample_source(level, index)
+            prev = grid.level_shape(level - 1)
+            window, covered = assemble(prev[0], cbox, init)
+            if not covered.all():
+                raise RuntimeError(f"tile {index} level {level + 1}: the coarser level's crops miss samples.")
+            target = upsample_window(window, cbox, prev, region, shape)
+        mask = None
+        if fixed:
+            target, mask = assemble(shape[0], region, fixed, fill=target)
+        finest = level == grid.levels - 1
+        matcher = _matcher(ex, level)
+        got = optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
+                             stride=level_stride(b, finest), sigma=level_sigma(finest), final=level_final(finest),
+                             fixed=mask)
+        out = np.ascontiguousarray(target[region.local(core)])
+        seconds = time.perf_counter() - t0
+    info = {"level": level, "tile": index, "phase": grid.phase(index), "start": start, "end": time.time(),
+            "seconds": seconds, "matches": got["matches"], "iterations": got["iterations"],
+            "mean_distance": got["mean_distance"], "stopped": got["stopped"], "pid": os.getpid()}
+    return out, info
+
+
+def _write_tile(store: str, result, core: Region) -> int:
+    """Write a finest-level tile core into its chunk of the zarr array at ``store``."""
+    import zarr
+
+    arr = zarr.open_array(store, mode="r+")
+    arr[:, core.y0:core.y1, core.x0:core.x1] = result[0]
+    return int(result[0].nbytes)
+
+
+def _tile_mesh(result, core: Region, extra: list, shape, spacing: float, band: float, path: str | None):
+    """Marching cubes of a tile's core plus one sample of its +y / +x neighbours (the
+    cells between the two tiles belong to this one), capped where the tile meets the
+    target's faces; vertices in world units. Returns (vertices (V, 3) float64, faces
+    (F, 3) int64) or, with ``path``, writes a PLY there and returns its face count."""
+    from skimage import measure
+
+    from geosynth.surface import UINT8_LEVEL
+
+    Z, Y, X = shape
+    box = Region(core.y0, min(Y, core.y1 + 1), core.x0, min(X, core.x1 + 1))
+    vol, covered = assemble(Z, box, [(core, result[0])] + list(extra))
+    if not covered.all():
+        raise RuntimeError("tile mesh: the neighbours' crops miss samples.")
+    vol = vol.astype(np.float32)
+    # cap (pad with outside values) only at the target's faces: z always, y / x where the tile ends the target
+    pads = [(1, 1), (1 if box.y0 == 0 else 0, 1 if box.y1 == Y else 0), (1 if box.x0 == 0 else 0, 1 if box.x1 == X else 0)]
+    vol = np.pad(vol, pads, mode="constant", constant_values=255.0)
+    faces = np.zeros((0, 3), np.int64)
+    verts = np.zeros((0, 3), np.float64)
+    if vol.min() < UINT8_LEVEL < vol.max():
+        v, f, _, _ = measure.marching_cubes(np.ascontiguousarray(vol), UINT8_LEVEL, gradient_direction="ascent",
+                                            allow_degenerate=False)
+        offset = np.array([-1, box.y0 - pads[1][0], box.x0 - pads[2][0]], np.float64)
+        verts = (v.astype(np.float64) + offset)[:, ::-1] * float(spacing)  # (z, y, x) -> (x, y, z), world units
+        faces = f.astype(np.int64)
+    if path is None:
+        return verts, faces
+    if len(faces):
+        import trimesh
+
+        from geosynth.surface import save_mesh
+
+        save_mesh(trimesh.Trimesh(vertices=verts, faces=faces, process=False), path)
+    return int(len(faces))
+
+
+# ------------------------------------------------------------------ engines
+
+
+class _Threads:
+    """Dask's threaded scheduler: values come back into this process."""
+
+    name = "threads"
+
+    def __init__(self, workers: int):
+        self.workers = int(workers)
+
+    def scatter(self, obj):
+        return obj
+
+    def compute(self, graphs: list, bar=None) -> list:
+        import dask
+        from dask.callbacks import Callback
+
+        class _Bar(Callback):
+            def _posttask(self, key, result, dsk, state, id):
+                name = key[0] if isinstance(key, tuple) else key
+                if bar is not None and str(name).startswith("tile-"):
+                    bar.update(1)
+
+        with _Bar():
+            return list(dask.compute(*graphs, scheduler="threads", num_workers=self.workers))
+
+    def gather(self, values):
+        return values
+
+    def memory_limit(self) -> int:
+        from geosynth.memory import available_memory
+
+        return available_memory() // max(1, self.workers)
+
+    def transfers(self) -> int:
+        return 0
+
+    def peak_rss(self) -> dict:
+        return {}
+
+    def close(self):
+        pass
+
+
+class _Distributed:
+    """A dask.distributed Client (a LocalCluster it started, or one given / reached by address)."""
+
+    name = "distributed"
+
+    def __init__(self, client, cluster=None):
+        self.client, self.cluster = client, cluster
+
+    def scatter(self, obj):
+        # a task holding the data (not client.scatter): should every worker holding it die,
+        # the scheduler can make it again from its spec; then one copy to every worker
+        future = self.client.submit(_identity, obj, pure=False)
+        distributed_wait = __import__("distributed").wait
+        distributed_wait([future])
+        self.client.replicate([future])
+        return future
+
+    def compute(self, graphs: list, bar=None) -> list:
+        from distributed import as_completed
+
+        futures = self.client.compute(graphs)
+        if bar is not None:
+            tiles = [f for f in futures if str(f.key).startswith("tile-")]
+            for _ in as_completed(tiles):
+                bar.update(1)
+        from distributed import wait
+
+        wait(futures)
+        for f in futures:
+            if f.status == "error":
+                f.result()  # raises the task's exception here
+        return futures
+
+    def gather(self, futures):
+        return self.client.gather(futures)
+
+    def memory_limit(self) -> int:
+        workers = self.client.scheduler_info(n_workers=-1)["workers"].values()
+        limits = [int(w.get("memory_limit") or 0) for w in workers]
+        from geosynth.memory import available_memory
+
+        known = [v for v in limits if v > 0]
+        return min(known) if known else available_memory()
+
+    def transfers(self) -> int:
+        def sent(dask_worker):
+            return int(getattr(dask_worker, "transfer_outgoing_bytes_total", 0))
+
+        return int(sum(self.client.run(sent).values()))
+
+    def peak_rss(self) -> dict:
+        def rss():
+            import resource
+
+            return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+        pids = self.client.run(os.getpid)
+        if len(set(pids.values())) < len(pids) or os.getpid() in pids.values():
+            return {}  # workers share a process (processes=False): no per-worker figure
+        return self.client.run(rss)
+
+    def close(self):
+        if self.cluster is not None:
+            self.client.close()
+            self.cluster.close()
+
+
+def _engine(scheduler, workers: int):
+    """The engine for ``scheduler`` (None: a new LocalCluster of ``workers`` processes)."""
+    if scheduler == "threads":
+        return _Threads(workers)
+    from distributed import Client
+
+    if isinstance(scheduler, Client):
+        return _Distributed(scheduler)
+    if scheduler is None:
+        import logging
+
+        from distributed import LocalCluster
+
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR)
+        return _Distributed(Client(cluster), cluster)
+    if not isinstance(scheduler, str) or "://" not in scheduler:
+        raise ValueError(f"scheduler must be 'threads', a distributed.Client, None (a LocalCluster) or an address "
+                         f"like tcp://host:8786, got {scheduler!r}.")
+    try:
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError) as exc:
+        raise RuntimeError(f"scheduler {scheduler} does not answer within {CONNECT_TIMEOUT_S:g} s ({exc}); start it "
+                           "(dask scheduler) or leave the scheduler out for a local cluster.") from None
+    return _Distributed(client, cluster=None)
+
+
+# ------------------------------------------------------------------ the result
+
+
+@dataclass
+class TiledResult:
+    """What :func:`synthesize_volume_tiled` returns.
+
+    Attributes:
+        quantized: (Z, Y, X) uint8 field, or None when not gathered (see ``store``).
+        store: the zarr store written (the uint8 field, chunks = tile cores), or None.
+        mesh: the merged trimesh.Trimesh (world units), or None.
+        tile_meshes: per-tile PLY paths written (tiles with no surface write none).
+        source: the finest uint8 source the synthesis matched against.
+        grid: the :class:`geosynth.tiling.TileGrid`.
+        band: the quantization band (samples); spacing: world size of a sample.
+        levels: per level {"seconds" (wall), "tasks" (tiles), "graph_tasks" (tiles, crops
+            and the small info tasks), "whole", "matches", "task_seconds" (summed),
+            "mean_distance", "tiles" (each tile task's info)}, coarsest first.
+        tasks: tile tasks run (all levels); bytes_moved: bytes sent between workers
+            (0 on the threaded scheduler); peak_rss: worker address -> peak resident
+            bytes (worker processes only); tile_estimate: estimated peak bytes of one
+            tile task; memory_limit: the per-worker limit it was checked against.
+        timings: seconds per stage.
+        engine: "threads" or "distributed"; workers: how many.
+    """
+
+    quantized: np.ndarray | None
+    store: str | None
+    mesh: object
+    tile_meshes: list
+    source: np.ndarray
+    grid: TileGrid
+    band: float
+    spacing: float
+    levels: list
+    tasks: int
+    bytes_moved: int
+    peak_rss: dict
+    tile_estimate: int
+    memory_limit: int
+    timings: dict = dc_field(default_factory=dict)
+    engine: str = "distributed"
+    workers: int = 0
+
+    def lines(self) -> list[str]:
+        """The per-level timings and the run's figures, one line each."""
+        from geosynth.memory import format_bytes
+
+        out = []
+        for i, lv in enumerate(self.levels):
+            out.append(f"level {i + 1}: {'whole, 1 task' if lv['whole'] else str(lv['tasks']) + ' tiles'}, "
+                       f"{lv['matches']:,} matches, {lv['seconds']:.2f} s wall ({lv['task_seconds']:.2f} s in tasks)")
+        out.append(f"{self.tasks} tile tasks on {self.workers} {self.engine} workers, {format_bytes(self.bytes_moved)} "
+                   f"moved between workers, one tile task needs about {format_bytes(self.tile_estimate)} "
+                   f"(limit {format_bytes(self.memory_limit)} per worker)")
+        if self.peak_rss:
+            out.append("peak memory per worker: " + ", ".join(format_bytes(v) for v in self.peak_rss.values()))
+        return out
+
+
+# ------------------------------------------------------------------ estimates
+
+
+def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool = False,
+               faces_per_sample: float = 0.0) -> int:
+    """Estimated peak bytes of the largest tile task of ``grid`` (any level): the
+    exemplar's pyramid, the level's search (:func:`geosynth.volume.matcher_bytes`),
+    ~20 B per sample of the tile's region (upsampling, target, copies, inputs) and the
+    vote's accumulators and query chunk (:func:`geosynth.optimize.memory_estimate`);
+    with ``mesh``, the tile's marching cubes too (:data:`MERGE_FACE_BYTES` per face)."""
+    from geosynth.optimize import level_stride, memory_estimate
+    from geosynth.volume import matcher_bytes
+
+    shapes = [tuple(int(v) for v in source_shape)]
+    for _ in range(grid.levels - 1):
+        shapes.insert(0, tuple(v // 2 for v in shapes[0]))
+    pyramid = sum(int(np.prod(s)) for s in shapes)
+    worst = 0
+    for level in range(grid.levels):
+        z = grid.level_shape(level)[0]
+        r = max((grid.region(level, t) for t in grid.tasks(level)), key=lambda q: q.shape[0] * q.shape[1])
+        shape = (z,) + r.shape
+        n = int(np.prod(shape))
+        b = grid.blocks[level]
+        need = (_TILE_SAMPLE_BYTES * n + memory_estimate(shape, b, level_stride(b, level == grid.levels - 1))
+                + matcher_bytes(shapes[level], b, search))
+        if mesh and level == grid.levels - 1:
+            need = max(need, 4 * n + int(faces_per_sample * n * MERGE_FACE_BYTES))
+        worst = max(worst, need)
+    return pyramid + worst + (8 << 20)  # + the task's Python objects and the worker's buffers
+
+
+def _faces_per_sample(source: np.ndarray) -> float:
+    """Marching-cubes faces per sample of the target, from the exemplar's (x FACES_GROWTH)."""
+    from skimage import measure
+
+    from geosynth.surface import UINT8_LEVEL
+
+    vol = np.pad(source.astype(np.float32), 1, constant_values=255.0)
+    if not vol.min() < UINT8_LEVEL < vol.max():
+        return 0.0
+    _, f, _, _ = measure.marching_cubes(vol, UINT8_LEVEL, gradient_direction="ascent", allow_degenerate=False)
+    return FACES_GROWTH * len(f) / source.size
+
+
+# ------------------------------------------------------------------ checks
+
+
+def parse_tiles(tiles) -> tuple[int, int]:
+    if isinstance(tiles, str):
+        parts = tiles.lower().split("x")
+        if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+            raise ValueError(f"tiles must be NXxNY (e.g. 4x4), got {tiles!r}.")
+        tiles = tuple(int(p) for p in parts)
+    if np.ndim(tiles) == 0:
+        tiles = (tiles, tiles)
+    tiles = tuple(tiles)
+    if len(tiles) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in tiles):
+        raise TypeError(f"tiles must be one integer or (nx, ny), got {tiles!r}.")
+    if min(tiles) < 1:
+        raise ValueError(f"tiles must be at least 1 x 1, got {tiles[0]} x {tiles[1]}.")
+    return int(tiles[0]), int(tiles[1])
+
+
+def _check_store(store, inputs) -> str:
+    """A zarr store path that is no input (nor holds one), and either absent or an older zarr store."""
+    from geosynth.files import check_output
+
+    real = os.path.realpath(os.fspath(store))
+    p = Path(real)
+    if p.exists() and p.is_dir():
+        for item in inputs or ():
+            if item is not None and os.path.realpath(os.fspath(item)).startswith(real + os.sep):
+                raise ValueError(f"store {str(store)!r} holds an input ({os.fspath(item)!r}); choose another path "
+                                 "(inputs are never overwritten).")
+        if not any((p / name).exists() for name in ("zarr.json", ".zarray", ".zgroup")):
+            raise ValueError(f"store {str(store)!r} is a folder that holds no zarr store; refusing to replace it, "
+                             "choose another path.")
+        return real
+    check_output(store, inputs=inputs, what="store")  # an input file, an unwritable folder: refused here
+    if p.exists():
+        raise ValueError(f"store {str(store)!r} is a file, not a zarr store; choose another path.")
+    return real
+
+
+def _publish(tmp: str, final: str) -> None:
+    """Move a finished store from its temporary folder into place (replacing an older store)."""
+    old = None
+    if os.path.exists(final):
+        old = f"{final}.old-{uuid.uuid4().hex[:8]}"
+        os.replace(final, old)
+    os.replace(tmp, final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+# ------------------------------------------------------------------ the entry point
+
+
+def synthesize_volume_tiled(
+    source: np.ndarray,
+    size=128,
+    tiles=(2, 2),
+    *,
+    levels: int = 3,
+    block=16,
+    seed: int | None = 0,
+    device: str | None = None,
+    search: str = "cascade",
+    band: float | None = None,
+    spacing: float = 1.0,
+    iterations=None,
+    workers: int = 2,
+    scheduler=None,
+    store: str | os.PathLike | None = None,
+    gather: bool | None = None,
+    mesh: bool = False,
+    tile_meshes: str | os.PathLike | None = None,
+    smooth: int = 0,
+    inputs=(),
+    margin: int | None = None,
+    coarse_whole: bool = True,
+    phases: int = 2,
+    progress: bool = True,
+) -> TiledResult:
+    """Tiled M1 synthesis (texture optimization) of a field larger than one process
+    should hold, on Dask; the same bits whatever the engine and number of workers.
+
+    Args:
+        source, size, levels, block, seed, device, search, band, spacing, iterations: as
+            :func:`geosynth.volume.synthesize_volume` (method "optimize"; tileable
+            targets are not tiled: see ``tiles``).
+        tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
+            tiled level's cores must hold its block plus the margin.
+        workers: workers of the LocalCluster started when ``scheduler`` is None (or
+            threads of the threaded scheduler).
+        scheduler: None (a LocalCluster of ``workers`` one-thread processes, closed at
+            the end), "threads" (Dask's threaded scheduler, this process), a
+            ``distributed.Client``, or a scheduler address "tcp://host:port" (refused
+            with a RuntimeError when it does not answer within 5 s, before anything is
+            written). Workers of a remote cluster must see ``store`` and
+            ``tile_meshes`` at the same paths (a shared file system).
+        store: a zarr store (folder) for the finest field, chunks = tile cores, with
+            attributes band, spacing, seed, tiles, blocks. Written to a temporary
+            folder beside it and moved into place when complete.
+        gather: return the field in memory (default: when no store is given); refused
+            up front when it does not fit.
+        mesh: merge the tiles' meshes into one (refused up front, with the estimate,
+            when it does not fit in memory); ``smooth`` Taubin iterations on it.
+        tile_meshes: a folder for one PLY per tile (tile_x{ix}_y{iy}.ply, world units).
+        inputs: files the run read (the store and meshes never replace them).
+        margin: samples of margin at every level (default: the largest block).
+        coarse_whole: run the coarse levels that fit in one tile as one task (False:
+            tile every level; for tests of the tiled path).
+        phases: 2 (the checkerboard schedule) or 1 (every tile independent: the naive
+            baseline whose seams the schedule removes).
+        progress: a progress bar over the tile tasks.
+
+    Returns:
+        TiledResult.
+
+    Raises:
+        TypeError / ValueError: as synthesize_volume, plus bad tiles (tiles smaller
+            than a block plus the margin), a bad scheduler, a store that is an input,
+            a file or a folder holding no zarr store.
+        RuntimeError: a scheduler address that does not answer.
+        MemoryBudgetError: a tile task beyond a worker's memory limit (option "tiles",
+            with the smallest square tiling that fits), or the gathered field or merged
+            mesh beyond the memory available here.
+    """
+    from geosynth import _checks
+    from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
+    from geosynth.volume import (as_shape, check_common, check_scale, check_size, level_blocks, plan_blocks,
+                                 downsample, quantize_field)
+
+    t_start = time.perf_counter()
+    src = np.asarray(source)
+    if src.ndim != 3 or src.size == 0:
+        raise ValueError(f"source must be a non-empty (Z, Y, X) volume, got shape {src.shape}.")
+    check_size(size)
+    check_common(levels, max(1, int(min(src.shape)).bit_length() - 1), f" (each level halves the source {src.shape})",
+                  block, False, seed, device, search, progress)
+    _checks.check_bool("mesh", mesh)
+    _checks.check_bool("coarse_whole", coarse_whole)
+    if phases not in (1, 2):
+        raise ValueError(f"phases must be 1 or 2, got {phases!r}.")
+    if band is not None:
+        check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
+    check_scale("spacing", spacing, "the world size of one sample")
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
+    nx, ny = parse_tiles(tiles)
+    blocks = level_blocks(levels, block)
+    if band is None:
+        band = blocks[-1] / 2
+    if src.dtype != np.uint8:
+        if not np.issubdtype(src.dtype, np.floating):
+            raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
+        _checks.check_finite("source", src)
+    target_shape = as_shape("size", size)
+    factor = 2 ** (levels - 1)
+    if any(s % factor for s in target_shape):
+        raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
+    blocks = plan_blocks(src.shape, target_shape, levels, block, blocks)
+    if iterations is None:
+        iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
+    caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
+    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1 for c in caps):
+        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
+    grid = TileGrid.make(target_shape, (nx, ny), blocks, margin, coarse_whole)
+    if gather is None:
+        gather = store is None
+    store_real = _check_store(store, inputs) if store is not None else None
+    mesh_dir = None
+    if tile_meshes is not None:
+        mesh_dir = Path(tile_meshes)
+        if mesh_dir.exists() and not mesh_dir.is_dir():
+            raise ValueError(f"tile_meshes {str(tile_meshes)!r} is a file; give a folder.")
+        from geosynth.files import check_output
+
+        check_output(mesh_dir / "tile_x0_y0.ply", inputs=inputs, what="tile_meshes")
+
+    if src.dtype != np.uint8:
+        src = quantize_field(src, band)
+    sources = [np.ascontiguousarray(src)]
+    for _ in range(levels - 1):
+        sources.insert(0, downsample(sources[0]))
+    n_target = int(np.prod(target_shape))
+    faces_per_sample = _faces_per_sample(sources[-1]) if (mesh or mesh_dir is not None) else 0.0
+    # the client's share, refused before any worker starts
+    client_need = (n_target if gather else 0) + (int(faces_per_sample * n_target * MERGE_FACE_BYTES) if mesh else 0)
+    if client_need:
+        what = "the gathered field" * bool(gather) + " and " * bool(gather and mesh) + "the merged mesh" * bool(mesh)
+        require(client_need, option="size", value=size, available=available_memory(),
+                what=f"{what} of {target_shape[2]:,} x {target_shape[1]:,} x {target_shape[0]:,} samples (x y z) "
+                     "(write a store and tile meshes instead)")
+    if seed is None:
+        seed = int(np.random.SeedSequence().entropy % (2**63))
+    digest = hashlib.sha1(b"".join(s.tobytes() for s in sources)
+                          + repr((blocks, caps, device, search, int(seed))).encode()).hexdigest()
+    ex = _Exemplar(sources, list(blocks), [int(c) for c in caps], device, search, int(seed), digest)
+    estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample)
+    timings = {"prepare": time.perf_counter() - t_start}
+
+    t0 = time.perf_counter()
+    engine = _engine(scheduler, workers)  # a silent scheduler is refused here, before anything is written
+    tmp_store = None
+    try:
+        limit = engine.memory_limit()
+        if estimate > limit:
+            fits = None
+            for n in range(max(nx, ny) + 1, 257):
+                try:
+                    g = TileGrid.make(target_shape, (n, n), blocks, margin, coarse_whole)
+                except ValueError:
+                    break
+                if tile_bytes(g, src.shape, search, mesh or mesh_dir is not None, faces_per_sample) <= limit:
+                    fits = (n, n)
+                    break
+            fix = (f"use at least {fits[0]}x{fits[1]} tiles" if fits else "no tiling of this size fits; use a "
+                   "smaller size or workers with more memory")
+            raise MemoryBudgetError(f"tiles {nx}x{ny}: one tile task needs about {format_bytes(estimate)}, more than "
+                                    f"a worker's {format_bytes(limit)}; {fix}.", option="tiles", largest=fits,
+                                    estimate=estimate, available=limit)
+        timings["engine start"] = time.perf_counter() - t0
+        run = uuid.uuid4().hex[:10]
+        moved0 = engine.transfers()
+        ex_ref = engine.scatter(ex)
+        result = _run(engine, ex_ref, grid, run, progress, phases)
+        levels_info, finest, held = result
+        timings.update({f"level {i + 1}": lv["seconds"] for i, lv in enumerate(levels_info)})
+
+        # outputs of the finest level
+        from dask import delayed
+
+        t0 = time.perf_counter()
+        Z, Y, X = target_shape
+        last = grid.levels - 1
+        cores = grid.cores(last)
+        graphs, kinds = [], []
+        if store_real is not None:
+            import zarr
+
+            parent = os.path.dirname(store_real)
+            os.makedirs(parent, exist_ok=True)
+            tmp_store = tempfile.mkdtemp(dir=parent, prefix=f".{os.path.basename(store_real)}.", suffix=".tmp")
+            chunks = (Z, min(Y, grid.core[0]), min(X, grid.core[1]))
+            arr = zarr.open_array(tmp_store, mode="w", shape=target_shape, chunks=chunks, dtype="uint8",
+                                  fill_value=0)
+            arr.attrs.update({"band": float(band), "spacing": float(spacing), "seed": int(seed),
+                              "tiles": [nx, ny], "blocks": list(blocks), "levels": levels,
+                              "what": "uint8 signed distance codes (geosynth.volume.quantize_field), z y x"})
+            for t, c in cores.items():
+                graphs.append(delayed(_write_tile, pure=False)(tmp_store, finest[t], c,
+                                                               dask_key_name=f"write-{run}-{t}"))
+                kinds.append(("write", t))
+        want_mesh = mesh or mesh_dir is not None
+        if want_mesh:
+            if mesh_dir is not None:
+                mesh_dir.mkdir(parents=True, exist_ok=True)
+            for t, c in cores.items():
+                box = Region(c.y0, min(Y, c.y1 + 1), c.x0, min(X, c.x1 + 1))
+                extra = [delayed(_crop, pure=False)(finest[u], grid.core_region(last, u), part,
+                                                    dask_key_name=f"meshcrop-{run}-{t}-{u}")
+                         for u, part in grid.overlapping(last, box) if u != t]
+                ix, iy = grid.position(t)
+                path = None if mesh_dir is None else str(mesh_dir / f"tile_x{ix}_y{iy}.ply")
+                graphs.append(delayed(_tile_mesh, pure=False)(finest[t], c, extra, target_shape, spacing, band, path,
+                                                              dask_key_name=f"mesh-{run}-{t}"))
+                kinds.append(("mesh", t))
+        outputs = engine.gather(engine.compute(graphs)) if graphs else []
+        tile_paths, pieces = [], []
+        for (kind, t), value in zip(kinds, outputs):
+            if kind == "mesh" and mesh_dir is not None:
+                ix, iy = grid.position(t)
+                if value:
+                    tile_paths.append(str(mesh_dir / f"tile_x{ix}_y{iy}.ply"))
+            elif kind == "mesh":
+                pieces.append(value)
+        quantized = None
+        if gather:
+            quantized = np.empty(target_shape, np.uint8)
+            for t, value in zip(cores, engine.gather([finest[t] for t in cores])):
+                c = cores[t]
+                quantized[:, c.y0:c.y1, c.x0:c.x1] = value[0]
+        merged = None
+        if mesh:
+            if mesh_dir is not None:  # the meshes went to files: read them back
+                import trimesh
+
+                pieces = []
+                for p in tile_paths:
+                    m = trimesh.load(p, process=False)
+                    pieces.append((np.asarray(m.vertices), np.asarray(m.faces)))
+            merged = _merge(pieces, smooth)
+        timings["outputs"] = time.perf_counter() - t0
+        bytes_moved = engine.transfers() - moved0
+        peak = engine.peak_rss()
+        if tmp_store is not None:
+            _publish(tmp_store, store_real)
+            tmp_store = None
+    finally:
+        if tmp_store is not None:
+            shutil.rmtree(tmp_store, ignore_errors=True)
+        engine.close()
+    timings["total"] = time.perf_counter() - t_start
+    return TiledResult(quantized, store_real, merged, tile_paths, sources[-1], grid, float(band), float(spacing),
+                       levels_info, sum(lv["tasks"] for lv in levels_info), bytes_moved, peak, estimate, limit,
+                       timings, engine.name, int(workers) if scheduler in (None, "threads") else
+                       len(engine.client.scheduler_info(n_workers=-1)["workers"]))
+
+
+def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
+    """Every level's tile tasks, level after level; returns (per-level info, the finest
+    level's results by tile: futures or values, every level's results). A level's
+    results are kept (on the workers) until the outputs are written: should a worker die,
+    Dask recomputes what it held from them (coarser levels are 1/8 of a finer one each)."""
+    from dask import delayed
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=sum(len(grid.tasks(lv)) for lv in range(grid.levels)), desc="tiles", unit="tile",
+                   dynamic_ncols=True)
+    prev: dict = {}
+    levels = []
+    held = []
+    try:
+        for level in range(grid.levels):
+            t0 = time.perf_counter()
+            tasks: dict = {}
+            order = grid.tasks(level)
+            graph_tasks = len(order)  # the info tasks; tiles and crops are counted as they are made
+
+            def phase(t):
+                return PHASE_A if phases == 1 else grid.phase(t)
+
+            for ph in (PHASE_A, PHASE_B):
+                for t in [t for t in order if phase(t) == ph]:
+                    init = []
+                    if level > 0:
+                        cbox = grid.upsample_source(level, t)
+                        init = [delayed(_crop, pure=False)(prev[u], grid.core_region(level - 1, u), part,
+                                                           dask_key_name=f"crop-{run}-{level}-{t}-{u}")
+                                for u, part in grid.overlapping(level - 1, cbox)]
+                    fixed = []
+                    if phases == 2:
+                        fixed = [delayed(_crop, pure=False)(tasks[u], grid.core_region(level, u), part,
+                                                            dask_key_name=f"fix-{run}-{level}-{t}-{u}")
+                                 for u, part in grid.fixed_parts(level, t)]
+                    tasks[t] = delayed(_tile_task, pure=False)(ex_ref, grid, level, t, init, fixed,
+                                                               dask_key_name=f"tile-{run}-{level}-{t}")
+                    graph_tasks += 1 + len(init) + len(fixed)
+            infos = [delayed(_info, pure=False)(tasks[t], dask_key_name=f"info-{run}-{level}-{t}") for t in order]
+            done = engine.compute([tasks[t] for t in order] + infos, bar=bar)
+            results = dict(zip(order, done[:len(order)]))
+            got = engine.gather(done[len(order):])
+            levels.append({"seconds": time.perf_counter() - t0, "tasks": len(order), "whole": grid.whole(level),
+                           "matches": int(sum(i["matches"] for i in got)),
+                           "task_seconds": float(sum(i["seconds"] for i in got)),
+                           "mean_distance": float(np.mean([i["mean_distance"] for i in got])),
+                           "graph_tasks": graph_tasks,
+                           "tiles": got})
+            held.append(results)  # every level stays known until the end: a lost result is recomputed from them
+            prev = results
+    finally:
+        if bar is not None:
+            bar.close()
+    return levels, prev, held
+
+
+def _merge(pieces, smooth: int):
+    """One mesh from the tiles' (vertices, faces): coincident vertices (bit-equal along
+    shared borders) merged, then ``smooth`` Taubin iterations."""
+    import trimesh
+
+    from geosynth.surface import smooth_mesh
+
+    pieces = [(v, f) for v, f in pieces if len(f)]
+    if not pieces:
+        raise ValueError("no surface: no tile's field crosses the zero level.")
+    offsets = np.cumsum([0] + [len(v) for v, _ in pieces])
+    verts = np.concatenate([v for v, _ in pieces])
+    faces = np.concatenate([f + o for (_, f), o in zip(pieces, offsets[:-1])])
+    unique, inverse = np.unique(verts, axis=0, return_inverse=True)
+    out = trimesh.Trimesh(vertices=unique, faces=inverse.reshape(-1)[faces], process=False)
+    if smooth:
+        out = smooth_mesh(out, smooth)
+    return out
+
+
+# ------------------------------------------------------------------ inputs and quality
+
+
+def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed: int | None = 0,
+                    device: str | None = None):
+    """An exemplar mesh (a trimesh, a file or a built-in name) as the source of a
+    synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it: its exact signed
+    distance on :func:`geosynth.volume.exemplar_grid`. Returns (float32 (Z, Y, X)
+    distances in samples, spacing (world units per sample), the exemplar Field)."""
+    from geosynth.examples import resolve_exemplar_mesh
+    from geosynth.meshes import check_mesh, mesh_distance
+    from geosynth.volume import exemplar_grid
+
+    m = resolve_exemplar_mesh(exemplar, seed)
+    check_mesh(m, "exemplar")
+    field = mesh_distance(m, field=exemplar_grid(m, source_resolution, multiple=2 ** (levels - 1)), device=device)
+    spacing = float(field.spacing[0])
+    return field.values / np.float32(spacing), spacing, field
+
+
+def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: int, *, stride: int = 2,
+                device: str | None = None) -> dict:
+    """Block distance at the seams against inside the tiles.
+
+    For every block of ``field`` on a lattice of ``stride`` (x-y, from stride // 2) and ``block`` (z), the
+    exact nearest block of ``source`` (SSD / block^3, squared uint8 units per sample,
+    :class:`geosynth.cascade_search.CascadeSearch`); blocks whose x-y footprint crosses a
+    border between two tile cores of the finest level are "seam", those within one core
+    are "interior".
+
+    The block distance is blind to a small step between two good halves, so the mean
+    absolute difference of neighbouring samples across the borders ("step_seam") is given
+    beside its mean between all other neighbouring columns and rows ("step_interior").
+
+    Returns:
+        {"seam": mean, "interior": mean, "ratio": seam / interior, "seam_blocks",
+        "interior_blocks", "step_seam", "step_interior", "step_ratio"}.
+    """
+    from geosynth.cascade_search import CascadeSearch
+
+    last = grid.levels - 1
+    cores = list(grid.cores(last).values())
+    ys = sorted({c.y0 for c in cores} - {0})
+    xs = sorted({c.x0 for c in cores} - {0})
+    search = CascadeSearch(np.ascontiguousarray(source), block, device=device)
+    Z, Y, X = field.shape
+    sums = {"seam": [], "interior": []}
+    queries, kinds = [], []
+    start = stride // 2  # an odd offset: with any stride some blocks straddle each border
+    for z in range(0, Z - block + 1, block):
+        for y in range(start, Y - block + 1, stride):
+            for x in range(start, X - block + 1, stride):
+                crosses = any(y < e < y + block for e in ys) or any(x < e < x + block for e in xs)
+                queries.append(field[z:z + block, y:y + block, x:x + block])
+                kinds.append("seam" if crosses else "interior")
+    for lo in range(0, len(queries), 512):
+        _, ssds, _ = search.nearest_batch(np.stack(queries[lo:lo + 512]), None)
+        for kind, d in zip(kinds[lo:lo + 512], ssds):
+            sums[kind].append(d / block**3)
+    seam, interior = float(np.mean(sums["seam"])), float(np.mean(sums["interior"]))
+    # the step between neighbouring samples across a border against between any other two
+    steps = {"seam": [], "interior": []}
+    f = field.astype(np.int16)
+    for axis, edges in ((1, set(ys)), (2, set(xs))):
+        d = np.abs(np.diff(f, axis=axis)).mean(axis=tuple(a for a in range(3) if a != axis))  # d[i]: i -> i + 1
+        for i, v in enumerate(d):
+            steps["seam" if i + 1 in edges else "interior"].append(float(v))
+    step_seam = float(np.mean(steps["seam"])) if steps["seam"] else 0.0
+    step_in = float(np.mean(steps["interior"]))
+    return {"seam": seam, "interior": interior, "ratio": seam / interior if interior else float("inf"),
+            "seam_blocks": len(sums["seam"]), "interior_blocks": len(sums["interior"]),
+            "step_seam": step_seam, "step_interior": step_in,
+            "step_ratio": step_seam / step_in if step_in else float("inf")}
