@@ -183,7 +183,7 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
             for a in (acc, wsum):
                 head = [slice(None)] * 3
                 tail = [slice(None)] * 3
-                head[axis], tail[axis] = slice(0, block[axis]), slice(n, n + block[axis])
+                head[axis], tail[axis] = slice(0, block), slice(n, n + block)
                 a[tuple(head)] += a[tuple(tail)]
         acc, wsum = acc[:shape[0], :shape[1], :shape[2]], wsum[:shape[0], :shape[1], :shape[2]]
     covered = wsum > 0
@@ -211,7 +211,7 @@ def _vote_max(shape, positions, patches, weights, wrap, g, fallback):
             block = bs[axis]
             head = [slice(None)] * 3
             tail = [slice(None)] * 3
-            head[axis], tail[axis] = slice(0, block[axis]), slice(n, n + block[axis])
+            head[axis], tail[axis] = slice(0, block), slice(n, n + block)
             h, t = tuple(head), tuple(tail)
             better = best[t] > best[h]
             best[h] = np.where(better, best[t], best[h])
