@@ -191,3 +191,37 @@ def check_uint32_range(total_weight: int, what: str) -> None:
             f"uint8 scores of {what} could reach {worst}, beyond uint32 ({UINT32_MAX}): use fewer entries, "
             "smaller weights, or float32 data."
         )
+
+
+def as_points3(name: str, a, n: int | None = None) -> np.ndarray:
+    """``a`` as a finite (N, 3) float64 array (N = ``n`` when given), or a one-line error."""
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a numeric (N, 3) array, got dtype {arr.dtype}.")
+    arr = arr.astype(np.float64, copy=False)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}.")
+    if n is not None and len(arr) != n:
+        raise ValueError(f"{name} must have {n} rows to match the positions, got {len(arr)}.")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} holds NaN or inf values; remove those points first.")
+    return arr
+
+
+def as_unit_vectors(name: str, n: np.ndarray) -> np.ndarray:
+    """(N, 3) vectors scaled to length 1; zero-length ones are an error naming the first."""
+    length = np.linalg.norm(n, axis=1)
+    bad = length < 1e-12
+    if bad.any():
+        raise ValueError(f"{name} has zero-length normals (first at index {int(np.argmax(bad))}).")
+    return n / length[:, None]
+
+
+def check_positive(name: str, v) -> float:
+    """A finite number > 0 as a float (bools refused), or a one-line error."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(v).__name__}.")
+    v = float(v)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be a finite number > 0, got {v!r}.")
+    return v

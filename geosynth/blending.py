@@ -48,6 +48,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from geosynth._checks import as_points3, as_unit_vectors, check_positive
+
 __all__ = [
     "NO_SURFACE",
     "PROJECTION",
@@ -75,35 +77,7 @@ NO_SURFACE, RAY, PROJECTION = 0, 1, 2  # how a counterpart was found (counterpar
 # ------------------------------------------------------------------------ input checks
 
 
-def _points(name: str, a, n: int | None = None) -> np.ndarray:
-    arr = np.asarray(a)
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"{name} must be a numeric (N, 3) array, got dtype {arr.dtype}.")
-    arr = arr.astype(np.float64, copy=False)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}.")
-    if n is not None and len(arr) != n:
-        raise ValueError(f"{name} must have {n} rows to match the positions, got {len(arr)}.")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} holds NaN or inf values; remove those points first.")
-    return arr
 
-
-def _unit(name: str, n: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(n, axis=1)
-    bad = length < 1e-12
-    if bad.any():
-        raise ValueError(f"{name} has zero-length normals (first at index {int(np.argmax(bad))}).")
-    return n / length[:, None]
-
-
-def _positive(name: str, v) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(v).__name__}.")
-    v = float(v)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {v!r}.")
-    return v
 
 
 def _box(box_min, box_max) -> tuple[np.ndarray, np.ndarray]:
@@ -193,9 +167,9 @@ class MLSSurface:
     def __init__(self, points, normals, radius: float, neighbours: int = MLS_NEIGHBOURS):
         from scipy.spatial import cKDTree
 
-        self.p = _points("neighbourhood_points", points)
-        self.n = _unit("neighbourhood_normals", _points("neighbourhood_normals", normals, len(self.p))) if len(self.p) else np.zeros((0, 3))
-        self.h = _positive("radius", radius)
+        self.p = as_points3("neighbourhood_points", points)
+        self.n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", normals, len(self.p))) if len(self.p) else np.zeros((0, 3))
+        self.h = check_positive("radius", radius)
         self.reach = _REACH * self.h
         self.k = int(max(1, min(neighbours, len(self.p))))
         self.tree = cKDTree(self.p) if len(self.p) else None
@@ -332,11 +306,11 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
         normal where there is none), (M,) int8: 1 ray intersection, 2 projection, 0 no
         usable surface in reach.
     """
-    p = _points("points", points)
-    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
-    spacing = _positive("spacing", spacing)
-    h = 2.0 * spacing if radius is None else _positive("radius", radius)
-    max_ray = _positive("max_ray", max_ray)
+    p = as_points3("points", points)
+    n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing = check_positive("spacing", spacing)
+    h = 2.0 * spacing if radius is None else check_positive("radius", radius)
+    max_ray = check_positive("max_ray", max_ray)
     _check_device(device)
     surface = MLSSurface(neighbourhood_points, neighbourhood_normals, h)
     out_p, out_n = p.copy(), n.copy()
@@ -387,8 +361,8 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
         ``(points, normals)``: (M, 3) float64 blended positions and unit normals.
         Points with r == 0, or with no usable surface of N_k in reach, are unchanged.
     """
-    p = _points("points", points)
-    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    p = as_points3("points", points)
+    n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
     r = np.asarray(ramp, np.float64).reshape(-1)
     if r.shape != (len(p),):
         raise ValueError(f"ramp must have shape ({len(p)},) to match points, got {np.shape(ramp)}.")
@@ -397,7 +371,7 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
     out_p, out_n = p.copy(), n.copy()
     sel = np.flatnonzero(r > 0)
     if sel.size == 0 or len(np.asarray(neighbourhood_points).reshape(-1, 3)) == 0:
-        _positive("spacing", spacing)
+        check_positive("spacing", spacing)
         return out_p, out_n
     c, nc, how = counterparts(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
                               radius=radius, max_ray=max_ray)
@@ -407,7 +381,7 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
         from geosynth import _checks
 
         _checks.check_bool("relative", relative)
-        h = 2.0 * spacing if radius is None else _positive("radius", radius)
+        h = 2.0 * spacing if radius is None else check_positive("radius", radius)
         f_own, n_own, sup = np.zeros(sel.size), np.zeros((sel.size, 3)), np.zeros(sel.size, bool)
         found = np.flatnonzero(how != NO_SURFACE)  # only where N_k gave a counterpart
         if found.size:
@@ -447,8 +421,8 @@ def border_cut(points, normals, box_min, box_max, width: float):
     Raises:
         ValueError: nothing would be left (width at least half the box's smaller side).
     """
-    p = _points("points", points)
-    n = _points("normals", normals, len(p))
+    p = as_points3("points", points)
+    n = as_points3("normals", normals, len(p))
     lo, hi = _box(box_min, box_max)
     if isinstance(width, bool) or not isinstance(width, (int, float, np.integer, np.floating)) or not (
         math.isfinite(float(width)) and float(width) >= 0
@@ -483,9 +457,9 @@ def relax_points(points, normals, spacing: float, iterations: int = 2, *, device
     """
     from scipy.spatial import cKDTree
 
-    p = _points("points", points)
-    n = _unit("normals", _points("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
-    spacing = _positive("spacing", spacing)
+    p = as_points3("points", points)
+    n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing = check_positive("spacing", spacing)
     _check_device(device)
     if not isinstance(iterations, (int, np.integer)) or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}.")
@@ -529,8 +503,8 @@ def seam_error(points_a, normals_a, points_b, normals_b, samples, spacing: float
     Returns:
         The RMS difference in spacings; NaN when no sample has support in both.
     """
-    spacing = _positive("spacing", spacing)
-    x = _points("samples", samples)
+    spacing = check_positive("spacing", spacing)
+    x = as_points3("samples", samples)
     fa, _, sa = MLSSurface(points_a, normals_a, 2.0 * spacing).evaluate(x)
     fb, _, sb = MLSSurface(points_b, normals_b, 2.0 * spacing).evaluate(x)
     both = sa & sb

@@ -57,6 +57,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth._checks import as_points3, as_unit_vectors, check_positive
+
 __all__ = [
     "WARP_PRESETS",
     "ThinPlateSpline",
@@ -134,34 +136,7 @@ class WarpResult:
 # ------------------------------------------------------------------------ input checks
 
 
-def _points(name: str, a, n: int | None = None) -> np.ndarray:
-    arr = np.asarray(a)
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"{name} must be a numeric (N, 3) array, got dtype {arr.dtype}.")
-    arr = arr.astype(np.float64, copy=False)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}.")
-    if n is not None and len(arr) != n:
-        raise ValueError(f"{name} must have {n} rows to match the positions, got {len(arr)}.")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} holds NaN or inf values; remove those points first.")
-    return arr
 
-
-def _unit(name: str, n: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(n, axis=1)
-    if (length < 1e-12).any():
-        raise ValueError(f"{name} has zero-length normals (first at index {int(np.argmax(length < 1e-12))}).")
-    return n / length[:, None]
-
-
-def _positive(name: str, v) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(v).__name__}.")
-    v = float(v)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {v!r}.")
-    return v
 
 
 def _kdtree(points: np.ndarray):
@@ -185,7 +160,7 @@ def surface_variation(points, k: int = 16) -> np.ndarray:
     Returns:
         (N,) float64 in [0, 1/3] (0 where the neighbours coincide).
     """
-    p = _points("points", points)
+    p = as_points3("points", points)
     if not isinstance(k, (int, np.integer)) or k < 3:
         raise ValueError(f"k must be an integer >= 3, got {k!r}.")
     if len(p) < 3:
@@ -425,8 +400,8 @@ class ThinPlateSpline:
             raise ValueError(f"dtype must be np.float32 or np.float64, got {dtype!r}.")
         self.dtype = np.dtype(dtype).type
 
-        c = _points("centres", centres)
-        y = _points("values", values, len(c))
+        c = as_points3("centres", centres)
+        y = as_points3("values", values, len(c))
         self.shift = c.mean(axis=0) if len(c) else np.zeros(3)
         extent = float(np.ptp(c, axis=0).max()) if len(c) else 0.0
         self.scale = extent if extent > 0 else 1.0
@@ -495,18 +470,18 @@ class ThinPlateSpline:
 
     def __call__(self, points) -> np.ndarray:
         """W at (m, 3) points: (m, 3) float64."""
-        return self._eval(_points("points", points), False)[0]
+        return self._eval(as_points3("points", points), False)[0]
 
     def jacobian(self, points) -> np.ndarray:
         """The analytic Jacobian dW/dx at (m, 3) points: (m, 3, 3) float64, J[m, k, j] = dW_k/dx_j."""
-        return self._eval(_points("points", points), True)[1]
+        return self._eval(as_points3("points", points), True)[1]
 
     def transform(self, points, normals) -> tuple[np.ndarray, np.ndarray]:
         """W(p) and the normals ``(J u x J v) / |J u x J v|`` (u, v orthonormal tangents
         of n, so that the result keeps n's side): (m, 3) float64 each. A normal whose
         tangents the Jacobian collapses keeps its direction."""
-        p = _points("points", points)
-        n = _unit("normals", _points("normals", normals, len(p)))
+        p = as_points3("points", points)
+        n = as_unit_vectors("normals", as_points3("normals", normals, len(p)))
         wp, jac = self._eval(p, True)
         u, v = _tangents(n)
         cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
@@ -601,11 +576,11 @@ def warp_patch(
         ValueError / TypeError: bad shapes, NaN, zero normals, spacing <= 0, a box with
             no horizontal extent.
     """
-    ps = _points("src_points", src_points)
-    ns = _unit("src_normals", _points("src_normals", src_normals, len(ps)))
-    pt = _points("target_points", target_points)
-    nt = _unit("target_normals", _points("target_normals", target_normals, len(pt))) if len(pt) else np.zeros((0, 3))
-    spacing = _positive("spacing", spacing)
+    ps = as_points3("src_points", src_points)
+    ns = as_unit_vectors("src_normals", as_points3("src_normals", src_normals, len(ps)))
+    pt = as_points3("target_points", target_points)
+    nt = as_unit_vectors("target_normals", as_points3("target_normals", target_normals, len(pt))) if len(pt) else np.zeros((0, 3))
+    spacing = check_positive("spacing", spacing)
     lo = np.asarray(box_min, np.float64).reshape(-1)
     hi = np.asarray(box_max, np.float64).reshape(-1)
     if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
