@@ -133,16 +133,21 @@ def golf_example(seed: int = 0, delta: float = 0.065, dimples: int = 72) -> Comp
                   "golf ball, a cap missing (Fig. 1)")
 
 
+def _cylinder_lattice(delta: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """(angles, heights) of a hexagonal lattice of spacing ``delta`` on a unit cylinder
+    of the given height (rows dz = delta * sqrt(3) / 2 apart, odd rows offset by half)."""
+    n_a = int(2 * math.pi / delta)
+    dz = delta * math.sqrt(3) / 2
+    j, i = np.mgrid[0:int(height / dz) + 1, 0:n_a]
+    return ((i + 0.5 * (j % 2)) * 2 * math.pi / n_a).ravel(), (j * dz).ravel()
+
+
 def bark_example(seed: int = 0, delta: float = 0.06, height: float = 1.6, fraction: float = 0.5) -> CompletionExample:
     """Tree bark (Figs. 9, 11, 12): a unit cylinder with wandering ridges and cracks along
     the axis and bark colours (dark cracks, lighter grey-brown ridges); ``fraction`` of the
     circumference captured (default half)."""
     rng = np.random.default_rng(seed)
-    n_a = int(2 * math.pi / delta)
-    dz = delta * math.sqrt(3) / 2
-    j, i = np.mgrid[0:int(height / dz) + 1, 0:n_a]
-    a = ((i + 0.5 * (j % 2)) * 2 * math.pi / n_a).ravel()
-    z = (j * dz).ravel()
+    a, z = _cylinder_lattice(delta, height)
     h = np.zeros_like(a)
     ridges = 22
     for k in range(ridges):
@@ -171,11 +176,7 @@ def tower_example(seed: int = 0, delta: float = 0.055, height: float = 1.8) -> C
     raised ledges between the rows, stone colours with dark arch recesses; half the
     circumference captured."""
     rng = np.random.default_rng(seed)
-    n_a = int(2 * math.pi / delta)
-    dz = delta * math.sqrt(3) / 2
-    j, i = np.mgrid[0:int(height / dz) + 1, 0:n_a]
-    a = ((i + 0.5 * (j % 2)) * 2 * math.pi / n_a).ravel()
-    z = (j * dz).ravel()
+    a, z = _cylinder_lattice(delta, height)
     arches, row = 12, 0.6
     s = a * 12 / (2 * math.pi)  # arch coordinate, one arch per unit
     x = (s % 1.0) - 0.5  # -0.5..0.5 across an arch

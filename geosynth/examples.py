@@ -504,26 +504,7 @@ def terrain_mesh(seed: int = 0, size: int = 96, base: float = 0.1, relief: float
         watertight ``trimesh.Trimesh`` (2 size^2 + 12 size faces: 19,584 by default) in
         [0, 1]^2 x [0, base + relief].
     """
-    import trimesh
-
-    h = terrain_heights(size, seed, hurst)
-    n = size + 1
-    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    top = np.column_stack([i.ravel() / size, j.ravel() / size, base + relief * h[i % size, j % size].ravel()])
-    idx = i * n + j
-    v00, v10, v01, v11 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
-    faces = [np.stack([v00, v10, v11], -1).reshape(-1, 3), np.stack([v00, v11, v01], -1).reshape(-1, 3)]
-    # the border, counter-clockwise seen from above
-    loop = np.concatenate([idx[:-1, 0], idx[-1, :-1], idx[:0:-1, -1], idx[0, :0:-1]])
-    m = len(loop)
-    bottom = np.column_stack([top[loop, :2], np.zeros(m)])
-    b = n * n + np.arange(m)  # bottom loop vertices
-    centre = n * n + m
-    ta, tb = loop, np.roll(loop, -1)
-    ba, bb = b, np.roll(b, -1)
-    faces += [np.stack([ba, bb, tb], -1), np.stack([ba, tb, ta], -1), np.stack([np.full(m, centre), bb, ba], -1)]
-    vertices = np.vstack([top, bottom, [[0.5, 0.5, 0.0]]])
-    return trimesh.Trimesh(vertices, np.concatenate(faces), process=False)
+    return heightfield_slab(terrain_heights(size, seed, hurst), base, relief)
 
 
 # ------------------------------------------------------------------ slab exemplars

@@ -562,8 +562,8 @@ def synthesize_volume_tiled(
     """
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume import (as_shape, check_common, check_scale, check_size, level_blocks, plan_blocks,
-                                 downsample, quantize_field)
+    from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
+                                 level_blocks, plan_blocks, quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
@@ -583,16 +583,7 @@ def synthesize_volume_tiled(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
     nx, ny = parse_tiles(tiles)
     blocks = level_blocks(levels, block)
-    if band is None:
-        band = blocks[-1] / 2
-    if src.dtype != np.uint8:
-        if not np.issubdtype(src.dtype, np.floating):
-            raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
-        _checks.check_finite("source", src)
-    target_shape = as_shape("size", size)
-    factor = 2 ** (levels - 1)
-    if any(s % factor for s in target_shape):
-        raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
+    band, _, target_shape = check_source_and_size(src, size, levels, band, blocks)
     blocks = plan_blocks(src.shape, target_shape, levels, block, blocks)
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]

@@ -606,6 +606,24 @@ def _require_size(size, target_shape, levels: int, estimate, option: str = "size
     require(estimate(target_shape), option=option, value=size, largest=largest, available=avail,
             what=f"{option} {x:,} x {y:,} x {z:,} (x y z)")
 
+def check_source_and_size(src: np.ndarray, size, levels: int, band: float | None, blocks: list) -> tuple:
+    """The checks of a source volume and target size that synthesize_volume and the tiled
+    synthesis share: (band, defaulting to half the finest block; whether the source is float
+    distances, which must then be finite; the target shape, a multiple of 2^(levels-1))."""
+    if band is None:
+        band = blocks[-1] / 2
+    float_source = src.dtype != np.uint8
+    if float_source:
+        if not np.issubdtype(src.dtype, np.floating):
+            raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
+        _checks.check_finite("source", src)
+    target_shape = _as_shape("size", size)
+    factor = 2 ** (levels - 1)
+    if any(s % factor for s in target_shape):
+        raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
+    return band, float_source, target_shape
+
+
 def synthesize_volume(
     source: np.ndarray,
     size=128,
@@ -705,17 +723,7 @@ def synthesize_volume(
     _check_scale("spacing", spacing, "the world size of one sample")
     _checks.check_bool("baseline", baseline)
     blocks = _level_blocks(levels, block)
-    if band is None:
-        band = blocks[-1] / 2
-    float_source = src.dtype != np.uint8
-    if float_source:
-        if not np.issubdtype(src.dtype, np.floating):
-            raise TypeError(f"source must be uint8 or float distances, got {src.dtype}.")
-        _checks.check_finite("source", src)
-    target_shape = _as_shape("size", size)
-    factor = 2 ** (levels - 1)
-    if any(s % factor for s in target_shape):
-        raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
+    band, float_source, target_shape = check_source_and_size(src, size, levels, band, blocks)
 
     if slab is not None:
         _checks.check_bool("slab", slab)
@@ -1086,7 +1094,6 @@ def target_size(size, source_shape, levels: int) -> tuple[int, int, int]:
 # shares its checks, level plan, search and estimates (the same objects, not copies).
 Matcher = _Matcher  # exact nearest block of a uint8 source (cascade, tree or linear)
 matcher_bytes = _matcher_bytes  # bytes of one level's search structure
-as_shape = _as_shape  # a size as (z, y, x)
 check_common = _check_common  # the options synthesize_volume and synthesize_geometry share
 check_scale = _check_scale  # a band or spacing in range
 check_size = _check_size  # one positive integer or three
