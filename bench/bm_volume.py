@@ -86,7 +86,7 @@ def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> t
     a neighbour's match moved on, or None), which synthesis passes as thresholds.
     """
     queries, bounds = [], []
-    original = volume._Matcher.nearest
+    original = volume.Matcher.nearest
 
     def record(self, query, threshold=None, order=None):
         if self.block == block and self.finest:
@@ -96,13 +96,13 @@ def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> t
                 raise _Enough
         return original(self, query, threshold, order)
 
-    original_init = volume._Matcher.__init__
+    original_init = volume.Matcher.__init__
 
     def init(self, src, b, device, search):
         original_init(self, src, b, device, search)
         self.finest = src.shape == source.shape
 
-    volume._Matcher.nearest, volume._Matcher.__init__ = record, init
+    volume.Matcher.nearest, volume.Matcher.__init__ = record, init
     try:
         # The coarse level (half the resolution) matches half-size blocks, as a multiresolution
         # run would; its queries start from random samples, which no bound prunes well.
@@ -114,7 +114,7 @@ def synthesis_queries(source: np.ndarray, block: int, count: int, dev: str) -> t
     except _Enough:
         pass
     finally:
-        volume._Matcher.nearest, volume._Matcher.__init__ = original, original_init
+        volume.Matcher.nearest, volume.Matcher.__init__ = original, original_init
     return queries, bounds
 
 

@@ -239,7 +239,7 @@ def _check_int(name: str, value, minimum: int, maximum: int | None = None, why: 
 _SCALE_RANGE = (1e-15, 1e15)
 
 
-def _check_scale(name: str, value, what: str) -> float:
+def check_scale(name: str, value, what: str) -> float:
     """A real number in _SCALE_RANGE (``what`` says what it measures)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise TypeError(f"{name} must be a number ({what}), got {value!r}.")
@@ -249,7 +249,7 @@ def _check_scale(name: str, value, what: str) -> float:
     return float(value)
 
 
-def _check_size(size) -> None:
+def check_size(size) -> None:
     """One positive integer or three (z, y, x); floats are refused, not truncated."""
     values = [size] if np.ndim(size) == 0 else list(np.asarray(size, dtype=object).reshape(-1))
     if np.ndim(size) > 1 or len(values) not in (1, 3) or not all(_is_int(v) for v in values):
@@ -259,13 +259,13 @@ def _check_size(size) -> None:
 
 
 def _check_block(block) -> None:
-    """Integers only (a power-of-two check and the per-level count follow in _level_blocks)."""
+    """Integers only (a power-of-two check and the per-level count follow in level_blocks)."""
     values = [block] if np.ndim(block) == 0 else list(np.asarray(block, dtype=object).reshape(-1))
     if np.ndim(block) > 1 or not values or not all(_is_int(v) for v in values):
         raise TypeError(f"block must be an integer (a power of two >= 2) or one per level, got {block!r}.")
 
 
-def _check_common(levels, max_levels: int, levels_why: str, block, tileable, seed, device, search,
+def check_common(levels, max_levels: int, levels_why: str, block, tileable, seed, device, search,
                   progress) -> None:
     """The options synthesize_volume and synthesize_geometry share, checked before any work."""
     _check_int("levels", levels, 1, max_levels, levels_why)
@@ -291,7 +291,7 @@ def _as_shape(name: str, size) -> tuple[int, int, int]:
     return tuple(int(v) for v in s)
 
 
-def _level_blocks(levels: int, block, slab: bool = False) -> list[int]:
+def level_blocks(levels: int, block, slab: bool = False) -> list[int]:
     if np.ndim(block) == 0:
         finest = int(block)
         # Coarser levels: the same block in samples covers twice the space per level;
@@ -312,7 +312,7 @@ def _level_blocks(levels: int, block, slab: bool = False) -> list[int]:
     return blocks
 
 
-class _Matcher:
+class Matcher:
     """Exact nearest block of a uint8 source: the cascade of lower bounds (default),
     the search tree, or the plain linear search (every block scored by the gather
     kernel, argmin on the device). All three return the same block."""
@@ -459,7 +459,7 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
 _BYTES_PER_BLOCK = 500
 
 
-def _matcher_bytes(shape, block, search: str) -> int:
+def matcher_bytes(shape, block, search: str) -> int:
     """Bytes of one level's search structure on a uint8 source of ``shape`` (device
     buffers included: host memory on Warp CPU and PoCL)."""
     total = int(np.prod(shape, dtype=object))
@@ -503,7 +503,7 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
         n = int(np.prod(shape, dtype=object))
         n_blocks = int(np.prod([len(range(0, v, max(1, s // 2))) for v, s in zip(shape, block_shape(b))],
                                dtype=object))
-        m = 0 if baseline else _matcher_bytes(sh, b, search)
+        m = 0 if baseline else matcher_bytes(sh, b, search)
         stages.append(9 * n if lvl == 0 else 15 * n + prev_n + prev_m)
         vote = (optimize_memory(shape, b, level_stride(block_shape(b)[-1], lvl == levels - 1), tileable)
                 if method == "optimize" and not baseline else 0)
@@ -513,9 +513,9 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     return pyramid + max(stages) + (128 << 10)
 
 
-def _plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int], slab: bool = False) -> list[int]:
+def plan_blocks(source_shape, target_shape, levels: int, block, blocks: list[int], slab: bool = False) -> list[int]:
     """The block of each level (coarsest first) for a source and target (Z, Y, X):
-    ``blocks`` (from :func:`_level_blocks`) with the default scheme's coarse blocks
+    ``blocks`` (from :func:`level_blocks`) with the default scheme's coarse blocks
     shrunk to fit a thin source or target there (sizes given per level are taken as
     they are). With ``slab`` the blocks are the across sides B only (z spans the
     level's thickness, :func:`level_block_shapes`) and only y and x must hold them.
@@ -709,27 +709,27 @@ def synthesize_volume(
         raise ValueError(f"source must be a (Z, Y, X) volume, got shape {src.shape}.")
     if src.size == 0:
         raise ValueError(f"source is empty (shape {src.shape}).")
-    _check_size(size)
+    check_size(size)
     # Each level halves the source: beyond log2 of its smallest side, no block fits (a
     # slab's: of its smallest side across, while its thickness keeps a sample).
     thin = slab is True or (slab is None and src.shape[0] * SLAB_RATIO <= min(src.shape[1:]))
     max_levels = max(1, int(min(src.shape[1:] if thin else src.shape)).bit_length() - 1)
     if thin:
         max_levels = min(max_levels, int(src.shape[0]).bit_length())
-    _check_common(levels, max_levels, f" (each level halves the source {src.shape})", block, tileable, seed,
+    check_common(levels, max_levels, f" (each level halves the source {src.shape})", block, tileable, seed,
                   device, search, progress)
     if band is not None:
-        _check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
-    _check_scale("spacing", spacing, "the world size of one sample")
+        check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
+    check_scale("spacing", spacing, "the world size of one sample")
     _checks.check_bool("baseline", baseline)
-    blocks = _level_blocks(levels, block)
+    blocks = level_blocks(levels, block)
     band, float_source, target_shape = check_source_and_size(src, size, levels, band, blocks)
 
     if slab is not None:
         _checks.check_bool("slab", slab)
     slab = is_slab(src.shape, target_shape) if slab is None else bool(slab)
-    blocks = _level_blocks(levels, block, slab)
-    blocks = _plan_blocks(src.shape, target_shape, levels, block, blocks, slab)
+    blocks = level_blocks(levels, block, slab)
+    blocks = plan_blocks(src.shape, target_shape, levels, block, blocks, slab)
     shapes = level_block_shapes(target_shape, levels, blocks, slab)
     if method != "auto" and method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
@@ -768,7 +768,7 @@ def synthesize_volume(
             target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
         else:
             target = upsample(target, shape, wrap=(tileable and not slab, tileable, tileable))
-        matcher = None if baseline else _Matcher(s, b, device, search)
+        matcher = None if baseline else Matcher(s, b, device, search)
         t_build = time.perf_counter() - t0
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {block_text(b)})"
         iters = 1
@@ -890,9 +890,9 @@ def synthesize_geometry(
             available, before anything is allocated: option ``"size"`` when a smaller
             size fits at this source resolution, else ``"source_resolution"``.
     """
-    _check_size(size)
+    check_size(size)
     resolution = _check_int("source_resolution", source_resolution, 8)
-    _check_common(levels, max(1, resolution.bit_length() - 1),
+    check_common(levels, max(1, resolution.bit_length() - 1),
                   f" (each level halves the source of source_resolution={resolution} samples)",
                   block, tileable, seed, device, search, progress)
     _check_int("smooth", smooth, 0)
@@ -994,14 +994,14 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
         raise ValueError(f"levels must be >= 1, got {levels}.")
     factor = 2 ** (levels - 1)
     area = float(mesh.area)
-    base_blocks = _level_blocks(levels, block)
+    base_blocks = level_blocks(levels, block)
 
     def estimate(sz, res) -> int:
         shape, _, spacing = _exemplar_grid_geometry(mesh, res, multiple=factor)
         target = target_size(sz, shape, levels)
         flat = is_slab(shape, target) if slab is None else bool(slab)
         try:
-            blocks = _plan_blocks(shape, target, levels, block, _level_blocks(levels, block, flat), flat)
+            blocks = plan_blocks(shape, target, levels, block, level_blocks(levels, block, flat), flat)
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
             blocks = base_blocks
         blocks = level_block_shapes(target, levels, blocks, flat)
@@ -1087,15 +1087,3 @@ def target_size(size, source_shape, levels: int) -> tuple[int, int, int]:
         z = max(factor, int(source_shape[0]) // factor * factor)
         return (z, int(size), int(size))
     return _as_shape("size", size)
-
-
-
-# Public names for geosynth.tiled, which runs this module's synthesis tile by tile and so
-# shares its checks, level plan, search and estimates (the same objects, not copies).
-Matcher = _Matcher  # exact nearest block of a uint8 source (cascade, tree or linear)
-matcher_bytes = _matcher_bytes  # bytes of one level's search structure
-check_common = _check_common  # the options synthesize_volume and synthesize_geometry share
-check_scale = _check_scale  # a band or spacing in range
-check_size = _check_size  # one positive integer or three
-level_blocks = _level_blocks  # the block of each level from ``block``
-plan_blocks = _plan_blocks  # those blocks shrunk to a thin source or target
