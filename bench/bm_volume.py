@@ -14,6 +14,12 @@ End to end: ``synthesize_geometry`` with the defaults (64 samples across the exe
 128 x 128 target, 3 levels, block 16) per backend and built-in exemplar, plus a full
 64^3 -> 128^3 cube of spheres, with the time of each stage.
 
+Batch: texture optimization's matching with the batched cascade (every query of an
+iteration's chunk in one fused launch) against one launch per query (the search before
+it), ``synthesize_geometry(method="optimize")`` with no quality numbers, per backend and
+exemplar: synthesis seconds (wall and process CPU), the ratio, and that the fields are
+the same bits.
+
 Quality: per built-in exemplar and method (paper, graphcut, optimize), with the
 defaults otherwise, the structure metrics (elements, or debris / slopes / overhangs)
 and the mean block distance beside random tiling's, whether it grew as a slab, and
@@ -21,7 +27,7 @@ the time, on the first OpenCL device given (else the first device; a seed gives 
 same field on every device).
 
 Usage: python bench/bm_volume.py [--quick] [--devices cpu,opencl:0:0] [--out FILE]
-       [--budget SECONDS] [--part matching|end-to-end|quality] [--cases 64,128,256]
+       [--budget SECONDS] [--part matching|end-to-end|batch|quality] [--cases 64,128,256]
 """
 
 from __future__ import annotations
@@ -248,6 +254,54 @@ def end_to_end(devices, exemplars, size, source_resolution, cube) -> list[str]:
     return lines
 
 
+def _per_query(self, queries, thresholds=None):
+    """CascadeSearch.nearest_batch as it was before the batched kernel: one search (one
+    fused launch) per query."""
+    origins = np.empty((len(queries), 3), np.int64)
+    ssds = np.empty(len(queries), np.int64)
+    alive = []
+    for i, q in enumerate(queries):
+        t = None if thresholds is None or thresholds[i] is None else int(thresholds[i])
+        origins[i], ssds[i] = self.nearest(q, threshold=t)
+        alive.append(list(self.last_info["alive"]))
+    return origins, ssds, alive
+
+
+def batch(devices, exemplars, size, source_resolution, repeats: int = 2) -> list[str]:
+    lines = ["## Texture optimization: one launch per chunk of queries vs one per query", "",
+             "| exemplar | device | matches | per query: synthesis s (CPU s) | batched: synthesis s (CPU s) | "
+             "speed-up (wall, CPU) | same field |", "|---|---|---:|---:|---:|---:|---|"]
+    for name in exemplars:
+        for dev in devices:
+            runs = {}
+            for mode in ("per query", "batched"):
+                best = None
+                for _ in range(repeats):
+                    saved = CascadeSearch.nearest_batch
+                    if mode == "per query":
+                        CascadeSearch.nearest_batch = _per_query
+                    try:
+                        c0 = time.process_time()
+                        r = synthesize_geometry(name, size, source_resolution=source_resolution, device=dev,
+                                                progress=False, method="optimize", quality_samples=0)
+                        cpu = time.process_time() - c0
+                    finally:
+                        CascadeSearch.nearest_batch = saved
+                    wall = r.timings["synthesis total"]
+                    if best is None or wall < best[0]:
+                        best = (wall, cpu, r)
+                runs[mode] = best
+            (w0, c0, r0), (w1, c1, r1) = runs["per query"], runs["batched"]
+            same = np.array_equal(r0.volume.quantized, r1.volume.quantized)
+            matches = sum(lv.matches for lv in r1.volume.levels)
+            lines.append(f"| {name} | {dev} | {matches} | {w0:.2f} ({c0:.2f}) | {w1:.2f} ({c1:.2f}) | "
+                         f"{w0 / w1:.2f}x, {c0 / c1:.2f}x | {'yes' if same else 'NO'} |")
+            print("   ", lines[-1], flush=True)
+    lines += ["", f"Best of {repeats} runs each; CPU s = process time of all threads (the whole run: exemplar "
+              "field, synthesis, mesh). Matches: exact searches over all levels and iterations."]
+    return lines
+
+
 def _structure_text(report: dict) -> str:
     """A short cell: "elements 0.74", or "debris 0.0%, slopes 0.96, overhangs 0.0% (exemplar 0.0%)"."""
     if report["kind"] == "elements":
@@ -288,7 +342,7 @@ def quality(device: str, exemplars, size: int, source_resolution: int, methods=v
 
 def _options(parser) -> None:
     parser.add_argument("--budget", type=float, default=20.0, help="seconds per search and case (at least one query)")
-    parser.add_argument("--part", choices=["all", "matching", "end-to-end", "quality"], default="all")
+    parser.add_argument("--part", choices=["all", "matching", "end-to-end", "batch", "quality"], default="all")
     parser.add_argument("--cases", default=None, type=_sides,
                         help="comma-separated matching source sides, e.g. 64,128 (default: 64,128,256)")
 
@@ -323,6 +377,8 @@ def main(argv=None) -> int:
         lines += matching(devices, cases, n_queries, args.budget) + [""]
     if args.part in ("all", "end-to-end"):
         lines += end_to_end(devices, exemplars, size, res, cube) + [""]
+    if args.part in ("all", "batch"):
+        lines += batch(devices, ["terrain", "chainmail"] if not args.quick else ["terrain"], size, res) + [""]
     if args.part in ("all", "quality"):
         # the targets are OpenCL's; the fields are the same on every device, the times are not
         lines += quality(next((d for d in devices if d.startswith("opencl")), devices[0]), quality_exemplars, size, res)

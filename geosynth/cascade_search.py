@@ -86,7 +86,7 @@ class CascadeSearch:
             run the stages).
         cells: the bound stages' cell sizes, coarse to fine (powers of two, 2 <= c <
             N), each a launch of its own. None: for N = 8 and 16 the fused search,
-            one launch per query (``fused``); for other N the backend's
+            one launch per query or per batch of queries (``fused``); for other N the backend's
             ``bound_cells_per_side``: on PoCL one stage of
             (N/4)^3-sample cells, 64 cell sums a block, over every block (the fast
             lattice kernel), then the exact SSDs of its few survivors: measured with
@@ -107,6 +107,9 @@ class CascadeSearch:
             and for searches small enough that scoring every block in one launch is
             cheaper (fewer than ``min_work`` comparisons).
         fused: whether the stages run fused in one launch.
+        batch_fused: whether :meth:`nearest_batch` runs the fused kernel, the whole batch
+            in one launch (N = 8 or 16, ``cells=None``): also for searches small enough
+            that a single query is scored directly (``fused`` false, no stages).
         last_info: per query, the number of blocks alive after each stage (fused: all
             blocks, then the blocks scored exactly).
 
@@ -153,13 +156,17 @@ class CascadeSearch:
             if cells != sorted(cells, reverse=True) or len(set(cells)) != len(cells):
                 raise ValueError(f"cells must go coarse to fine (strictly decreasing), got {cells}.")
         self.stages = cells
+        # A batch of queries runs the fused kernel whenever the block allows it: one launch
+        # for the batch costs less than one direct launch per query, however small the search.
+        self.batch_fused = fused
+        self._fused_cells = tuple(cells) if fused else ()
         if min_work is None:
             min_work = _CASCADE_MIN_LAUNCHES * backend.launch_work
         if self.n_blocks * self.block_samples < min_work:
             self.stages = []  # one launch over every block costs less than the stages' launches
             fused = False
         self.fused = fused
-        per_sample = 1 + 4 * 3 + 8 if fused else 1 + 12 * len(self.stages)  # fused: 3 float arrays, int64 squares
+        per_sample = (1 + 4 * 3 + 8 if self.batch_fused else 1) + 12 * (0 if fused else len(self.stages))
         check_memory(field.size * per_sample + (0 if fused else self.n_blocks * 40),
                      f"the cascade search of a {field.shape} field (block {block})")
         dev = "auto" if device is None else device
@@ -171,7 +178,7 @@ class CascadeSearch:
                             np.asarray(block_shape(c)) * block_offsets(self._cells_per_side(c)))
             for c in self.stages
         }
-        if fused:
+        if self.batch_fused:
             self._fused_setup(dev)
         self.guesses = max(1, int(guesses))
         self.guess_skip = 16384  # blocks under a given threshold above which a guess pays off
@@ -187,7 +194,7 @@ class CascadeSearch:
         from geosynth.arrays import to_device
 
         shape = self.field.shape
-        cc, cf = self.stages
+        cc, cf = self._fused_cells
 
         def padded(values: np.ndarray) -> DeviceArray:
             out = np.zeros(shape, np.float32)
@@ -210,36 +217,61 @@ class CascadeSearch:
         inner = np.indices((cf, cf, cf)).reshape(3, -1).T
         samples = (cf * fine)[:, None, :] + inner[None, :, :]  # (64, cf^3, 3)
         self._fused_order = (samples @ np.array([n * n, n, 1])).reshape(-1).astype(np.intp)
-        n_rows = ly * lz
-        self._fused_rows = -(-n_rows // max(1, min(n_rows, self._backend.search_items)))
-        self._fused_items = -(-n_rows // self._fused_rows)
 
-    def _nearest_fused(self, query: np.ndarray, threshold: int | None):
-        """The fused search: ((z, y, x), SSD), or None when no block is within ``threshold``."""
+    def _fused_terms(self, queries: np.ndarray) -> np.ndarray:
+        """(Q, 80) float32: per query its 8 coarse sums, 8 coarse centred norms and 64 fine
+        sums, the kernel's ``query_terms`` (exact integer sums; the norms from float64)."""
+        cc = self._fused_cells[0]
+        q = len(queries)
+        flat = queries.reshape(q, -1).astype(np.int32)[:, self._fused_order]  # fine cell by fine cell
+        fine = flat.reshape(q, 64, -1).sum(axis=2)
+        s1 = fine.reshape(q, 8, 8).sum(axis=2)
+        s2 = (flat * flat).reshape(q, 8, -1).sum(axis=2)
+        return np.concatenate([s1, _centred_norms(s1, s2, cc**3), fine], axis=1).astype(np.float32)
+
+    def _fused_batch(self, queries: np.ndarray, thresholds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The fused search of (Q, N, N, N) queries in one launch, each starting from its
+        threshold (int64, -1: none).
+
+        Returns (Q,) int64 best SSDs and lattice indices (-1 where no block is within the
+        threshold) and the blocks each query scored exactly."""
         be, n = self._backend, self.block
-        cc, cf = self.stages
-        flat = query.reshape(-1).astype(np.int32)[self._fused_order]  # fine cell by fine cell, by coarse cell
-        fine = flat.reshape(64, -1).sum(axis=1)
-        s1 = fine.reshape(8, 8).sum(axis=1)
-        s2 = (flat * flat).reshape(8, -1).sum(axis=1)
-        terms = np.concatenate([s1, _centred_norms(s1, s2, cc**3), fine]).astype(np.float32)
-        start = _INT32_MAX if threshold is None else min(int(threshold), _INT32_MAX)
-        out = be.empty((self._fused_items, 3), np.int32)
+        cc, cf = self._fused_cells
+        q = len(queries)
+        # Work-items per query: the device's count shared out over the batch (one each on a
+        # CPU: a query scanned by one item prunes best); the answer does not depend on it.
+        n_rows = self.lattice[0] * self.lattice[1]
+        per_query = max(1, min(n_rows, self._backend.search_items // q))
+        rows = -(-n_rows // per_query)
+        items = -(-n_rows // rows)
+        start = np.where(thresholds < 0, _INT32_MAX, np.minimum(thresholds, _INT32_MAX)).astype(np.int32)
+        out = be.empty((q * items, 3), np.int32)
         be.cascade_search(
             self._field_device, *self._fused_arrays, *self._fused_geometry, n,
-            self._fused_offsets, be.to_device(terms), 1.0 / cc**3, 1.0 / cf**3,
-            be.to_device(np.ascontiguousarray(query.reshape(-1))), self._fused_rows, 1.0 + _BOUND_MARGIN,
-            1.0 + _NORM_SLACK * cc**3, be.to_device(np.array([start], np.int32)), out, self._fused_items,
+            self._fused_offsets, be.to_device(self._fused_terms(queries).reshape(-1)), 1.0 / cc**3, 1.0 / cf**3,
+            be.to_device(np.ascontiguousarray(queries.reshape(-1))), rows, items, q, 1.0 + _BOUND_MARGIN,
+            1.0 + _NORM_SLACK * cc**3, be.to_device(start), out,
         )
-        res = be.to_host(out)  # sync: (items, 3) come back, one line per work-item
-        self.last_info = {"alive": [self.n_blocks, int(res[:, 2].sum())]}
-        found = res[res[:, 1] >= 0]
-        if len(found) == 0:
-            return None
-        best = found[:, 0].min()
-        if threshold is not None and int(best) > threshold:
-            return None
-        return self.origin_of(int(found[found[:, 0] == best, 1].min())), int(best)
+        res = be.to_host(out).reshape(q, items, 3).astype(np.int64)  # sync: one line per work-item
+        found = res[:, :, 1] >= 0
+        ssd = np.where(found, res[:, :, 0], np.iinfo(np.int64).max)
+        best = ssd.min(axis=1)
+        index = np.where(found & (ssd == best[:, None]), res[:, :, 1], np.iinfo(np.int64).max).min(axis=1)
+        missing = ~found.any(axis=1) | ((thresholds >= 0) & (best > thresholds))
+        index[missing] = -1
+        return best, index, res[:, :, 2].sum(axis=1)
+
+    def _nearest_fused_batch(self, queries: np.ndarray, thresholds: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
+        """The fused search's answers: ((Q, 3) origins, (Q,) SSDs, alive), the queries whose
+        threshold was too low searched again without it (a second launch)."""
+        best, index, scored = self._fused_batch(queries, thresholds)
+        again = np.flatnonzero(index < 0)
+        if len(again):  # the threshold was too low
+            best[again], index[again], more = self._fused_batch(queries[again], np.full(len(again), -1, np.int64))
+            scored[again] += more
+        origins = np.stack(np.unravel_index(index, self.lattice), axis=1).astype(np.int64)
+        return origins, best, [[self.n_blocks, int(v)] for v in scored]
 
     def _bound(self, cell: int, query_sums: dict, alive: np.ndarray | None) -> np.ndarray:
         """Lower bounds (float32, SSD units) of the blocks ``alive`` (None: all)."""
@@ -270,8 +302,10 @@ class CascadeSearch:
         query = check_query(query, self.block)
         n_all = self.n_blocks
         if self.fused:
-            got = self._nearest_fused(query, threshold)
-            return got if got is not None else self._nearest_fused(query, None)  # the threshold was too low
+            origins, ssds, alive = self._nearest_fused_batch(query[None], np.array([-1 if threshold is None
+                                                                                   else int(threshold)]))
+            self.last_info = {"alive": alive[0]}
+            return tuple(int(v) for v in origins[0]), int(ssds[0])
         if not self.stages:  # every block, on the lattice (the fast path of the kernel)
             scores = self._exact_scorer(query.reshape(-1), threshold=threshold, keep_on_device=True)
             # sync: the reduction runs where the scores are; one index and score come back
@@ -339,8 +373,9 @@ class CascadeSearch:
                       ) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
         """The exact nearest block of each of several queries.
 
-        For now a Python loop over :meth:`nearest` (one search launch per query on the
-        fused path); the answers are the same as one call per query.
+        The fused search (N = 8, 16) scores the whole batch in one launch (a second one
+        for queries whose threshold was below their best SSD); the other searches loop
+        over :meth:`nearest`. The answers are those of one call per query.
 
         Args:
             queries: (Q, N, N, N) uint8 blocks.
@@ -352,10 +387,18 @@ class CascadeSearch:
             each stage).
         """
         queries = np.asarray(queries)
+        if queries.dtype != np.uint8:
+            raise TypeError(f"queries have dtype {queries.dtype}: expected uint8, like the source field.")
         if queries.ndim != 4 or queries.shape[1:] != self.block_shape:
             raise ValueError(f"queries must have shape (Q, {', '.join(str(v) for v in self.block_shape)}), "
                              f"got {queries.shape}.")
         n = len(queries)
+        if self.fused or (self.batch_fused and n > 1):
+            limits = np.array([-1 if thresholds is None or thresholds[i] is None else int(thresholds[i])
+                               for i in range(n)], np.int64)
+            if n == 0:
+                return np.empty((0, 3), np.int64), np.empty(0, np.int64), []
+            return self._nearest_fused_batch(np.ascontiguousarray(queries), limits)
         origins = np.empty((n, 3), np.int64)
         ssds = np.empty(n, np.int64)
         alive = []

@@ -20,14 +20,18 @@
 // coarse, coarse_norm, fine: float sums (centred norms) of the c^3 cube at every field
 // position (flat, strides sy, sz; 0 where the cube leaves the field). offsets: 8 coarse
 // then 64 fine flat offsets, the fine ones grouped by coarse cell in the coarse order;
-// query_terms: the query's 8 coarse sums, 8 coarse centred norms, 64 fine sums in that
+// query_terms: per query, its 8 coarse sums, 8 coarse centred norms, 64 fine sums in that
 // order. inv_c, inv_f: 1 / cell samples (powers of two). Limit: t * margin + slack,
 // slack covering the float32 rounding of the norms. n: a multiple of 8 (8-byte rows),
 // SSDs < 2^31 (n <= 32).
-// Work-item t scans lattice rows [t*rows, (t+1)*rows) (row r = z*ly + y), 16 blocks
-// along x at a time; out[3t..3t+2] = its best SSD, that block's lattice index (-1 if it
-// scored none below what others had found) and how many blocks it scored exactly.
-// Range: the number of work-items, local 1 on CPUs (each a work-group of its own).
+// A batch of n_queries queries, items work-items each: work-item g serves query
+// q = g / items (its terms at query_terms[80 q], its samples at query[n^3 q], its shared
+// best at best_shared[q]) and scans lattice rows [t*rows, (t+1)*rows) (t = g - q*items,
+// row r = z*ly + y), 16 blocks along x at a time; out[3g..3g+2] = its best SSD, that
+// block's lattice index (-1 if it scored none below what others had found) and how many
+// blocks it scored exactly. The answer does not depend on items: every block whose SSD
+// could be the minimum is scored by one item or another.
+// Range: items * n_queries work-items (padded), local 1 on CPUs (each a work-group of its own).
 #define CASCADE_COARSE 8
 
 typedef uchar u8x8u __attribute__((ext_vector_type(8), aligned(1)));
@@ -61,17 +65,27 @@ __kernel void cascade_search(__global const uchar* field, __global const float* 
                              __global const float* coarse_norm, __global const float* fine,
                              const int lx, const int ly, const int lz, const int sy, const int sz, const int n,
                              __global const int* offsets, __global const float* query_terms, const float inv_c,
-                             const float inv_f, __global const uchar* query, const int rows, const float margin,
-                             const float slack, volatile __global int* best_shared, __global int* out)
+                             const float inv_f, __global const uchar* queries, const int rows, const int items,
+                             const int n_queries, const float margin, const float slack,
+                             volatile __global int* best_all, __global int* out)
 {
-    const int item = get_global_id(0);
-    const int r0 = item * rows;
+    const int gid = get_global_id(0);
+    const int qi = gid / items;
+    if (qi >= n_queries) return;
+    const int r0 = (gid - qi * items) * rows;
     const int r1 = MIN_INT(r0 + rows, ly * lz);
-    if (r0 >= ly * lz) return;
+    if (r0 >= ly * lz) {
+        out[3 * gid] = INT_MAX;
+        out[3 * gid + 1] = -1;
+        out[3 * gid + 2] = 0;
+        return;
+    }
     const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    __global const float* q_sum = query_terms;
-    __global const float* q_norm = query_terms + CASCADE_COARSE;
-    __global const float* q_fine = query_terms + CASCADE_COARSE;  // fine slot i (8..71) at query_terms[i + 8]
+    __global const float* q_sum = query_terms + qi * (10 * CASCADE_COARSE);
+    __global const float* q_norm = q_sum + CASCADE_COARSE;
+    __global const float* q_fine = q_sum + CASCADE_COARSE;  // fine slot i (8..71) at the query's terms[i + 8]
+    __global const uchar* query = queries + qi * n * n * n;
+    volatile __global int* best_shared = best_all + qi;
     int best = INT_MAX, best_i = -1, scored = 0;
     for (int r = r0; r < r1; ++r) {
         const int z = r / ly;
@@ -119,7 +133,7 @@ __kernel void cascade_search(__global const uchar* field, __global const float* 
             }
         }
     }
-    out[3 * item] = best;
-    out[3 * item + 1] = best_i;
-    out[3 * item + 2] = scored;
+    out[3 * gid] = best;
+    out[3 * gid + 1] = best_i;
+    out[3 * gid + 2] = scored;
 }

@@ -120,6 +120,43 @@ def test_fused_cascade_on_thin_and_wide_fields(device, rng, shape, items, monkey
         assert s.nearest(q, threshold=want[1]) == want
 
 
+@pytest.mark.parametrize("items, min_work", [(None, 0), (1, 0), (3, 0), (1 << 20, 0), (None, float("inf"))])
+@pytest.mark.parametrize("block", [8, 16])
+def test_fused_batch_is_one_launch_and_equals_linear(device, rng, block, items, min_work, monkeypatch):
+    """A batch of queries in one fused launch, shared out over any number of work-items per
+    query, with thresholds that are good, too low or absent: every answer is the linear one.
+    A search small enough to score one query directly still runs a batch fused."""
+    from geosynth.backend import get_backend
+
+    be = get_backend(device)
+    if items is not None:
+        monkeypatch.setattr(be, "search_items", items)
+    field = _field("real", 32, rng)
+    s = CascadeSearch(field, block, device=device, min_work=min_work)
+    assert s.batch_fused and s.fused == (min_work == 0)
+    queries = _queries(field, block, rng, count=5)
+    want = [reference.nearest_block_naive(field, q) for q in queries]
+    # the last query is noise (its best SSD > 0): its threshold is below the best
+    thresholds = [None, want[1][1], want[2][1] // 3 if want[2][1] else None, None, 10**9, want[5][1] - 1]
+    launches = []
+    real = be.cascade_search
+    monkeypatch.setattr(be, "cascade_search", lambda *a: (launches.append(a[-5]), real(*a)))
+    origins, ssds, alive = s.nearest_batch(np.stack(queries), thresholds)
+    assert [(tuple(int(v) for v in o), int(d)) for o, d in zip(origins, ssds)] == want
+    # one launch for the batch, a second for the queries whose threshold was below their best
+    assert launches[0] == len(queries) and launches[1:] == [
+        sum(t is not None and t < w[1] for t, w in zip(thresholds, want))]  # n_queries of each launch
+    assert all(a[0] == s.n_blocks and 1 <= a[1] <= 2 * s.n_blocks for a in alive)
+    got, got_ssd, _ = s.nearest_batch(np.stack(queries))
+    assert np.array_equal(got, origins) and np.array_equal(got_ssd, ssds)
+
+
+def test_batch_of_wrong_dtype_is_refused(one_device):
+    s = CascadeSearch(np.zeros((20, 20, 20), np.uint8), 8, device=one_device, min_work=0)
+    with pytest.raises(TypeError, match="uint8"):
+        s.nearest_batch(np.zeros((2, 8, 8, 8), np.int32))
+
+
 def test_box_sums_match_numpy(rng):
     f = rng.integers(0, 256, (7, 6, 5), dtype=np.uint8)
     got = box_sums(f, 3)

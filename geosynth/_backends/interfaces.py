@@ -439,11 +439,13 @@ class CascadeOps(ABC):
     @abstractmethod
     def cascade_search(self, field: DeviceArray, coarse: DeviceArray, coarse_norm: DeviceArray, fine: DeviceArray,
                        lx: int, ly: int, lz: int, sy: int, sz: int, n: int, offsets: DeviceArray,
-                       query_terms: DeviceArray, inv_c: float, inv_f: float, query: DeviceArray, rows: int,
-                       margin: float, slack: float, best_shared: DeviceArray, out: DeviceArray, items: int) -> None:
-        """One query against every block of the lattice (lx, ly, lz) with flat row / slab
-        strides sy, sz; ``items`` work-items, item t scanning lattice rows [t * rows,
-        (t + 1) * rows).
+                       query_terms: DeviceArray, inv_c: float, inv_f: float, queries: DeviceArray, rows: int,
+                       items: int, n_queries: int, margin: float, slack: float, best_all: DeviceArray,
+                       out: DeviceArray) -> None:
+        """A batch of queries against every block of the lattice (lx, ly, lz) with flat row
+        / slab strides sy, sz, in one launch of ``items * n_queries`` work-items: work-item
+        g serves query q = g // items and scans lattice rows [t * rows, (t + 1) * rows),
+        t = g - q * items.
 
         Args:
             field: (Z * Y * X,) uint8 source; coarse, coarse_norm: (Z * Y * X,) float32
@@ -451,15 +453,19 @@ class CascadeOps(ABC):
                 (Z * Y * X,) float32 sums of the (n/4)^3 cube.
             n: block side; offsets: (72,) int32, the 8 coarse then the 64 fine cell
                 offsets (grouped by coarse cell) from a block's origin.
-            query_terms: (80,) float32, the query's 8 coarse sums, 8 coarse centred norms,
-                64 fine sums; inv_c = 1 / (n/2)^3, inv_f = 1 / (n/4)^3; query: (n^3,) uint8.
+            query_terms: (n_queries * 80,) float32, per query its 8 coarse sums, 8 coarse
+                centred norms, 64 fine sums; inv_c = 1 / (n/2)^3, inv_f = 1 / (n/4)^3;
+                queries: (n_queries * n^3,) uint8.
             margin, slack: a block is dropped when its bound exceeds best * margin + slack
                 (float32 rounding allowance: the answer stays exact).
-            best_shared: (1,) int32 in/out, the best SSD found by any item (start: a
-                threshold or INT32_MAX).
-            out: (items * 3,) int32, per item its best SSD, that block's lattice index (-1:
-                none within the threshold) and the count of blocks it scored exactly.
+            best_all: (n_queries,) int32 in/out, per query the best SSD found by any of
+                its items (start: a threshold or INT32_MAX).
+            out: (n_queries * items * 3,) int32, per work-item its best SSD, that block's
+                lattice index (-1: none within the threshold) and the count of blocks it
+                scored exactly.
         """
+
+
 # ------------------------------------------------------------------ M4 FindMatches (kernels/relief.*)
 # Breckon and Fisher, "3D Surface Relief and Colour Completion", Sec. 3, 6 and Appendix A.
 # Integer positions (quanta), frames (FRAME_ONE = 2^14 scale) and colours; the arithmetic

@@ -20,10 +20,10 @@ class OpenCLCascadeOps(CascadeOps):
     """Mixin: the fused cascade search on an OpenCL device."""
 
     def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
-                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
+                       inv_f, queries, rows, items, n_queries, margin, slack, best_all, out) -> None:
         local = 1 if self.is_cpu else _LOCAL  # one work-group per item on a CPU: the items balance the cores
         self._kernel("cascade", "cascade_search", np.uint8)(
-            self.queue, (-(-items // local) * local,), (local,), field.data, coarse.data, coarse_norm.data, fine.data, lx, ly,
-            lz, sy, sz, n, offsets.data, query_terms.data, inv_c, inv_f, query.data, rows, margin, slack,
-            best_shared.data, out.data,
+            self.queue, (-(-(items * n_queries) // local) * local,), (local,), field.data, coarse.data,
+            coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data, query_terms.data, inv_c, inv_f,
+            queries.data, rows, items, n_queries, margin, slack, best_all.data, out.data,
         )

@@ -18,9 +18,10 @@ class WarpCascadeOps(CascadeOps):
     """Mixin: the fused cascade search on a Warp device."""
 
     def cascade_search(self, field, coarse, coarse_norm, fine, lx, ly, lz, sy, sz, n, offsets, query_terms, inv_c,
-                       inv_f, query, rows, margin, slack, best_shared, out, items) -> None:
+                       inv_f, queries, rows, items, n_queries, margin, slack, best_all, out) -> None:
         self._launch(
-            cascade_kernels.cascade_search_kernel, items,
+            cascade_kernels.cascade_search_kernel, items * n_queries,
             [field.data, coarse.data, coarse_norm.data, fine.data, lx, ly, lz, sy, sz, n, offsets.data,
-             query_terms.data, inv_c, inv_f, query.data, rows, margin, slack, best_shared.data, out.data],
+             query_terms.data, inv_c, inv_f, queries.data, rows, items, n_queries, margin, slack, best_all.data,
+             out.data],
         )
