@@ -41,6 +41,7 @@ _INT32_MAX = 2**31 - 1
 # (each <= 127.5 sqrt(m) for m samples): <= 2 |d| 2^-23 (C_q + C_b) < 0.008 m per cell.
 # The limit gets 0.08 m more for its 8 coarse cells (N = 8: 5 SSD units).
 _NORM_SLACK = 0.08
+_TERMS_CHUNK = 64  # queries whose terms are summed at a time (int32 copies: 12 B a sample)
 
 
 def _divisor_cells(side: int, count: int) -> int:
@@ -220,14 +221,19 @@ class CascadeSearch:
 
     def _fused_terms(self, queries: np.ndarray) -> np.ndarray:
         """(Q, 80) float32: per query its 8 coarse sums, 8 coarse centred norms and 64 fine
-        sums, the kernel's ``query_terms`` (exact integer sums; the norms from float64)."""
+        sums, the kernel's ``query_terms`` (exact integer sums; the norms from float64).
+        _TERMS_CHUNK queries at a time: the int32 copies stay small beside the batch."""
         cc = self._fused_cells[0]
-        q = len(queries)
-        flat = queries.reshape(q, -1).astype(np.int32)[:, self._fused_order]  # fine cell by fine cell
-        fine = flat.reshape(q, 64, -1).sum(axis=2)
-        s1 = fine.reshape(q, 8, 8).sum(axis=2)
-        s2 = (flat * flat).reshape(q, 8, -1).sum(axis=2)
-        return np.concatenate([s1, _centred_norms(s1, s2, cc**3), fine], axis=1).astype(np.float32)
+        out = np.empty((len(queries), 80), np.float32)
+        for lo in range(0, len(queries), _TERMS_CHUNK):
+            part = queries[lo:lo + _TERMS_CHUNK]
+            q = len(part)
+            flat = part.reshape(q, -1).astype(np.int32)[:, self._fused_order]  # fine cell by fine cell
+            fine = flat.reshape(q, 64, -1).sum(axis=2)
+            s1 = fine.reshape(q, 8, 8).sum(axis=2)
+            s2 = (flat * flat).reshape(q, 8, -1).sum(axis=2)
+            out[lo:lo + q] = np.concatenate([s1, _centred_norms(s1, s2, cc**3), fine], axis=1)
+        return out
 
     def _fused_batch(self, queries: np.ndarray, thresholds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The fused search of (Q, N, N, N) queries in one launch, each starting from its

@@ -26,13 +26,15 @@ debris is made here the same way for both sides (marching cubes without smoothin
 
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 
 from geosynth.field import Field
 
 __all__ = [
     "ELEMENT_VOLUME_TOLERANCE", "SLOPE_W1_SCALE", "bidirectional_block_distance", "element_wholeness",
-    "format_structure", "pick_refinement", "structure_report", "surface_structure",
+    "format_structure", "pick_refinement", "structure_kind", "structure_report", "surface_structure",
 ]
 
 ELEMENT_VOLUME_TOLERANCE = 0.35  # an output core is whole when its volume is within 35% of an exemplar core's
@@ -379,8 +381,13 @@ def _surface(values: np.ndarray, spacing: np.ndarray, up_axis: int) -> dict:
     real = ((centre >= 0) & (centre <= last)).all(1)
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
     area = np.where(real, mesh.area_faces, 0.0)
-    return {"up": mesh.face_normals[real, 2 - up_axis], "area": area[real],
-            "component_area": np.bincount(labels, weights=area)}
+    out = {"up": mesh.face_normals[real, 2 - up_axis], "area": area[real],
+           "component_area": np.bincount(labels, weights=area)}
+    # a Trimesh and its caches form reference cycles: free them now, not at the next
+    # collection, so the output's mesh does not come on top of the exemplar's
+    del mesh, centre, labels
+    gc.collect()
+    return out
 
 
 def _debris(surface: dict) -> float:
@@ -463,6 +470,25 @@ def surface_structure(exemplar, output, up_axis: int = 0, spacing=1.0) -> dict:
 # ------------------------------------------------------------------ both
 
 
+def structure_kind(exemplar_field, *, spacing=1.0) -> str:
+    """Which structure metrics fit an exemplar: "elements" when its cores (on the grid of
+    :func:`pick_refinement`) number more than one and the largest holds less than 90% of
+    their volume (separate pieces: rings, balls), else "surface" (terrain, slabs).
+
+    Args:
+        exemplar_field: signed distances, negative inside (a Field, or an array with
+            ``spacing``).
+    """
+    ex, ex_sp = _distance("exemplar_field", exemplar_field, spacing)
+    threshold = 0.5 * float(ex_sp.max())
+    return _kind_of(_exemplar_cores(ex, threshold, pick_refinement(ex, threshold)))
+
+
+def _kind_of(cores: _Cores) -> str:
+    many = len(cores) > 1 and cores.counts.max() < ELEMENTS_LARGEST_SHARE * cores.counts.sum()
+    return "elements" if many else "surface"
+
+
 def structure_report(exemplar_field, output_field, kind: str = "auto", *, spacing=1.0, up_axis: int = 0,
                      periodic=False) -> dict:
     """The structure metrics that fit the exemplar, for printing beside the block distance.
@@ -472,9 +498,7 @@ def structure_report(exemplar_field, output_field, kind: str = "auto", *, spacin
             arrays with ``spacing``), e.g. ``GeometryResult.exemplar_field`` and
             ``GeometryResult.volume.field``.
         kind: "elements" (:func:`element_wholeness`), "surface"
-            (:func:`surface_structure`) or "auto": "elements" when the exemplar's cores
-            (on the grid of :func:`pick_refinement`) number more than one and the
-            largest holds less than 90% of their volume, else "surface".
+            (:func:`surface_structure`) or "auto": :func:`structure_kind`.
         spacing: sample spacing of array inputs.
         up_axis: the up axis for "surface".
         periodic: the output wraps around, for "elements".
@@ -492,8 +516,7 @@ def structure_report(exemplar_field, output_field, kind: str = "auto", *, spacin
         factor = pick_refinement(ex, threshold)
         cores = _exemplar_cores(ex, threshold, factor)
     if kind == "auto":
-        many = len(cores) > 1 and cores.counts.max() < ELEMENTS_LARGEST_SHARE * cores.counts.sum()
-        kind = "elements" if many else "surface"
+        kind = _kind_of(cores)
     if kind == "elements":
         return {"kind": kind, "elements": _element_scores(ex, ex_sp, out, out_sp, periodic, factor, cores)}
     if up_axis not in (0, 1, 2):

@@ -898,7 +898,7 @@ def synthesize_geometry(
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
     from geosynth.meshes import check_mesh, mesh_distance
-    from geosynth.metrics import bidirectional_block_distance, structure_report
+    from geosynth.metrics import bidirectional_block_distance, structure_kind, structure_report
     from geosynth.surface import field_to_mesh
 
     timings = {}
@@ -911,6 +911,11 @@ def synthesize_geometry(
     exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
                                    drop_degenerate=drop_degenerate, device=device)
     timings["exemplar distance field"] = time.perf_counter() - t0
+    kind = None
+    if quality_samples:  # the structure metrics' kind decides their memory: the estimate again, now exact
+        kind = structure_kind(exemplar_field)
+        _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method,
+                          slab, kind)
     spacing = float(exemplar_field.spacing[0])
     if not _SCALE_RANGE[0] <= spacing <= _SCALE_RANGE[1]:
         raise ValueError(f"the exemplar's samples would lie {spacing:g} apart, outside [{_SCALE_RANGE[0]:g}, "
@@ -938,7 +943,7 @@ def synthesize_geometry(
         # the structure metrics ride inside each side's dict, so a loop over quality.items()
         # still finds the block distances
         for key, fld in (("synthesis", vol.field), ("random tiling", base.field)):
-            quality[key]["structure"] = structure_report(exemplar_field, fld, periodic=tileable)
+            quality[key]["structure"] = structure_report(exemplar_field, fld, kind, periodic=tileable)
         quality["synthesis"]["method"] = vol.method
         timings["quality numbers"] = time.perf_counter() - t0
     return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method)
@@ -952,10 +957,17 @@ def synthesize_geometry(
 # smoothing, 258-268 with Taubin smoothing.
 _FACES_PER_AREA_CELL = 3.1
 _MESH_FACE_BYTES = (105, 270)
+# Traced peak of geosynth.metrics.structure_report: the surface metrics 459-466 B per
+# marching-cubes face of the larger of the exemplar's and the output's meshes (one at a
+# time: terrain 64-256, domes 128); the element metrics ~25 B per output sample at refinement 1 (chainmail, balls), finer
+# refinements only where the memory then available allows (metrics._refined_sample_cap).
+_STRUCTURE_FACE_BYTES = 470
+_STRUCTURE_SAMPLE_BYTES = 26
 
 
 def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks, search: str = "cascade",
-                   smooth: int = 10, quality_samples: int = 100, method: str = "paper") -> int:
+                   smooth: int = 10, quality_samples: int = 100, method: str = "paper",
+                   structure: str | None = None) -> int:
     """Estimated peak bytes of :func:`synthesize_geometry` (beyond the exemplar mesh and
     its BVH), for the exemplar grid (Z, Y, X) of ``spacing``, the exemplar's surface
     ``area`` (world units^2) and the target (Z, Y, X).
@@ -966,8 +978,11 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
     float source), the surface (the result's uint8 and float32 fields, 5 B per target
     sample, and field_to_mesh's peak per marching-cubes face; faces estimated from the
     exemplar's area per sample) and the random-tiling baseline of the quality numbers
-    (the result, its mesh at ~60 B per face, and a baseline synthesis); 1 MiB of
-    small buffers.
+    (the result, its mesh at ~60 B per face, and a baseline synthesis), then the
+    structure metrics beside both fields (the larger of the surface metrics' meshes of
+    exemplar and output, or the element metrics' labels: ``structure`` is the kind,
+    "surface" or "elements", from :func:`geosynth.metrics.structure_kind`; None, before
+    the exemplar's field is known, takes the smaller); 1 MiB of small buffers.
     """
     from geosynth.meshes import grid_distance_bytes
 
@@ -981,13 +996,21 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
     ]
     if quality_samples:
         stages.append(5 * n + 60 * faces + volume_bytes(target_shape, grid_shape, blocks, search, True, baseline=True))
+        exemplar_faces = int(_FACES_PER_AREA_CELL * area / spacing**2)
+        kinds = {"surface": _STRUCTURE_FACE_BYTES * max(faces, exemplar_faces), "elements": _STRUCTURE_SAMPLE_BYTES * n}
+        if structure is not None and structure not in kinds:
+            raise ValueError(f"structure must be 'surface', 'elements' or None, got {structure!r}.")
+        metrics = min(kinds.values()) if structure is None else kinds[structure]
+        stages.append(10 * n + 60 * faces + metrics)
     return 8 * g + max(stages) + (1 << 20)
 
 
 def _require_geometry(mesh, size, source_resolution, levels: int, block, search: str, smooth: int,
-                      quality_samples: int, method: str, slab: bool | None = None) -> None:
+                      quality_samples: int, method: str, slab: bool | None = None,
+                      structure: str | None = None) -> None:
     """Refuse a synthesize_geometry whose estimate exceeds the memory available, naming
-    ``size`` when a smaller one fits at this source resolution, else ``source_resolution``."""
+    ``size`` when a smaller one fits at this source resolution, else ``source_resolution``
+    (``structure``: the structure metrics' kind once the exemplar's field is known)."""
     from geosynth.memory import available_memory, largest_fitting
 
     if levels < 1:
@@ -995,6 +1018,8 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
     factor = 2 ** (levels - 1)
     area = float(mesh.area)
     base_blocks = level_blocks(levels, block)
+    if structure is None and quality_samples and mesh.body_count == 1:
+        structure = "surface"  # one piece: its cores are one (the surface metrics, the larger), but for thin necks
 
     def estimate(sz, res) -> int:
         shape, _, spacing = _exemplar_grid_geometry(mesh, res, multiple=factor)
@@ -1006,7 +1031,7 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
             blocks = base_blocks
         blocks = level_block_shapes(target, levels, blocks, flat)
         return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples,
-                              resolve_method(method, flat))
+                              resolve_method(method, flat), structure)
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
     target = target_size(size, shape, levels)

@@ -254,23 +254,29 @@ def test_volume_estimate_matches_traced_peak(device):
         _assert_ratio(estimate, peak, f"synthesize_volume 8 x {n} x {n} on {device}")
 
 
-def test_geometry_estimate_matches_traced_peak(warp_cpu):
-    """synthesize_geometry of the balls exemplar at source resolution 16, sizes 32 and 64
-    (4x the samples): tracemalloc (fields, marching cubes and smoothing are NumPy)."""
+@pytest.mark.parametrize("name, kind", [("balls", "elements"), ("terrain", "surface")])
+def test_geometry_estimate_matches_traced_peak(warp_cpu, name, kind):
+    """synthesize_geometry at source resolution 16, sizes 32 and 64 (4x the samples), with
+    the quality numbers and each kind of structure metrics: tracemalloc (fields, marching
+    cubes, smoothing and the metrics are NumPy)."""
     from geosynth.examples import exemplar_mesh
     from geosynth.volume import _exemplar_grid_geometry, geometry_bytes, synthesize_geometry
 
-    mesh = exemplar_mesh("balls", seed=0)
+    mesh = exemplar_mesh(name, seed=0)
     synthesize_geometry(mesh, 16, source_resolution=16, levels=2, block=8, iterations=2, device=warp_cpu,
                         progress=False, quality_samples=5)
     for n in (32, 64):
         peak, res = _traced_peak(lambda: synthesize_geometry(mesh, n, source_resolution=16, levels=2, block=8,
                                                              iterations=2, device=warp_cpu, progress=False,
                                                              quality_samples=10))
+        assert res.quality["synthesis"]["structure"]["kind"] == kind
         shape, _, spacing = _exemplar_grid_geometry(mesh, 16, multiple=2)
         estimate = geometry_bytes(shape, spacing, mesh.area, res.volume.quantized.shape,
-                                  [lv.block for lv in res.volume.levels], "cascade", 10, 10, res.method)
-        _assert_ratio(estimate, peak, f"synthesize_geometry size {n}")
+                                  [lv.block for lv in res.volume.levels], "cascade", 10, 10, res.method, kind)
+        _assert_ratio(estimate, peak, f"synthesize_geometry {name} size {n}")
+        # before the exemplar's field is known, the smaller kind's memory is counted
+        assert geometry_bytes(shape, spacing, mesh.area, res.volume.quantized.shape,
+                              [lv.block for lv in res.volume.levels], "cascade", 10, 10, res.method) <= estimate
 
 
 @pytest.mark.parametrize("name", ["bricks", "checker", "noise"])
@@ -347,9 +353,9 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
     err = _refuses(lambda: synthesize_geometry(mesh, 16, source_resolution=100_000, levels=2, block=8, iterations=2,
                                                device=device, progress=False), "source_resolution")
     assert err.largest is not None and 8 <= err.largest < 100_000
-    # without the quality numbers: their structure metrics are not in the estimate yet
+    # the largest that fits does fit, quality numbers and structure metrics included
     peak, _ = _traced_peak(lambda: synthesize_geometry(mesh, 16, source_resolution=err.largest, levels=2, block=8,
-                                                       iterations=2, device=device, progress=False, quality_samples=0))
+                                                       iterations=2, device=device, progress=False))
     assert peak <= 4 << 20
 
     # texture_points: a huge texture names texture_size; many points name count
