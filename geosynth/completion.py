@@ -357,7 +357,7 @@ def _pct(a: float, b: float) -> float:
     return 100.0 * abs(b - a) / abs(a) if a != 0 else (0.0 if b == 0 else math.inf)
 
 
-def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
+def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: int) -> dict:
     fit = rs.fit
     n_s, n0 = rs.n_samples, rs.n_original
     tgt = np.arange(n_s, rs.n_vertices)
@@ -365,7 +365,7 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
     h = fit.distance(rs.positions)
     # baseline: each target takes a uniformly random sample's displacement (frame components) and colour
     brng = np.random.default_rng([seed, 1])
-    pick = brng.integers(0, n_s, len(tgt))
+    pick = brng.integers(0, n_candidates, len(tgt))  # the completion's candidates: vertices 0..n_candidates-1
     comp = np.stack([(rs.displacement[pick] * rs.frame_u[pick]).sum(1), (rs.displacement[pick] * rs.frame_v[pick]).sum(1),
                      (rs.displacement[pick] * rs.normals[pick]).sum(1)], 1)
     dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
@@ -407,7 +407,8 @@ def _vertex_normals(positions: np.ndarray, faces: np.ndarray, fallback: np.ndarr
 def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, window: int = DEFAULT_WINDOW,
                      rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
-                     max_targets: int | None = 200_000, oversample: str = "butterfly"):
+                     max_targets: int | None = 200_000, oversample: str = "butterfly",
+                     candidates: str = "capture"):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -429,6 +430,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         max_targets: refuse a completion with more targets (None: no limit).
         oversample: "butterfly" (default) or "midpoint" (the paper's coplanar midpoints);
             see :func:`geosynth.relief_prep.prepare_relief`.
+        candidates: "capture" (default): only the capture's own vertices are candidate
+            matches (their displacements and colours are copied), the oversampling's
+            vertices serve as neighbour partners only; "samples": every sample, the
+            oversampled ones included (the paper, Sec. 5). See the module docstring.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -461,18 +466,21 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
     t2 = time.perf_counter()
-    samples = np.arange(rs.n_samples, dtype=np.int64)
+    if candidates not in ("capture", "samples"):
+        raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
+    partners = np.arange(rs.n_samples, dtype=np.int64)
+    samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
     textured0 = np.zeros(rs.n_vertices, dtype=bool)
     textured0[: rs.n_samples] = True
     colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
     use_mu = float(mu) if rs.colors is not None else 1.0
     index = rm.ReliefIndex.build(rs.base, rs.normals, rs.displacement, textured0, rs.faces, samples,
-                                 colours=colours, device=dev)
+                                 colours=colours, partners=partners, device=dev)
     t3 = time.perf_counter()
     rng = np.random.default_rng(seed)
     textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress)
     t4 = time.perf_counter()
-    quality = _quality(rs, textured, int(seed))
+    quality = _quality(rs, textured, int(seed), len(samples))
     t5 = time.perf_counter()
     positions = rs.positions
     completed = np.zeros(rs.n_vertices, bool)

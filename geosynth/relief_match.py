@@ -176,7 +176,7 @@ class ReliefIndex:
 
     @classmethod
     def build(cls, base, normals, displacements, textured, triangles, samples, *, colours=None,
-              partners: str = "samples", device: str = "cpu") -> ReliefIndex:
+              partners="samples", device: str = "cpu") -> ReliefIndex:
         """Prepare and upload the triangulation for FindMatches.
 
         Args:
@@ -189,8 +189,11 @@ class ReliefIndex:
             samples: (S,) int vertex ids of the candidate samples (textured).
             colours: (V, 3) RGB in [0, 1], or None (no colour: use mu = 1).
             partners: "samples" (the paper, Sec. 5 and Appendix A: a partner and the
-                corners of its closest triangle must be samples) or "textured" (also
-                targets textured so far: the paper's "boot-strapped" variant).
+                corners of its closest triangle must be samples), "textured" (also
+                targets textured so far: the paper's "boot-strapped" variant), or (P,)
+                int ids of textured vertices: a fixed set of usable partners apart from
+                the candidates, e.g. every oversampled sample while only the capture's
+                own vertices are candidates (:func:`geosynth.completion.complete_surface`).
             device: a device string of geosynth.devices().
 
         Returns:
@@ -215,8 +218,15 @@ class ReliefIndex:
         if tex.shape != (v,):
             _fail("textured", f"shape {tex.shape}", f"pass ({v},) booleans")
         tex = tex.astype(bool)
-        if partners not in ("samples", "textured"):
-            _fail("partners", f"{partners!r}", 'pass "samples" or "textured"')
+        partner_ids = None
+        if isinstance(partners, str):
+            if partners not in ("samples", "textured"):
+                _fail("partners", f"{partners!r}", 'pass "samples", "textured" or an array of vertex ids')
+        else:
+            partner_ids = _index_array("partners", partners, v)
+            if len(partner_ids) == 0 or not np.all(tex[partner_ids]):
+                _fail("partners", "empty or not all textured", "pass the ids of textured vertices")
+            partners = "fixed"
         tris = _index_array("triangles", triangles, v, (3,))
         if len(tris) == 0:
             _fail("triangles", "empty", "pass the triangulation of samples and targets")
@@ -247,7 +257,8 @@ class ReliefIndex:
         if extent.max() >= 2 ** 29:
             _fail("base", f"the surface spans {extent.max():.3g} quanta of {quantum:.3g} (the longest edge / 2048)",
                   "the triangulation is too coarse for its extent: subdivide it")
-        usable = tex.copy() if partners == "textured" else np.isin(np.arange(v), samples)
+        usable = tex.copy() if partners == "textured" else np.isin(np.arange(v), samples if partner_ids is None
+                                                                   else partner_ids)
         host = cls._quantize(base, frames, pos, col, usable, tris, origin, quantum, samples)
         backend = get_backend(device)
         arrays = _upload_index(backend, host)
