@@ -611,7 +611,7 @@ def _best(codes: np.ndarray) -> np.ndarray:
 
 
 def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tolerance: float = 1.1,
-                 probes: tuple[int, ...] | None = None) -> list[Matches]:
+                 probes: tuple[int, ...] | None = None, hints=None) -> list[Matches]:
     """The paper's BestMatches of each query: every (sample, rotation) whose ssd is within
     ``tolerance`` x the best (Breckon and Fisher, Appendix A), found with limits that
     prune nothing that could be selected or accepted.
@@ -619,7 +619,11 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     A code is selected when code <= floor(tolerance * best) and accepted when
     code < ceil(max_err * SCORE_ONE). Scores above floor(tolerance * (that - 1)) can
     neither, so they are the first limit; probe passes over every k-th sample (k in
-    ``probes``) lower it to floor(tolerance * their best) before the full pass.
+    ``probes``) lower it to floor(tolerance * their best) before the full pass. ``hints``
+    (candidate slots likely to match, e.g. next to the samples that textured the targets'
+    neighbours: the coherence of Ashikhmin's synthesis) are scored first, so that the
+    probes and the full pass start from a tight limit. Whatever the hints and probes, the
+    result is the unpruned selection: a probe's best is never below the true best.
 
     Args:
         index, queries: as for :func:`score`.
@@ -628,6 +632,8 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         probes: sample strides of the probe passes (default (256, 16) for S >= 4096, (8,)
             for S >= 256, none below; measured on 12,769 samples: 25-30% less work than
             (64, 8)).
+        hints: None or (k,) int slots (positions in index.samples) scored on every query
+            of the batch before the probes.
 
     Returns:
         One :class:`Matches` per query; empty arrays when nothing can be accepted.
@@ -643,9 +649,16 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     accept = int(math.ceil(max_err * SCORE_ONE))
     nq = queries.n_queries
     lim = np.full(nq, min(int(math.floor(tolerance * (accept - 1))), CODE_CAP), np.int64)
+    passes = []
+    if hints is not None:
+        h = np.unique(_index_array("hints", np.atleast_1d(hints), n_s))
+        if len(h):
+            passes.append((len(h), index.backend.to_device(h.astype(np.int32))))
     for stride in probes:
         slots, cand = index.candidates(stride)
-        best = _best(_launch(index, queries, cand, len(slots), lim))
+        passes.append((len(slots), cand))
+    for n_cand, cand in passes:
+        best = _best(_launch(index, queries, cand, n_cand, lim))
         lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
     slots, cand = index.candidates(1)
     codes = _launch(index, queries, cand, len(slots), lim)

@@ -207,3 +207,22 @@ def test_only_the_capture_vertices_are_copied(one_device):
     assert not colours_own.all() and rep.picked_original < 1.0
     with pytest.raises(ValueError, match="candidates"):
         complete_surface(cap, fit="plane", region=region, window=2, device=one_device, candidates="all")
+
+
+def test_coherence_hints_change_nothing(one_device, monkeypatch):
+    """The hints (candidates next to the samples that textured a target's neighbours) only
+    tighten FindMatches' pruning limit: the completion is the same bits without them, or
+    with the stride probes after them."""
+    import geosynth.completion as completion
+
+    cap, region = _small(5), ((0.0, 0.9), (0.0, 0.45))
+    runs = []
+    for rings, probes in ((completion.HINT_RINGS, completion.HINT_PROBES), (0, None), (1, (4,))):
+        monkeypatch.setattr(completion, "HINT_RINGS", rings)
+        monkeypatch.setattr(completion, "HINT_PROBES", probes)
+        s, r, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=3)
+        runs.append((s, r))
+    assert runs[0][1].targets > 20
+    for s, r in runs[1:]:
+        assert np.array_equal(s.positions, runs[0][0].positions) and np.array_equal(s.colors, runs[0][0].colors)
+        assert r.failed_matches == runs[0][1].failed_matches

@@ -203,8 +203,11 @@ def test_find_matches_is_the_unpruned_selection(device):
     index = rm.ReliefIndex.build(**kw, device=device)
     q = _queries(index, kw, count=5, mu=0.6)
     full = rm.score(index, q).codes
-    for max_err in (0.5, 0.004):
-        got = rm.find_matches(index, q, max_err, probes=(8, 2))
+    best_slot = int(np.unravel_index(np.argmin(np.where(full[0] < rm.OVER, full[0], rm.OVER)), full[0].shape)[0])
+    variants = [dict(probes=(8, 2)), dict(probes=(), hints=[best_slot]),  # the best first: the tightest limit
+                dict(probes=(4,), hints=np.arange(0, len(index.samples), 5)), dict(probes=(), hints=[])]
+    for max_err, kw in [(e, v) for e in (0.5, 0.004) for v in variants]:
+        got = rm.find_matches(index, q, max_err, **kw)
         for i, m in enumerate(got):
             real = full[i][full[i] < rm.OVER].astype(np.int64)
             best = real.min()
@@ -269,6 +272,7 @@ def test_bad_input_one_line_errors(one_device):
     q = rm.neighbourhood_queries(index, [far - 1], [0, 1], [0], 1.0)
     err(lambda: rm.score(index, q, limits=[1, 2]), "limits")
     err(lambda: rm.find_matches(index, q, float("nan")), "max_err")
+    err(lambda: rm.find_matches(index, q, 0.5, hints=[len(index.samples)]), "hints")
     err(lambda: index.update([1], [[np.nan, 0, 0]]), "displacements", "not finite")
 
 
