@@ -30,6 +30,7 @@ from harness import finish, parse_args, start  # noqa: E402
 PAPER_TARGETS, PAPER_SAMPLES, PAPER_SECONDS = 7_200, 12_852, 13 * 3600
 PAPER_TABLE1 = "2.32% (Fig. 8), 2.71% (Fig. 10), 5.55% (Fig. 9), 6.65% (Fig. 12)"
 VOLUME_TARGET_PCT = 7.0
+FIG9_WINDOW = 3  # the speed case keeps window 3 (the bark built-in now uses 4), so its rows compare over time
 BUILTINS = ["golf", "bark", "wave", "noise", "tower", "flat"]
 
 
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
         paper_rate = PAPER_TARGETS / PAPER_SECONDS
         for dev in devices:
             c0 = time.process_time()
-            surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window,
+            surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=FIG9_WINDOW,
                                                 mu=ex.mu, device=dev, seed=0)
             cpu = time.process_time() - c0
             q = rep.quality
