@@ -552,17 +552,27 @@ def _check_pair(index: ReliefIndex, queries: ReliefQueries) -> None:
 
 
 def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_cand: int,
-            limits: np.ndarray) -> np.ndarray:
+            limits: np.ndarray, uploaded=None, checked: bool = False) -> np.ndarray:
+    """(Q, n_cand, R) codes. ``uploaded``: the queries' device arrays from an earlier
+    launch of the same batch (only the limits are uploaded again); ``checked``: the
+    memory check was made for at least this many candidates."""
+    import dataclasses
+
     from geosynth.memory import require
 
     b = index.backend
     nq, r = queries.n_queries, queries.rotations
-    per_query = 3 * n_cand * r * 4  # the device codes, their host copy and one array the caller derives
-    require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query, what=f"FindMatches codes of {nq} queries x {n_cand} samples x {r}")
-    qa = _upload_queries(b, queries, limits)
+    if not checked:
+        per_query = 3 * n_cand * r * 4  # the device codes, their host copy and one array the caller derives
+        require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
+                what=f"FindMatches codes of {nq} queries x {n_cand} samples x {r}")
+    if uploaded is None:
+        qa = _upload_queries(b, queries, limits)
+    else:
+        qa = dataclasses.replace(uploaded, limit=b.to_device(np.asarray(limits, np.int64)))
     out = b.empty((nq * n_cand * r,), np.uint32)
     b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, len(index.samples), out)
-    return b.to_host(out).reshape(nq, n_cand, r)
+    return b.to_host(out).reshape(nq, n_cand, r), qa
 
 
 def score(index: ReliefIndex, queries: ReliefQueries, limits=None) -> ReliefScores:
@@ -580,7 +590,7 @@ def score(index: ReliefIndex, queries: ReliefQueries, limits=None) -> ReliefScor
     _check_pair(index, queries)
     lim = _check_limits(limits, queries.n_queries)
     slots, cand = index.candidates(1)
-    return ReliefScores(_launch(index, queries, cand, len(slots), lim))
+    return ReliefScores(_launch(index, queries, cand, len(slots), lim)[0])
 
 
 @dataclass(frozen=True)
@@ -657,11 +667,18 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     for stride in probes:
         slots, cand = index.candidates(stride)
         passes.append((len(slots), cand))
-    for n_cand, cand in passes:
-        best = _best(_launch(index, queries, cand, n_cand, lim))
-        lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
     slots, cand = index.candidates(1)
-    codes = _launch(index, queries, cand, len(slots), lim)
+    from geosynth.memory import require  # one memory check, for the full pass (the largest)
+
+    per_query = 3 * len(slots) * queries.rotations * 4
+    require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
+            what=f"FindMatches codes of {nq} queries x {len(slots)} samples x {queries.rotations}")
+    qa = None
+    for n_cand, pcand in passes:
+        pc, qa = _launch(index, queries, pcand, n_cand, lim, uploaded=qa, checked=True)
+        best = _best(pc)
+        lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
+    codes, _ = _launch(index, queries, cand, len(slots), lim, uploaded=qa, checked=True)
     best = _best(codes)
     out = []
     for i in range(nq):
