@@ -456,52 +456,60 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
     q = index.quantum
     tex = index.textured
     c, s = _cos_sin(np.arange(rotations), rotations)
-    qstart = [0]
-    ent, rel, chain, cells, col, wq, ks, kc = [], [], [], [], [], [], [], []
     side = 2 * STENCIL_K + 1
-    for i, t in enumerate(targets):
-        nb = np.unique(nbr[starts[i]:starts[i + 1]])
-        nb = nb[tex[nb] & (nb != t)]
-        if len(nb) == 0:
-            _fail("targets", f"target {int(t)} has no textured neighbour", "score only boundary targets")
-        rel_b = index.base[nb] - index.base[t]
-        d2 = np.einsum("ij,ij->i", rel_b, rel_b)
-        w = np.exp(-(d2 - d2.min()) / (2.0 * sigma * sigma))  # relative to the largest weight
-        wi = np.maximum(1, np.rint(WEIGHT_ONE * w)).astype(np.int64)
-        order = np.lexsort((nb, -wi))
-        nb, rel_b, wi = nb[order], rel_b[order], wi[order]
-        f = index.frames[t]
-        o = rel_b @ f.T / q  # (J, 3) in t's frame, quanta
-        d = index.displacements[nb] @ f.T / q
-        ro = np.stack([np.outer(o[:, 0], c) - np.outer(o[:, 1], s), np.outer(o[:, 0], s) + np.outer(o[:, 1], c),
-                       np.repeat(o[:, 2:3], rotations, 1)], -1)  # (J, R, 3)
-        rd = np.stack([np.outer(d[:, 0], c) - np.outer(d[:, 1], s), np.outer(d[:, 0], s) + np.outer(d[:, 1], c),
-                       np.repeat(d[:, 2:3], rotations, 1)], -1)
-        r6 = np.rint(np.concatenate([ro, rd], -1))
-        if np.abs(r6).max() >= 2 ** 24:
-            _fail("nbr", f"target {int(t)}'s neighbourhood spans {np.abs(r6).max():.3g} quanta",
-                  "pass a smaller window (the neighbourhood must stay within ~8000 edge lengths)")
-        rel.append(r6.astype(np.int32))
-        cu = np.rint(ro[..., 0] * q / index.host.cell).astype(np.int64)
-        cv = np.rint(ro[..., 1] * q / index.host.cell).astype(np.int64)
-        inside = (np.abs(cu) <= STENCIL_K) & (np.abs(cv) <= STENCIL_K)
-        cells.append(np.where(inside, (cu + STENCIL_K) * side + cv + STENCIL_K, -1).astype(np.int32))
-        ch = np.zeros(len(nb), np.int32)
-        if len(nb) > 1:
-            step = np.linalg.norm(o[1:] - o[:-1], axis=1)
-            ch[1:] = step < np.linalg.norm(o[1:], axis=1)
-        chain.append(ch)
-        ent.append(nb)
-        col.append(index.host.colour[nb].astype(np.int32))
-        wq.append(wi.astype(np.int32))
-        total = float(wi.sum())
-        ks.append(mu * SCORE_ONE / (total * index.shape_norm_q2))
-        kc.append((1.0 - mu) * SCORE_ONE / (total * COLOUR_RANGE2))
-        qstart.append(qstart[-1] + len(nb))
-    return ReliefQueries(targets=targets, qstart=np.asarray(qstart, np.int32), entries=np.concatenate(ent),
-                         rel=np.concatenate(rel), chain=np.concatenate(chain), cell=np.concatenate(cells), colour=np.concatenate(col),
-                         weight=np.concatenate(wq), ks=np.asarray(ks, np.float64), kc=np.asarray(kc, np.float64),
-                         rotations=int(rotations), mu=float(mu), sigma=float(sigma))
+    nq = len(targets)
+    if nq == 0:
+        _fail("targets", "empty", "pass at least one target")
+    # every query at once (one row per entry; qid its query): unique textured neighbours
+    qid = np.repeat(np.arange(nq), np.diff(starts).astype(np.int64))
+    nb = nbr.astype(np.int64)
+    order = np.lexsort((nb, qid))
+    qid, nb = qid[order], nb[order]
+    first = np.ones(len(nb), bool)
+    first[1:] = (qid[1:] != qid[:-1]) | (nb[1:] != nb[:-1])
+    keep = first & tex[nb] & (nb != targets[qid])
+    qid, nb = qid[keep], nb[keep]
+    counts = np.bincount(qid, minlength=nq)
+    if np.any(counts == 0):
+        bad = int(targets[np.argmax(counts == 0)])
+        _fail("targets", f"target {bad} has no textured neighbour", "score only boundary targets")
+    qs = np.concatenate([[0], np.cumsum(counts)])
+    t_of = targets[qid]
+    rel_b = index.base[nb] - index.base[t_of]
+    d2 = np.einsum("ij,ij->i", rel_b, rel_b)
+    d2min = np.minimum.reduceat(d2, qs[:-1])
+    w = np.exp(-(d2 - d2min[qid]) / (2.0 * sigma * sigma))  # relative to the largest weight of the query
+    wi = np.maximum(1, np.rint(WEIGHT_ONE * w)).astype(np.int64)
+    order = np.lexsort((nb, -wi, qid))  # by decreasing weight, ties by id, within a query
+    qid, nb, rel_b, wi, t_of = qid[order], nb[order], rel_b[order], wi[order], t_of[order]
+    f = index.frames[t_of]  # (E, 3, 3) rows u, v, n of the target's frame
+    o = np.einsum("ekj,ej->ek", f, rel_b) / q  # (E, 3) in t's frame, quanta
+    d = np.einsum("ekj,ej->ek", f, index.displacements[nb]) / q
+    ro = np.stack([np.outer(o[:, 0], c) - np.outer(o[:, 1], s), np.outer(o[:, 0], s) + np.outer(o[:, 1], c),
+                   np.repeat(o[:, 2:3], rotations, 1)], -1)  # (E, R, 3)
+    rd = np.stack([np.outer(d[:, 0], c) - np.outer(d[:, 1], s), np.outer(d[:, 0], s) + np.outer(d[:, 1], c),
+                   np.repeat(d[:, 2:3], rotations, 1)], -1)
+    r6 = np.rint(np.concatenate([ro, rd], -1))
+    big = np.abs(r6).max(axis=(1, 2))
+    if np.any(big >= 2 ** 24):
+        k = int(np.argmax(big >= 2 ** 24))
+        _fail("nbr", f"target {int(t_of[k])}'s neighbourhood spans {big[k]:.3g} quanta",
+              "pass a smaller window (the neighbourhood must stay within ~8000 edge lengths)")
+    cu = np.rint(ro[..., 0] * q / index.host.cell).astype(np.int64)
+    cv = np.rint(ro[..., 1] * q / index.host.cell).astype(np.int64)
+    inside = (np.abs(cu) <= STENCIL_K) & (np.abs(cv) <= STENCIL_K)
+    cells = np.where(inside, (cu + STENCIL_K) * side + cv + STENCIL_K, -1).astype(np.int32)
+    chain = np.zeros(len(nb), np.int32)
+    if len(nb) > 1:
+        step = np.linalg.norm(o[1:] - o[:-1], axis=1)
+        chain[1:] = (step < np.linalg.norm(o[1:], axis=1)) & (qid[1:] == qid[:-1])
+    total = np.add.reduceat(wi, qs[:-1]).astype(np.float64)
+    ks = mu * SCORE_ONE / (total * index.shape_norm_q2)
+    kc = (1.0 - mu) * SCORE_ONE / (total * COLOUR_RANGE2)
+    return ReliefQueries(targets=targets, qstart=qs.astype(np.int32), entries=nb, rel=r6.astype(np.int32),
+                         chain=chain, cell=cells, colour=index.host.colour[nb].astype(np.int32),
+                         weight=wi.astype(np.int32), ks=ks, kc=kc, rotations=int(rotations), mu=float(mu),
+                         sigma=float(sigma))
 
 
 def _upload_queries(backend, queries: ReliefQueries, limits: np.ndarray):
