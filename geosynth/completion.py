@@ -49,7 +49,9 @@ frames) and colour of a uniformly random candidate. The baseline keeps the distr
 of |h| and of the colours by construction: on the volume and histogram numbers it shows
 the sampling noise of independent copies, which a completion made of coherent patches
 (fewer independent draws) only matches by chance; the slope and colour step are where
-random copies fail.
+random copies fail. The honest yardstick for the volume and histogram numbers is the
+capture against itself: its two halves (split at the median of the first fit parameter)
+compared with each other, two coherent real parts of the surface.
 """
 
 from __future__ import annotations
@@ -134,7 +136,9 @@ class CompletionReport:
             ``slope_completed``, ``slope_diff_pct``, ``slope_baseline``,
             ``slope_baseline_diff_pct``, ``colour_step_original``, ``colour_step_completed``,
             ``colour_step_diff_pct``, ``colour_step_baseline``, ``colour_step_baseline_diff_pct``
-            (None without colour).
+            (None without colour), ``volume_self_diff_pct`` and ``hist_self`` (the capture's
+            two halves, split at the median of the first fit parameter, against each other:
+            how much two real parts of the surface differ; ``hist_self`` None without colour).
         device: the device string the matching ran on.
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
@@ -176,6 +180,9 @@ class CompletionReport:
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
                        f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline "
                        f"{q['volume_baseline']:.5g} ({q['volume_baseline_diff_pct']:.2f}%)")
+            out.append(f"the capture's two halves against each other: volume {q['volume_self_diff_pct']:.2f}% "
+                       f"difference" + ("" if q.get("hist_self") is None else
+                                        f", RGB histogram distance {q['hist_self']:.4f}"))
             out.append(f"relief slope at the target spacing: original {q['slope_original']:.4g}, completed "
                        f"{q['slope_completed']:.4g} ({q['slope_diff_pct']:.1f}% difference); random baseline "
                        f"{q['slope_baseline']:.4g} ({q['slope_baseline_diff_pct']:.1f}%)")
@@ -462,6 +469,15 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: i
         q["colour_step_diff_pct"], q["colour_step_baseline_diff_pct"] = _pct(co, cc), _pct(co, cbs)
         q["hist_distance"] = _histogram_distance(rs.colors[:n0], rs.colors[done])
         q["hist_baseline"] = _histogram_distance(rs.colors[:n0], rs.colors[pick])
+    # the capture against itself: its two halves split at the median of the first parameter
+    # (two coherent regions; how much real parts of this surface differ)
+    u = rs.param[:n0, 0]
+    lo = u <= np.median(u)
+    ha, hb2 = np.abs(h[:n0][lo]), np.abs(h[:n0][~lo])
+    q["volume_self_diff_pct"] = _pct(float(ha.mean()), float(hb2.mean())) if len(hb2) and len(ha) else float("nan")
+    q["hist_self"] = None
+    if rs.colors is not None and lo.any() and (~lo).any():
+        q["hist_self"] = _histogram_distance(rs.colors[:n0][lo], rs.colors[:n0][~lo])
     return q
 
 
