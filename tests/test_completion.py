@@ -70,6 +70,10 @@ def test_wave_keeps_amplitude_and_period(wave_run):
     assert q["volume_diff_pct"] < 10
     assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"]  # neighbours fit together, unlike random copies
     assert q["hist_distance"] is not None and q["hist_distance"] < 0.5
+    # colours that follow the relief: neighbouring colours fit together, unlike random copies
+    assert q["colour_step_diff_pct"] < q["colour_step_baseline_diff_pct"]
+    # the capture's halves: two periods of one wave, so the same volume and close histograms
+    assert q["volume_self_diff_pct"] < 5 and q["hist_self"] is not None and q["hist_self"] < 0.2
     assert timings["grow"] > 0 and timings["targets_per_s"] > 0
 
 
