@@ -30,6 +30,7 @@ from harness import finish, parse_args, start  # noqa: E402
 PAPER_TARGETS, PAPER_SAMPLES, PAPER_SECONDS = 7_200, 12_852, 13 * 3600
 PAPER_TABLE1 = "2.32% (Fig. 8), 2.71% (Fig. 10), 5.55% (Fig. 9), 6.65% (Fig. 12)"
 VOLUME_TARGET_PCT = 7.0
+FIG9_WINDOW = 3  # the speed case keeps window 3 (the bark built-in now uses 4), so its rows compare over time
 BUILTINS = ["golf", "bark", "wave", "noise", "tower", "flat"]
 
 
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
         paper_rate = PAPER_TARGETS / PAPER_SECONDS
         for dev in devices:
             c0 = time.process_time()
-            surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window,
+            surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=FIG9_WINDOW,
                                                 mu=ex.mu, device=dev, seed=0)
             cpu = time.process_time() - c0
             q = rep.quality
@@ -91,14 +92,16 @@ def main(argv=None) -> int:
         names = [n.strip() for n in args.examples.split(",") if n.strip()]
     dev = devices[0]
     lines += [f"## Quality of the built-ins (device {dev}, seed 0)", "",
-              "| example | samples | targets | volume orig | volume completed | diff % | baseline diff % | "
-              "slope diff % | baseline slope % | RGB hist | baseline hist | grow s | targets met |",
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+              "| example | window | samples | targets | volume orig | volume completed | diff % | baseline diff % | "
+              "slope diff % | baseline slope % | RGB hist | baseline hist | colour step diff % | baseline step % | "
+              "halves diff % | halves hist | grow s | CPU s | issue's targets met | revised targets met |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"]
     for name in names:
         ex = completion_example(name)
-        t0 = time.perf_counter()
+        c0 = time.process_time()
         surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window, mu=ex.mu,
                                             device=dev, seed=0)
+        cpu = time.process_time() - c0
         q = rep.quality
         flat = q["volume_original"] == 0
         vol_ok = flat or (q["volume_diff_pct"] <= VOLUME_TARGET_PCT
@@ -106,18 +109,37 @@ def main(argv=None) -> int:
         hist_ok = q["hist_distance"] is None or q["hist_distance"] < q["hist_baseline"]
         met = ("yes" if vol_ok and hist_ok else
                "no: " + ", ".join(s for s, ok in (("volume", vol_ok), ("histogram", hist_ok)) if not ok))
+        # the revised targets: the capture's own halves as the yardstick, structure beats random copies
+        vol2 = flat or (q["volume_diff_pct"] <= VOLUME_TARGET_PCT
+                        and q["volume_diff_pct"] <= max(q["volume_self_diff_pct"], q["volume_baseline_diff_pct"]) + 2.0)
+        hist2 = q["hist_distance"] is None or q["hist_distance"] <= q["hist_self"] + 0.02
+        struct = flat or (q["slope_diff_pct"] < q["slope_baseline_diff_pct"]
+                          and (q["colour_step_diff_pct"] is None
+                               or q["colour_step_diff_pct"] < q["colour_step_baseline_diff_pct"]))
+        met2 = ("yes" if vol2 and hist2 and struct else
+                "no: " + ", ".join(s for s, ok in (("volume", vol2), ("histogram", hist2), ("structure", struct))
+                                   if not ok))
+        hs = "-" if q["hist_self"] is None else f"{q['hist_self']:.4f}"
         hist = "-" if q["hist_distance"] is None else f"{q['hist_distance']:.4f}"
         hb = "-" if q["hist_baseline"] is None else f"{q['hist_baseline']:.4f}"
-        row = (f"| {name} | {rep.samples:,} | {rep.targets:,} | {q['volume_original']:.5f} | "
+        cs = "-" if q["colour_step_diff_pct"] is None else f"{q['colour_step_diff_pct']:.1f}"
+        cbs = "-" if q["colour_step_baseline_diff_pct"] is None else f"{q['colour_step_baseline_diff_pct']:.1f}"
+        row = (f"| {name} | {ex.window} | {rep.samples:,} | {rep.targets:,} | {q['volume_original']:.5f} | "
                f"{q['volume_completed']:.5f} | {q['volume_diff_pct']:.2f} | {q['volume_baseline_diff_pct']:.2f} | "
-               f"{q['slope_diff_pct']:.1f} | {q['slope_baseline_diff_pct']:.1f} | {hist} | {hb} | {tm['grow']:.1f} | "
-               f"{met} |")
+               f"{q['slope_diff_pct']:.1f} | {q['slope_baseline_diff_pct']:.1f} | {hist} | {hb} | {cs} | {cbs} | "
+               f"{q['volume_self_diff_pct']:.2f} | {hs} | {tm['grow']:.1f} | {cpu:.1f} | {met} | {met2} |")
         print(row, flush=True)
         lines.append(row)
     lines += ["", f"Paper, Table 1 (% difference of the volume integral): {PAPER_TABLE1}. Targets: volume "
               f"difference <= {VOLUME_TARGET_PCT:g}% and below the random baseline's; RGB histogram distance below "
               "the baseline's. The baseline gives each target a uniformly random sample's displacement and colour. "
-              "Slope = mean |h_i - h_j| / |b_i - b_j| over vertex pairs of a part about one target spacing apart (random copies break it)."]
+              "Slope = mean |h_i - h_j| / |b_i - b_j|, colour step = mean |c_i - c_j| (RGB L1 / 3) over vertex pairs of "
+              "a part about one target spacing apart (random copies break both). The baseline keeps the |h| and colour "
+              "distributions by construction, so its volume and histogram numbers are the sampling noise of "
+              "independent copies, not a competitor (see geosynth.completion). Halves = the capture's two halves "
+              "(split at the median of the first fit parameter) against each other: how much two real parts of the "
+              "surface differ. Revised targets: volume diff <= 7% and <= max(halves, baseline) + 2 points; RGB "
+              "histogram distance <= the halves' + 0.02; slope and colour step differences below the baseline's."]
     scale_text = "--quick" if args.quick else "full size"
     return finish("\n".join(lines), args, title=f"# bm_completion: M4 relief and colour completion ({scale_text})")
 

@@ -24,14 +24,34 @@ afterwards. Since no member of a class is in another's neighbourhood, and a part
 valid only when it is a captured sample, this gives the same result as one target at a
 time in that order.
 
+Candidates. The paper (Sec. 4-5) uses the oversampled capture as its sample set: the
+1-to-4 subdivision adds intermediate vertices so that a target whose position is out of
+phase with the capture's sampling still finds partners at the right places. Those new
+vertices are interpolated, though: smoother heights and averaged colours, no new detail
+(the paper says as much), and about 3 of every 4 samples. As candidates they were the
+matches' favourites (85% of the copies on bark, for 74% of the pool: their smoother
+neighbourhoods score lower) and the completions came out 5-19% flatter with narrower
+colour histograms. So by default (``candidates="capture"``) only the capture's own
+vertices are candidates, i.e. copied from, while every sample, the oversampled ones
+included, is a neighbour partner (``ReliefIndex.build(partners=ids)``): the phase
+alignment the oversampling is for is kept, the copies are real captured values, and the
+matching does 4x less work. ``candidates="samples"`` is the paper's pool.
+
 Quality (printed with every run, :class:`CompletionReport`): the paper's mean integral
 (mean |h| of the signed distance h to the fit) of the captured part and of the completed
 part with the % difference; the RGB histogram distance (16 bins a channel, half the L1
 distance of the normalized histograms, mean over R, G, B, in [0, 1]); the mean relief
-slope |h_i - h_j| / |b_i - b_j| over pairs of vertices of a part about one target spacing
-apart (the capture's own vertices, the completed targets; it sees whether neighbouring
-displacements fit together); each beside a baseline that gives every
-target the displacement (in the frames) and colour of a uniformly random sample.
+slope |h_i - h_j| / |b_i - b_j| and the mean colour step |c_i - c_j| (RGB L1 / 3) over
+pairs of vertices of a part about one target spacing apart (the capture's own vertices,
+the completed targets; they see whether neighbouring displacements and colours fit
+together); each beside a baseline that gives every target the displacement (in the
+frames) and colour of a uniformly random candidate. The baseline keeps the distribution
+of |h| and of the colours by construction: on the volume and histogram numbers it shows
+the sampling noise of independent copies, which a completion made of coherent patches
+(fewer independent draws) only matches by chance; the slope and colour step are where
+random copies fail. The honest yardstick for the volume and histogram numbers is the
+capture against itself: its two halves (split at the median of the first fit parameter)
+compared with each other, two coherent real parts of the surface.
 """
 
 from __future__ import annotations
@@ -58,6 +78,8 @@ RELAX = 1.1  # MaxErrThreshold x 1.1 after a list without progress
 HIST_BINS = 16
 _MAX_BATCH = 64
 _BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
+HINT_RINGS = 3  # coherence hints: the candidates within 3 edge rings of the samples that textured the neighbours
+HINT_PROBES: tuple[int, ...] | None = ()  # stride probes after the hints (None: find_matches' default)
 
 
 @dataclass
@@ -112,7 +134,11 @@ class CompletionReport:
             ``volume_diff_pct``, ``volume_baseline``, ``volume_baseline_diff_pct``,
             ``hist_distance``, ``hist_baseline`` (None without colour), ``slope_original``,
             ``slope_completed``, ``slope_diff_pct``, ``slope_baseline``,
-            ``slope_baseline_diff_pct``.
+            ``slope_baseline_diff_pct``, ``colour_step_original``, ``colour_step_completed``,
+            ``colour_step_diff_pct``, ``colour_step_baseline``, ``colour_step_baseline_diff_pct``
+            (None without colour), ``volume_self_diff_pct`` and ``hist_self`` (the capture's
+            two halves, split at the median of the first fit parameter, against each other:
+            how much two real parts of the surface differ; ``hist_self`` None without colour).
         device: the device string the matching ran on.
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
@@ -154,12 +180,18 @@ class CompletionReport:
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
                        f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline "
                        f"{q['volume_baseline']:.5g} ({q['volume_baseline_diff_pct']:.2f}%)")
+            out.append(f"the capture's two halves against each other: volume {q['volume_self_diff_pct']:.2f}% "
+                       f"difference" + ("" if q.get("hist_self") is None else
+                                        f", RGB histogram distance {q['hist_self']:.4f}"))
             out.append(f"relief slope at the target spacing: original {q['slope_original']:.4g}, completed "
                        f"{q['slope_completed']:.4g} ({q['slope_diff_pct']:.1f}% difference); random baseline "
                        f"{q['slope_baseline']:.4g} ({q['slope_baseline_diff_pct']:.1f}%)")
             if q.get("hist_distance") is not None:
                 out.append(f"RGB histogram distance original vs completed: {q['hist_distance']:.4f}; random "
                            f"baseline {q['hist_baseline']:.4f} (0 = same histograms, 1 = disjoint)")
+                out.append(f"colour step at the target spacing: original {q['colour_step_original']:.4g}, completed "
+                           f"{q['colour_step_completed']:.4g} ({q['colour_step_diff_pct']:.1f}% difference); random "
+                           f"baseline {q['colour_step_baseline']:.4g} ({q['colour_step_baseline_diff_pct']:.1f}%)")
         return out
 
 
@@ -221,7 +253,8 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
     err = float(max_error)
     stats = dict(lists=0, passes_without_progress=0, failed_matches=0)
     picked = np.full(n_v, -1, dtype=np.int64)  # the sample each target copied
-    per_launch = max(1, min(_MAX_BATCH, _BATCH_CODES // max(1, n_s * rotations)))
+    per_launch = max(1, min(_MAX_BATCH, _BATCH_CODES // max(1, len(index.samples) * rotations)))
+    hints = _HintTable(rs, index) if HINT_RINGS > 0 else None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -256,7 +289,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                     for start in range(0, len(cls), per_launch):
                         chunk = cls[start:start + per_launch]
                         got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
-                                           rotations, mu, err)
+                                           rotations, mu, err, hints, picked, textured)
                         accepted_t, accepted_s, accepted_r = [], [], []
                         for t, m in zip(chunk, got):  # picks in list order (one draw per non-empty match set)
                             k = slot_of[t]
@@ -298,9 +331,45 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
     return textured, stats
 
 
-def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err):
+class _HintTable:
+    """Coherence hints for FindMatches (Ashikhmin's idea): a target next to a vertex that
+    holds sample x's values likely matches near x. For every sample vertex, the candidate
+    slots within HINT_RINGS edge rings of it (itself included); they only tighten the
+    pruning limit, never change the matches (find_matches' hints)."""
+
+    def __init__(self, rs: ReliefSurface, index):
+        n_s = rs.n_samples
+        slot = np.full(rs.n_vertices, -1, dtype=np.int64)
+        slot[index.samples] = np.arange(len(index.samples))
+        ptr, idx, _ = ring_neighbourhoods(rs.adjacency, np.arange(n_s), HINT_RINGS)
+        own = np.repeat(np.arange(n_s), np.diff(ptr))
+        keys = np.concatenate([np.arange(n_s), own])
+        vals = slot[np.concatenate([np.arange(n_s), idx])]
+        keep = vals >= 0
+        keys, vals = keys[keep], vals[keep]
+        order = np.argsort(keys, kind="stable")
+        self.ptr = np.concatenate([[0], np.cumsum(np.bincount(keys, minlength=n_s))]).astype(np.int64)
+        self.slots = vals[order]
+        self.n_samples = n_s
+        self.adjacency = rs.adjacency
+
+    def for_targets(self, chunk: np.ndarray, picked: np.ndarray, textured: np.ndarray) -> np.ndarray:
+        """(k,) candidate slots near the sources of the chunk's textured edge neighbours."""
+        adj_ptr, adj_idx = self.adjacency
+        nb = np.concatenate([adj_idx[adj_ptr[t]:adj_ptr[t + 1]] for t in chunk])
+        nb = nb[textured[nb]]
+        src = np.where(nb < self.n_samples, nb, picked[nb])
+        src = np.unique(src[src >= 0])
+        if len(src) == 0:
+            return np.zeros(0, np.int64)
+        return np.unique(np.concatenate([self.slots[self.ptr[x]:self.ptr[x + 1]] for x in src]))
+
+
+def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err,
+                 hints=None, picked=None, textured=None):
     """find_matches for a chunk of one class, one launch per window size; in chunk order."""
     out = [None] * len(chunk)
+    hint_slots = None if hints is None else hints.for_targets(chunk, picked, textured)
     ks = slot_of[chunk]
     for w in np.unique(w_t[ks]):
         pos = np.flatnonzero(w_t[ks] == w)
@@ -314,7 +383,9 @@ def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d,
         queries = rm.neighbourhood_queries(index, chunk[pos], np.asarray(starts, dtype=np.int64),
                                            np.concatenate(lists).astype(np.int64), sigmas[int(w)],
                                            rotations=rotations, mu=mu)
-        for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=TOLERANCE)):
+        probes = HINT_PROBES if hint_slots is not None and len(hint_slots) else None
+        for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=TOLERANCE, probes=probes,
+                                             hints=hint_slots)):
             out[p] = m
     return out
 
@@ -332,32 +403,35 @@ def _histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
     return total / 3
 
 
-def _slopes(rs: ReliefSurface, h: np.ndarray, part: np.ndarray) -> float:
-    """Mean |h_i - h_j| / |b_i - b_j| over the pairs of the part's vertices whose base
-    positions lie 0.7 to 1.3 target spacings apart (one scale for every part, so that the
-    oversampled capture and the coarser targets compare)."""
+def _pair_means(rs: ReliefSurface, h: np.ndarray, colours: np.ndarray | None, part: np.ndarray):
+    """(mean |h_i - h_j| / |b_i - b_j|, mean |c_i - c_j| (RGB L1 / 3, 0..255) or None) over
+    the pairs of the part's vertices whose base positions lie 0.7 to 1.3 target spacings
+    apart (one scale for every part, so that the oversampled capture and the coarser
+    targets compare)."""
     from scipy.spatial import cKDTree
 
     ids = np.flatnonzero(part)
     if len(ids) < 2:
-        return float("nan")
+        return float("nan"), None if colours is None else float("nan")
     b = rs.base[ids]
     pairs = cKDTree(b).query_pairs(1.3 * rs.spacing, output_type="ndarray")
-    if len(pairs) == 0:
-        return float("nan")
-    length = np.linalg.norm(b[pairs[:, 0]] - b[pairs[:, 1]], axis=1)
+    length = np.linalg.norm(b[pairs[:, 0]] - b[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
     keep = length >= 0.7 * rs.spacing
     if not keep.any():
-        return float("nan")
-    hi, hj = h[ids[pairs[keep, 0]]], h[ids[pairs[keep, 1]]]
-    return float(np.mean(np.abs(hi - hj) / length[keep]))
+        return float("nan"), None if colours is None else float("nan")
+    i, j = ids[pairs[keep, 0]], ids[pairs[keep, 1]]
+    slope = float(np.mean(np.abs(h[i] - h[j]) / length[keep]))
+    if colours is None:
+        return slope, None
+    step = float(np.mean(np.abs(colours[i].astype(np.float64) - colours[j].astype(np.float64)).mean(1)))
+    return slope, step
 
 
 def _pct(a: float, b: float) -> float:
     return 100.0 * abs(b - a) / abs(a) if a != 0 else (0.0 if b == 0 else math.inf)
 
 
-def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
+def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: int) -> dict:
     fit = rs.fit
     n_s, n0 = rs.n_samples, rs.n_original
     tgt = np.arange(n_s, rs.n_vertices)
@@ -365,7 +439,7 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
     h = fit.distance(rs.positions)
     # baseline: each target takes a uniformly random sample's displacement (frame components) and colour
     brng = np.random.default_rng([seed, 1])
-    pick = brng.integers(0, n_s, len(tgt))
+    pick = brng.integers(0, n_candidates, len(tgt))  # the completion's candidates: vertices 0..n_candidates-1
     comp = np.stack([(rs.displacement[pick] * rs.frame_u[pick]).sum(1), (rs.displacement[pick] * rs.frame_v[pick]).sum(1),
                      (rs.displacement[pick] * rs.normals[pick]).sum(1)], 1)
     dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
@@ -380,14 +454,30 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int) -> dict:
     vo = float(np.mean(np.abs(h[:n0])))
     vc = float(np.mean(np.abs(h[done]))) if len(done) else float("nan")
     vb = float(np.mean(np.abs(hb[tgt])))
-    so, sc, sb = _slopes(rs, h, orig), _slopes(rs, h, part), _slopes(rs, hb, allt)
+    cb = None
+    if rs.colors is not None:
+        cb = rs.colors.copy()
+        cb[tgt] = rs.colors[pick]
+    (so, co), (sc, cc), (sb, cbs) = (_pair_means(rs, h, rs.colors, orig), _pair_means(rs, h, rs.colors, part),
+                                     _pair_means(rs, hb, cb, allt))
     q = dict(volume_original=vo, volume_completed=vc, volume_diff_pct=_pct(vo, vc), volume_baseline=vb,
              volume_baseline_diff_pct=_pct(vo, vb), slope_original=so, slope_completed=sc,
              slope_diff_pct=_pct(so, sc), slope_baseline=sb, slope_baseline_diff_pct=_pct(so, sb),
-             hist_distance=None, hist_baseline=None)
+             hist_distance=None, hist_baseline=None, colour_step_original=co, colour_step_completed=cc,
+             colour_step_diff_pct=None, colour_step_baseline=cbs, colour_step_baseline_diff_pct=None)
     if rs.colors is not None:
+        q["colour_step_diff_pct"], q["colour_step_baseline_diff_pct"] = _pct(co, cc), _pct(co, cbs)
         q["hist_distance"] = _histogram_distance(rs.colors[:n0], rs.colors[done])
         q["hist_baseline"] = _histogram_distance(rs.colors[:n0], rs.colors[pick])
+    # the capture against itself: its two halves split at the median of the first parameter
+    # (two coherent regions; how much real parts of this surface differ)
+    u = rs.param[:n0, 0]
+    lo = u <= np.median(u)
+    ha, hb2 = np.abs(h[:n0][lo]), np.abs(h[:n0][~lo])
+    q["volume_self_diff_pct"] = _pct(float(ha.mean()), float(hb2.mean())) if len(hb2) and len(ha) else float("nan")
+    q["hist_self"] = None
+    if rs.colors is not None and lo.any() and (~lo).any():
+        q["hist_self"] = _histogram_distance(rs.colors[:n0][lo], rs.colors[:n0][~lo])
     return q
 
 
@@ -407,7 +497,8 @@ def _vertex_normals(positions: np.ndarray, faces: np.ndarray, fallback: np.ndarr
 def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, window: int = DEFAULT_WINDOW,
                      rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
-                     max_targets: int | None = 200_000, oversample: str = "butterfly"):
+                     max_targets: int | None = 200_000, oversample: str = "butterfly",
+                     candidates: str = "capture"):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -429,6 +520,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         max_targets: refuse a completion with more targets (None: no limit).
         oversample: "butterfly" (default) or "midpoint" (the paper's coplanar midpoints);
             see :func:`geosynth.relief_prep.prepare_relief`.
+        candidates: "capture" (default): only the capture's own vertices are candidate
+            matches (their displacements and colours are copied), the oversampling's
+            vertices serve as neighbour partners only; "samples": every sample, the
+            oversampled ones included (the paper, Sec. 5). See the module docstring.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -461,18 +556,21 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
     t2 = time.perf_counter()
-    samples = np.arange(rs.n_samples, dtype=np.int64)
+    if candidates not in ("capture", "samples"):
+        raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
+    partners = np.arange(rs.n_samples, dtype=np.int64)
+    samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
     textured0 = np.zeros(rs.n_vertices, dtype=bool)
     textured0[: rs.n_samples] = True
     colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
     use_mu = float(mu) if rs.colors is not None else 1.0
     index = rm.ReliefIndex.build(rs.base, rs.normals, rs.displacement, textured0, rs.faces, samples,
-                                 colours=colours, device=dev)
+                                 colours=colours, partners=partners, device=dev)
     t3 = time.perf_counter()
     rng = np.random.default_rng(seed)
     textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress)
     t4 = time.perf_counter()
-    quality = _quality(rs, textured, int(seed))
+    quality = _quality(rs, textured, int(seed), len(samples))
     t5 = time.perf_counter()
     positions = rs.positions
     completed = np.zeros(rs.n_vertices, bool)

@@ -176,7 +176,7 @@ class ReliefIndex:
 
     @classmethod
     def build(cls, base, normals, displacements, textured, triangles, samples, *, colours=None,
-              partners: str = "samples", device: str = "cpu") -> ReliefIndex:
+              partners="samples", device: str = "cpu") -> ReliefIndex:
         """Prepare and upload the triangulation for FindMatches.
 
         Args:
@@ -189,8 +189,11 @@ class ReliefIndex:
             samples: (S,) int vertex ids of the candidate samples (textured).
             colours: (V, 3) RGB in [0, 1], or None (no colour: use mu = 1).
             partners: "samples" (the paper, Sec. 5 and Appendix A: a partner and the
-                corners of its closest triangle must be samples) or "textured" (also
-                targets textured so far: the paper's "boot-strapped" variant).
+                corners of its closest triangle must be samples), "textured" (also
+                targets textured so far: the paper's "boot-strapped" variant), or (P,)
+                int ids of textured vertices: a fixed set of usable partners apart from
+                the candidates, e.g. every oversampled sample while only the capture's
+                own vertices are candidates (:func:`geosynth.completion.complete_surface`).
             device: a device string of geosynth.devices().
 
         Returns:
@@ -215,8 +218,15 @@ class ReliefIndex:
         if tex.shape != (v,):
             _fail("textured", f"shape {tex.shape}", f"pass ({v},) booleans")
         tex = tex.astype(bool)
-        if partners not in ("samples", "textured"):
-            _fail("partners", f"{partners!r}", 'pass "samples" or "textured"')
+        partner_ids = None
+        if isinstance(partners, str):
+            if partners not in ("samples", "textured"):
+                _fail("partners", f"{partners!r}", 'pass "samples", "textured" or an array of vertex ids')
+        else:
+            partner_ids = _index_array("partners", partners, v)
+            if len(partner_ids) == 0 or not np.all(tex[partner_ids]):
+                _fail("partners", "empty or not all textured", "pass the ids of textured vertices")
+            partners = "fixed"
         tris = _index_array("triangles", triangles, v, (3,))
         if len(tris) == 0:
             _fail("triangles", "empty", "pass the triangulation of samples and targets")
@@ -247,7 +257,8 @@ class ReliefIndex:
         if extent.max() >= 2 ** 29:
             _fail("base", f"the surface spans {extent.max():.3g} quanta of {quantum:.3g} (the longest edge / 2048)",
                   "the triangulation is too coarse for its extent: subdivide it")
-        usable = tex.copy() if partners == "textured" else np.isin(np.arange(v), samples)
+        usable = tex.copy() if partners == "textured" else np.isin(np.arange(v), samples if partner_ids is None
+                                                                   else partner_ids)
         host = cls._quantize(base, frames, pos, col, usable, tris, origin, quantum, samples)
         backend = get_backend(device)
         arrays = _upload_index(backend, host)
@@ -445,52 +456,60 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
     q = index.quantum
     tex = index.textured
     c, s = _cos_sin(np.arange(rotations), rotations)
-    qstart = [0]
-    ent, rel, chain, cells, col, wq, ks, kc = [], [], [], [], [], [], [], []
     side = 2 * STENCIL_K + 1
-    for i, t in enumerate(targets):
-        nb = np.unique(nbr[starts[i]:starts[i + 1]])
-        nb = nb[tex[nb] & (nb != t)]
-        if len(nb) == 0:
-            _fail("targets", f"target {int(t)} has no textured neighbour", "score only boundary targets")
-        rel_b = index.base[nb] - index.base[t]
-        d2 = np.einsum("ij,ij->i", rel_b, rel_b)
-        w = np.exp(-(d2 - d2.min()) / (2.0 * sigma * sigma))  # relative to the largest weight
-        wi = np.maximum(1, np.rint(WEIGHT_ONE * w)).astype(np.int64)
-        order = np.lexsort((nb, -wi))
-        nb, rel_b, wi = nb[order], rel_b[order], wi[order]
-        f = index.frames[t]
-        o = rel_b @ f.T / q  # (J, 3) in t's frame, quanta
-        d = index.displacements[nb] @ f.T / q
-        ro = np.stack([np.outer(o[:, 0], c) - np.outer(o[:, 1], s), np.outer(o[:, 0], s) + np.outer(o[:, 1], c),
-                       np.repeat(o[:, 2:3], rotations, 1)], -1)  # (J, R, 3)
-        rd = np.stack([np.outer(d[:, 0], c) - np.outer(d[:, 1], s), np.outer(d[:, 0], s) + np.outer(d[:, 1], c),
-                       np.repeat(d[:, 2:3], rotations, 1)], -1)
-        r6 = np.rint(np.concatenate([ro, rd], -1))
-        if np.abs(r6).max() >= 2 ** 24:
-            _fail("nbr", f"target {int(t)}'s neighbourhood spans {np.abs(r6).max():.3g} quanta",
-                  "pass a smaller window (the neighbourhood must stay within ~8000 edge lengths)")
-        rel.append(r6.astype(np.int32))
-        cu = np.rint(ro[..., 0] * q / index.host.cell).astype(np.int64)
-        cv = np.rint(ro[..., 1] * q / index.host.cell).astype(np.int64)
-        inside = (np.abs(cu) <= STENCIL_K) & (np.abs(cv) <= STENCIL_K)
-        cells.append(np.where(inside, (cu + STENCIL_K) * side + cv + STENCIL_K, -1).astype(np.int32))
-        ch = np.zeros(len(nb), np.int32)
-        if len(nb) > 1:
-            step = np.linalg.norm(o[1:] - o[:-1], axis=1)
-            ch[1:] = step < np.linalg.norm(o[1:], axis=1)
-        chain.append(ch)
-        ent.append(nb)
-        col.append(index.host.colour[nb].astype(np.int32))
-        wq.append(wi.astype(np.int32))
-        total = float(wi.sum())
-        ks.append(mu * SCORE_ONE / (total * index.shape_norm_q2))
-        kc.append((1.0 - mu) * SCORE_ONE / (total * COLOUR_RANGE2))
-        qstart.append(qstart[-1] + len(nb))
-    return ReliefQueries(targets=targets, qstart=np.asarray(qstart, np.int32), entries=np.concatenate(ent),
-                         rel=np.concatenate(rel), chain=np.concatenate(chain), cell=np.concatenate(cells), colour=np.concatenate(col),
-                         weight=np.concatenate(wq), ks=np.asarray(ks, np.float64), kc=np.asarray(kc, np.float64),
-                         rotations=int(rotations), mu=float(mu), sigma=float(sigma))
+    nq = len(targets)
+    if nq == 0:
+        _fail("targets", "empty", "pass at least one target")
+    # every query at once (one row per entry; qid its query): unique textured neighbours
+    qid = np.repeat(np.arange(nq), np.diff(starts).astype(np.int64))
+    nb = nbr.astype(np.int64)
+    order = np.lexsort((nb, qid))
+    qid, nb = qid[order], nb[order]
+    first = np.ones(len(nb), bool)
+    first[1:] = (qid[1:] != qid[:-1]) | (nb[1:] != nb[:-1])
+    keep = first & tex[nb] & (nb != targets[qid])
+    qid, nb = qid[keep], nb[keep]
+    counts = np.bincount(qid, minlength=nq)
+    if np.any(counts == 0):
+        bad = int(targets[np.argmax(counts == 0)])
+        _fail("targets", f"target {bad} has no textured neighbour", "score only boundary targets")
+    qs = np.concatenate([[0], np.cumsum(counts)])
+    t_of = targets[qid]
+    rel_b = index.base[nb] - index.base[t_of]
+    d2 = np.einsum("ij,ij->i", rel_b, rel_b)
+    d2min = np.minimum.reduceat(d2, qs[:-1])
+    w = np.exp(-(d2 - d2min[qid]) / (2.0 * sigma * sigma))  # relative to the largest weight of the query
+    wi = np.maximum(1, np.rint(WEIGHT_ONE * w)).astype(np.int64)
+    order = np.lexsort((nb, -wi, qid))  # by decreasing weight, ties by id, within a query
+    qid, nb, rel_b, wi, t_of = qid[order], nb[order], rel_b[order], wi[order], t_of[order]
+    f = index.frames[t_of]  # (E, 3, 3) rows u, v, n of the target's frame
+    o = np.einsum("ekj,ej->ek", f, rel_b) / q  # (E, 3) in t's frame, quanta
+    d = np.einsum("ekj,ej->ek", f, index.displacements[nb]) / q
+    ro = np.stack([np.outer(o[:, 0], c) - np.outer(o[:, 1], s), np.outer(o[:, 0], s) + np.outer(o[:, 1], c),
+                   np.repeat(o[:, 2:3], rotations, 1)], -1)  # (E, R, 3)
+    rd = np.stack([np.outer(d[:, 0], c) - np.outer(d[:, 1], s), np.outer(d[:, 0], s) + np.outer(d[:, 1], c),
+                   np.repeat(d[:, 2:3], rotations, 1)], -1)
+    r6 = np.rint(np.concatenate([ro, rd], -1))
+    big = np.abs(r6).max(axis=(1, 2))
+    if np.any(big >= 2 ** 24):
+        k = int(np.argmax(big >= 2 ** 24))
+        _fail("nbr", f"target {int(t_of[k])}'s neighbourhood spans {big[k]:.3g} quanta",
+              "pass a smaller window (the neighbourhood must stay within ~8000 edge lengths)")
+    cu = np.rint(ro[..., 0] * q / index.host.cell).astype(np.int64)
+    cv = np.rint(ro[..., 1] * q / index.host.cell).astype(np.int64)
+    inside = (np.abs(cu) <= STENCIL_K) & (np.abs(cv) <= STENCIL_K)
+    cells = np.where(inside, (cu + STENCIL_K) * side + cv + STENCIL_K, -1).astype(np.int32)
+    chain = np.zeros(len(nb), np.int32)
+    if len(nb) > 1:
+        step = np.linalg.norm(o[1:] - o[:-1], axis=1)
+        chain[1:] = (step < np.linalg.norm(o[1:], axis=1)) & (qid[1:] == qid[:-1])
+    total = np.add.reduceat(wi, qs[:-1]).astype(np.float64)
+    ks = mu * SCORE_ONE / (total * index.shape_norm_q2)
+    kc = (1.0 - mu) * SCORE_ONE / (total * COLOUR_RANGE2)
+    return ReliefQueries(targets=targets, qstart=qs.astype(np.int32), entries=nb, rel=r6.astype(np.int32),
+                         chain=chain, cell=cells, colour=index.host.colour[nb].astype(np.int32),
+                         weight=wi.astype(np.int32), ks=ks, kc=kc, rotations=int(rotations), mu=float(mu),
+                         sigma=float(sigma))
 
 
 def _upload_queries(backend, queries: ReliefQueries, limits: np.ndarray):
@@ -541,17 +560,27 @@ def _check_pair(index: ReliefIndex, queries: ReliefQueries) -> None:
 
 
 def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_cand: int,
-            limits: np.ndarray) -> np.ndarray:
+            limits: np.ndarray, uploaded=None, checked: bool = False) -> np.ndarray:
+    """(Q, n_cand, R) codes. ``uploaded``: the queries' device arrays from an earlier
+    launch of the same batch (only the limits are uploaded again); ``checked``: the
+    memory check was made for at least this many candidates."""
+    import dataclasses
+
     from geosynth.memory import require
 
     b = index.backend
     nq, r = queries.n_queries, queries.rotations
-    per_query = 3 * n_cand * r * 4  # the device codes, their host copy and one array the caller derives
-    require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query, what=f"FindMatches codes of {nq} queries x {n_cand} samples x {r}")
-    qa = _upload_queries(b, queries, limits)
+    if not checked:
+        per_query = 3 * n_cand * r * 4  # the device codes, their host copy and one array the caller derives
+        require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
+                what=f"FindMatches codes of {nq} queries x {n_cand} samples x {r}")
+    if uploaded is None:
+        qa = _upload_queries(b, queries, limits)
+    else:
+        qa = dataclasses.replace(uploaded, limit=b.to_device(np.asarray(limits, np.int64)))
     out = b.empty((nq * n_cand * r,), np.uint32)
     b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, len(index.samples), out)
-    return b.to_host(out).reshape(nq, n_cand, r)
+    return b.to_host(out).reshape(nq, n_cand, r), qa
 
 
 def score(index: ReliefIndex, queries: ReliefQueries, limits=None) -> ReliefScores:
@@ -569,7 +598,7 @@ def score(index: ReliefIndex, queries: ReliefQueries, limits=None) -> ReliefScor
     _check_pair(index, queries)
     lim = _check_limits(limits, queries.n_queries)
     slots, cand = index.candidates(1)
-    return ReliefScores(_launch(index, queries, cand, len(slots), lim))
+    return ReliefScores(_launch(index, queries, cand, len(slots), lim)[0])
 
 
 @dataclass(frozen=True)
@@ -600,7 +629,7 @@ def _best(codes: np.ndarray) -> np.ndarray:
 
 
 def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tolerance: float = 1.1,
-                 probes: tuple[int, ...] | None = None) -> list[Matches]:
+                 probes: tuple[int, ...] | None = None, hints=None) -> list[Matches]:
     """The paper's BestMatches of each query: every (sample, rotation) whose ssd is within
     ``tolerance`` x the best (Breckon and Fisher, Appendix A), found with limits that
     prune nothing that could be selected or accepted.
@@ -608,7 +637,11 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     A code is selected when code <= floor(tolerance * best) and accepted when
     code < ceil(max_err * SCORE_ONE). Scores above floor(tolerance * (that - 1)) can
     neither, so they are the first limit; probe passes over every k-th sample (k in
-    ``probes``) lower it to floor(tolerance * their best) before the full pass.
+    ``probes``) lower it to floor(tolerance * their best) before the full pass. ``hints``
+    (candidate slots likely to match, e.g. next to the samples that textured the targets'
+    neighbours: the coherence of Ashikhmin's synthesis) are scored first, so that the
+    probes and the full pass start from a tight limit. Whatever the hints and probes, the
+    result is the unpruned selection: a probe's best is never below the true best.
 
     Args:
         index, queries: as for :func:`score`.
@@ -617,6 +650,8 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         probes: sample strides of the probe passes (default (256, 16) for S >= 4096, (8,)
             for S >= 256, none below; measured on 12,769 samples: 25-30% less work than
             (64, 8)).
+        hints: None or (k,) int slots (positions in index.samples) scored on every query
+            of the batch before the probes.
 
     Returns:
         One :class:`Matches` per query; empty arrays when nothing can be accepted.
@@ -632,12 +667,26 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     accept = int(math.ceil(max_err * SCORE_ONE))
     nq = queries.n_queries
     lim = np.full(nq, min(int(math.floor(tolerance * (accept - 1))), CODE_CAP), np.int64)
+    passes = []
+    if hints is not None:
+        h = np.unique(_index_array("hints", np.atleast_1d(hints), n_s))
+        if len(h):
+            passes.append((len(h), index.backend.to_device(h.astype(np.int32))))
     for stride in probes:
         slots, cand = index.candidates(stride)
-        best = _best(_launch(index, queries, cand, len(slots), lim))
-        lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
+        passes.append((len(slots), cand))
     slots, cand = index.candidates(1)
-    codes = _launch(index, queries, cand, len(slots), lim)
+    from geosynth.memory import require  # one memory check, for the full pass (the largest)
+
+    per_query = 3 * len(slots) * queries.rotations * 4
+    require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
+            what=f"FindMatches codes of {nq} queries x {len(slots)} samples x {queries.rotations}")
+    qa = None
+    for n_cand, pcand in passes:
+        pc, qa = _launch(index, queries, pcand, n_cand, lim, uploaded=qa, checked=True)
+        best = _best(pc)
+        lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
+    codes, _ = _launch(index, queries, cand, len(slots), lim, uploaded=qa, checked=True)
     best = _best(codes)
     out = []
     for i in range(nq):

@@ -70,6 +70,10 @@ def test_wave_keeps_amplitude_and_period(wave_run):
     assert q["volume_diff_pct"] < 10
     assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"]  # neighbours fit together, unlike random copies
     assert q["hist_distance"] is not None and q["hist_distance"] < 0.5
+    # colours that follow the relief: neighbouring colours fit together, unlike random copies
+    assert q["colour_step_diff_pct"] < q["colour_step_baseline_diff_pct"]
+    # the capture's halves: two periods of one wave, so the same volume and close histograms
+    assert q["volume_self_diff_pct"] < 5 and q["hist_self"] is not None and q["hist_self"] < 0.2
     assert timings["grow"] > 0 and timings["targets_per_s"] > 0
 
 
@@ -179,3 +183,50 @@ def test_batched_classes_equal_one_target_at_a_time(one_device, monkeypatch):
     monkeypatch.setattr(completion, "_MAX_BATCH", 1)
     sb, rb, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=2)
     assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
+
+
+def test_only_the_capture_vertices_are_copied(one_device):
+    """candidates="capture" (default): every completed target takes the colour and the
+    relief height of one of the capture's own vertices; the oversampling's vertices
+    (Gaussian-weighted kNN colours, interpolated heights) are neighbour partners only.
+    candidates="samples" (the paper's pool) copies them too."""
+    cap, region = _small(6), ((0.0, 0.9), (0.0, 0.45))
+    own_colours = {tuple(c) for c in cap.colors.tolist()}
+    got = {}
+    for cand in ("capture", "samples"):
+        s, rep, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=1,
+                                     candidates=cand)
+        done = s.completed & s.textured
+        assert done.sum() > 20
+        colours_own = np.array([tuple(c) in own_colours for c in s.colors[done].tolist()])
+        own_heights = np.sort(s.fit.distance(cap.positions))
+        h = s.fit.distance(s.positions[done].astype(np.float64))
+        near = np.abs(own_heights[np.clip(np.searchsorted(own_heights, h), 1, len(own_heights) - 1)[:, None]
+                                  + np.array([-1, 0])] - h[:, None]).min(1)
+        got[cand] = (colours_own, near, rep)
+    colours_own, near, rep = got["capture"]
+    assert colours_own.all() and rep.picked_original == 1.0
+    assert near.max() < 1e-5  # heights over the fit copied (float32 positions)
+    colours_own, near, rep = got["samples"]
+    assert not colours_own.all() and rep.picked_original < 1.0
+    with pytest.raises(ValueError, match="candidates"):
+        complete_surface(cap, fit="plane", region=region, window=2, device=one_device, candidates="all")
+
+
+def test_coherence_hints_change_nothing(one_device, monkeypatch):
+    """The hints (candidates next to the samples that textured a target's neighbours) only
+    tighten FindMatches' pruning limit: the completion is the same bits without them, or
+    with the stride probes after them."""
+    import geosynth.completion as completion
+
+    cap, region = _small(5), ((0.0, 0.9), (0.0, 0.45))
+    runs = []
+    for rings, probes in ((completion.HINT_RINGS, completion.HINT_PROBES), (0, None), (1, (4,))):
+        monkeypatch.setattr(completion, "HINT_RINGS", rings)
+        monkeypatch.setattr(completion, "HINT_PROBES", probes)
+        s, r, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=3)
+        runs.append((s, r))
+    assert runs[0][1].targets > 20
+    for s, r in runs[1:]:
+        assert np.array_equal(s.positions, runs[0][0].positions) and np.array_equal(s.colors, runs[0][0].colors)
+        assert r.failed_matches == runs[0][1].failed_matches

@@ -144,6 +144,34 @@ def test_partner_outside_the_samples_is_invalid(one_device):
     assert checked > 20
 
 
+def test_fixed_partners_apart_from_the_candidates(device):
+    """partners=ids: candidates are a subset of the samples, every sample may still be a
+    partner (the completion's default: the capture's own vertices are candidates, the
+    oversampling's vertices partners only). The kernel equals the oracle, the usable
+    flags are the given ids, and the candidates' colour scores (the shape term's
+    normalization comes from the candidates) equal the same slots of an index whose
+    candidates are all the samples."""
+    kw = _plane()
+    every = kw["samples"]
+    few = every[::3]
+    full = rm.ReliefIndex.build(**kw, device=device)
+    index = rm.ReliefIndex.build(**dict(kw, samples=few), partners=every, device=device)
+    np.testing.assert_array_equal(index.samples, few)
+    np.testing.assert_array_equal(np.flatnonzero(index.host.usable), np.sort(every))
+    q = _queries(index, kw, count=3, mu=0.5)
+    got = rm.score(index, q).codes
+    np.testing.assert_array_equal(got, relief_scores_reference(index, q))
+    colour_only = rm.score(index, _queries(index, kw, count=3, mu=0.0)).codes
+    np.testing.assert_array_equal(colour_only, rm.score(full, _queries(full, kw, count=3, mu=0.0)).codes[:, ::3])
+    assert (got < rm.OVER).any()
+    # a partner set without a sample in it makes matches that pair with that sample invalid
+    drop = rm.ReliefIndex.build(**dict(kw, samples=few), partners=few, device=device)
+    qd = _queries(drop, kw, count=3, mu=0.5)
+    gd = rm.score(drop, qd).codes
+    np.testing.assert_array_equal(gd, relief_scores_reference(drop, qd))
+    assert (gd == rm.INVALID).sum() > (got == rm.INVALID).sum()
+
+
 def test_copied_neighbourhood_scores_zero_where_it_came_from(device):
     kw = _plane()
     index = rm.ReliefIndex.build(**kw, device=device)
@@ -175,8 +203,11 @@ def test_find_matches_is_the_unpruned_selection(device):
     index = rm.ReliefIndex.build(**kw, device=device)
     q = _queries(index, kw, count=5, mu=0.6)
     full = rm.score(index, q).codes
-    for max_err in (0.5, 0.004):
-        got = rm.find_matches(index, q, max_err, probes=(8, 2))
+    best_slot = int(np.unravel_index(np.argmin(np.where(full[0] < rm.OVER, full[0], rm.OVER)), full[0].shape)[0])
+    variants = [dict(probes=(8, 2)), dict(probes=(), hints=[best_slot]),  # the best first: the tightest limit
+                dict(probes=(4,), hints=np.arange(0, len(index.samples), 5)), dict(probes=(), hints=[])]
+    for max_err, kw in [(e, v) for e in (0.5, 0.004) for v in variants]:
+        got = rm.find_matches(index, q, max_err, **kw)
         for i, m in enumerate(got):
             real = full[i][full[i] < rm.OVER].astype(np.int64)
             best = real.min()
@@ -232,6 +263,8 @@ def test_bad_input_one_line_errors(one_device):
     err(lambda: rm.ReliefIndex.build(**dict(kw, triangles=kw["triangles"] + 1000), device=one_device), "triangles")
     err(lambda: rm.ReliefIndex.build(**dict(kw, samples=[0, 63]), device=one_device), "samples", "textured")
     err(lambda: rm.ReliefIndex.build(**kw, partners="all", device=one_device), "partners")
+    far_t = [t for t in range(index.n_vertices) if t not in kw["samples"]][-1]
+    err(lambda: rm.ReliefIndex.build(**kw, partners=[0, far_t], device=one_device), "partners", "textured")
     far = [t for t in range(index.n_vertices) if t not in kw["samples"]][-1]
     err(lambda: rm.neighbourhood_queries(index, [far], [0, 1], [far - 1], 1.0), "targets", "no textured neighbour")
     err(lambda: rm.neighbourhood_queries(index, [far], [0, 1], [0], -1.0), "sigma")
@@ -239,6 +272,7 @@ def test_bad_input_one_line_errors(one_device):
     q = rm.neighbourhood_queries(index, [far - 1], [0, 1], [0], 1.0)
     err(lambda: rm.score(index, q, limits=[1, 2]), "limits")
     err(lambda: rm.find_matches(index, q, float("nan")), "max_err")
+    err(lambda: rm.find_matches(index, q, 0.5, hints=[len(index.samples)]), "hints")
     err(lambda: index.update([1], [[np.nan, 0, 0]]), "displacements", "not finite")
 
 
