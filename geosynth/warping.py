@@ -452,29 +452,38 @@ class ThinPlateSpline:
         disp = np.empty_like(u)
         jac = np.empty((len(u), 3, 3)) if want_jacobian else None
         centres, w = self.centres.astype(dt), self.w.astype(dt)
-        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(len(self.w), 9).astype(dt)  # w_ik c_ij
+        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(len(self.w), 9)  # w_ik c_ij
+        w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
+        eye_a = self.affine[1:].T[None] + np.eye(3)[None]
         for lo in range(0, len(u), self._CHUNK):
             uc = u[lo:lo + self._CHUNK]
-            ucd = uc.astype(dt)
-            r2 = self._r2(ucd, centres)
+            r2 = self._r2(uc.astype(dt), centres)
             pos = r2 > 0
-            log_r2 = np.log(np.where(pos, r2, dt(1.0)))
-            disp[lo:lo + self._CHUNK] = ((dt(0.5) * r2 * log_r2) @ w) + self.affine[0] + uc @ self.affine[1:]
+            log_r2 = np.log(r2, out=np.ones_like(r2), where=pos)  # log r^2, 0 at r = 0
+            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2
+            disp[lo:lo + self._CHUNK] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
-                psi = (log_r2 + dt(1.0)) * pos
-                pw = (psi @ w).astype(np.float64)  # (m, 3): sum_i psi_i w_ik
-                j = uc[:, None, :] * pw[:, :, None] - (psi @ wc).astype(np.float64).reshape(len(uc), 3, 3)
-                jac[lo:lo + self._CHUNK] = j + self.affine[1:].T[None] + np.eye(3)[None]
+                log_r2 += dt(1.0)
+                log_r2 *= pos  # psi
+                pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
+                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(uc), 3, 3)
+                jac[lo:lo + self._CHUNK] = j + eye_a
         return x + disp * self.scale, jac
+
+    def _eval_single(self, x: np.ndarray, want_jacobian: bool):
+        from geosynth._blas import single_threaded
+
+        with single_threaded():  # thin products: one BLAS thread is faster and thread-count independent
+            return self._eval(x, want_jacobian)
 
     def __call__(self, points) -> np.ndarray:
         """W at (m, 3) points: (m, 3) float64."""
-        return self._eval(as_points3("points", points), False)[0]
+        return self._eval_single(as_points3("points", points), False)[0]
 
     def jacobian(self, points) -> np.ndarray:
         """The analytic Jacobian dW/dx at (m, 3) points: (m, 3, 3) float64, J[m, k, j] = dW_k/dx_j."""
-        return self._eval(as_points3("points", points), True)[1]
+        return self._eval_single(as_points3("points", points), True)[1]
 
     def transform(self, points, normals) -> tuple[np.ndarray, np.ndarray]:
         """W(p) and the normals ``(J u x J v) / |J u x J v|`` (u, v orthonormal tangents
@@ -482,7 +491,7 @@ class ThinPlateSpline:
         tangents the Jacobian collapses keeps its direction."""
         p = as_points3("points", points)
         n = as_unit_vectors("normals", as_points3("normals", normals, len(p)))
-        wp, jac = self._eval(p, True)
+        wp, jac = self._eval_single(p, True)
         u, v = _tangents(n)
         cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
         length = np.linalg.norm(cross, axis=1)
