@@ -220,31 +220,39 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
         return counts, mean
 
-    while True:
-        n_clusters = len(frozen)
-        counts, mean = stats(n_clusters)
-        d = p - mean[labels]
-        cov = np.zeros((n_clusters, 3, 3))
+    # A cluster that is not split in a round keeps its points, so it is never split later:
+    # each round looks only at the points of the clusters the previous round split (in
+    # ascending order, so that every cluster's sums run over the same points in the same
+    # order as over all points: the same bits).
+    active = np.arange(n)
+    while active.size:
+        ids, local = np.unique(labels[active], return_inverse=True)
+        m = len(ids)
+        pa = p[active]
+        counts = np.bincount(local, minlength=m).astype(np.float64)
+        mean = np.stack([np.bincount(local, pa[:, j], m) for j in range(3)], 1) / counts[:, None]
+        d = pa - mean[local]
+        cov = np.zeros((m, 3, 3))
         for i in range(3):
             for j in range(i, 3):
-                cov[:, i, j] = cov[:, j, i] = np.bincount(labels, d[:, i] * d[:, j], n_clusters)
+                cov[:, i, j] = cov[:, j, i] = np.bincount(local, d[:, i] * d[:, j], m)
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
-        split = ~frozen & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
+        split = ~frozen[ids] & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
         if not split.any():
             break
-        positive = np.einsum("ij,ij->i", d, vecs[labels, :, 2]) > 0
-        n_pos = np.bincount(labels[positive], minlength=n_clusters)
+        positive = np.einsum("ij,ij->i", d, vecs[local, :, 2]) > 0
+        n_pos = np.bincount(local[positive], minlength=m)
         real = split & (n_pos > 0) & (n_pos < counts)
-        frozen |= split & ~real
-        if not real.any():
-            continue
-        new_id = np.full(n_clusters, -1, np.int64)
-        new_id[real] = n_clusters + np.arange(int(real.sum()))
-        move = real[labels] & positive
-        labels = np.where(move, new_id[labels], labels)
-        frozen = np.concatenate([frozen, np.zeros(int(real.sum()), bool)])
+        frozen[ids[split & ~real]] = True
+        n_new = int(real.sum())
+        new_id = np.full(m, -1, np.int64)
+        new_id[real] = len(frozen) + np.arange(n_new)
+        move = real[local] & positive
+        labels[active[move]] = new_id[local[move]]
+        frozen = np.concatenate([frozen, np.zeros(n_new, bool)])
+        active = active[real[local]]
     n_clusters = len(frozen)
     counts, mean = stats(n_clusters)
     dist = np.linalg.norm(p - mean[labels], axis=1)
