@@ -463,6 +463,9 @@ def synthesize_point_texture(
         seed: seed of every random choice.
         progress: show a progress bar on stderr.
 
+    Runs with one OpenBLAS thread (:func:`geosynth._blas.single_threaded`: faster for the
+    spline's thin products, and the output does not depend on the BLAS thread count).
+
     Returns:
         ``(points, report, timings)``: a :class:`geosynth.pointsets.PointSet` (float32
         positions and unit normals, x and y from B's corner to B's corner + size), a

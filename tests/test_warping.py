@@ -263,6 +263,8 @@ def test_float32_evaluation_is_within_a_thousandth_of_a_spacing(rng):
 
 def test_single_threaded_blas_holds_one_thread_and_restores():
     """The synthesis runs with one OpenBLAS thread (geosynth._blas) and gives the count back."""
+    import scipy.linalg  # noqa: F401  (SciPy's own OpenBLAS copy too)
+
     from geosynth import _blas
 
     controls = _blas._find()
