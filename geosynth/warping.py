@@ -220,31 +220,39 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
         return counts, mean
 
-    while True:
-        n_clusters = len(frozen)
-        counts, mean = stats(n_clusters)
-        d = p - mean[labels]
-        cov = np.zeros((n_clusters, 3, 3))
+    # A cluster that is not split in a round keeps its points, so it is never split later:
+    # each round looks only at the points of the clusters the previous round split (in
+    # ascending order, so that every cluster's sums run over the same points in the same
+    # order as over all points: the same bits).
+    active = np.arange(n)
+    while active.size:
+        ids, local = np.unique(labels[active], return_inverse=True)
+        m = len(ids)
+        pa = p[active]
+        counts = np.bincount(local, minlength=m).astype(np.float64)
+        mean = np.stack([np.bincount(local, pa[:, j], m) for j in range(3)], 1) / counts[:, None]
+        d = pa - mean[local]
+        cov = np.zeros((m, 3, 3))
         for i in range(3):
             for j in range(i, 3):
-                cov[:, i, j] = cov[:, j, i] = np.bincount(labels, d[:, i] * d[:, j], n_clusters)
+                cov[:, i, j] = cov[:, j, i] = np.bincount(local, d[:, i] * d[:, j], m)
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
-        split = ~frozen & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
+        split = ~frozen[ids] & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
         if not split.any():
             break
-        positive = np.einsum("ij,ij->i", d, vecs[labels, :, 2]) > 0
-        n_pos = np.bincount(labels[positive], minlength=n_clusters)
+        positive = np.einsum("ij,ij->i", d, vecs[local, :, 2]) > 0
+        n_pos = np.bincount(local[positive], minlength=m)
         real = split & (n_pos > 0) & (n_pos < counts)
-        frozen |= split & ~real
-        if not real.any():
-            continue
-        new_id = np.full(n_clusters, -1, np.int64)
-        new_id[real] = n_clusters + np.arange(int(real.sum()))
-        move = real[labels] & positive
-        labels = np.where(move, new_id[labels], labels)
-        frozen = np.concatenate([frozen, np.zeros(int(real.sum()), bool)])
+        frozen[ids[split & ~real]] = True
+        n_new = int(real.sum())
+        new_id = np.full(m, -1, np.int64)
+        new_id[real] = len(frozen) + np.arange(n_new)
+        move = real[local] & positive
+        labels[active[move]] = new_id[local[move]]
+        frozen = np.concatenate([frozen, np.zeros(n_new, bool)])
+        active = active[real[local]]
     n_clusters = len(frozen)
     counts, mean = stats(n_clusters)
     dist = np.linalg.norm(p - mean[labels], axis=1)
@@ -452,29 +460,38 @@ class ThinPlateSpline:
         disp = np.empty_like(u)
         jac = np.empty((len(u), 3, 3)) if want_jacobian else None
         centres, w = self.centres.astype(dt), self.w.astype(dt)
-        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(len(self.w), 9).astype(dt)  # w_ik c_ij
+        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(len(self.w), 9)  # w_ik c_ij
+        w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
+        eye_a = self.affine[1:].T[None] + np.eye(3)[None]
         for lo in range(0, len(u), self._CHUNK):
             uc = u[lo:lo + self._CHUNK]
-            ucd = uc.astype(dt)
-            r2 = self._r2(ucd, centres)
+            r2 = self._r2(uc.astype(dt), centres)
             pos = r2 > 0
-            log_r2 = np.log(np.where(pos, r2, dt(1.0)))
-            disp[lo:lo + self._CHUNK] = ((dt(0.5) * r2 * log_r2) @ w) + self.affine[0] + uc @ self.affine[1:]
+            log_r2 = np.log(r2, out=np.ones_like(r2), where=pos)  # log r^2, 0 at r = 0
+            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2
+            disp[lo:lo + self._CHUNK] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
-                psi = (log_r2 + dt(1.0)) * pos
-                pw = (psi @ w).astype(np.float64)  # (m, 3): sum_i psi_i w_ik
-                j = uc[:, None, :] * pw[:, :, None] - (psi @ wc).astype(np.float64).reshape(len(uc), 3, 3)
-                jac[lo:lo + self._CHUNK] = j + self.affine[1:].T[None] + np.eye(3)[None]
+                log_r2 += dt(1.0)
+                log_r2 *= pos  # psi
+                pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
+                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(uc), 3, 3)
+                jac[lo:lo + self._CHUNK] = j + eye_a
         return x + disp * self.scale, jac
+
+    def _eval_single(self, x: np.ndarray, want_jacobian: bool):
+        from geosynth._blas import single_threaded
+
+        with single_threaded():  # thin products: one BLAS thread is faster and thread-count independent
+            return self._eval(x, want_jacobian)
 
     def __call__(self, points) -> np.ndarray:
         """W at (m, 3) points: (m, 3) float64."""
-        return self._eval(as_points3("points", points), False)[0]
+        return self._eval_single(as_points3("points", points), False)[0]
 
     def jacobian(self, points) -> np.ndarray:
         """The analytic Jacobian dW/dx at (m, 3) points: (m, 3, 3) float64, J[m, k, j] = dW_k/dx_j."""
-        return self._eval(as_points3("points", points), True)[1]
+        return self._eval_single(as_points3("points", points), True)[1]
 
     def transform(self, points, normals) -> tuple[np.ndarray, np.ndarray]:
         """W(p) and the normals ``(J u x J v) / |J u x J v|`` (u, v orthonormal tangents
@@ -482,7 +499,7 @@ class ThinPlateSpline:
         tangents the Jacobian collapses keeps its direction."""
         p = as_points3("points", points)
         n = as_unit_vectors("normals", as_points3("normals", normals, len(p)))
-        wp, jac = self._eval(p, True)
+        wp, jac = self._eval_single(p, True)
         u, v = _tangents(n)
         cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
         length = np.linalg.norm(cross, axis=1)

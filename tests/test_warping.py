@@ -259,3 +259,22 @@ def test_float32_evaluation_is_within_a_thousandth_of_a_spacing(rng):
     p32, n32 = ThinPlateSpline(c, y, dtype=np.float32).transform(x, n)
     assert np.abs(p32 - p64).max() < 1e-3 * SP
     assert angle_deg(n32, n64).max() < 0.01
+
+
+def test_single_threaded_blas_holds_one_thread_and_restores():
+    """The synthesis runs with one OpenBLAS thread (geosynth._blas) and gives the count back."""
+    import scipy.linalg  # noqa: F401  (SciPy's own OpenBLAS copy too)
+
+    from geosynth import _blas
+
+    controls = _blas._find()
+    if not controls:
+        pytest.skip("no OpenBLAS with a thread control is loaded")
+    before = [get_f() for get_f, _ in controls]
+    with _blas.single_threaded():
+        inside = [get_f() for get_f, _ in controls]
+        with _blas.single_threaded():  # nested: still one, and the outer block's count is kept
+            assert [get_f() for get_f, _ in controls] == [1] * len(controls)
+        assert [get_f() for get_f, _ in controls] == [1] * len(controls)
+    assert inside == [1] * len(controls)
+    assert [get_f() for get_f, _ in controls] == before
