@@ -30,7 +30,7 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
-from geosynth._blas import single_threaded
+from threadpoolctl import threadpool_limits
 from geosynth.point_grid import PointGrid
 from geosynth.point_textures import PointTexture
 
@@ -418,7 +418,11 @@ def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
 
 
 
-@single_threaded()  # one BLAS thread: the spline's thin products (see geosynth._blas)
+# One BLAS thread for the whole synthesis: the thin-plate spline's thin (S, n) x (n, 3)
+# products, split over OpenBLAS's threads, left the idle ones spinning (a 9,736-point
+# chainmail patch: 226 ms of CPU with 2 threads, 35 ms with one; the spinning also took
+# the cores from PoCL's workers), and a threaded product's sums depend on the thread count.
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def synthesize_point_texture(
     exemplar,
     size=None,
@@ -463,8 +467,8 @@ def synthesize_point_texture(
         seed: seed of every random choice.
         progress: show a progress bar on stderr.
 
-    Runs with one OpenBLAS thread (:func:`geosynth._blas.single_threaded`: faster for the
-    spline's thin products, and the output does not depend on the BLAS thread count).
+    Runs with one BLAS thread (threadpoolctl: faster for the spline's thin products, and
+    the output does not depend on the BLAS thread count).
 
     Returns:
         ``(points, report, timings)``: a :class:`geosynth.pointsets.PointSet` (float32

@@ -480,9 +480,10 @@ class ThinPlateSpline:
         return x + disp * self.scale, jac
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
-        from geosynth._blas import single_threaded
+        from threadpoolctl import threadpool_limits
 
-        with single_threaded():  # thin products: one BLAS thread is faster and thread-count independent
+        # thin products: one BLAS thread is faster and thread-count independent (geometry_texture says why)
+        with threadpool_limits(limits=1, user_api="blas"):
             return self._eval(x, want_jacobian)
 
     def __call__(self, points) -> np.ndarray:

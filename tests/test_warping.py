@@ -261,20 +261,24 @@ def test_float32_evaluation_is_within_a_thousandth_of_a_spacing(rng):
     assert angle_deg(n32, n64).max() < 0.01
 
 
-def test_single_threaded_blas_holds_one_thread_and_restores():
-    """The synthesis runs with one OpenBLAS thread (geosynth._blas) and gives the count back."""
+def test_synthesis_and_spline_hold_one_blas_thread_and_restore(monkeypatch):
+    """The spline evaluation runs with one BLAS thread (threadpoolctl) and gives the count back."""
     import scipy.linalg  # noqa: F401  (SciPy's own OpenBLAS copy too)
+    from threadpoolctl import threadpool_info, threadpool_limits
 
-    from geosynth import _blas
+    def blas_threads():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
 
-    controls = _blas._find()
-    if not controls:
-        pytest.skip("no OpenBLAS with a thread control is loaded")
-    before = [get_f() for get_f, _ in controls]
-    with _blas.single_threaded():
-        inside = [get_f() for get_f, _ in controls]
-        with _blas.single_threaded():  # nested: still one, and the outer block's count is kept
-            assert [get_f() for get_f, _ in controls] == [1] * len(controls)
-        assert [get_f() for get_f, _ in controls] == [1] * len(controls)
-    assert inside == [1] * len(controls)
-    assert [get_f() for get_f, _ in controls] == before
+    if not blas_threads():
+        pytest.skip("no BLAS with a thread control is loaded")
+    rng = np.random.default_rng(0)
+    c = rng.uniform(0, 1, (30, 3))
+    spline = ThinPlateSpline(c, c + 0.01)
+    seen = []
+    real = ThinPlateSpline._eval
+    monkeypatch.setattr(ThinPlateSpline, "_eval", lambda self, *a: (seen.append(blas_threads()), real(self, *a))[1])
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        spline(c)
+        assert seen and all(n == 1 for n in seen[-1])
+        assert blas_threads() == before
