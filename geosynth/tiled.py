@@ -49,7 +49,7 @@ import numpy as np
 
 from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, assemble, tile_rng, upsample_window
 
-__all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes"]
+__all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid"]
 
 # How long a scheduler given by address may take to answer before the run is refused.
 CONNECT_TIMEOUT_S = 5.0
@@ -288,6 +288,16 @@ class _Distributed:
 
     def peak_rss(self) -> dict:
         def rss():
+            # VmHWM, the peak resident size of this process's own memory. Not ru_maxrss: Linux
+            # carries it across exec, so a worker spawned by a large client starts with the
+            # client's peak (measured: a 800 MiB parent's child reads 827 MiB, VmHWM 11 MiB).
+            try:
+                with open("/proc/self/status") as f:
+                    for line in f:
+                        if line.startswith("VmHWM:"):
+                            return int(line.split()[1]) * 1024
+            except OSError:
+                pass
             import resource
 
             return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -438,6 +448,25 @@ def _faces_per_sample(source: np.ndarray) -> float:
 # ------------------------------------------------------------------ checks
 
 
+def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int | None = None,
+              coarse_whole: bool = True) -> TileGrid:
+    """The tiling of a synthesis from a source of ``source_shape`` to ``target_shape``
+    (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the blocks per level
+    (:func:`geosynth.volume.plan_blocks`) and :meth:`TileGrid.make`. Needs the shapes
+    only, so a tiling whose cores are smaller than a block plus the margin is refused
+    before any field is computed.
+
+    Raises:
+        ValueError / TypeError: bad tiles, blocks that do not fit, cores too small.
+    """
+    from geosynth.volume import level_blocks, plan_blocks
+
+    target_shape = tuple(int(v) for v in target_shape)
+    blocks = plan_blocks(tuple(int(v) for v in source_shape), target_shape, levels, block,
+                         level_blocks(levels, block))
+    return TileGrid.make(target_shape, parse_tiles(tiles), blocks, margin, coarse_whole)
+
+
 def parse_tiles(tiles) -> tuple[int, int]:
     if isinstance(tiles, str):
         parts = tiles.lower().split("x")
@@ -563,7 +592,7 @@ def synthesize_volume_tiled(
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
     from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
-                                 level_blocks, plan_blocks, quantize_field)
+                                 level_blocks, quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
@@ -582,15 +611,14 @@ def synthesize_volume_tiled(
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
     nx, ny = parse_tiles(tiles)
-    blocks = level_blocks(levels, block)
-    band, _, target_shape = check_source_and_size(src, size, levels, band, blocks)
-    blocks = plan_blocks(src.shape, target_shape, levels, block, blocks)
+    band, _, target_shape = check_source_and_size(src, size, levels, band, level_blocks(levels, block))
+    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole)
+    blocks = list(grid.blocks)
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
     caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
     if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1 for c in caps):
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
-    grid = TileGrid.make(target_shape, (nx, ny), blocks, margin, coarse_whole)
     if gather is None:
         gather = store is None
     store_real = _check_store(store, inputs) if store is not None else None
@@ -817,18 +845,24 @@ def _merge(pieces, smooth: int):
 
 
 def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed: int | None = 0,
-                    device: str | None = None):
+                    device: str | None = None, check=None):
     """An exemplar mesh (a trimesh, a file or a built-in name) as the source of a
     synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it: its exact signed
-    distance on :func:`geosynth.volume.exemplar_grid`. Returns (float32 (Z, Y, X)
-    distances in samples, spacing (world units per sample), the exemplar Field)."""
+    distance on :func:`geosynth.volume.exemplar_grid`. ``check``: None, or a callable
+    taking the source's (Z, Y, X) shape, called before the distance is computed (so that
+    a tiling that cannot be is refused before the field's seconds: see :func:`tile_grid`).
+    Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
+    the exemplar Field)."""
     from geosynth.examples import resolve_exemplar_mesh
     from geosynth.meshes import check_mesh, mesh_distance
     from geosynth.volume import exemplar_grid
 
     m = resolve_exemplar_mesh(exemplar, seed)
     check_mesh(m, "exemplar")
-    field = mesh_distance(m, field=exemplar_grid(m, source_resolution, multiple=2 ** (levels - 1)), device=device)
+    grid = exemplar_grid(m, source_resolution, multiple=2 ** (levels - 1))
+    if check is not None:
+        check(grid.values.shape)
+    field = mesh_distance(m, field=grid, device=device)
     spacing = float(field.spacing[0])
     return field.values / np.float32(spacing), spacing, field
 

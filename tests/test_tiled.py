@@ -198,6 +198,22 @@ def test_tiles_smaller_than_a_block_plus_margin(terrain):
         synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), "2by2", scheduler="threads", **KW)
 
 
+def test_cli_tiles_too_small_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
+    import geosynth.meshes
+    from geosynth.cli import main
+
+    def computed(*args, **kwargs):
+        raise AssertionError("the exemplar's distance field was computed before the tiles were checked")
+
+    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    argv = ["volume", "--example", "terrain", "-o", str(tmp_path / "t.ply"), "--size", "32", "--levels", "2",
+            "--block", "8", "--source-resolution", "32", "--quiet", "--device", ONE_DEVICE, "--tiles", "4x4"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "smaller than its block 8 plus the margin 8; use at most 2x2 tiles" in err
+    assert len(err.strip().splitlines()) == 1 and list(tmp_path.iterdir()) == []
+
+
 def test_silent_scheduler_is_refused_and_nothing_written(terrain, tmp_path):
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
