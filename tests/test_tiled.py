@@ -242,7 +242,7 @@ def test_store_that_is_an_input_or_not_a_store(terrain, tmp_path):
 
 
 def test_tile_beyond_a_workers_memory_is_refused(terrain, monkeypatch):
-    monkeypatch.setenv("GEOSYNTH_MEMORY_LIMIT", str(24 << 20))  # 6 MiB for each of 4 threads
+    monkeypatch.setenv("GEOSYNTH_MEMORY_LIMIT", str(8 << 20))  # 2 MiB for each of 4 threads
     with pytest.raises(MemoryBudgetError, match=r"one tile task needs about .* more than a worker's") as err:
         synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), (2, 2), scheduler="threads", workers=4, **KW)
     assert err.value.option == "tiles" and err.value.estimate > err.value.available
