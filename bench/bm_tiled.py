@@ -77,7 +77,7 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
     from distributed import Client, LocalCluster
 
     from geosynth.memory import format_bytes
-    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_bytes
+    from geosynth.tiled import WORKER_RUNTIME_BYTES, exemplar_source, seam_report, synthesize_volume_tiled, tile_bytes
     from geosynth.tiling import TileGrid
     from geosynth.volume import synthesize_volume
 
@@ -114,7 +114,7 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
     lines += [f"| tasks: tiles / whole graph (tiles, crops, info; outputs excluded) | {r.tasks} / "
               f"{sum(lv['graph_tasks'] for lv in r.levels)} |",
               f"| bytes moved between workers | {format_bytes(r.bytes_moved)} ({r.bytes_moved / n:.2f} B per target sample) |",
-              f"| peak memory per worker (RSS) | {', '.join(format_bytes(v) for v in rss) or '-'} |",
+              f"| peak memory per worker (VmHWM) | {', '.join(format_bytes(v) for v in rss) or '-'} |",
               f"| estimated peak of one tile task | {format_bytes(r.tile_estimate)} |",
               f"| seams: block distance across borders / inside tiles | {q['seam']:.1f} / {q['interior']:.1f} "
               f"(ratio {q['ratio']:.3f}; {q['seam_blocks']} / {q['interior_blocks']} blocks) |",
@@ -153,8 +153,8 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
     for workers in (2, 16, 64, 256):
         lines.append(f"| {workers} | {per_sample * big_n / workers / 3600:.1f} h | {format_bytes(r.bytes_moved / n * big_n)} |")
     lines += ["", f"Memory per worker: one tile task of the big run is estimated at {format_bytes(big_tile)} "
-              f"(this run: estimate {format_bytes(r.tile_estimate)}, measured peak RSS {format_bytes(measured)}, which "
-              "includes the worker's Python, Dask and the device runtime, ~0.3-0.4 GiB), plus the worker's share of the "
+              f"(this run: estimate {format_bytes(r.tile_estimate)}, measured worker peak (VmHWM) {format_bytes(measured)}, "
+              f"which includes the worker's runtime, estimated at {format_bytes(WORKER_RUNTIME_BYTES)}), plus the worker's share of the "
               f"results it keeps: {format_bytes(1.14 * big_n)} in all over the cluster (uint8, every level), i.e. "
               f"{format_bytes(1.14 * big_n / 64)} per worker on 64 workers.", ""]
     return lines

@@ -20,7 +20,7 @@ from geosynth.blocks import block_offsets, block_shape, box_sums
 from geosynth.pyramid import check_block_shape, check_field, check_memory, check_query
 from geosynth.scoring import GatherScorer
 
-__all__ = ["CascadeSearch"]
+__all__ = ["CascadeSearch", "tally_alive"]
 
 # Lower bounds are summed in float32 (exact integer cell sums, rounded squares); a
 # candidate is dropped only when its bound exceeds the best SSD by more than this
@@ -42,6 +42,21 @@ _INT32_MAX = 2**31 - 1
 # The limit gets 0.08 m more for its 8 coarse cells (N = 8: 5 SSD units).
 _NORM_SLACK = 0.08
 _TERMS_CHUNK = 64  # queries whose terms are summed at a time (int32 copies: 12 B a sample)
+
+
+def tally_alive(sums: list, alive) -> int:
+    """Add per-match lists of blocks alive after each stage (``last_info["alive"]``) into
+    ``sums`` (per stage; a shorter list adds 0 at the stages it lacks), in place; returns
+    the number of matches added. A running sum, not the lists: a tile of millions of
+    matches would hold ~150 B of Python list per match."""
+    n = 0
+    for counts in alive:
+        if len(counts) > len(sums):
+            sums.extend([0] * (len(counts) - len(sums)))
+        for k, v in enumerate(counts):
+            sums[k] += int(v)
+        n += 1
+    return n
 
 
 def _divisor_cells(side: int, count: int) -> int:

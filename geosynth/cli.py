@@ -479,13 +479,17 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     from geosynth.memory import available_memory
     from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
-    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
+    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
     from geosynth.volume import target_size
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
+
+    def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
+        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block)
+
     source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
-                                         args.device)
+                                         args.device, check=check_tiling)
     shape = target_size(size, source.shape, args.levels)
     engine = args.scheduler or f"a LocalCluster of {args.workers} workers"
     say(f"geosynth volume: {label} -> {shape[2]} x {shape[1]} x {shape[0]} samples in {tiles[0]}x{tiles[1]} tiles on "

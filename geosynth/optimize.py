@@ -22,16 +22,28 @@ from __future__ import annotations
 import numpy as np
 
 from geosynth.blocks import block_shape
+from geosynth.cascade_search import tally_alive
 
 __all__ = ["IRLS_R", "irls_weights", "lattice_positions", "memory_estimate", "optimize_level", "random_blocks", "vote"]
 
 IRLS_R = 0.8  # Kwatra's robust exponent: E = sum_p ||x_p - z_p||^r
 CHUNK = 1024  # queries copied and searched at a time
-# Peak bytes per query sample of a chunk (the uint8 copies, the int32 differences of
-# the threshold and their squares are not all alive at once): measured with tracemalloc.
-_QUERY_SAMPLE_BYTES = 8
-# Working memory of a level beyond the target: the vote's two float64 fields (padded by
-# a block when periodic) and one chunk of queries; see memory_estimate.
+# Peak bytes per query sample of a chunk (the uint8 copies, the previous matches' blocks,
+# their int32 differences and squares): 10.5 measured with tracemalloc (block 8, 96^2 x 18).
+_QUERY_SAMPLE_BYTES = 11
+# Per lattice block, alive through the level: its origin, its matched origin now and
+# in the iteration before, SSD, match index now and before, IRLS weight (int64 /
+# float64): ~100 measured (block 4 at stride 1, where blocks ~ samples).
+_POSITION_BYTES = 104
+# Per sample of the vote: two float64 accumulators, the covered mask, the uint8 result
+# and the field before the vote (18.0 measured; no float64 temporaries since the
+# quotient is taken in place).
+_VOTE_SAMPLE_BYTES = 19
+# Per sample more with given samples (``fixed``): the mask's copy, the given values and
+# the feathering band's weights, nearest anchors and values (~21 B per band sample; the
+# band is a block wide). The summed-volume table (int32) and the one-plane distance
+# transform that find them are gone before the first vote.
+_FIXED_SAMPLE_BYTES = 6
 # Lattice stride = block / divisor: coarser levels are cheap and set the structure,
 # so they get the denser lattice.
 COARSE_DIVISOR = 4
@@ -79,16 +91,24 @@ def level_stride(block: int, finest: bool) -> int:
     return max(1, block // (FINEST_DIVISOR if finest else COARSE_DIVISOR))
 
 
-def memory_estimate(shape, block, stride: int | None = None, wrap: bool = False) -> int:
-    """Bytes :func:`optimize_level` needs beyond its inputs for a (Z, Y, X) target and a
-    block N or (bz, by, bx): the vote's accumulators (2 float64 per sample, padded by a
-    block) and a chunk of query copies with their int32 differences (at most CHUNK of
-    the lattice's blocks; ``stride`` None: the finest level's)."""
+def memory_estimate(shape, block, stride: int | None = None, wrap: bool = False, fixed: bool = False) -> int:
+    """Peak bytes :func:`optimize_level` needs beyond its inputs for a (Z, Y, X) target
+    and a block N or (bz, by, bx) (``stride`` None: the finest level's).
+
+    What it counts (tracemalloc, tests/test_memory.py and tests/test_tiled_memory.py):
+    _POSITION_BYTES per lattice block (alive throughout), plus the larger of the vote
+    (_VOTE_SAMPLE_BYTES per sample, padded by a block when ``wrap``) and a chunk of at
+    most CHUNK queries (_QUERY_SAMPLE_BYTES per query sample); with ``fixed`` (given
+    samples) _FIXED_SAMPLE_BYTES per sample more and every lattice block counted (an
+    upper bound: blocks of given samples only are skipped)."""
     bs = block_shape(block)
-    padded = int(np.prod([int(n) + b for n, b in zip(shape, bs)]))
+    n = int(np.prod([int(v) for v in shape]))
+    padded = int(np.prod([int(v) + b for v, b in zip(shape, bs)])) if wrap else n
     stride = level_stride(bs[-1], True) if stride is None else int(stride)
-    positions = int(np.prod([len(lattice_positions(int(n), b, stride, wrap)) for n, b in zip(shape, bs)]))
-    return 2 * 8 * padded + min(CHUNK, positions) * int(np.prod(bs)) * _QUERY_SAMPLE_BYTES
+    positions = int(np.prod([len(lattice_positions(int(v), b, stride, wrap)) for v, b in zip(shape, bs)]))
+    chunk = min(CHUNK, positions) * int(np.prod(bs)) * _QUERY_SAMPLE_BYTES
+    vote = _VOTE_SAMPLE_BYTES * padded + (padded if wrap else 0)  # + the padded copy of a periodic target
+    return _POSITION_BYTES * positions + max(vote, chunk) + (_FIXED_SAMPLE_BYTES * n if fixed else 0)
 
 
 def lattice_positions(size: int, block: int, stride: int, wrap: bool) -> list[int]:
@@ -169,11 +189,11 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
     """
     bz, by, bx = bs = tuple(patches.shape[1:4])
     pshape = tuple(n + b for n, b in zip(shape, bs)) if wrap else tuple(shape)
-    acc = np.zeros(pshape, np.float64)
-    wsum = np.zeros(pshape, np.float64)
     g = np.ones(bs) if falloff is None else np.asarray(falloff, np.float64)
     if mode == "max":
         return _vote_max(shape, positions, patches, weights, wrap, g, fallback)
+    acc = np.zeros(pshape, np.float64)
+    wsum = np.zeros(pshape, np.float64)
     for (z, y, x), patch, w in zip(positions, patches, weights):
         acc[z:z + bz, y:y + by, x:x + bx] += (w * g) * patch
         wsum[z:z + bz, y:y + by, x:x + bx] += w * g
@@ -187,9 +207,13 @@ def vote(shape, positions: np.ndarray, patches: np.ndarray, weights: np.ndarray,
                 a[tuple(head)] += a[tuple(tail)]
         acc, wsum = acc[:shape[0], :shape[1], :shape[2]], wsum[:shape[0], :shape[1], :shape[2]]
     covered = wsum > 0
-    out = np.zeros(shape, np.float64)
-    out[covered] = acc[covered] / wsum[covered]
-    result = np.clip(np.floor(out + 0.5), 0, 255).astype(np.uint8)
+    # in place on acc (no float64 temporaries of the field; the same quotients): a sample
+    # no patch covers has acc 0 and stays 0
+    np.divide(acc, wsum, out=acc, where=covered)
+    acc += 0.5
+    np.floor(acc, out=acc)
+    np.clip(acc, 0, 255, out=acc)
+    result = acc.astype(np.uint8)
     if fallback is not None:
         result[~covered] = fallback[~covered]
     return result
@@ -256,9 +280,15 @@ def _free_positions(target: np.ndarray, positions: np.ndarray, block: tuple[int,
     if mask.shape != target.shape or mask.dtype != np.bool_:
         raise ValueError(f"fixed must be a bool mask of the target's shape {target.shape}, got "
                          f"{mask.dtype} {mask.shape}.")
-    free = _padded((~mask).astype(np.int64), block, wrap)
-    table = np.zeros(tuple(n + 1 for n in free.shape), np.int64)  # summed-volume table of free samples
-    table[1:, 1:, 1:] = free.cumsum(0).cumsum(1).cumsum(2)
+    free = _padded(~mask, block, wrap)
+    count_type = np.int32 if free.size < 2**31 else np.int64  # the counts fit: half the table of int64
+    table = np.zeros(tuple(n + 1 for n in free.shape), count_type)  # summed-volume table of free samples
+    inner = table[1:, 1:, 1:]
+    np.cumsum(free, axis=0, dtype=count_type, out=inner)  # in place: no temporary tables
+    np.cumsum(inner, axis=1, out=inner)
+    np.cumsum(inner, axis=2, out=inner)
+    padded_shape = free.shape
+    del free, inner
     z, y, x = positions.T
     bz, by, bx = block
     count = (table[z + bz, y + by, x + bx] - table[z, y + by, x + bx] - table[z + bz, y, x + bx]
@@ -268,21 +298,52 @@ def _free_positions(target: np.ndarray, positions: np.ndarray, block: tuple[int,
     # The free samples near the given ones take a share of the given samples' residual
     # (given value - vote there), falling off linearly over a block: a hard constraint
     # otherwise leaves a step of the size of the match error where the two meet.
-    covered = np.zeros(free.shape, bool)
+    covered = np.zeros(padded_shape, bool)
     for z0, y0, x0 in positions:
         covered[z0:z0 + bz, y0:y0 + by, x0:x0 + bx] = True
     if wrap:
         covered = _fold_any(covered, target.shape, block)
     anchors = mask & covered
+    del covered
     feather = None
     if anchors.any():
-        from scipy import ndimage
-
-        dist, nearest = ndimage.distance_transform_edt(~anchors, return_indices=True)
-        weight = np.clip(1.0 - dist / max(block[1:]), 0.0, 1.0) * ~mask  # over a block across
-        near = weight > 0
-        feather = (near, weight[near], tuple(i[near] for i in nearest), anchors)
+        feather = _feather(target, mask, anchors, max(block[1:]))
     return positions, (mask.copy(), target[mask].copy(), feather)
+
+
+def _feather(target: np.ndarray, mask: np.ndarray, anchors: np.ndarray, reach: int) -> tuple:
+    """(near, weight, nearest anchor, given value there) of the free samples within
+    ``reach`` samples of an anchor (a given sample in a free block): weight = 1 -
+    distance / reach, the nearest anchor by the exact Euclidean distance transform.
+
+    A mask the same in every z plane (a tile's given columns, every sample of a margin)
+    takes the transform of one plane (its nearest anchors lie in the same plane): the
+    3D transform's index arrays and float64 distances cost ~60 B per sample."""
+    from scipy import ndimage
+
+    columns = bool((anchors == anchors[:1]).all() and (mask == mask[:1]).all())
+    if columns:
+        dist, nearest = ndimage.distance_transform_edt(~anchors[0], return_indices=True)
+    else:
+        dist, nearest = ndimage.distance_transform_edt(~anchors, return_indices=True)
+    # weight = clip(1 - dist / reach, 0, 1) on the free samples (in place on dist)
+    dist /= reach
+    np.subtract(1.0, dist, out=dist)
+    np.clip(dist, 0.0, 1.0, out=dist)
+    dist[mask[0] if columns else mask] = 0.0
+    near = dist > 0
+    if columns:
+        z = target.shape[0]
+        count = int(near.sum())
+        weight = np.tile(dist[near], z)
+        picked = tuple(np.tile(i[near], z) for i in nearest)
+        nearest = (np.repeat(np.arange(z, dtype=picked[0].dtype), count),) + picked
+        near = np.broadcast_to(near, target.shape)
+    else:
+        weight = dist[near]
+        nearest = tuple(i[near] for i in nearest)
+    # the given values at each near sample's anchor (given samples keep their values: fixed for the run)
+    return near, weight, nearest, target[nearest]
 
 
 def _fold_any(values: np.ndarray, shape, block: tuple[int, int, int]) -> np.ndarray:
@@ -300,10 +361,9 @@ def _restore(target: np.ndarray, given) -> None:
     """Put the given samples back after a vote, feathering their residual into their free neighbours."""
     mask, values, feather = given
     if feather is not None:
-        near, weight, nearest, anchors = feather
-        residual = np.zeros(target.shape, np.float64)
-        residual[mask] = values.astype(np.float64) - target[mask]
-        moved = target[near] + weight * residual[nearest]
+        near, weight, nearest, given_there = feather
+        # the residual (given - voted) at each near sample's anchor, without a field of it
+        moved = target[near] + weight * (given_there.astype(np.float64) - target[nearest])
         target[near] = np.clip(np.floor(moved + 0.5), 0, 255).astype(np.uint8)
     target[mask] = values
 
@@ -339,7 +399,8 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         {"iterations": int, "matches": int (block searches made), "changed": [share of
         blocks whose match changed, per iteration; the first is 1.0], "mean_distance":
         mean SSD / N^3 of the last iteration's matches (squared uint8 units), "alive":
-        per match, the cascade's blocks alive after each stage, "energy": Kwatra's
+        the cascade's mean blocks alive after each stage over the matches (a stage a
+        match did not reach counts 0; empty for other searches), "energy": Kwatra's
         energy per iteration, "stopped": "matches settled", "energy rose" or
         "iteration cap"}.
     """
@@ -358,7 +419,8 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
     prev = prev_index = None
     changed: list[float] = []
     matches = 0
-    alive: list[list[int]] = []
+    alive_sums: list[int] = []  # per stage, summed over the matches (no per-match lists: see tally_alive)
+    alive_matches = 0
     mean = 0.0
     energy = []
     before = None
@@ -376,7 +438,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
                 diff = _blocks(source, prev[lo:hi], block).astype(np.int32) - queries
                 thresholds = (diff * diff).reshape(hi - lo, -1).sum(axis=1)
             origins[lo:hi], ssds[lo:hi], info = _nearest_batch(search, queries, thresholds)
-            alive.extend(info)
+            alive_matches += tally_alive(alive_sums, info)
         matches += len(positions)
         energy.append(float((np.maximum(ssds, 1.0) ** (r / 2)).sum()))  # Kwatra's E = sum ||x_p - z_p||^r
         index = (origins[:, 0] * sy + origins[:, 1]) * sx + origins[:, 2]
@@ -407,4 +469,5 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         if given is not None:
             _restore(target, given)
     return {"iterations": len(changed), "matches": matches, "changed": changed, "mean_distance": mean,
-            "alive": alive, "energy": energy, "stopped": stopped}
+            "alive": [v / alive_matches for v in alive_sums] if alive_matches else [], "energy": energy,
+            "stopped": stopped}

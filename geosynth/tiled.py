@@ -49,7 +49,8 @@ import numpy as np
 
 from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, assemble, tile_rng, upsample_window
 
-__all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes"]
+__all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
+           "tile_task_bytes", "kept_bytes", "WORKER_RUNTIME_BYTES"]
 
 # How long a scheduler given by address may take to answer before the run is refused.
 CONNECT_TIMEOUT_S = 5.0
@@ -59,10 +60,18 @@ FACES_GROWTH = 1.5
 # Peak bytes per face of a mesh held and merged on the client (vertices, faces and the
 # vertex de-duplication; geosynth.volume measures 96-105 B per face for marching cubes).
 MERGE_FACE_BYTES = 160
-# Per target sample of a tile: the float32 upsampling (15 B, geosynth.volume's figure),
-# the uint8 target, its copy before each vote, the fixed mask and its values, the
-# assembled inputs (5 B); the vote's accumulators and query chunk come on top.
-_TILE_SAMPLE_BYTES = 20
+# Per sample of a tile's region, alive through its task: the uint8 target, the given
+# mask and the fixed crops (phase B), the assembled coarser window (1/8).
+_TILE_SAMPLE_BYTES = 4
+# The trilinear x2 upsampling of the coarser crops (float32 passes, their taps and the
+# rounded result: geosynth.volume's 15 B per sample).
+_UPSAMPLE_SAMPLE_BYTES = 15
+# A task's Python objects, the crops' lists, the info dict.
+_TASK_BYTES = 256 << 10
+# A worker process before any tile: Python, NumPy, SciPy, Dask's worker, geosynth and the
+# device runtime with its kernels. Measured (VmHWM of a LocalCluster worker after one
+# small tile): 115 MiB on PoCL, 223 MiB on Warp CPU.
+WORKER_RUNTIME_BYTES = 256 << 20
 
 
 # ------------------------------------------------------------------ what every task reads
@@ -221,10 +230,15 @@ class _Threads:
     def gather(self, values):
         return values
 
+    runtime_bytes = 0  # the threads share this process, whose runtime is already in use
+
     def memory_limit(self) -> int:
         from geosynth.memory import available_memory
 
         return available_memory() // max(1, self.workers)
+
+    def worker_count(self) -> int:
+        return self.workers
 
     def transfers(self) -> int:
         return 0
@@ -272,13 +286,25 @@ class _Distributed:
     def gather(self, futures):
         return self.client.gather(futures)
 
+    runtime_bytes = WORKER_RUNTIME_BYTES
+
     def memory_limit(self) -> int:
+        """The smallest worker memory limit, times Dask's terminate fraction (a worker
+        above it is killed); what is available here when no worker has a limit."""
+        import dask
+
         workers = self.client.scheduler_info(n_workers=-1)["workers"].values()
         limits = [int(w.get("memory_limit") or 0) for w in workers]
         from geosynth.memory import available_memory
 
         known = [v for v in limits if v > 0]
-        return min(known) if known else available_memory()
+        if not known:
+            return available_memory()
+        fraction = dask.config.get("distributed.worker.memory.terminate", 0.95) or 1.0
+        return int(min(known) * float(fraction))
+
+    def worker_count(self) -> int:
+        return max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
 
     def transfers(self) -> int:
         def sent(dask_worker):
@@ -288,6 +314,16 @@ class _Distributed:
 
     def peak_rss(self) -> dict:
         def rss():
+            # VmHWM, the peak resident size of this process's own memory. Not ru_maxrss: Linux
+            # carries it across exec, so a worker spawned by a large client starts with the
+            # client's peak (measured: a 800 MiB parent's child reads 827 MiB, VmHWM 11 MiB).
+            try:
+                with open("/proc/self/status") as f:
+                    for line in f:
+                        if line.startswith("VmHWM:"):
+                            return int(line.split()[1]) * 1024
+            except OSError:
+                pass
             import resource
 
             return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -393,33 +429,57 @@ class TiledResult:
 # ------------------------------------------------------------------ estimates
 
 
+def tile_task_bytes(grid: TileGrid, level: int, index: int) -> int:
+    """Estimated peak bytes of one tile task (:func:`_tile_task`) beyond the exemplar and
+    the level's search: per sample of the tile's region, the target, the given mask and
+    the fixed crops (_TILE_SAMPLE_BYTES, alive throughout), plus the larger of the
+    trilinear upsampling of the coarser crops (_UPSAMPLE_SAMPLE_BYTES, a finer level)
+    and the texture optimization (:func:`geosynth.optimize.memory_estimate`; phase B
+    with its given samples), plus the core's copy returned. Measured against the traced
+    peak of every task in tests/test_tiled_memory.py."""
+    from geosynth.optimize import level_stride, memory_estimate
+
+    r, c = grid.region(level, index), grid.core_region(level, index)
+    z = grid.level_shape(level)[0]
+    shape = (z,) + r.shape
+    n = int(np.prod(shape))
+    b = grid.blocks[level]
+    fixed = bool(grid.fixed_parts(level, index))
+    optimize = memory_estimate(shape, b, level_stride(b, level == grid.levels - 1), fixed=fixed)
+    upsample = _UPSAMPLE_SAMPLE_BYTES * n if level > 0 else 0
+    return _TILE_SAMPLE_BYTES * n + max(optimize, upsample) + z * c.shape[0] * c.shape[1] + _TASK_BYTES
+
+
 def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool = False,
                faces_per_sample: float = 0.0) -> int:
-    """Estimated peak bytes of the largest tile task of ``grid`` (any level): the
-    exemplar's pyramid, the level's search (:func:`geosynth.volume.matcher_bytes`),
-    ~20 B per sample of the tile's region (upsampling, target, copies, inputs) and the
-    vote's accumulators and query chunk (:func:`geosynth.optimize.memory_estimate`);
+    """Estimated peak bytes of one worker's tile work for ``grid``, beyond its runtime
+    (:data:`WORKER_RUNTIME_BYTES`) and the results it keeps: the exemplar's pyramid, every
+    level's search (a worker keeps them all: :func:`geosynth.volume.matcher_bytes`, device
+    buffers included) and the largest tile task of any level (:func:`tile_task_bytes`);
     with ``mesh``, the tile's marching cubes too (:data:`MERGE_FACE_BYTES` per face)."""
-    from geosynth.optimize import level_stride, memory_estimate
     from geosynth.volume import matcher_bytes
 
     shapes = [tuple(int(v) for v in source_shape)]
     for _ in range(grid.levels - 1):
         shapes.insert(0, tuple(v // 2 for v in shapes[0]))
     pyramid = sum(int(np.prod(s)) for s in shapes)
+    searches = sum(matcher_bytes(shapes[level], grid.blocks[level], search) for level in range(grid.levels))
     worst = 0
     for level in range(grid.levels):
-        z = grid.level_shape(level)[0]
-        r = max((grid.region(level, t) for t in grid.tasks(level)), key=lambda q: q.shape[0] * q.shape[1])
-        shape = (z,) + r.shape
-        n = int(np.prod(shape))
-        b = grid.blocks[level]
-        need = (_TILE_SAMPLE_BYTES * n + memory_estimate(shape, b, level_stride(b, level == grid.levels - 1))
-                + matcher_bytes(shapes[level], b, search))
+        for t in grid.tasks(level):
+            worst = max(worst, tile_task_bytes(grid, level, t))
         if mesh and level == grid.levels - 1:
-            need = max(need, 4 * n + int(faces_per_sample * n * MERGE_FACE_BYTES))
-        worst = max(worst, need)
-    return pyramid + worst + (8 << 20)  # + the task's Python objects and the worker's buffers
+            z = grid.level_shape(level)[0]
+            n = max(z * (c.shape[0] + 1) * (c.shape[1] + 1) for c in grid.cores(level).values())
+            worst = max(worst, 10 * n + int(faces_per_sample * n * MERGE_FACE_BYTES))
+    return pyramid + searches + worst
+
+
+def kept_bytes(grid: TileGrid, workers: int) -> int:
+    """Bytes of tile results a worker keeps until the end (every level's uint8 cores,
+    should a worker die: see :func:`_run`), the cluster's total split evenly."""
+    total = sum(int(np.prod(grid.level_shape(level))) for level in range(grid.levels))
+    return -(-total // max(1, int(workers)))
 
 
 def _faces_per_sample(source: np.ndarray) -> float:
@@ -436,6 +496,25 @@ def _faces_per_sample(source: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------------ checks
+
+
+def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int | None = None,
+              coarse_whole: bool = True) -> TileGrid:
+    """The tiling of a synthesis from a source of ``source_shape`` to ``target_shape``
+    (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the blocks per level
+    (:func:`geosynth.volume.plan_blocks`) and :meth:`TileGrid.make`. Needs the shapes
+    only, so a tiling whose cores are smaller than a block plus the margin is refused
+    before any field is computed.
+
+    Raises:
+        ValueError / TypeError: bad tiles, blocks that do not fit, cores too small.
+    """
+    from geosynth.volume import level_blocks, plan_blocks
+
+    target_shape = tuple(int(v) for v in target_shape)
+    blocks = plan_blocks(tuple(int(v) for v in source_shape), target_shape, levels, block,
+                         level_blocks(levels, block))
+    return TileGrid.make(target_shape, parse_tiles(tiles), blocks, margin, coarse_whole)
 
 
 def parse_tiles(tiles) -> tuple[int, int]:
@@ -563,7 +642,7 @@ def synthesize_volume_tiled(
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
     from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
-                                 level_blocks, plan_blocks, quantize_field)
+                                 level_blocks, quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
@@ -582,15 +661,14 @@ def synthesize_volume_tiled(
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
     nx, ny = parse_tiles(tiles)
-    blocks = level_blocks(levels, block)
-    band, _, target_shape = check_source_and_size(src, size, levels, band, blocks)
-    blocks = plan_blocks(src.shape, target_shape, levels, block, blocks)
+    band, _, target_shape = check_source_and_size(src, size, levels, band, level_blocks(levels, block))
+    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole)
+    blocks = list(grid.blocks)
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
     caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
     if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1 for c in caps):
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
-    grid = TileGrid.make(target_shape, (nx, ny), blocks, margin, coarse_whole)
     if gather is None:
         gather = store is None
     store_real = _check_store(store, inputs) if store is not None else None
@@ -630,21 +708,30 @@ def synthesize_volume_tiled(
     tmp_store = None
     try:
         limit = engine.memory_limit()
-        if estimate > limit:
+        n_workers = engine.worker_count()
+
+        def worker_need(g: TileGrid, tile_estimate: int) -> int:
+            return tile_estimate + engine.runtime_bytes + kept_bytes(g, n_workers)
+
+        need = worker_need(grid, estimate)
+        if need > limit:  # refused before any tile runs
             fits = None
             for n in range(max(nx, ny) + 1, 257):
                 try:
                     g = TileGrid.make(target_shape, (n, n), blocks, margin, coarse_whole)
                 except ValueError:
                     break
-                if tile_bytes(g, src.shape, search, mesh or mesh_dir is not None, faces_per_sample) <= limit:
+                if worker_need(g, tile_bytes(g, src.shape, search, mesh or mesh_dir is not None,
+                                             faces_per_sample)) <= limit:
                     fits = (n, n)
                     break
             fix = (f"use at least {fits[0]}x{fits[1]} tiles" if fits else "no tiling of this size fits; use a "
                    "smaller size or workers with more memory")
-            raise MemoryBudgetError(f"tiles {nx}x{ny}: one tile task needs about {format_bytes(estimate)}, more than "
-                                    f"a worker's {format_bytes(limit)}; {fix}.", option="tiles", largest=fits,
-                                    estimate=estimate, available=limit)
+            raise MemoryBudgetError(
+                f"tiles {nx}x{ny}: one tile task needs about {format_bytes(estimate)}, with the worker's runtime "
+                f"({format_bytes(engine.runtime_bytes)}) and kept results ({format_bytes(kept_bytes(grid, n_workers))}) "
+                f"{format_bytes(need)}, more than a worker's {format_bytes(limit)}; {fix}.", option="tiles",
+                largest=fits, estimate=need, available=limit)
         timings["engine start"] = time.perf_counter() - t0
         run = uuid.uuid4().hex[:10]
         moved0 = engine.transfers()
@@ -817,18 +904,24 @@ def _merge(pieces, smooth: int):
 
 
 def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed: int | None = 0,
-                    device: str | None = None):
+                    device: str | None = None, check=None):
     """An exemplar mesh (a trimesh, a file or a built-in name) as the source of a
     synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it: its exact signed
-    distance on :func:`geosynth.volume.exemplar_grid`. Returns (float32 (Z, Y, X)
-    distances in samples, spacing (world units per sample), the exemplar Field)."""
+    distance on :func:`geosynth.volume.exemplar_grid`. ``check``: None, or a callable
+    taking the source's (Z, Y, X) shape, called before the distance is computed (so that
+    a tiling that cannot be is refused before the field's seconds: see :func:`tile_grid`).
+    Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
+    the exemplar Field)."""
     from geosynth.examples import resolve_exemplar_mesh
     from geosynth.meshes import check_mesh, mesh_distance
     from geosynth.volume import exemplar_grid
 
     m = resolve_exemplar_mesh(exemplar, seed)
     check_mesh(m, "exemplar")
-    field = mesh_distance(m, field=exemplar_grid(m, source_resolution, multiple=2 ** (levels - 1)), device=device)
+    grid = exemplar_grid(m, source_resolution, multiple=2 ** (levels - 1))
+    if check is not None:
+        check(grid.values.shape)
+    field = mesh_distance(m, field=grid, device=device)
     spacing = float(field.spacing[0])
     return field.values / np.float32(spacing), spacing, field
 

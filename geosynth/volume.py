@@ -322,7 +322,9 @@ class Matcher:
         self.offsets = block_offsets(block)
         self.search = search
         self.engine = None
-        self.alive: list[list[int]] = []  # cascade: blocks alive after each stage, per match
+        # cascade: blocks alive after each stage, summed over the matches (tally_alive), and the matches
+        self.alive_sums: list[int] = []
+        self.alive_matches = 0
         if search == "tree" and np.ndim(block) != 0:
             raise ValueError(f"search='tree' takes cubic blocks only; a slab's block {tuple(block)} needs "
                              "search='cascade' or 'linear'.")
@@ -345,9 +347,8 @@ class Matcher:
         """One line (tree: several) saying what the search was and did."""
         if self.search == "tree":
             return "tree: " + str(self.engine.stats())
-        if self.search == "cascade" and self.engine.stages and self.alive:
-            width = max(len(a) for a in self.alive)
-            mean = np.mean([a + [0] * (width - len(a)) for a in self.alive], axis=0)
+        if self.search == "cascade" and self.engine.stages and self.alive_matches:
+            mean = [v / self.alive_matches for v in self.alive_sums]
             cells = ", ".join(f"{c}^3" if np.ndim(c) == 0 else "x".join(map(str, c)) for c in self.engine.stages)
             return (f"cascade over {self.engine.n_blocks:,} blocks, bound cells {cells}: mean blocks alive "
                     + " -> ".join(f"{v:,.0f}" for v in mean))
@@ -359,7 +360,9 @@ class Matcher:
         """Exact nearest blocks of (Q, bz, by, bx) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
         if self.search == "cascade":
             origins, ssds, alive = self.engine.nearest_batch(queries, thresholds)
-            self.alive.extend(alive)
+            from geosynth.cascade_search import tally_alive
+
+            self.alive_matches += tally_alive(self.alive_sums, alive)
             return origins, ssds, alive
         got = [self.nearest(q, None if thresholds is None else int(thresholds[i])) for i, q in enumerate(queries)]
         return (np.array([g[0] for g in got], np.int64).reshape(-1, 3), np.array([g[1] for g in got], np.int64), [])
@@ -376,8 +379,10 @@ class Matcher:
             origin, ssd = self.engine.nearest(query)
             return np.asarray(origin), int(ssd)
         if self.search == "cascade":
+            from geosynth.cascade_search import tally_alive
+
             origin, ssd = self.engine.nearest(query, threshold=threshold)
-            self.alive.append(self.engine.last_info["alive"])
+            self.alive_matches += tally_alive(self.alive_sums, [self.engine.last_info["alive"]])
             return np.asarray(origin), int(ssd)
         from geosynth.scoring import score_gather
         from geosynth.selection import argmin

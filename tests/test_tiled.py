@@ -150,6 +150,12 @@ def test_seams_as_good_as_inside(clients):
             # one smooth surface: a step at the borders would show. Measured 1.21; the same columns of the
             # untiled field 1.42, independent tiles (phases=1) 1.46, the schedule without feathering 1.79.
             assert s["step_ratio"] <= 1.35, s
+            # the block distance does not tell the schedule from independent tiles (both 0.93-1.02); the
+            # step does: independent tiles 1.46 and 1.53 against the schedule's 1.21 and 1.30 (seeds 1, 2)
+            naive = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], phases=1,
+                                            **dict(KW, iterations=2, seed=1))
+            n = seam_report(naive.source, naive.quantized, naive.grid, 8, stride=2, device=ONE_DEVICE)
+            assert n["step_ratio"] >= s["step_ratio"] + 0.15, (s, n)
 
 
 def test_killed_worker_leaves_the_output_identical(terrain):
@@ -198,6 +204,22 @@ def test_tiles_smaller_than_a_block_plus_margin(terrain):
         synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), "2by2", scheduler="threads", **KW)
 
 
+def test_cli_tiles_too_small_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
+    import geosynth.meshes
+    from geosynth.cli import main
+
+    def computed(*args, **kwargs):
+        raise AssertionError("the exemplar's distance field was computed before the tiles were checked")
+
+    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    argv = ["volume", "--example", "terrain", "-o", str(tmp_path / "t.ply"), "--size", "32", "--levels", "2",
+            "--block", "8", "--source-resolution", "32", "--quiet", "--device", ONE_DEVICE, "--tiles", "4x4"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "smaller than its block 8 plus the margin 8; use at most 2x2 tiles" in err
+    assert len(err.strip().splitlines()) == 1 and list(tmp_path.iterdir()) == []
+
+
 def test_silent_scheduler_is_refused_and_nothing_written(terrain, tmp_path):
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
@@ -226,7 +248,7 @@ def test_store_that_is_an_input_or_not_a_store(terrain, tmp_path):
 
 
 def test_tile_beyond_a_workers_memory_is_refused(terrain, monkeypatch):
-    monkeypatch.setenv("GEOSYNTH_MEMORY_LIMIT", str(24 << 20))  # 6 MiB for each of 4 threads
+    monkeypatch.setenv("GEOSYNTH_MEMORY_LIMIT", str(8 << 20))  # 2 MiB for each of 4 threads
     with pytest.raises(MemoryBudgetError, match=r"one tile task needs about .* more than a worker's") as err:
         synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), (2, 2), scheduler="threads", workers=4, **KW)
     assert err.value.option == "tiles" and err.value.estimate > err.value.available

@@ -1,0 +1,85 @@
+"""Memory of the tiled M1 synthesis (geosynth.tiled): the estimate of a tile task against
+the traced peak of every task of a run (phase A and B, coarse and finest level), and a
+worker memory limit below the estimate refused before any tile runs, in one line."""
+
+from __future__ import annotations
+
+import logging
+import tracemalloc
+
+import numpy as np
+import pytest
+
+import geosynth.tiled as tiled
+from conftest import ONE_DEVICE
+from geosynth.memory import MemoryBudgetError, format_bytes
+from geosynth.tiled import exemplar_source, synthesize_volume_tiled, tile_task_bytes
+
+distributed = pytest.importorskip("distributed")
+
+RATIO = 1.5  # as tests/test_memory.py: the estimate within 1.5x of the peak, both ways
+
+
+@pytest.fixture(scope="module")
+def terrain():
+    src, _, _ = exemplar_source("terrain", 32, 2)
+    return src
+
+
+def test_tile_task_estimate_bounds_the_traced_peak(terrain, monkeypatch):
+    # every level tiled (coarse_whole=False), 2 x 1 tiles: a phase A and a phase B task at
+    # both levels (regions 16 x 24 and 32 x 40, x y). Two iterations: the second holds
+    # the first's matches too. (Traced, the run is ~20x slower: one small run.)
+    peaks = []
+    task = tiled._tile_task
+
+    def traced(ex, grid, level, index, init, fixed):
+        tracemalloc.start()
+        try:
+            out = task(ex, grid, level, index, init, fixed)
+            peaks.append((grid, level, index, tracemalloc.get_traced_memory()[1]))
+        finally:
+            tracemalloc.stop()
+        return out
+
+    monkeypatch.setattr(tiled, "_tile_task", traced)
+    z = terrain.shape[0] // 2 * 2
+    synthesize_volume_tiled(terrain, (z, 32, 64), (2, 1), levels=2, block=8, seed=1, iterations=2,
+                            progress=False, device=ONE_DEVICE, scheduler="threads", workers=1, coarse_whole=False)
+    assert len(peaks) == 4
+    phases = {(lv, g.phase(t)) for g, lv, t, _ in peaks}
+    assert phases == {(0, 0), (0, 1), (1, 0), (1, 1)}
+    for grid, level, index, peak in peaks:
+        estimate = tile_task_bytes(grid, level, index)
+        ratio = estimate / peak
+        assert 1 / RATIO <= ratio <= RATIO, (
+            f"tile {index} level {level + 1} (phase {'AB'[grid.phase(index)]}, region {grid.region(level, index).shape}): "
+            f"estimate {format_bytes(estimate)} vs traced peak {format_bytes(peak)} (ratio {ratio:.2f})")
+
+
+def test_worker_limit_below_the_estimate_is_refused_before_any_tile(terrain, monkeypatch):
+    def ran(*args, **kwargs):
+        raise AssertionError("a tile task ran before the memory check")
+
+    monkeypatch.setattr(tiled, "_tile_task", ran)
+    z = terrain.shape[0] // 2 * 2
+    kw = dict(levels=2, block=8, seed=1, iterations=1, progress=False, device=ONE_DEVICE)
+    # a LocalCluster whose workers may hold 200 MiB: the worker's runtime alone is counted at 256 MiB
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, memory_limit="200MiB",
+                                       dashboard_address=":0", silence_logs=logging.ERROR)
+    client = distributed.Client(cluster)
+    try:
+        with pytest.raises(MemoryBudgetError) as err:
+            synthesize_volume_tiled(terrain, (z, 64, 64), (2, 2), scheduler=client, **kw)
+    finally:
+        client.close()
+        cluster.close()
+    message = str(err.value)
+    assert "\n" not in message and "one tile task needs about" in message and "more than a worker's 190.0 MiB" in message
+    assert err.value.option == "tiles" and err.value.estimate > err.value.available
+    # the threaded scheduler: this process's memory (GEOSYNTH_MEMORY_LIMIT) split over the threads;
+    # the largest square tiling that fits is named, and it does fit
+    monkeypatch.setenv("GEOSYNTH_MEMORY_LIMIT", str(8 << 20))
+    with pytest.raises(MemoryBudgetError, match=r"one tile task needs about .* more than a worker's 4\.0 MiB") as err:
+        synthesize_volume_tiled(terrain, (z, 128, 128), (2, 2), scheduler="threads", workers=2, **kw)
+    assert err.value.largest is None or err.value.largest[0] > 2
