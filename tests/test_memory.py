@@ -354,8 +354,10 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
                                                device=device, progress=False), "source_resolution")
     assert err.largest is not None and 8 <= err.largest < 100_000
     # the largest that fits does fit, quality numbers and structure metrics included
-    peak, _ = _traced_peak(lambda: synthesize_geometry(mesh, 16, source_resolution=err.largest, levels=2, block=8,
-                                                       iterations=2, device=device, progress=False))
+    fits = lambda: synthesize_geometry(mesh, 16, source_resolution=err.largest, levels=2, block=8,  # noqa: E731
+                                       iterations=2, device=device, progress=False, quality_samples=5)
+    fits()  # once unmeasured: the metrics' first imports are not the run's
+    peak, _ = _traced_peak(fits)
     assert peak <= 4 << 20
 
     # texture_points: a huge texture names texture_size; many points name count
