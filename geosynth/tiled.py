@@ -313,25 +313,12 @@ class _Distributed:
         return int(sum(self.client.run(sent).values()))
 
     def peak_rss(self) -> dict:
-        def rss():
-            # VmHWM, the peak resident size of this process's own memory. Not ru_maxrss: Linux
-            # carries it across exec, so a worker spawned by a large client starts with the
-            # client's peak (measured: a 800 MiB parent's child reads 827 MiB, VmHWM 11 MiB).
-            try:
-                with open("/proc/self/status") as f:
-                    for line in f:
-                        if line.startswith("VmHWM:"):
-                            return int(line.split()[1]) * 1024
-            except OSError:
-                pass
-            import resource
-
-            return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        from geosynth.memory import peak_resident_bytes
 
         pids = self.client.run(os.getpid)
         if len(set(pids.values())) < len(pids) or os.getpid() in pids.values():
             return {}  # workers share a process (processes=False): no per-worker figure
-        return self.client.run(rss)
+        return self.client.run(peak_resident_bytes)
 
     def close(self):
         if self.cluster is not None:

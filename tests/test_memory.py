@@ -40,16 +40,7 @@ _RUNNER = textwrap.dedent('''
     def rss():
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    def high_water():
-        # VmHWM (the ru_maxrss of this process, resettable); ru_maxrss where it is absent
-        try:
-            with open("/proc/self/status") as f:
-                for line in f:
-                    if line.startswith("VmHWM:"):
-                        return int(line.split()[1]) * 1024
-        except OSError:
-            pass
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    from geosynth.memory import peak_resident_bytes as high_water
     def reset_high_water():
         try:  # Linux >= 4.0: "5" resets the peak RSS to the current RSS
             with open("/proc/self/clear_refs", "w") as f:
