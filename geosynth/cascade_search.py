@@ -414,11 +414,9 @@ class CascadeSearch:
             raise ValueError(f"queries must have shape (Q, {', '.join(str(v) for v in self.block_shape)}), "
                              f"got {queries.shape}.")
         n = len(queries)
-        if self.fused or (self.batch_fused and n > 1):
+        if n and (self.fused or (self.batch_fused and n > 1)):
             limits = np.array([-1 if thresholds is None or thresholds[i] is None else int(thresholds[i])
                                for i in range(n)], np.int64)
-            if n == 0:
-                return np.empty((0, 3), np.int64), np.empty(0, np.int64), []
             return self._nearest_fused_batch(np.ascontiguousarray(queries), limits)
         origins = np.empty((n, 3), np.int64)
         ssds = np.empty(n, np.int64)

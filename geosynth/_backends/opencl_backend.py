@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import warnings
 from importlib import resources
 
 import numpy as np
@@ -119,9 +120,7 @@ def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
     Raises:
         ProgramBuildError: the compiler failed.
     """
-    import warnings
-
-    from geosynth.backend import verbose
+    from geosynth.backend import verbose  # here: geosynth.backend imports this module
 
     try:
         with warnings.catch_warnings():
