@@ -42,6 +42,15 @@ _INT32_MAX = 2**31 - 1
 # The limit gets 0.08 m more for its 8 coarse cells (N = 8: 5 SSD units).
 _NORM_SLACK = 0.08
 _TERMS_CHUNK = 64  # queries whose terms are summed at a time (int32 copies: 12 B a sample)
+# A batch of searches small enough to score every block directly (no stages, no fused
+# kernel) scores all its queries against the source's blocks unpacked as rows, one dense
+# launch per chunk, instead of one launch per query: on Warp's CPU device a launch costs
+# ~1.7 ms of Python, far more than such a search. The rows are kept while the search
+# lives, so only sources of at most this many block samples are unpacked.
+_DENSE_BATCH_SAMPLES = 1 << 23
+_DENSE_SCORES = 1 << 16  # scores (uint32) per dense launch at most: 256 KiB
+_DENSE_QUERIES = 1024  # queries per dense launch at most (the optimizer's chunk)
+_DENSE_MIN_QUERIES = 16  # a source of more blocks than _DENSE_SCORES / 16 loops per query
 
 
 def tally_alive(sums: list, alive) -> int:
@@ -126,6 +135,9 @@ class CascadeSearch:
         batch_fused: whether :meth:`nearest_batch` runs the fused kernel, the whole batch
             in one launch (N = 8 or 16, ``cells=None``): also for searches small enough
             that a single query is scored directly (``fused`` false, no stages).
+        batch_dense: whether :meth:`nearest_batch` scores its queries against every
+            block unpacked as rows (no stages, no fused kernel, at most 2^23 block
+            samples, at most 4,096 blocks), one dense launch per chunk of queries.
         last_info: per query, the number of blocks alive after each stage (fused: all
             blocks, then the blocks scored exactly).
 
@@ -183,7 +195,12 @@ class CascadeSearch:
             fused = False
         self.fused = fused
         per_sample = (1 + 4 * 3 + 8 if self.batch_fused else 1) + 12 * (0 if fused else len(self.stages))
-        check_memory(field.size * per_sample + (0 if fused else self.n_blocks * 40),
+        self.batch_dense = (not self.stages and not self.batch_fused
+                            and self.n_blocks * self.block_samples <= _DENSE_BATCH_SAMPLES
+                            and self.n_blocks * _DENSE_MIN_QUERIES <= _DENSE_SCORES)
+        # the rows on the host and on the device, one launch's scores on both
+        dense = 2 * self.n_blocks * (self.block_samples + 4 * self._dense_step()) if self.batch_dense else 0
+        check_memory(field.size * per_sample + (0 if fused else self.n_blocks * 40) + dense,
                      f"the cascade search of a {field.shape} field (block {block})")
         dev = "auto" if device is None else device
         self._backend = backend
@@ -196,6 +213,7 @@ class CascadeSearch:
         }
         if self.batch_fused:
             self._fused_setup(dev)
+        self._dense_rows: DeviceArray | None = None  # made by the first dense batch
         self.guesses = max(1, int(guesses))
         self.guess_skip = 16384  # blocks under a given threshold above which a guess pays off
         self.last_info: dict = {}
@@ -293,6 +311,34 @@ class CascadeSearch:
             scored[again] += more
         origins = np.stack(np.unravel_index(index, self.lattice), axis=1).astype(np.int64)
         return origins, best, [[self.n_blocks, int(v)] for v in scored]
+
+    def _dense_step(self) -> int:
+        """Queries per dense launch."""
+        return max(1, min(_DENSE_QUERIES, _DENSE_SCORES // self.n_blocks))
+
+    def _nearest_dense_batch(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
+        """Every block scored against every query (``batch_dense``), chunk by chunk: the
+        (Q, 3) origins and (Q,) SSDs of the smallest SSD, lowest index on ties (the
+        answers of :meth:`nearest`, whatever its thresholds), and the blocks alive."""
+        from geosynth.arrays import to_device
+        from geosynth.scoring import score_dense
+
+        if self._dense_rows is None:
+            windows = np.lib.stride_tricks.sliding_window_view(self.field, self.block_shape)
+            # rows in lattice order, samples in C order: the layout of block_offsets and of a query
+            self._dense_rows = to_device(windows.reshape(self.n_blocks, self.block_samples), self._field_device.device)
+        q = len(queries)
+        index = np.empty(q, np.int64)
+        ssds = np.empty(q, np.int64)
+        step = self._dense_step()
+        for lo in range(0, q, step):
+            part = queries[lo:lo + step].reshape(-1, self.block_samples)
+            scores = score_dense(self._dense_rows, part)  # (q, n_blocks) uint32, exact
+            best = scores.argmin(axis=1)  # the first minimum: the lowest index on ties
+            index[lo:lo + len(part)] = best
+            ssds[lo:lo + len(part)] = scores[np.arange(len(part)), best]
+        origins = np.stack(np.unravel_index(index, self.lattice), axis=1).astype(np.int64)
+        return origins, ssds, [[self.n_blocks] for _ in range(q)]
 
     def _bound(self, cell: int, query_sums: dict, alive: np.ndarray | None) -> np.ndarray:
         """Lower bounds (float32, SSD units) of the blocks ``alive`` (None: all)."""
@@ -395,8 +441,9 @@ class CascadeSearch:
         """The exact nearest block of each of several queries.
 
         The fused search (N = 8, 16) scores the whole batch in one launch (a second one
-        for queries whose threshold was below their best SSD); the other searches loop
-        over :meth:`nearest`. The answers are those of one call per query.
+        for queries whose threshold was below their best SSD); a search small enough to
+        score every block directly (``batch_dense``) scores the batch against all blocks
+        in dense launches; the other searches loop over :meth:`nearest`. The answers are those of one call per query.
 
         Args:
             queries: (Q, N, N, N) uint8 blocks.
@@ -418,6 +465,8 @@ class CascadeSearch:
             limits = np.array([-1 if thresholds is None or thresholds[i] is None else int(thresholds[i])
                                for i in range(n)], np.int64)
             return self._nearest_fused_batch(np.ascontiguousarray(queries), limits)
+        if n and self.batch_dense:
+            return self._nearest_dense_batch(queries)
         origins = np.empty((n, 3), np.int64)
         ssds = np.empty(n, np.int64)
         alive = []

@@ -151,6 +151,39 @@ def test_fused_batch_is_one_launch_and_equals_linear(device, rng, block, items, 
     assert np.array_equal(got, origins) and np.array_equal(got_ssd, ssds)
 
 
+@pytest.mark.parametrize("block", [4, (2, 4, 6)])
+def test_dense_batch_is_one_launch_and_equals_linear(device, rng, block, monkeypatch):
+    """A small search without stages or fused kernel (cube N = 4, a slab's box) scores a
+    batch in one dense launch: the linear answers, lowest index on ties, whatever the
+    thresholds; the rows are unpacked once for the search."""
+    from geosynth.backend import get_backend
+
+    field = _field("real", 16, rng)
+    field[:, :, 8:] = field[:, :, :8]  # repeated blocks: ties, won by the lowest index
+    s = CascadeSearch(field, block, device=device, min_work=float("inf"))
+    assert s.batch_dense and not s.stages and not s.batch_fused
+    shape = s.block_shape
+    queries = []
+    for t in range(7):
+        o = rng.integers(0, np.array(field.shape) - shape + 1)
+        q = field[o[0]:o[0] + shape[0], o[1]:o[1] + shape[1], o[2]:o[2] + shape[2]].copy()
+        if t % 2:
+            q[0] = rng.integers(0, 256, q[0].shape)
+        queries.append(q)
+    be = get_backend(device)
+    launches = []
+    real = be.ssd_dense
+    monkeypatch.setattr(be, "ssd_dense", lambda *a: (launches.append(a[-2]), real(*a)))
+    origins, ssds, alive = s.nearest_batch(np.stack(queries), [0] * len(queries))  # thresholds too low
+    for q, o, d in zip(queries, origins, ssds):
+        want = reference.nearest_block_naive(field, q)
+        assert (tuple(int(v) for v in o), int(d)) == want == s.nearest(q)
+    assert launches == [len(queries)] and all(a == [s.n_blocks] for a in alive)
+    rows = s._dense_rows
+    s.nearest_batch(np.stack(queries[:2]))
+    assert s._dense_rows is rows
+
+
 def test_batch_of_wrong_dtype_is_refused(one_device):
     s = CascadeSearch(np.zeros((20, 20, 20), np.uint8), 8, device=one_device, min_work=0)
     with pytest.raises(TypeError, match="uint8"):
