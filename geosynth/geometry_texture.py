@@ -32,6 +32,10 @@ import numpy as np
 
 from threadpoolctl import threadpool_limits
 from geosynth.point_grid import PointGrid
+from geosynth.pointmodels import _passive_openmp_threads
+
+_passive_openmp_threads()
+import pykdtree.kdtree  # noqa: E402,F401  (loaded now so that the OpenMP limit below covers its libgomp)
 from geosynth.point_textures import PointTexture
 
 __all__ = ["PointTextureReport", "synthesize_point_texture", "output_mesh"]
@@ -422,7 +426,10 @@ def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
 # products, split over OpenBLAS's threads, left the idle ones spinning (a 9,736-point
 # chainmail patch: 226 ms of CPU with 2 threads, 35 ms with one; the spinning also took
 # the cores from PoCL's workers), and a threaded product's sums depend on the thread count.
-@threadpool_limits.wrap(limits=1, user_api="blas")
+# One OpenMP thread too: the blend's many small pykdtree queries (a few thousand points each)
+# took more CPU with a second OpenMP thread than they saved (height field, blend stage:
+# 3.2 CPU s with 2 threads, 2.7 s with one, 3.1 s with SciPy's cKDTree).
+@threadpool_limits.wrap(limits={"blas": 1, "openmp": 1})
 def synthesize_point_texture(
     exemplar,
     size=None,
@@ -467,8 +474,9 @@ def synthesize_point_texture(
         seed: seed of every random choice.
         progress: show a progress bar on stderr.
 
-    Runs with one BLAS thread (threadpoolctl: faster for the spline's thin products, and
-    the output does not depend on the BLAS thread count).
+    Runs with one BLAS and one OpenMP thread (threadpoolctl: faster for the spline's thin
+    products and the small k-d tree queries, and the output does not depend on the BLAS
+    thread count).
 
     Returns:
         ``(points, report, timings)``: a :class:`geosynth.pointsets.PointSet` (float32

@@ -203,12 +203,14 @@ _CANDIDATES = 12  # the nearest sources considered per target of Q
 _LOPSIDED = 0.6  # a target whose k-neighbour centroid is this far (x mean neighbour distance) is an outskirt
 
 
-def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION) -> np.ndarray:
+def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
+                       limit: int | None = None) -> np.ndarray | None:
     """Hierarchical clustering (Pauly et al. 2002): clusters are split through their
     centroid across their principal axis while they hold more than ``max_size`` points
     or their surface variation exceeds ``max_variation`` (and they hold more than 2).
     Returns the index of each cluster's representative (its member nearest the
-    centroid, the lowest index on ties), sorted."""
+    centroid, the lowest index on ties), sorted; None as soon as there are more than
+    ``limit`` clusters (clusters are only ever split, so the answer would have more)."""
     n = len(p)
     if n == 0:
         return np.zeros(0, np.int64)
@@ -252,6 +254,8 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         move = real[local] & positive
         labels[active[move]] = new_id[local[move]]
         frozen = np.concatenate([frozen, np.zeros(n_new, bool)])
+        if limit is not None and len(frozen) > limit:
+            return None
         active = active[real[local]]
     n_clusters = len(frozen)
     counts, mean = stats(n_clusters)
@@ -628,8 +632,9 @@ def warp_patch(
     # variation criterion still makes too many clusters, cluster by size alone, then
     # keep an even draw of max_pairs of them.
     size = max(int(cluster_size), int(math.ceil(len(core) / max_pairs)))
-    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION)
-    if len(q_local) > max_pairs:
+    # (the first clustering stops as soon as it passes max_pairs: the second one is used then)
+    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION, limit=max_pairs)
+    if q_local is None:
         q_local = _adaptive_clusters(pt[core], max(size, int(math.ceil(1.5 * len(core) / max_pairs))), math.inf)
     if len(q_local) > max_pairs:
         q_local = q_local[np.sort(rng.choice(len(q_local), max_pairs, replace=False))]
