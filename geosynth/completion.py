@@ -11,7 +11,8 @@ the samples once (:class:`geosynth.relief_match.ReliefIndex`) and grows:
 - L = the untextured targets with a textured vertex among their edge neighbours, sorted
   by decreasing number of textured vertices in their W_t-ring neighbourhood;
 - for each t in L: its matches (every sample x R rotations, within 1.1x the best score,
-  :func:`geosynth.relief_match.find_matches`), one picked with the seeded generator; if
+  :func:`geosynth.relief_match.find_matches`), one picked with the seeded generator
+  (the paper: uniformly; by default our histogram-aware pick, :class:`_Balance`); if
   its score is below MaxErrThreshold, t gets the match's displacement (and colour) and is
   textured; otherwise t is skipped and its window W_t shrinks by one ring (not below 1);
 - a whole list without progress raises MaxErrThreshold by 10%.
