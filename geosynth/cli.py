@@ -768,7 +768,8 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         f"seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
                                                 rotations=args.rotations, mu=mu, max_error=args.max_error,
-                                                device=args.device, seed=args.seed, progress=not args.quiet)
+                                                device=args.device, seed=args.seed, progress=not args.quiet,
+                                                balance=not args.no_balance)
     for line in report.lines():
         say(line)
     say("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items() if k != "targets_per_s")
@@ -925,6 +926,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="initial MaxErrThreshold on the normalized ssd, > 0 (default 0.1)")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)
+    p.add_argument("--no-balance", action="store_true",
+                   help="the paper's uniform pick among the matches within 1.1x the best (default: the "
+                        "histogram-aware pick, our extension; see geosynth.completion._Balance)")
     p.add_argument("--png", default=None, help="picture: captured, completed, completed part tinted; .png or .jpg "
                                                "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")

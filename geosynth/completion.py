@@ -11,7 +11,8 @@ the samples once (:class:`geosynth.relief_match.ReliefIndex`) and grows:
 - L = the untextured targets with a textured vertex among their edge neighbours, sorted
   by decreasing number of textured vertices in their W_t-ring neighbourhood;
 - for each t in L: its matches (every sample x R rotations, within 1.1x the best score,
-  :func:`geosynth.relief_match.find_matches`), one picked with the seeded generator; if
+  :func:`geosynth.relief_match.find_matches`), one picked with the seeded generator
+  (the paper: uniformly; by default our histogram-aware pick, :class:`_Balance`); if
   its score is below MaxErrThreshold, t gets the match's displacement (and colour) and is
   textured; otherwise t is skipped and its window W_t shrinks by one ring (not below 1);
 - a whole list without progress raises MaxErrThreshold by 10%.
@@ -80,6 +81,8 @@ _MAX_BATCH = 64
 _BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
 HINT_RINGS = 3  # coherence hints: the candidates within 3 edge rings of the samples that textured the neighbours
 HINT_PROBES: tuple[int, ...] | None = ()  # stride probes after the hints (None: find_matches' default)
+BALANCE_STRENGTH = 4.0  # the histogram-aware draw: weights exp(strength x deficit score), score in [-1, 1]
+BALANCE_PENALTY = 0.5  # codes x (1 + penalty x (1 - score) / 2) before the 1.1x rule (find_matches at 1.1 x 1.5)
 
 
 @dataclass
@@ -238,8 +241,11 @@ def _classes(members: np.ndarray, w_t: np.ndarray, ring_ptr, ring_idx, ring_d, s
 
 
 def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, max_error: float,
-          rng: np.random.Generator, progress: bool):
-    """GrowSurface (Appendix A); returns (textured (V,) bool, stats dict). Updates rs in place."""
+          rng: np.random.Generator, progress: bool, balance: "_Balance | None" = None):
+    """GrowSurface (Appendix A); returns (textured (V,) bool, stats dict). Updates rs in place.
+
+    ``balance``: None picks uniformly among the matches (the paper); a :class:`_Balance`
+    weights the same draw by how much each match's bins are still missing."""
     n_v, n_s = rs.n_vertices, rs.n_samples
     targets = np.arange(n_s, n_v, dtype=np.int64)
     slot_of = np.full(n_v, -1, dtype=np.int64)
@@ -289,7 +295,8 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                     for start in range(0, len(cls), per_launch):
                         chunk = cls[start:start + per_launch]
                         got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
-                                           rotations, mu, err, hints, picked, textured)
+                                           rotations, mu, err, hints, picked, textured,
+                                           TOLERANCE if balance is None else TOLERANCE * (1.0 + balance.penalty))
                         accepted_t, accepted_s, accepted_r = [], [], []
                         for t, m in zip(chunk, got):  # picks in list order (one draw per non-empty match set)
                             k = slot_of[t]
@@ -297,8 +304,10 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                                 stats["failed_matches"] += 1
                                 w_t[k] = max(1, w_t[k] - 1)
                                 continue
-                            j = int(rng.integers(len(m.sample)))
+                            j = int(rng.integers(len(m.sample))) if balance is None else balance.pick(m, rng)
                             if bool(m.accepted[j]):
+                                if balance is not None:
+                                    balance.add(int(m.sample[j]))
                                 accepted_t.append(int(t))
                                 accepted_s.append(int(m.sample[j]))
                                 accepted_r.append(int(m.rotation[j]))
@@ -329,6 +338,78 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
     stats["final_max_error"] = err
     stats["picked"] = picked
     return textured, stats
+
+
+class _Balance:
+    """A histogram-aware pick among the matches (our extension, not the paper's).
+
+    The paper draws one match uniformly from those within 1.1x the best. Measured: that set
+    holds a single match for 50-70% of the targets (noise, golf), so a reweighted draw alone
+    moves little; hence two parts, both switched off by ``complete_surface(balance=False)``
+    (CLI ``--no-balance``), which restores the paper's uniform pick bit for bit. Coherent patches
+    copy runs of neighbouring samples, so the completed part is made of fewer independent
+    draws than it has vertices and its histograms wander from the capture's. In the spirit
+    of histogram-preserving texture optimization (Kopf et al. 2007, "Solid texture synthesis
+    from 2D exemplars", Sec. 3.3: reweighting by histogram counts), the seeded draw among
+    the SAME matches is weighted against those whose bins the completed part already holds
+    more of than the capture: features are the colour of each channel (the metric's
+    ``HIST_BINS`` bins) and the signed height h over the fit (``HIST_BINS`` bins at the
+    capture's h quantiles, so each holds 1/HIST_BINS of the capture). For a match in bins
+    b_f, with n vertices completed so far and c_f their counts, the deficit of feature f is
+    d_f = p_f(b_f) (n + 1) - c_f(b_f) (how many more the bin needs to be at the capture's
+    share after one more copy), clipped to [-1, 1]; the score is the mean of the colour
+    channels' and the height's deficits (height alone without colour) and the weight
+    exp(strength x score). (1) The 1.1x rule is applied to penalized codes
+    code x (1 + penalty (1 - score) / 2), a factor in [1, 1 + penalty] (matches in bins
+    the completion lacks keep their code, over-represented ones pay up to 1 + penalty);
+    find_matches is called with tolerance 1.1 (1 + penalty), which holds every match the
+    penalized rule can select (the penalized best is at most (1 + penalty) x the best).
+    (2) Among those, the draw is weighted by exp(strength x score). MaxErrThreshold is
+    tested on the true code. One ``rng.random()`` a draw; the
+    weights are host float64 arithmetic on the device-independent match lists, so the
+    same seed gives the same bits on every device.
+    """
+
+    def __init__(self, rs: ReliefSurface, strength: float, penalty: float):
+        n0 = rs.n_original
+        h = rs.fit.distance(rs.base + rs.displacement)  # every vertex's signed height (targets: 0 until copied)
+        q = np.quantile(h[:n0], np.linspace(0, 1, HIST_BINS + 1)[1:-1])
+        feats = [np.searchsorted(q, h, side="right")]
+        if rs.colors is not None:
+            edges = np.linspace(0, 256, HIST_BINS + 1)[1:-1]
+            feats += [np.searchsorted(edges, rs.colors[:, c], side="right") for c in range(3)]
+        self.bins = np.stack(feats).astype(np.int64)  # (F, V) bin of each vertex's values
+        nf = len(feats)
+        self.share = np.stack([np.bincount(b[:n0], minlength=HIST_BINS) / n0 for b in self.bins])  # (F, B)
+        self.counts = np.zeros((nf, HIST_BINS), dtype=np.int64)
+        # colour channels share one half of the score, the height the other (height alone without colour)
+        self.feature_weight = np.array([1.0] if nf == 1 else [0.5] + [0.5 / 3] * 3)
+        self.strength = float(strength)
+        self.penalty = float(penalty)
+        self.n = 0
+
+    def score(self, samples: np.ndarray) -> np.ndarray:
+        """(k,) float64 deficit scores in [-1, 1] of copying each of ``samples`` next."""
+        b = self.bins[:, samples]  # (F, k)
+        f = np.arange(len(b))[:, None]
+        d = np.clip(self.share[f, b] * (self.n + 1) - self.counts[f, b], -1.0, 1.0)
+        return self.feature_weight @ d
+
+    def pick(self, m, rng: np.random.Generator) -> int:
+        """Index into the arrays of ``m`` (a non-empty Matches found with tolerance
+        TOLERANCE x (1 + penalty)): the candidates within TOLERANCE x the best of the
+        penalized codes, drawn with the deficit weights."""
+        score = self.score(m.sample)
+        adj = m.code.astype(np.float64) * (1.0 + self.penalty * (1.0 - score) / 2)
+        sel = np.flatnonzero(adj <= TOLERANCE * adj.min())
+        w = np.exp(self.strength * (score[sel] - score[sel].max()))
+        cum = np.cumsum(w)
+        return int(sel[min(np.searchsorted(cum, rng.random() * cum[-1], side="right"), len(sel) - 1)])
+
+    def add(self, sample: int) -> None:
+        """Count a copy of ``sample``'s values into the completed part."""
+        self.counts[np.arange(len(self.bins)), self.bins[:, sample]] += 1
+        self.n += 1
 
 
 class _HintTable:
@@ -366,7 +447,7 @@ class _HintTable:
 
 
 def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err,
-                 hints=None, picked=None, textured=None):
+                 hints=None, picked=None, textured=None, tolerance=TOLERANCE):
     """find_matches for a chunk of one class, one launch per window size; in chunk order."""
     out = [None] * len(chunk)
     hint_slots = None if hints is None else hints.for_targets(chunk, picked, textured)
@@ -384,7 +465,7 @@ def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d,
                                            np.concatenate(lists).astype(np.int64), sigmas[int(w)],
                                            rotations=rotations, mu=mu)
         probes = HINT_PROBES if hint_slots is not None and len(hint_slots) else None
-        for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=TOLERANCE, probes=probes,
+        for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=tolerance, probes=probes,
                                              hints=hint_slots)):
             out[p] = m
     return out
@@ -498,7 +579,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                      rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
                      max_targets: int | None = 200_000, oversample: str = "butterfly",
-                     candidates: str = "capture"):
+                     candidates: str = "capture", balance: bool | float = True):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -524,6 +605,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             matches (their displacements and colours are copied), the oversampling's
             vertices serve as neighbour partners only; "samples": every sample, the
             oversampled ones included (the paper, Sec. 5). See the module docstring.
+        balance: True (default): the histogram-aware pick among the matches within 1.1x
+            the best (our extension, :class:`_Balance`, strength ``BALANCE_STRENGTH``); a
+            number > 0: the same with that strength; False: the paper's uniform pick.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -556,6 +640,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
     t2 = time.perf_counter()
+    if isinstance(balance, (bool, np.bool_)):
+        balance = bool(balance)
+    elif not isinstance(balance, (int, float, np.integer, np.floating)) or not 0 < float(balance) < math.inf:
+        raise ValueError(f"balance must be True, False or a finite strength > 0, got {balance!r}.")
     if candidates not in ("capture", "samples"):
         raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
     partners = np.arange(rs.n_samples, dtype=np.int64)
@@ -568,7 +656,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                                  colours=colours, partners=partners, device=dev)
     t3 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress)
+    strength = BALANCE_STRENGTH if balance is True else float(balance) if balance is not False else 0.0
+    bal = _Balance(rs, strength, BALANCE_PENALTY) if strength > 0 else None
+    textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress, bal)
     t4 = time.perf_counter()
     quality = _quality(rs, textured, int(seed), len(samples))
     t5 = time.perf_counter()

@@ -230,3 +230,41 @@ def test_coherence_hints_change_nothing(one_device, monkeypatch):
     for s, r in runs[1:]:
         assert np.array_equal(s.positions, runs[0][0].positions) and np.array_equal(s.colors, runs[0][0].colors)
         assert r.failed_matches == runs[0][1].failed_matches
+
+
+def _balance_case(n0=400, seed=0):
+    """A _Balance over a fake flat surface: n0 captured vertices whose colours and heights
+    fall in skewed bins (60% in one bin)."""
+    from types import SimpleNamespace
+
+    from geosynth.completion import _Balance
+
+    rng = np.random.default_rng(seed)
+    level = np.where(rng.random(n0) < 0.6, 0, rng.integers(1, 8, n0))
+    h = level * 0.01 + rng.uniform(0, 0.001, n0)
+    col = np.repeat((level * 30 + 8)[:, None], 3, 1).astype(np.uint8)
+    fit = SimpleNamespace(distance=lambda p: p[:, 2])
+    rs = SimpleNamespace(n_original=n0, fit=fit, base=np.zeros((n0, 3)),
+                         displacement=np.stack([np.zeros(n0), np.zeros(n0), h], 1), colors=col)
+    return _Balance(rs, 4.0, 0.5), level
+
+
+def test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram():
+    from geosynth.completion import TOLERANCE
+    from geosynth.relief_match import Matches
+
+    bal, level = _balance_case()
+    uni, _ = _balance_case()
+    rng, rng_u, offer = np.random.default_rng(1), np.random.default_rng(1), np.random.default_rng(2)
+    for _ in range(300):
+        s = offer.choice(len(level), 12, replace=False)  # a match set: 12 candidates, codes 1000..1500
+        code = offer.integers(1000, 1501, 12).astype(np.uint32)
+        m = Matches(s, s, np.zeros(12, np.int64), code, code / 1e4, np.ones(12, bool), code.min() / 1e4)
+        j = bal.pick(m, rng)
+        adj = code * (1 + bal.penalty * (1 - bal.score(s)) / 2)
+        assert adj[j] <= TOLERANCE * adj.min() + 1e-9  # the 1.1x rule on penalized codes
+        assert code[j] <= TOLERANCE * (1 + bal.penalty) * code.min()
+        bal.add(int(s[j]))
+        uni.add(int(s[rng_u.integers(12)]))  # the paper's uniform pick
+    dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
+    assert dist[0] < 0.5 * dist[1], dist
