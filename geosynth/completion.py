@@ -351,7 +351,7 @@ class _Balance:
     draws than it has vertices and its histograms wander from the capture's. In the spirit
     of histogram-preserving texture optimization (Kopf et al. 2007, "Solid texture synthesis
     from 2D exemplars", Sec. 3.3: reweighting by histogram counts), the seeded draw among
-    the SAME matches is weighted against those whose bins the completed part already holds
+    the matches is weighted against those whose bins the completed part already holds
     more of than the capture: features are the colour of each channel (the metric's
     ``HIST_BINS`` bins) and the signed height h over the fit (``HIST_BINS`` bins at the
     capture's h quantiles, so each holds 1/HIST_BINS of the capture). For a match in bins
