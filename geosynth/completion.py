@@ -65,8 +65,8 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.relief_prep import Capture, ReliefSurface, as_capture, prepare_relief, ring_neighbourhoods
-from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_surface, tangent_frames
+from geosynth.relief_prep import ReliefSurface, as_capture, prepare_relief, ring_neighbourhoods
+from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_surface
 
 __all__ = ["CompletedSurface", "CompletionReport", "complete_surface", "completion_picture", "write_completion"]
 

@@ -295,11 +295,41 @@ def _refuses(fn, option: str) -> MemoryBudgetError:
     return err
 
 
+def _check_refusals(monkeypatch, checks) -> None:
+    """Each (option, call, huge value, budget): the huge value is refused quickly, naming
+    the option and a largest value, and that largest value runs under the budget."""
+    for option, run, huge, budget in checks:
+        monkeypatch.setenv(ENV_LIMIT, budget)
+        limit = parse_bytes(budget)
+        err = _refuses(lambda: run(huge), option)
+        assert err.largest is not None and err.available == limit
+        largest = err.largest[-1] if isinstance(err.largest, tuple) else err.largest
+        assert largest < huge
+        run(largest)  # once unmeasured: first-call costs (imports, kernel loading) are not the run's
+        peak, _ = _traced_peak(lambda: run(largest))  # the largest really runs under the limit
+        assert peak <= limit, f"{option}={err.largest}: traced peak {peak:,} > limit {limit:,}"
+
+
+def test_device_free_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch):
+    """The host-only operations (no device argument), once."""
+    import trimesh
+
+    from geosynth.pointmodels import point_model, sample_mesh_points
+    from geosynth.textures import texture_example
+
+    mesh = trimesh.creation.icosphere(2)
+    _check_refusals(monkeypatch, [
+        ("count", lambda v: point_model("sphere", v), 10**9, "8M"),
+        ("count", lambda v: sample_mesh_points(mesh, v), 10**9, "8M"),
+        ("texture_size", lambda v: texture_example("noise", v), 100_000, "8M"),
+    ])
+
+
 def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch, device):
     import trimesh
 
     from geosynth.meshes import mesh_distance
-    from geosynth.pointmodels import point_model, sample_mesh_points
+    from geosynth.pointmodels import point_model
     from geosynth.pointsets import pointset_distance
     from geosynth.texturing import texture_points
     from geosynth.textures import texture_example
@@ -315,27 +345,13 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
     checks = [
         ("resolution", lambda v: mesh_distance(mesh, resolution=v, device=device), 100_000, "8M"),
         ("resolution", lambda v: pointset_distance(ps, resolution=v, device=device), 100_000, "40M"),
-        ("count", lambda v: point_model("sphere", v), 10**9, "8M"),
-        ("count", lambda v: sample_mesh_points(mesh, v), 10**9, "8M"),
-        ("texture_size", lambda v: texture_example("noise", v), 100_000, "8M"),
         ("size", lambda v: synthesize_volume(source, v, levels=2, block=8, iterations=2, device=device, progress=False),
          100_000, "4M"),
         ("size", lambda v: synthesize_volume(source, (16, v, v), levels=2, block=8, iterations=2, device=device,
                                              progress=False), 100_000, "4M"),
     ]
-    for option, run, huge, budget in checks:
-        monkeypatch.setenv(ENV_LIMIT, budget)
-        limit = parse_bytes(budget)
-        err = _refuses(lambda: run(huge), option)
-        assert err.largest is not None and err.available == limit
-        largest = err.largest[-1] if isinstance(err.largest, tuple) else err.largest
-        assert largest < huge
-        run(largest)  # once unmeasured: first-call costs (imports, kernel loading) are not the run's
-        peak, _ = _traced_peak(lambda: run(largest))  # the largest really runs under the limit
-        assert peak <= limit, f"{option}={err.largest}: traced peak {peak:,} > limit {limit:,}"
+    _check_refusals(monkeypatch, checks)
 
-    monkeypatch.setenv(ENV_LIMIT, "24M")
-    limit = 24 << 20
     # synthesize_geometry names size, or source_resolution when no size fits
     monkeypatch.setenv(ENV_LIMIT, "4M")
     err = _refuses(lambda: synthesize_geometry(mesh, 100_000, source_resolution=16, levels=2, block=8, iterations=2,
