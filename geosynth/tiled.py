@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, assemble, tile_rng, upsample_window
+from geosynth.tiling import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
            "tile_task_bytes", "kept_bytes", "WORKER_RUNTIME_BYTES"]
@@ -152,6 +152,48 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
             "seconds": seconds, "matches": got["matches"], "iterations": got["iterations"],
             "mean_distance": got["mean_distance"], "stopped": got["stopped"], "pid": os.getpid()}
     return out, info
+
+
+def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list):
+    """Phase C: re-synthesize the free square of corner ``k`` of ``level`` with the rest
+    of its window (from the four tiles' final cores) fixed. Returns (free square's
+    samples (Z, rows, columns) uint8, info). Draws nothing at random."""
+    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
+
+    start = time.time()
+    with _LOCK:
+        t0 = time.perf_counter()
+        window, free = grid.corner_window(level, k), grid.corner_free(level, k)
+        z = grid.level_shape(level)[0]
+        target, covered = assemble(z, window, pieces)
+        if not covered.all():
+            raise RuntimeError(f"corner {k} level {level + 1}: the tiles' crops miss samples.")
+        mask = np.ones(target.shape, bool)
+        mask[window.local(free)] = False
+        finest = level == grid.levels - 1
+        b = ex.blocks[level]
+        got = optimize_level(ex.sources[level], target, b, _matcher(ex, level), iterations=int(ex.caps[level]),
+                             stride=level_stride(b, finest), sigma=level_sigma(finest), final=level_final(finest),
+                             fixed=mask)
+        out = np.ascontiguousarray(target[window.local(free)])
+        seconds = time.perf_counter() - t0
+    info = {"level": level, "corner": k, "phase": PHASE_C, "start": start, "end": time.time(), "seconds": seconds,
+            "matches": got["matches"], "iterations": got["iterations"], "mean_distance": got["mean_distance"],
+            "stopped": got["stopped"], "pid": os.getpid()}
+    return out, info
+
+
+def _patched(result, core: Region, patches: list):
+    """A tile result (core, info) with the corner squares' parts in its core written in."""
+    out = result[0].copy()
+    for part, values in patches:
+        out[core.local(part)] = values
+    return out, result[1]
+
+
+def _corner_part(result, free: Region, part: Region):
+    """(part, its samples) of a corner task's free square."""
+    return part, np.ascontiguousarray(result[0][free.local(part)])
 
 
 def _write_tile(store: str, result, core: Region) -> int:
@@ -272,7 +314,7 @@ class _Distributed:
 
         futures = self.client.compute(graphs)
         if bar is not None:
-            tiles = [f for f in futures if str(f.key).startswith("tile-")]
+            tiles = [f for f in futures if str(f.key).startswith(("tile-", "patch-", "cinfo-"))]
             for _ in as_completed(tiles):
                 bar.update(1)
         from distributed import wait
@@ -578,7 +620,7 @@ def synthesize_volume_tiled(
     inputs=(),
     margin: int | None = None,
     coarse_whole: bool = True,
-    phases: int = 2,
+    phases: int = 3,
     progress: bool = True,
 ) -> TiledResult:
     """Tiled M1 synthesis (texture optimization) of a field larger than one process
@@ -610,8 +652,10 @@ def synthesize_volume_tiled(
         margin: samples of margin at every level (default: the largest block).
         coarse_whole: run the coarse levels that fit in one tile as one task (False:
             tile every level; for tests of the tiled path).
-        phases: 2 (the checkerboard schedule) or 1 (every tile independent: the naive
-            baseline whose seams the schedule removes).
+        phases: 3 (the checkerboard schedule, then a window on every interior corner
+            point, where two phase-B tiles meet diagonally: :meth:`TileGrid.corners`),
+            2 (the checkerboard only: the B-B corners chosen twice) or 1 (every tile
+            independent: the naive baseline whose seams the schedule removes).
         progress: a progress bar over the tile tasks.
 
     Returns:
@@ -640,8 +684,8 @@ def synthesize_volume_tiled(
                   block, False, seed, device, search, progress)
     _checks.check_bool("mesh", mesh)
     _checks.check_bool("coarse_whole", coarse_whole)
-    if phases not in (1, 2):
-        raise ValueError(f"phases must be 1 or 2, got {phases!r}.")
+    if phases not in (1, 2, 3):
+        raise ValueError(f"phases must be 1, 2 or 3, got {phases!r}.")
     if band is not None:
         check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
     check_scale("spacing", spacing, "the world size of one sample")
@@ -818,7 +862,8 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=sum(len(grid.tasks(lv)) for lv in range(grid.levels)), desc="tiles", unit="tile",
+        bar = tqdm(total=sum(len(grid.tasks(lv)) + (len(grid.corners(lv)) if phases == 3 else 0)
+                             for lv in range(grid.levels)), desc="tiles", unit="tile",
                    dynamic_ncols=True)
     prev: dict = {}
     levels = []
@@ -842,23 +887,47 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                                                            dask_key_name=f"crop-{run}-{level}-{t}-{u}")
                                 for u, part in grid.overlapping(level - 1, cbox)]
                     fixed = []
-                    if phases == 2:
+                    if phases >= 2:
                         fixed = [delayed(_crop, pure=False)(tasks[u], grid.core_region(level, u), part,
                                                             dask_key_name=f"fix-{run}-{level}-{t}-{u}")
                                  for u, part in grid.fixed_parts(level, t)]
                     tasks[t] = delayed(_tile_task, pure=False)(ex_ref, grid, level, t, init, fixed,
                                                                dask_key_name=f"tile-{run}-{level}-{t}")
                     graph_tasks += 1 + len(init) + len(fixed)
+            corner_infos = []
+            if phases == 3 and grid.corners(level):  # phase C: the corner windows, then their squares written in
+                cores = grid.cores(level)
+                patches: dict = {t: [] for t in order}
+                for k in range(len(grid.corners(level))):
+                    window, free = grid.corner_window(level, k), grid.corner_free(level, k)
+                    pieces = [delayed(_crop, pure=False)(tasks[u], cores[u], part,
+                                                         dask_key_name=f"cwin-{run}-{level}-{k}-{u}")
+                              for u, part in grid.overlapping(level, window)]
+                    corner = delayed(_corner_task, pure=False)(ex_ref, grid, level, k, pieces,
+                                                               dask_key_name=f"tile-{run}-{level}-c{k}")
+                    corner_infos.append(delayed(_info, pure=False)(corner, dask_key_name=f"cinfo-{run}-{level}-{k}"))
+                    graph_tasks += 2 + len(pieces)
+                    for u, part in grid.overlapping(level, free):
+                        patches[u].append(delayed(_corner_part, pure=False)(
+                            corner, free, part, dask_key_name=f"cpart-{run}-{level}-{k}-{u}"))
+                        graph_tasks += 1
+                for t in order:
+                    if patches[t]:
+                        tasks[t] = delayed(_patched, pure=False)(tasks[t], cores[t], patches[t],
+                                                                 dask_key_name=f"patch-{run}-{level}-{t}")
+                        graph_tasks += 1
             infos = [delayed(_info, pure=False)(tasks[t], dask_key_name=f"info-{run}-{level}-{t}") for t in order]
-            done = engine.compute([tasks[t] for t in order] + infos, bar=bar)
+            done = engine.compute([tasks[t] for t in order] + infos + corner_infos, bar=bar)
             results = dict(zip(order, done[:len(order)]))
-            got = engine.gather(done[len(order):])
+            got = engine.gather(done[len(order):len(order) + len(infos)])
+            got_c = engine.gather(done[len(order) + len(infos):]) if corner_infos else []
             levels.append({"seconds": time.perf_counter() - t0, "tasks": len(order), "whole": grid.whole(level),
-                           "matches": int(sum(i["matches"] for i in got)),
-                           "task_seconds": float(sum(i["seconds"] for i in got)),
+                           "corner_tasks": len(got_c),
+                           "matches": int(sum(i["matches"] for i in got + got_c)),
+                           "task_seconds": float(sum(i["seconds"] for i in got + got_c)),
                            "mean_distance": float(np.mean([i["mean_distance"] for i in got])),
                            "graph_tasks": graph_tasks,
-                           "tiles": got})
+                           "tiles": got, "corners": got_c})
             held.append(results)  # every level stays known until the end: a lost result is recomputed from them
             prev = results
     finally:

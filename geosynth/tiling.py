@@ -18,7 +18,16 @@ schedule only: no synthesis, no engine (those are :mod:`geosynth.tiled`).
   then synthesize their region with the parts that lie in phase-A cores fixed to the A
   results (constrained synthesis: those samples enter the matches and the vote but do
   not change). Every border between an A and a B core is thus synthesized once, by the
-  B tile, against both sides. Two B tiles touch only at a corner point (a diagonal).
+  B tile, against both sides.
+- Two B tiles touch at a corner point (a diagonal): the samples near it are chosen by
+  both B tiles independently (each saw its own version of the other's quadrant), so a
+  third phase synthesizes a small window centred on every interior corner point (each
+  has exactly one B-B diagonal) with everything around it fixed: a free square of
+  half-width ``corner_half`` (at most the block) inside a fixed ring of one block, all
+  four quadrants final from phases A and B. The free squares of neighbouring corners
+  lie outside each other's windows, so the corner windows are independent of one
+  another. The constrained synthesis draws nothing at random, so the result still
+  depends on the seed and the tiling only.
 - Random draws per tile come from a numpy SeedSequence of (seed, level, tile index), so
   a result depends on the seed and the tiling only, never on the number of workers or
   the order in which they finish.
@@ -34,9 +43,9 @@ import numpy as np
 
 from geosynth.interpolate import lerp_axis, linear_taps
 
-__all__ = ["PHASE_A", "PHASE_B", "Region", "TileGrid", "assemble", "tile_rng", "upsample_window"]
+__all__ = ["PHASE_A", "PHASE_B", "PHASE_C", "Region", "TileGrid", "assemble", "tile_rng", "upsample_window"]
 
-PHASE_A, PHASE_B = 0, 1
+PHASE_A, PHASE_B, PHASE_C = 0, 1, 2  # C: the corner windows (not a tile's phase)
 
 
 @dataclass(frozen=True)
@@ -196,6 +205,39 @@ class TileGrid:
             return []
         return [(t, part) for t, part in self.overlapping(level, self.region(level, index))
                 if t != index and self.phase(t) == PHASE_A]
+
+    # ---------------------------------------------------------------- phase C: corner windows
+
+    def corner_half(self, level: int) -> int:
+        """Half-width of a corner window's free square at ``level``: the block, or less
+        where the cores are small, so that a window (free square grown by one block)
+        never reaches a neighbouring corner's free square: 2 h + b <= the smallest core."""
+        b = self.blocks[level]
+        smallest = min(min(c.shape) for c in self.cores(level).values())
+        return max(1, min(b, (smallest - b) // 2))
+
+    def corners(self, level: int) -> list[tuple[int, int]]:
+        """The interior corner points (y, x) of ``level``'s cores (where four cores meet;
+        every one has one B-B diagonal), row-major; none for a whole level."""
+        if self.whole(level):
+            return []
+        cores = self.cores(level)
+        ys = sorted({c.y0 for c in cores.values()} - {0})
+        xs = sorted({c.x0 for c in cores.values()} - {0})
+        return [(y, x) for y in ys for x in xs]
+
+    def corner_free(self, level: int, k: int) -> Region:
+        """The free square of corner ``k`` (half-width :meth:`corner_half`)."""
+        y, x = self.corners(level)[k]
+        h = self.corner_half(level)
+        return Region(y - h, y + h, x - h, x + h)
+
+    def corner_window(self, level: int, k: int) -> Region:
+        """The window of corner ``k``: its free square grown by one block (the fixed
+        ring, so every block that covers a free sample lies in the window), clipped."""
+        f, b = self.corner_free(level, k), self.blocks[level]
+        _, ny_, nx_ = self.level_shape(level)
+        return Region(max(0, f.y0 - b), min(ny_, f.y1 + b), max(0, f.x0 - b), min(nx_, f.x1 + b))
 
     def upsample_source(self, level: int, index: int) -> Region:
         """The box of level ``level - 1`` whose samples the trilinear x2 upsampling of
