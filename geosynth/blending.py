@@ -165,9 +165,9 @@ class MLSSurface:
     """
 
     def __init__(self, points, normals, radius: float, neighbours: int = MLS_NEIGHBOURS):
-        from geosynth.pointmodels import _passive_openmp_threads
+        from geosynth.pointmodels import passive_openmp_threads
 
-        _passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
+        passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
         from pykdtree.kdtree import KDTree
 
         self.p = as_points3("neighbourhood_points", points)

@@ -32,9 +32,9 @@ import numpy as np
 
 from threadpoolctl import threadpool_limits
 from geosynth.point_grid import PointGrid
-from geosynth.pointmodels import _passive_openmp_threads
+from geosynth.pointmodels import passive_openmp_threads
 
-_passive_openmp_threads()
+passive_openmp_threads()
 import pykdtree.kdtree  # noqa: E402,F401  (loaded now so that the OpenMP limit below covers its libgomp)
 from geosynth.point_textures import PointTexture
 

@@ -27,14 +27,16 @@ debris is made here the same way for both sides (marching cubes without smoothin
 from __future__ import annotations
 
 import gc
+from dataclasses import dataclass
 
 import numpy as np
 
 from geosynth.field import Field
 
 __all__ = [
-    "ELEMENT_VOLUME_TOLERANCE", "SLOPE_W1_SCALE", "bidirectional_block_distance", "element_wholeness",
-    "format_structure", "pick_refinement", "structure_kind", "structure_report", "surface_structure",
+    "ELEMENT_VOLUME_TOLERANCE", "SLOPE_W1_SCALE", "ExemplarStructure", "bidirectional_block_distance",
+    "element_wholeness", "exemplar_structure", "format_structure", "pick_refinement", "structure_kind",
+    "structure_report", "surface_structure",
 ]
 
 ELEMENT_VOLUME_TOLERANCE = 0.35  # an output core is whole when its volume is within 35% of an exemplar core's
@@ -246,17 +248,25 @@ def pick_refinement(values: np.ndarray, threshold: float, *, max_factor: int = M
     Returns:
         The factor, an int in [1, max_factor].
     """
+    return _refinement_and_cores(values, threshold, max_factor, max_samples)[0]
+
+
+def _refinement_and_cores(values: np.ndarray, threshold: float, max_factor: int = MAX_REFINEMENT,
+                          max_samples: int = MAX_REFINED_SAMPLES) -> tuple[int, _Cores]:
+    """:func:`pick_refinement`'s factor and the exemplar's cores at that factor (labelled on the way)."""
     def fits(f: int) -> bool:
         return int(np.prod([(n - 1) * f + 1 for n in values.shape])) <= max_samples
 
     factor = 1
-    previous = _signature(_exemplar_cores(values, threshold, 1))
+    cores = _exemplar_cores(values, threshold, 1)
+    previous = _signature(cores)
     while factor < max_factor and fits(factor + 1):
-        current = _signature(_exemplar_cores(values, threshold, factor + 1))
+        finer = _exemplar_cores(values, threshold, factor + 1)
+        current = _signature(finer)
         if current == previous:
-            return factor
-        factor, previous = factor + 1, current
-    return factor
+            return factor, cores
+        factor, previous, cores = factor + 1, current, finer
+    return factor, cores
 
 
 def _element_scores(ex_values, ex_spacing, out_values, out_spacing, periodic, factor=None, ex_cores=None) -> dict:
@@ -470,10 +480,33 @@ def surface_structure(exemplar, output, up_axis: int = 0, spacing=1.0) -> dict:
 # ------------------------------------------------------------------ both
 
 
-def structure_kind(exemplar_field, *, spacing=1.0) -> str:
-    """Which structure metrics fit an exemplar: "elements" when its cores (on the grid of
-    :func:`pick_refinement`) number more than one and the largest holds less than 90% of
-    their volume (separate pieces: rings, balls), else "surface" (terrain, slabs).
+@dataclass(frozen=True)
+class ExemplarStructure:
+    """What the structure metrics need of an exemplar, worked out once
+    (:func:`exemplar_structure`): pass it to :func:`structure_report` in place of the
+    exemplar's field to score several outputs against one exemplar.
+
+    Attributes:
+        values: (Z, Y, X) float32 distances, world units, negative inside.
+        spacing: (x, y, z) float64 sample spacing.
+        threshold: the core depth, world units (half the largest spacing).
+        factor: :func:`pick_refinement`'s grid refinement.
+        kind: "elements" or "surface" (:func:`structure_kind`'s rule).
+    """
+
+    values: np.ndarray
+    spacing: np.ndarray
+    threshold: float
+    factor: int
+    cores: "_Cores"
+
+    @property
+    def kind(self) -> str:
+        return _kind_of(self.cores)
+
+
+def exemplar_structure(exemplar_field, *, spacing=1.0) -> ExemplarStructure:
+    """The exemplar's cores on the grid of :func:`pick_refinement`, labelled once.
 
     Args:
         exemplar_field: signed distances, negative inside (a Field, or an array with
@@ -481,7 +514,22 @@ def structure_kind(exemplar_field, *, spacing=1.0) -> str:
     """
     ex, ex_sp = _distance("exemplar_field", exemplar_field, spacing)
     threshold = 0.5 * float(ex_sp.max())
-    return _kind_of(_exemplar_cores(ex, threshold, pick_refinement(ex, threshold)))
+    factor, cores = _refinement_and_cores(ex, threshold)
+    return ExemplarStructure(ex, ex_sp, threshold, factor, cores)
+
+
+def structure_kind(exemplar_field, *, spacing=1.0) -> str:
+    """Which structure metrics fit an exemplar: "elements" when its cores (on the grid of
+    :func:`pick_refinement`) number more than one and the largest holds less than 90% of
+    their volume (separate pieces: rings, balls), else "surface" (terrain, slabs).
+
+    Args:
+        exemplar_field: signed distances, negative inside (a Field, or an array with
+            ``spacing``), or an :class:`ExemplarStructure`.
+    """
+    if isinstance(exemplar_field, ExemplarStructure):
+        return exemplar_field.kind
+    return exemplar_structure(exemplar_field, spacing=spacing).kind
 
 
 def _kind_of(cores: _Cores) -> str:
@@ -496,7 +544,8 @@ def structure_report(exemplar_field, output_field, kind: str = "auto", *, spacin
     Args:
         exemplar_field, output_field: signed distances, negative inside (Fields, or
             arrays with ``spacing``), e.g. ``GeometryResult.exemplar_field`` and
-            ``GeometryResult.volume.field``.
+            ``GeometryResult.volume.field``; the exemplar also as an
+            :class:`ExemplarStructure` (its cores labelled once for many outputs).
         kind: "elements" (:func:`element_wholeness`), "surface"
             (:func:`surface_structure`) or "auto": :func:`structure_kind`.
         spacing: sample spacing of array inputs.
@@ -508,13 +557,16 @@ def structure_report(exemplar_field, output_field, kind: str = "auto", *, spacin
     """
     if kind not in ("auto", "elements", "surface"):
         raise ValueError(f"kind must be 'auto', 'elements' or 'surface', got {kind!r}.")
-    ex, ex_sp = _distance("exemplar_field", exemplar_field, spacing)
     out, out_sp = _distance("output_field", output_field, spacing)
     factor = cores = None
-    if kind != "surface":
-        threshold = 0.5 * float(ex_sp.max())
-        factor = pick_refinement(ex, threshold)
-        cores = _exemplar_cores(ex, threshold, factor)
+    if isinstance(exemplar_field, ExemplarStructure):
+        ex, ex_sp, factor, cores = (exemplar_field.values, exemplar_field.spacing, exemplar_field.factor,
+                                    exemplar_field.cores)
+    elif kind != "surface":
+        structure = exemplar_structure(exemplar_field, spacing=spacing)
+        ex, ex_sp, factor, cores = structure.values, structure.spacing, structure.factor, structure.cores
+    else:
+        ex, ex_sp = _distance("exemplar_field", exemplar_field, spacing)
     if kind == "auto":
         kind = _kind_of(cores)
     if kind == "elements":

@@ -29,8 +29,8 @@ from geosynth.memory import available_memory, require
 from geosynth.pointsets import PointSet, estimate_normals, read_geometry
 
 __all__ = [
-    "POINT_MODELS", "PointModelExample", "knn_table", "load_point_model", "point_model", "sample_mesh_points",
-    "spatial_order",
+    "POINT_MODELS", "PointModelExample", "knn_table", "load_point_model", "passive_openmp_threads", "point_model",
+    "sample_mesh_points", "spatial_order",
 ]
 
 RELAX_ROUNDS = 4  # repulsion rounds: enough to remove the clumps of random sampling
@@ -300,7 +300,7 @@ def spatial_order(positions: np.ndarray) -> np.ndarray:
     return np.argsort(key)  # unique keys: any sort algorithm gives this order
 
 
-def _passive_openmp_threads() -> None:
+def passive_openmp_threads() -> None:
     """``OMP_WAIT_POLICY=PASSIVE`` unless the user set it: the kNN query's OpenMP threads
     (pykdtree's own libgomp reads it once, when it loads, which is at the first
     :func:`knn_table`) then sleep when the query ends instead of spinning on, which took a
@@ -327,7 +327,7 @@ def knn_table(positions: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         (distances (N, k) float64 (possibly a view), indices (N, k) int32 (the kernels'
         index type; N < 2^31)), nearest first.
     """
-    _passive_openmp_threads()
+    passive_openmp_threads()
     from pykdtree.kdtree import KDTree
 
     p = np.ascontiguousarray(positions, np.float64)

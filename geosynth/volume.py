@@ -903,7 +903,7 @@ def synthesize_geometry(
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
     from geosynth.meshes import check_mesh, mesh_distance
-    from geosynth.metrics import bidirectional_block_distance, structure_kind, structure_report
+    from geosynth.metrics import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
     from geosynth.surface import field_to_mesh
 
     timings = {}
@@ -918,7 +918,7 @@ def synthesize_geometry(
     timings["exemplar distance field"] = time.perf_counter() - t0
     kind = None
     if quality_samples:  # the structure metrics' kind decides their memory: the estimate again, now exact
-        kind = structure_kind(exemplar_field)
+        kind = structure_kind(exemplar_field)  # its cores are dropped: they are not held through the synthesis
         _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method,
                           slab, kind)
     spacing = float(exemplar_field.spacing[0])
@@ -947,8 +947,9 @@ def synthesize_geometry(
                                                                 samples=quality_samples, seed=seed, device=device)
         # the structure metrics ride inside each side's dict, so a loop over quality.items()
         # still finds the block distances
+        ex_structure = exemplar_structure(exemplar_field) if kind == "elements" else exemplar_field  # labelled once
         for key, fld in (("synthesis", vol.field), ("random tiling", base.field)):
-            quality[key]["structure"] = structure_report(exemplar_field, fld, kind, periodic=tileable)
+            quality[key]["structure"] = structure_report(ex_structure, fld, kind, periodic=tileable)
         quality["synthesis"]["method"] = vol.method
         timings["quality numbers"] = time.perf_counter() - t0
     return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method)

@@ -5,8 +5,8 @@ import pytest
 from scipy import ndimage
 
 from geosynth.field import Field
-from geosynth.metrics import (element_wholeness, format_structure, pick_refinement, structure_report,
-                              surface_structure)
+from geosynth.metrics import (element_wholeness, exemplar_structure, format_structure, pick_refinement,
+                              structure_kind, structure_report, surface_structure)
 
 
 def grid(shape):
@@ -218,6 +218,20 @@ def test_structure_report_picks_the_kind():
     assert line.startswith("debris 0.0% in 1 piece (exemplar 0.0% in 1)") and "slopes" in line and "overhangs" in line
     forced = structure_report(d, d, kind="surface")
     assert forced["kind"] == "surface" and forced["surface"]["debris"]["exemplar"] > 0.5  # four pieces
+
+
+def test_exemplar_structure_labelled_once_gives_the_same_reports():
+    """An ExemplarStructure in place of the exemplar's field: the same report for each
+    output (a copy, one torus cut in two), the same kind and refinement."""
+    d = tori()
+    ex = exemplar_structure(d)
+    assert ex.kind == structure_kind(d) == structure_kind(ex) == "elements"
+    assert ex.factor == pick_refinement(d, 0.5) and len(ex.cores) == 4
+    cut = d.copy()
+    cut[:, 2:10, 13:15] = 1.0  # one torus broken across its tube
+    for out in (d, cut):
+        assert structure_report(ex, out) == structure_report(d, out)
+    assert structure_report(ex, cut)["elements"]["score"] < 1.0
 
 
 def test_bad_inputs_are_clear_errors():

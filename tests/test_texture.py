@@ -126,10 +126,10 @@ def test_knn_threads_sleep_when_idle_unless_the_user_chose(monkeypatch):
     from geosynth import pointmodels
 
     monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
-    pointmodels._passive_openmp_threads()
+    pointmodels.passive_openmp_threads()
     assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
-    pointmodels._passive_openmp_threads()
+    pointmodels.passive_openmp_threads()
     assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
 
 
