@@ -24,6 +24,7 @@ the MLS surface of the output).
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from dataclasses import dataclass, field as dc_field
@@ -33,9 +34,6 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from geosynth.point_grid import PointGrid
 from geosynth.pointmodels import passive_openmp_threads
-
-passive_openmp_threads()
-import pykdtree.kdtree  # noqa: E402,F401  (loaded now so that the OpenMP limit below covers its libgomp)
 from geosynth.point_textures import PointTexture
 
 __all__ = ["PointTextureReport", "synthesize_point_texture", "output_mesh"]
@@ -429,7 +427,20 @@ def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
 # One OpenMP thread too: the blend's many small pykdtree queries (a few thousand points each)
 # took more CPU with a second OpenMP thread than they saved (height field, blend stage:
 # 3.2 CPU s with 2 threads, 2.7 s with one, 3.1 s with SciPy's cKDTree).
-@threadpool_limits.wrap(limits={"blas": 1, "openmp": 1})
+def _one_thread(fn):
+    """Run ``fn`` with one BLAS and one OpenMP thread. pykdtree is loaded first: threadpoolctl
+    limits only the libraries loaded when the limit starts, and pykdtree brings its own libgomp."""
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        passive_openmp_threads()
+        import pykdtree.kdtree  # noqa: F401
+
+        with threadpool_limits(limits={"blas": 1, "openmp": 1}):
+            return fn(*args, **kwargs)
+    return run
+
+
+@_one_thread
 def synthesize_point_texture(
     exemplar,
     size=None,
