@@ -8,12 +8,17 @@
 // vstore16, convert_*, min, fma and abs_diff are not inlined there but called, which
 // made hot loops 3-20x slower. Hot code therefore uses plain operators, vector loads
 // through pointer types of reduced alignment (LOAD16) and __builtin_convertvector.
+// No OpenCL builtin is called on a 16-wide vector at all: PoCL 3.0 on a CPU with AVX-512
+// that its LLVM does not know (AMD Zen 4, taken for "znver3") aborts the process, or
+// crashes, generating code for any of them (sqrt, select, all, vstore16, ... on float16 /
+// int16; 8-wide calls are fine), so the tests on such a machine abort.
 #ifndef GEOSYNTH_COMMON_H
 #define GEOSYNTH_COMMON_H
 
 typedef float f32x16u __attribute__((ext_vector_type(16), aligned(4)));
 typedef uchar u8x16u __attribute__((ext_vector_type(16), aligned(1)));
 typedef uint u32x16u __attribute__((ext_vector_type(16), aligned(4)));
+typedef int i32x16u __attribute__((ext_vector_type(16), aligned(4)));
 
 #ifdef GS_U8
 typedef uchar T;
@@ -59,7 +64,7 @@ typedef float4 S4;
 typedef float2 S2;
 #endif
 
-inline S hsum16(S16 v)
+__attribute__((always_inline)) inline S hsum16(S16 v)
 {
     const S8 a = v.lo + v.hi;
     const S4 b = a.lo + a.hi;
@@ -85,6 +90,15 @@ __attribute__((always_inline)) inline int any16(int16 m)
     const int4 b = a.lo | a.hi;
     const int2 c = b.lo | b.hi;
     return (c.x | c.y) != 0;
+}
+
+// Whether every lane of a comparison mask is set (all() on int16: see the note above).
+__attribute__((always_inline)) inline int all16(int16 m)
+{
+    const int8 a = m.lo & m.hi;
+    const int4 b = a.lo & a.hi;
+    const int2 c = b.lo & b.hi;
+    return (c.x & c.y) < 0;
 }
 
 // Selection modes, shared with kernels/ssd.py.

@@ -67,7 +67,10 @@ typedef int16 vm;
 #ifdef __AVX512F__
 #define VSQRT(v) __builtin_ia32_sqrtps512((v), 4)
 #else
-#define VSQRT(v) sqrt(v)
+// sqrt of each half: PoCL 3.0 aborts generating code for its 16-wide sqrt on CPUs whose
+// AVX-512 its LLVM does not know (Zen 4: "Cannot select ... fsqrt", _cl_sqrtDv16_f). The
+// same correctly rounded square root per lane.
+#define VSQRT(v) ((vf)(sqrt((v).lo), sqrt((v).hi)))
 #endif
 #define VMIN(a, b) ((a) < (b) ? (a) : (b))
 #define VMAX(a, b) ((a) > (b) ? (a) : (b))

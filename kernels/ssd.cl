@@ -316,11 +316,11 @@ __kernel void argmin_chunks(__global const S* scores, const int n, const int chu
             vbest = less ? v : vbest;
             vidx = less ? lane + i : vidx;
         }
-        ok = all(vok);
+        ok = all16(vok);
         S lv[16];
         int li[16];
-        vstore16(vbest, 0, lv);
-        vstore16(vidx, 0, li);
+        *(__private Sx16u*)lv = vbest;  // not vstore16: see common.h's note on 16-wide builtins
+        *(__private i32x16u*)li = vidx;
         best = lv[0];
         best_idx = li[0];
         for (int l = 1; l < 16; ++l) {

@@ -30,7 +30,8 @@ __kernel void texel_scores(__global const uchar* grid, const int n, const int wi
         }
     } else {
         int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-        lane = select(lane, (int16)(width - 1 - tx), lane > (int16)(width - 1 - tx));
+        const int16 last = (int16)(width - 1 - tx);
+        lane = lane > last ? last : lane;  // not select(): PoCL 3.0 aborts on 16-wide builtins on Zen 4
         const int16 cols = lane * (int16)(col_step);
         for (int j = j0; j < j1; ++j) {
             const int p = base + offsets[j];

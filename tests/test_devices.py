@@ -168,6 +168,10 @@ def test_every_program_builds_on_the_test_devices(device):
     opencl_backend.build_all(int(p), int(i))
     _, context, programs = opencl_backend.device_context(int(p), int(i))
     assert set(programs) == set(opencl_backend.PROGRAMS)
+    import pyopencl as cl
+
+    for key, program in programs.items():  # a driver's cache can hand back a program without kernels
+        assert program.get_info(cl.program_info.KERNEL_NAMES), key
     backend = geosynth.get_backend(device)
     assert backend.context is context and backend._programs is programs  # built once per context
 
@@ -200,3 +204,20 @@ def test_pocl_threads_pinned_only_when_every_core_is_ours(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {2, 3})
     backend._pin_pocl_threads()
     assert "POCL_AFFINITY" not in os.environ
+
+
+def test_a_program_without_kernels_is_a_build_error(monkeypatch):
+    """A driver that hands back a program without kernels (PoCL's cache after a build that
+    died in code generation) is a ProgramBuildError naming the cache, not an
+    INVALID_KERNEL_NAME at the first launch."""
+    opencl = [d for d in TEST_DEVICES if d.startswith("opencl")]
+    if not opencl:
+        pytest.skip(f"no OpenCL test device ({TEST_DEVICES})")
+    from geosynth._backends import opencl_backend
+
+    _, p, i = opencl[0].split(":")
+    _, context, _ = opencl_backend.device_context(int(p), int(i))
+    monkeypatch.setattr(opencl_backend, "_read_source", lambda name: "// no kernel here\n")
+    with pytest.raises(opencl_backend.ProgramBuildError, match=r"^ssd\.cl: .*without kernels.*cache") as err:
+        opencl_backend.build_program(context, "ssd", False)
+    assert "\n" not in str(err.value)

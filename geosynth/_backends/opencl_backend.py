@@ -129,9 +129,15 @@ def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
             # silent unless GEOSYNTH_VERBOSE asks for the runtimes' messages.
             if not verbose():
                 warnings.simplefilter("ignore", cl.CompilerWarning)
-            return cl.Program(context, _read_source(f"{family}.cl")).build(options=build_options(family, u8))
+            program = cl.Program(context, _read_source(f"{family}.cl")).build(options=build_options(family, u8))
     except cl.Error as exc:
         raise ProgramBuildError(family, u8, _compiler_message(family, exc)) from None
+    if not program.get_info(cl.program_info.KERNEL_NAMES):
+        # PoCL serves a program whose first build died in code generation from its cache
+        # as a build without kernels: every kernel would fail later with INVALID_KERNEL_NAME
+        raise ProgramBuildError(family, u8, "the driver returned a program without kernels (a broken kernel cache "
+                                "entry: remove PoCL's cache folder, ~/.cache/pocl or $POCL_CACHE_DIR, and retry)")
+    return program
 
 
 # Per device (platform index, device index): the one context geosynth uses and the programs
