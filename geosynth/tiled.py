@@ -50,7 +50,7 @@ import numpy as np
 from geosynth.tiling import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
-           "tile_task_bytes", "kept_bytes", "WORKER_RUNTIME_BYTES"]
+           "tile_task_bytes", "corner_task_bytes", "kept_bytes", "WORKER_RUNTIME_BYTES"]
 
 # How long a scheduler given by address may take to answer before the run is refused.
 CONNECT_TIMEOUT_S = 5.0
@@ -479,13 +479,34 @@ def tile_task_bytes(grid: TileGrid, level: int, index: int) -> int:
     return _TILE_SAMPLE_BYTES * n + max(optimize, upsample) + z * c.shape[0] * c.shape[1] + _TASK_BYTES
 
 
+def corner_task_bytes(grid: TileGrid, level: int, k: int) -> int:
+    """Estimated peak bytes of one corner task (:func:`_corner_task`, phase C) beyond the
+    exemplar and the level's search: per sample of the corner's window, the assembled
+    target, its coverage and fixed masks and the four tiles' crops (_TILE_SAMPLE_BYTES),
+    plus the constrained texture optimization (:func:`geosynth.optimize.memory_estimate`
+    with given samples) and the free square's copy returned. A window is at most a tile's
+    region across (2 h + 2 b <= the smallest core + b), so a corner task never needs more
+    than the largest tile task; measured against the traced peak in
+    tests/test_tiled_memory.py."""
+    from geosynth.optimize import level_stride, memory_estimate
+
+    w, f = grid.corner_window(level, k), grid.corner_free(level, k)
+    z = grid.level_shape(level)[0]
+    shape = (z,) + w.shape
+    n = int(np.prod(shape))
+    b = grid.blocks[level]
+    optimize = memory_estimate(shape, b, level_stride(b, level == grid.levels - 1), fixed=True)
+    return _TILE_SAMPLE_BYTES * n + optimize + z * f.shape[0] * f.shape[1] + _TASK_BYTES
+
+
 def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool = False,
-               faces_per_sample: float = 0.0) -> int:
+               faces_per_sample: float = 0.0, phases: int = 3) -> int:
     """Estimated peak bytes of one worker's tile work for ``grid``, beyond its runtime
     (:data:`WORKER_RUNTIME_BYTES`) and the results it keeps: the exemplar's pyramid, every
     level's search (a worker keeps them all: :func:`geosynth.volume.matcher_bytes`, device
-    buffers included) and the largest tile task of any level (:func:`tile_task_bytes`);
-    with ``mesh``, the tile's marching cubes too (:data:`MERGE_FACE_BYTES` per face)."""
+    buffers included) and the largest tile task of any level (:func:`tile_task_bytes`),
+    or corner task with ``phases`` 3 (:func:`corner_task_bytes`); with ``mesh``, the
+    tile's marching cubes too (:data:`MERGE_FACE_BYTES` per face)."""
     from geosynth.volume import matcher_bytes
 
     shapes = [tuple(int(v) for v in source_shape)]
@@ -497,6 +518,9 @@ def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool
     for level in range(grid.levels):
         for t in grid.tasks(level):
             worst = max(worst, tile_task_bytes(grid, level, t))
+        if phases == 3:
+            for k in range(len(grid.corners(level))):
+                worst = max(worst, corner_task_bytes(grid, level, k))
         if mesh and level == grid.levels - 1:
             z = grid.level_shape(level)[0]
             n = max(z * (c.shape[0] + 1) * (c.shape[1] + 1) for c in grid.cores(level).values())
@@ -731,7 +755,8 @@ def synthesize_volume_tiled(
     digest = hashlib.sha1(b"".join(s.tobytes() for s in sources)
                           + repr((blocks, caps, device, search, int(seed))).encode()).hexdigest()
     ex = _Exemplar(sources, list(blocks), [int(c) for c in caps], device, search, int(seed), digest)
-    estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample)
+    estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
+                          phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}
 
     t0 = time.perf_counter()
@@ -753,7 +778,7 @@ def synthesize_volume_tiled(
                 except ValueError:
                     break
                 if worker_need(g, tile_bytes(g, src.shape, search, mesh or mesh_dir is not None,
-                                             faces_per_sample)) <= limit:
+                                             faces_per_sample, phases)) <= limit:
                     fits = (n, n)
                     break
             fix = (f"use at least {fits[0]}x{fits[1]} tiles" if fits else "no tiling of this size fits; use a "
