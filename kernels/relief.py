@@ -133,15 +133,19 @@ def relief_scores_kernel(
     ks: wp.array(dtype=wp.float64),  # (Q,) shape coefficient of the code
     kc: wp.array(dtype=wp.float64),  # (Q,) colour coefficient of the code
     limit: wp.array(dtype=wp.int64),  # (Q,) running codes above it stop as OVER
-    cand: wp.array(dtype=wp.int32),  # (n_cand,) candidate sample slots
-    n_cand: int,  # candidates
+    cand: wp.array(dtype=wp.int32),  # (n_cand,) or (Q * n_cand,) candidate sample slots, -1: none (OVER)
+    n_cand: int,  # candidates (of each query)
+    cand_stride: int,  # 0: one candidate list for every query; n_cand: a row per query
     n_query: int,  # queries
     rotations: int,  # R
     n_samples: int,  # S (the stencil's row length)
     out: wp.array(dtype=wp.uint32),  # (Q * n_cand * R,) codes
 ):
     q, r, c = wp.tid()
-    slot = cand[c]
+    slot = cand[q * cand_stride + c]
+    if slot < 0:
+        out[(q * n_cand + c) * rotations + r] = wp.uint32(OVER)
+        return
     s = samples[slot]
     fu = _at3(frame, 3 * s)
     fv = _at3(frame, 3 * s + 1)
