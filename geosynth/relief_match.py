@@ -655,26 +655,19 @@ def _slot_rows(name: str, a: np.ndarray, n_query: int, n_samples: int) -> np.nda
     return a
 
 
-def _hint_tiers(hints, n_query: int, n_samples: int) -> list[np.ndarray]:
-    """find_matches' hints as passes: (k,) int64 slots for every query, or (Q, k) a row
-    per query (each row's slots first, then -1; trailing columns of -1 dropped); empty
-    passes dropped."""
+def _hint_pass(hints, n_query: int, n_samples: int) -> np.ndarray | None:
+    """find_matches' hints as one pass: (k,) int64 slots for every query, or (Q, k) a row
+    per query (each row's slots first, then -1; trailing columns of -1 dropped); None
+    when there is no slot."""
     if hints is None:
-        return []
-    tiers = list(hints) if isinstance(hints, (list, tuple)) and any(np.ndim(t) for t in hints) else [hints]
-    out = []
-    for tier in tiers:
-        arr = np.asarray(tier)
-        if arr.ndim == 2:
-            arr = _slot_rows("hints", arr, n_query, n_samples)
-            width = int((arr >= 0).sum(axis=1).max()) if arr.size else 0
-            if width:
-                out.append(np.sort(arr, axis=1)[:, ::-1][:, :width])
-            continue
-        h = np.unique(_index_array("hints", np.atleast_1d(arr), n_samples))
-        if len(h):
-            out.append(h)
-    return out
+        return None
+    arr = np.asarray(hints)
+    if arr.ndim == 2:
+        arr = _slot_rows("hints", arr, n_query, n_samples)
+        width = int((arr >= 0).sum(axis=1).max()) if arr.size else 0
+        return np.sort(arr, axis=1)[:, ::-1][:, :width] if width else None
+    h = np.unique(_index_array("hints", np.atleast_1d(arr), n_samples))
+    return h if len(h) else None
 
 
 def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tolerance: float = 1.1,
@@ -700,9 +693,8 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
             for S >= 256, none below; measured on 12,769 samples: 25-30% less work than
             (64, 8)).
         hints: None, (k,) int slots (positions in index.samples) scored on every query
-            of the batch before the probes, (Q, k) int slots a row per query (-1: none),
-            or a list of such arrays: passes scored in that order (tiers: the likeliest
-            first, so that the later ones already run under a tight limit).
+            of the batch before the probes, or (Q, k) int slots a row per query (-1:
+            none; each query scored against its own row only).
 
     Returns:
         One :class:`Matches` per query; empty arrays when nothing can be accepted.
@@ -719,8 +711,9 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     nq = queries.n_queries
     lim = np.full(nq, min(int(math.floor(tolerance * (accept - 1))), CODE_CAP), np.int64)
     passes = []
-    for tier in _hint_tiers(hints, nq, n_s):
-        passes.append((tier.shape[-1], index.backend.to_device(tier.astype(np.int32).reshape(-1)), tier.ndim == 2))
+    hinted = _hint_pass(hints, nq, n_s)
+    if hinted is not None:
+        passes.append((hinted.shape[-1], index.backend.to_device(hinted.astype(np.int32).reshape(-1)), hinted.ndim == 2))
     for stride in probes:
         slots, cand = index.candidates(stride)
         passes.append((len(slots), cand, False))

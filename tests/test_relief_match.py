@@ -246,8 +246,8 @@ def test_find_matches_is_the_unpruned_selection(device, tolerance):
     variants = [dict(probes=(8, 2)), dict(probes=(), hints=[int(best_slots[0])]),  # the best first: the tightest limit
                 dict(probes=(4,), hints=np.arange(0, n_s, 5)), dict(probes=(), hints=[]),
                 dict(probes=(), hints=own),  # a row per query
-                dict(probes=(), hints=[worst, own, np.arange(0, n_s, 9)]),  # tiers: a loose limit first
-                dict(probes=(), hints=[np.full((5, 2), -1)])]  # rows without a slot
+                dict(probes=(8,), hints=worst),  # rows of the worst: a loose limit, then the probe
+                dict(probes=(), hints=np.full((5, 2), -1))]  # rows without a slot
     for max_err, kw in [(e, v) for e in (0.5, 0.004) for v in variants]:
         got = rm.find_matches(index, q, max_err, tolerance=tolerance, **kw)
         for i, m in enumerate(got):
