@@ -12,8 +12,9 @@ every device returns the same bits (geosynth.relief_match defines the codes and
 geosynth.reference.relief_scores_reference is the NumPy twin).
 
 - ``relief_scores_kernel`` (launched over (Q, R, n_cand): neighbouring threads share the
-  rotation, as the OpenCL work-items): for query q, candidate s =
-  cand[c], rotation r, each entry j of q in order: the moved base m = base[s] + the
+  rotation, as the OpenCL work-items): for query q, candidate s = samples[slot], slot =
+  cand[q * cand_stride + c] (cand_stride 0: one list for every query; a slot -1: OVER),
+  rotation r, each entry j of q in order: the moved base m = base[s] + the
   entry's first three coefficients on s's frame rows (rounded: (x + 2^13) >> 14), the
   moved point p = m + the last three; the partner = a greedy walk over adj from
   stencil[slot, cell[j, r]] (else from the previous entry's partner when chain[j], else s) to the vertex of smallest (squared
