@@ -560,10 +560,12 @@ def _check_pair(index: ReliefIndex, queries: ReliefQueries) -> None:
 
 
 def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_cand: int,
-            limits: np.ndarray, uploaded=None, checked: bool = False) -> np.ndarray:
-    """(Q, n_cand, R) codes. ``uploaded``: the queries' device arrays from an earlier
-    launch of the same batch (only the limits are uploaded again); ``checked``: the
-    memory check was made for at least this many candidates."""
+            limits: np.ndarray, uploaded=None, checked: bool = False, rows: bool = False) -> np.ndarray:
+    """(Q, n_cand, R) codes. ``cand``: (n_cand,) slots for every query, or with
+    ``rows`` (Q * n_cand,) a row per query (-1: none, OVER). ``uploaded``: the
+    queries' device arrays from an earlier launch of the same batch (only the limits are
+    uploaded again); ``checked``: the memory check was made for at least this many
+    candidates."""
     import dataclasses
 
     from geosynth.memory import require
@@ -579,26 +581,39 @@ def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_can
     else:
         qa = dataclasses.replace(uploaded, limit=b.to_device(np.asarray(limits, np.int64)))
     out = b.empty((nq * n_cand * r,), np.uint32)
-    b.relief_scores(index.arrays, qa, cand, n_cand, nq, r, len(index.samples), out)
+    b.relief_scores(index.arrays, qa, cand, n_cand, n_cand if rows else 0, nq, r, len(index.samples), out)
     return b.to_host(out).reshape(nq, n_cand, r), qa
 
 
-def score(index: ReliefIndex, queries: ReliefQueries, limits=None) -> ReliefScores:
-    """FindMatches' scores of every query against every candidate sample and rotation.
+def score(index: ReliefIndex, queries: ReliefQueries, limits=None, slots=None) -> ReliefScores:
+    """FindMatches' scores of every query against candidate samples at every rotation.
 
     Args:
         index: the triangulation (its device runs the kernel).
         queries: from :func:`neighbourhood_queries` on this index.
         limits: None (full codes) or (Q,) integer codes: a running code above its query's
             limit stops as OVER.
+        slots: None (every sample), (k,) int positions in index.samples for every query,
+            or (Q, k) a row per query (-1: no candidate, scored OVER).
 
     Returns:
-        :class:`ReliefScores`, codes (Q, S, R) in the order of ``index.samples``.
+        :class:`ReliefScores`, codes (Q, S, R) in the order of ``index.samples``, or
+        (Q, k, R) in the order of ``slots``.
     """
     _check_pair(index, queries)
     lim = _check_limits(limits, queries.n_queries)
-    slots, cand = index.candidates(1)
-    return ReliefScores(_launch(index, queries, cand, len(slots), lim)[0])
+    if slots is None:
+        slots, cand = index.candidates(1)
+        return ReliefScores(_launch(index, queries, cand, len(slots), lim)[0])
+    rows = np.asarray(slots)
+    if rows.ndim == 2:
+        rows = _slot_rows("slots", rows, queries.n_queries, len(index.samples))
+    else:
+        rows = _index_array("slots", np.atleast_1d(rows), len(index.samples))
+    if rows.shape[-1] == 0:
+        return ReliefScores(np.zeros((queries.n_queries, 0, queries.rotations), np.uint32))
+    cand = index.backend.to_device(rows.astype(np.int32).reshape(-1))
+    return ReliefScores(_launch(index, queries, cand, rows.shape[-1], lim, rows=rows.ndim == 2)[0])
 
 
 @dataclass(frozen=True)
@@ -628,6 +643,33 @@ def _best(codes: np.ndarray) -> np.ndarray:
     return np.where(m < OVER, m, -1)
 
 
+def _slot_rows(name: str, a: np.ndarray, n_query: int, n_samples: int) -> np.ndarray:
+    """(Q, k) int64 candidate slots a row per query, -1 for none (validated)."""
+    if a.ndim != 2 or a.shape[0] != n_query or (a.size and not np.issubdtype(a.dtype, np.integer)):
+        _fail(name, f"per-query slots of shape {a.shape}, dtype {a.dtype}",
+              f"pass ({n_query}, k) integer positions in index.samples (-1: none), one row per query")
+    a = a.astype(np.int64)
+    if a.size and (a.min() < -1 or a.max() >= n_samples):
+        _fail(name, f"slots outside -1..{n_samples - 1} (min {a.min()}, max {a.max()})",
+              "pass positions in index.samples, or -1 for none")
+    return a
+
+
+def _hint_pass(hints, n_query: int, n_samples: int) -> np.ndarray | None:
+    """find_matches' hints as one pass: (k,) int64 slots for every query, or (Q, k) a row
+    per query (each row's slots first, then -1; trailing columns of -1 dropped); None
+    when there is no slot."""
+    if hints is None:
+        return None
+    arr = np.asarray(hints)
+    if arr.ndim == 2:
+        arr = _slot_rows("hints", arr, n_query, n_samples)
+        width = int((arr >= 0).sum(axis=1).max()) if arr.size else 0
+        return np.sort(arr, axis=1)[:, ::-1][:, :width] if width else None
+    h = np.unique(_index_array("hints", np.atleast_1d(arr), n_samples))
+    return h if len(h) else None
+
+
 def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tolerance: float = 1.1,
                  probes: tuple[int, ...] | None = None, hints=None) -> list[Matches]:
     """The paper's BestMatches of each query: every (sample, rotation) whose ssd is within
@@ -650,8 +692,9 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         probes: sample strides of the probe passes (default (256, 16) for S >= 4096, (8,)
             for S >= 256, none below; measured on 12,769 samples: 25-30% less work than
             (64, 8)).
-        hints: None or (k,) int slots (positions in index.samples) scored on every query
-            of the batch before the probes.
+        hints: None, (k,) int slots (positions in index.samples) scored on every query
+            of the batch before the probes, or (Q, k) int slots a row per query (-1:
+            none; each query scored against its own row only).
 
     Returns:
         One :class:`Matches` per query; empty arrays when nothing can be accepted.
@@ -668,13 +711,12 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     nq = queries.n_queries
     lim = np.full(nq, min(int(math.floor(tolerance * (accept - 1))), CODE_CAP), np.int64)
     passes = []
-    if hints is not None:
-        h = np.unique(_index_array("hints", np.atleast_1d(hints), n_s))
-        if len(h):
-            passes.append((len(h), index.backend.to_device(h.astype(np.int32))))
+    hinted = _hint_pass(hints, nq, n_s)
+    if hinted is not None:
+        passes.append((hinted.shape[-1], index.backend.to_device(hinted.astype(np.int32).reshape(-1)), hinted.ndim == 2))
     for stride in probes:
         slots, cand = index.candidates(stride)
-        passes.append((len(slots), cand))
+        passes.append((len(slots), cand, False))
     slots, cand = index.candidates(1)
     from geosynth.memory import require  # one memory check, for the full pass (the largest)
 
@@ -682,8 +724,8 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
             what=f"FindMatches codes of {nq} queries x {len(slots)} samples x {queries.rotations}")
     qa = None
-    for n_cand, pcand in passes:
-        pc, qa = _launch(index, queries, pcand, n_cand, lim, uploaded=qa, checked=True)
+    for n_cand, pcand, by_row in passes:
+        pc, qa = _launch(index, queries, pcand, n_cand, lim, uploaded=qa, checked=True, rows=by_row)
         best = _best(pc)
         lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
     codes, _ = _launch(index, queries, cand, len(slots), lim, uploaded=qa, checked=True)

@@ -109,8 +109,9 @@ __kernel void relief_scores(
     __global const double* ks,      // (Q,) shape coefficient of the code
     __global const double* kc,      // (Q,) colour coefficient of the code
     __global const long* limit,     // (Q,) running codes above it stop as OVER
-    __global const int* cand,       // (n_cand,) candidate sample slots
-    const int n_cand,               // candidates
+    __global const int* cand,       // (n_cand,) or (Q * n_cand,) candidate sample slots, -1: none (OVER)
+    const int n_cand,               // candidates (of each query)
+    const int cand_stride,          // 0: one candidate list for every query; n_cand: a row per query
     const int n_query,              // queries
     const int rotations,            // R
     const int n_samples,            // S (the stencil's row length)
@@ -119,7 +120,8 @@ __kernel void relief_scores(
     const int g = get_global_id(0), q = get_global_id(1);
     if (g >= n_cand * rotations || q >= n_query) return;
     const int r = g / n_cand, c = g - r * n_cand;
-    const int slot = cand[c];
+    const int slot = cand[(size_t)q * cand_stride + c];
+    if (slot < 0) { out[((size_t)q * n_cand + c) * rotations + r] = (uint)R_OVER; return; }
     const int s = samples[slot];
     const l3 fu = l3_at(frame, 3 * s), fv = l3_at(frame, 3 * s + 1), fn = l3_at(frame, 3 * s + 2);
     const l3 bs = l3_at(base, s);

@@ -12,8 +12,9 @@ every device returns the same bits (geosynth.relief_match defines the codes and
 geosynth.reference.relief_scores_reference is the NumPy twin).
 
 - ``relief_scores_kernel`` (launched over (Q, R, n_cand): neighbouring threads share the
-  rotation, as the OpenCL work-items): for query q, candidate s =
-  cand[c], rotation r, each entry j of q in order: the moved base m = base[s] + the
+  rotation, as the OpenCL work-items): for query q, candidate s = samples[slot], slot =
+  cand[q * cand_stride + c] (cand_stride 0: one list for every query; a slot -1: OVER),
+  rotation r, each entry j of q in order: the moved base m = base[s] + the
   entry's first three coefficients on s's frame rows (rounded: (x + 2^13) >> 14), the
   moved point p = m + the last three; the partner = a greedy walk over adj from
   stencil[slot, cell[j, r]] (else from the previous entry's partner when chain[j], else s) to the vertex of smallest (squared
@@ -133,15 +134,19 @@ def relief_scores_kernel(
     ks: wp.array(dtype=wp.float64),  # (Q,) shape coefficient of the code
     kc: wp.array(dtype=wp.float64),  # (Q,) colour coefficient of the code
     limit: wp.array(dtype=wp.int64),  # (Q,) running codes above it stop as OVER
-    cand: wp.array(dtype=wp.int32),  # (n_cand,) candidate sample slots
-    n_cand: int,  # candidates
+    cand: wp.array(dtype=wp.int32),  # (n_cand,) or (Q * n_cand,) candidate sample slots, -1: none (OVER)
+    n_cand: int,  # candidates (of each query)
+    cand_stride: int,  # 0: one candidate list for every query; n_cand: a row per query
     n_query: int,  # queries
     rotations: int,  # R
     n_samples: int,  # S (the stencil's row length)
     out: wp.array(dtype=wp.uint32),  # (Q * n_cand * R,) codes
 ):
     q, r, c = wp.tid()
-    slot = cand[c]
+    slot = cand[q * cand_stride + c]
+    if slot < 0:
+        out[(q * n_cand + c) * rotations + r] = wp.uint32(OVER)
+        return
     s = samples[slot]
     fu = _at3(frame, 3 * s)
     fv = _at3(frame, 3 * s + 1)

@@ -214,14 +214,14 @@ def test_only_the_capture_vertices_are_copied(one_device):
 
 
 def test_coherence_hints_change_nothing(one_device, monkeypatch):
-    """The hints (candidates next to the samples that textured a target's neighbours) only
-    tighten FindMatches' pruning limit: the completion is the same bits without them, or
-    with the stride probes after them."""
+    """The hints (each target's candidates next to the samples that textured its
+    neighbours, a row per target) only tighten FindMatches' pruning limit: the completion
+    is the same bits without them, with more rings, or with the stride probes after them."""
     import geosynth.completion as completion
 
     cap, region = _small(5), ((0.0, 0.9), (0.0, 0.45))
     runs = []
-    for rings, probes in ((completion.HINT_RINGS, completion.HINT_PROBES), (0, None), (1, (4,))):
+    for rings, probes in ((completion.HINT_RINGS, completion.HINT_PROBES), (0, None), (1, (4,)), (5, ())):
         monkeypatch.setattr(completion, "HINT_RINGS", rings)
         monkeypatch.setattr(completion, "HINT_PROBES", probes)
         s, r, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=3)

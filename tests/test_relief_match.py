@@ -97,6 +97,38 @@ def test_kernel_equals_reference_every_rotation(device, rotations):
     assert np.all((cut[~keep] == rm.OVER) | (cut[~keep] == rm.INVALID))
 
 
+@pytest.mark.parametrize("rotations", [4, 3])
+def test_per_query_candidate_rows_equal_reference(device, rotations):
+    """score(slots=(Q, k)): each query against its own candidate row (the kernel's
+    cand_stride), -1 padding scored OVER; equal to the oracle and to the shared-list
+    scores of the same slots, with and without limits."""
+    kw = _plane()
+    index = rm.ReliefIndex.build(**kw, device=device)
+    q = _queries(index, kw, rotations=rotations)
+    n_s = len(index.samples)
+    rng = np.random.default_rng(3)
+    rows = np.full((4, 30), -1, np.int64)
+    for i, k in enumerate([30, 17, 1, 25]):
+        rows[i, :k] = rng.choice(n_s, k, replace=False)
+    got = rm.score(index, q, slots=rows).codes
+    assert got.shape == (4, 30, rotations)
+    np.testing.assert_array_equal(got, relief_scores_reference(index, q, slots=rows))
+    np.testing.assert_array_equal(got[rows < 0], rm.OVER)
+    full = rm.score(index, q).codes
+    for i in range(4):
+        some = rows[i] >= 0
+        np.testing.assert_array_equal(got[i, some], full[i, rows[i, some]])
+    assert (got[rows >= 0] < rm.OVER).mean() > 0.3 and (got == rm.INVALID).any()
+    lim = np.percentile(full[full < rm.OVER], 20).astype(np.int64) * np.ones(4, np.int64)
+    cut = rm.score(index, q, lim, slots=rows).codes
+    np.testing.assert_array_equal(cut, relief_scores_reference(index, q, lim, slots=rows))
+    keep = (got <= lim[:, None, None]) & (rows >= 0)[..., None]
+    np.testing.assert_array_equal(cut[keep], got[keep])
+    assert keep.any() and (cut[~keep & (rows >= 0)[..., None]] >= rm.OVER).all()
+    shared = rows[0]
+    np.testing.assert_array_equal(rm.score(index, q, slots=shared).codes, full[:, shared])
+
+
 def test_kernel_equals_reference_on_a_curved_surface_after_updates(device):
     kw = _cylinder()
     index = rm.ReliefIndex.build(**kw, partners="textured", device=device)
@@ -198,23 +230,33 @@ def test_bit_identical_across_devices(device_pair):
         np.testing.assert_array_equal(x, y)
 
 
-def test_find_matches_is_the_unpruned_selection(device):
+@pytest.mark.parametrize("tolerance", [1.1, 1.65])  # 1.65: the completion's balanced pick
+def test_find_matches_is_the_unpruned_selection(device, tolerance):
     kw = _plane(n=17)
     index = rm.ReliefIndex.build(**kw, device=device)
     q = _queries(index, kw, count=5, mu=0.6)
     full = rm.score(index, q).codes
-    best_slot = int(np.unravel_index(np.argmin(np.where(full[0] < rm.OVER, full[0], rm.OVER)), full[0].shape)[0])
-    variants = [dict(probes=(8, 2)), dict(probes=(), hints=[best_slot]),  # the best first: the tightest limit
-                dict(probes=(4,), hints=np.arange(0, len(index.samples), 5)), dict(probes=(), hints=[])]
+    masked = np.where(full < rm.OVER, full, rm.OVER).reshape(5, -1)
+    best_slots = np.unravel_index(np.argmin(masked, axis=1), full.shape[1:])[0]  # each query's best slot
+    n_s = len(index.samples)
+    own = np.full((5, 3), -1, np.int64)
+    own[:, 0] = best_slots
+    own[1:, 1] = (best_slots[1:] + 7) % n_s
+    worst = np.argsort(masked, axis=1)[:, -8:] // full.shape[2]  # slots holding the worst codes
+    variants = [dict(probes=(8, 2)), dict(probes=(), hints=[int(best_slots[0])]),  # the best first: the tightest limit
+                dict(probes=(4,), hints=np.arange(0, n_s, 5)), dict(probes=(), hints=[]),
+                dict(probes=(), hints=own),  # a row per query
+                dict(probes=(8,), hints=worst),  # rows of the worst: a loose limit, then the probe
+                dict(probes=(), hints=np.full((5, 2), -1))]  # rows without a slot
     for max_err, kw in [(e, v) for e in (0.5, 0.004) for v in variants]:
-        got = rm.find_matches(index, q, max_err, **kw)
+        got = rm.find_matches(index, q, max_err, tolerance=tolerance, **kw)
         for i, m in enumerate(got):
             real = full[i][full[i] < rm.OVER].astype(np.int64)
             best = real.min()
             if best >= np.ceil(max_err * rm.SCORE_ONE):
                 assert len(m.sample) == 0
                 continue
-            s, r = np.nonzero(full[i] <= np.floor(1.1 * best))
+            s, r = np.nonzero(full[i] <= np.floor(tolerance * best))
             np.testing.assert_array_equal(m.slot, s)
             np.testing.assert_array_equal(m.rotation, r)
             np.testing.assert_array_equal(m.code, full[i, s, r])
@@ -273,6 +315,10 @@ def test_bad_input_one_line_errors(one_device):
     err(lambda: rm.score(index, q, limits=[1, 2]), "limits")
     err(lambda: rm.find_matches(index, q, float("nan")), "max_err")
     err(lambda: rm.find_matches(index, q, 0.5, hints=[len(index.samples)]), "hints")
+    err(lambda: rm.find_matches(index, q, 0.5, hints=np.zeros((q.n_queries + 1, 2), np.int64)), "hints")
+    err(lambda: rm.find_matches(index, q, 0.5, hints=np.full((q.n_queries, 2), -2)), "hints")
+    err(lambda: rm.score(index, q, slots=np.zeros((q.n_queries, 2))), "slots")
+    err(lambda: rm.score(index, q, slots=[len(index.samples)]), "slots")
     err(lambda: index.update([1], [[np.nan, 0, 0]]), "displacements", "not finite")
 
 

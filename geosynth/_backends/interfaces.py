@@ -538,9 +538,11 @@ class ReliefOps(ABC):
 
     @abstractmethod
     def relief_scores(self, index: ReliefIndexArrays, queries: ReliefQueryArrays, cand: DeviceArray, n_cand: int,
-                      n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
+                      cand_stride: int, n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
         """out (n_query * n_cand * rotations,) uint32 <- the code of query q against
-        candidate sample index.samples[cand[c]] (cand: (n_cand,) int32 sample slots) at
+        candidate sample index.samples[cand[q * cand_stride + c]] (cand: int32 sample
+        slots, (n_cand,) shared by every query with cand_stride 0, or (n_query * n_cand,)
+        one row per query with cand_stride n_cand; a slot -1 is no candidate: OVER) at
         rotation r, at (q * n_cand + c) * rotations + r: a score code, OVER or INVALID
         (geosynth.relief_match); n_samples: S, the stencil's row length."""
 

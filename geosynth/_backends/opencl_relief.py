@@ -21,12 +21,12 @@ class OpenCLReliefOps(ReliefOps):
     """Mixin: FindMatches on an OpenCL device."""
 
     def relief_scores(self, index: ReliefIndexArrays, queries: ReliefQueryArrays, cand: DeviceArray, n_cand: int,
-                      n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
+                      cand_stride: int, n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
         i32 = np.int32
         k = self._kernel("relief", "relief_scores", np.float64)
         g = n_cand * rotations
         k(self.queue, (-(-g // _LOCAL) * _LOCAL, n_query), (_LOCAL, 1), *index.buffers(), *queries.buffers(),
-          cand.data, i32(n_cand), i32(n_query), i32(rotations), i32(n_samples), out.data)
+          cand.data, i32(n_cand), i32(cand_stride), i32(n_query), i32(rotations), i32(n_samples), out.data)
 
     def relief_update(self, ids: DeviceArray, pos: DeviceArray, colour: DeviceArray, n: int, mark: int,
                       index: ReliefIndexArrays) -> None:

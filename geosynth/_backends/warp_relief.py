@@ -18,9 +18,9 @@ class WarpReliefOps(ReliefOps):
     """Mixin: FindMatches on a Warp device."""
 
     def relief_scores(self, index: ReliefIndexArrays, queries: ReliefQueryArrays, cand: DeviceArray, n_cand: int,
-                      n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
+                      cand_stride: int, n_query: int, rotations: int, n_samples: int, out: DeviceArray) -> None:
         self._launch(relief_kernels.relief_scores_kernel, (n_query, rotations, n_cand),
-                     [*index.buffers(), *queries.buffers(), cand.data, n_cand, n_query, rotations, n_samples, out.data])
+                     [*index.buffers(), *queries.buffers(), cand.data, n_cand, cand_stride, n_query, rotations, n_samples, out.data])
 
     def relief_update(self, ids: DeviceArray, pos: DeviceArray, colour: DeviceArray, n: int, mark: int,
                       index: ReliefIndexArrays) -> None:
