@@ -51,6 +51,7 @@ Choices where the paper is vague (stated here once):
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -204,23 +205,30 @@ _LOPSIDED = 0.6  # a target whose k-neighbour centroid is this far (x mean neigh
 
 
 def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
-                       limit: int | None = None) -> np.ndarray | None:
+                       limit: int | None = None, fallback_size: int | None = None) -> np.ndarray | None:
     """Hierarchical clustering (Pauly et al. 2002): clusters are split through their
     centroid across their principal axis while they hold more than ``max_size`` points
     or their surface variation exceeds ``max_variation`` (and they hold more than 2).
     Returns the index of each cluster's representative (its member nearest the
-    centroid, the lowest index on ties), sorted; None as soon as there are more than
-    ``limit`` clusters (clusters are only ever split, so the answer would have more)."""
+    centroid, the lowest index on ties), sorted.
+
+    With more than ``limit`` clusters: None, or with ``fallback_size`` the clustering by
+    size alone (split while more than ``fallback_size >= max_size`` points). Both come
+    from one pass: a cluster's split depends only on its points, and every cluster the
+    size-only clustering splits (more than fallback_size points) the first one splits
+    too, so the fallback's clusters are nodes of the first one's split tree; the pass
+    keeps a second label per point for them and, once the first clustering is over
+    the limit, goes on splitting only those. The same representatives as two runs."""
     n = len(p)
     if n == 0:
         return np.zeros(0, np.int64)
-    labels = np.zeros(n, np.int64)
+    if fallback_size is not None and fallback_size < max_size:
+        raise ValueError(f"fallback_size ({fallback_size}) must be >= max_size ({max_size}).")
+    labels = np.zeros(n, np.int64)  # the finest clusters so far (the first clustering's while it is kept)
+    fallback = np.zeros(n, np.int64) if fallback_size is not None else None  # the size-only clustering's
     frozen = np.zeros(1, bool)  # clusters whose points cannot be split (coincident along the axis)
-
-    def stats(n_clusters):
-        counts = np.bincount(labels, minlength=n_clusters).astype(np.float64)
-        mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
-        return counts, mean
+    in_fallback = np.ones(1, bool)  # clusters (of labels) that are clusters of the fallback too
+    first_kept = True  # the first clustering is within the limit so far
 
     # A cluster that is not split in a round keeps its points, so it is never split later:
     # each round looks only at the points of the clusters the previous round split (in
@@ -241,7 +249,12 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
-        split = ~frozen[ids] & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
+        open_ = ~frozen[ids]
+        split_first = open_ & ((counts > max_size) | ((var > max_variation) & (counts > 2))) if first_kept \
+            else np.zeros(m, bool)
+        split_fallback = open_ & in_fallback[ids] & (counts > fallback_size) if fallback is not None \
+            else np.zeros(m, bool)
+        split = split_first | split_fallback
         if not split.any():
             break
         positive = np.einsum("ij,ij->i", d, vecs[local, :, 2]) > 0
@@ -253,12 +266,30 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         new_id[real] = len(frozen) + np.arange(n_new)
         move = real[local] & positive
         labels[active[move]] = new_id[local[move]]
+        if fallback is not None:
+            move_fb = move & split_fallback[local]
+            fallback[active[move_fb]] = new_id[local[move_fb]]
+        # both halves of a fallback split are fallback clusters; of a split the fallback
+        # does not make, neither (the unsplit parent is)
+        in_fallback[ids[real & ~split_fallback]] = False
+        in_fallback = np.concatenate([in_fallback, split_fallback[real]])
         frozen = np.concatenate([frozen, np.zeros(n_new, bool)])
-        if limit is not None and len(frozen) > limit:
-            return None
-        active = active[real[local]]
-    n_clusters = len(frozen)
-    counts, mean = stats(n_clusters)
+        if first_kept and limit is not None and len(frozen) > limit:
+            if fallback is None:
+                return None
+            first_kept = False
+        keep = real if first_kept else real & split_fallback
+        active = active[keep[local]]
+    return _representatives(p, labels if first_kept else fallback)
+
+
+def _representatives(p: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Each cluster's member nearest its centroid (the lowest index on ties), sorted."""
+    n = len(p)
+    _, labels = np.unique(labels, return_inverse=True)
+    n_clusters = int(labels.max()) + 1
+    counts = np.bincount(labels, minlength=n_clusters).astype(np.float64)
+    mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
     dist = np.linalg.norm(p - mean[labels], axis=1)
     order = np.lexsort((np.arange(n), dist, labels))  # by cluster, then distance, then index
     first = np.ones(n, bool)
@@ -484,10 +515,8 @@ class ThinPlateSpline:
         return x + disp * self.scale, jac
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
-        from threadpoolctl import threadpool_limits
-
         # thin products: one BLAS thread is faster and thread-count independent (geometry_texture says why)
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _blas_controller().limit(limits=1, user_api="blas"):
             return self._eval(x, want_jacobian)
 
     def __call__(self, points) -> np.ndarray:
@@ -512,6 +541,17 @@ class ThinPlateSpline:
         cross[bad] = n[bad]
         length[bad] = 1.0
         return wp, cross / length[:, None]
+
+
+@functools.lru_cache(maxsize=1)
+def _blas_controller():
+    """One threadpoolctl controller for every spline evaluation: ``threadpool_limits`` scans
+    the process's loaded libraries on each call (about 2 ms, once a patch: 0.1-0.2 s of a
+    Table 1 row); a controller scans once. Made after scipy.linalg is loaded (by the first
+    spline), so that SciPy's OpenBLAS is among the libraries it limits."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
 
 
 def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -633,9 +673,8 @@ def warp_patch(
     # keep an even draw of max_pairs of them.
     size = max(int(cluster_size), int(math.ceil(len(core) / max_pairs)))
     # (the first clustering stops as soon as it passes max_pairs: the second one is used then)
-    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION, limit=max_pairs)
-    if q_local is None:
-        q_local = _adaptive_clusters(pt[core], max(size, int(math.ceil(1.5 * len(core) / max_pairs))), math.inf)
+    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION, limit=max_pairs,
+                                 fallback_size=max(size, int(math.ceil(1.5 * len(core) / max_pairs))))
     if len(q_local) > max_pairs:
         q_local = q_local[np.sort(rng.choice(len(q_local), max_pairs, replace=False))]
     q_index = core[q_local]
