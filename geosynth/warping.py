@@ -377,23 +377,30 @@ def greedy_pairing(
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
 
-    def coherence(eq_, es_, partner):
-        """g of the edges (eq_, es_) given ``partner`` (source of each q, -1 if none)."""
+    # p_q - p_r and its length for every edge's q and its neighbours r: the same in every pass
+    q_to_r = pq[eq][:, None, :] - pq[rn[eq]] if kr > 0 else np.zeros((len(eq), 0, 3))
+    q_to_r_len = np.linalg.norm(q_to_r, axis=2)
+
+    def coherence(edges, partner):
+        """g of the edges ``edges`` (indices into eq, es; None: every edge) given
+        ``partner`` (source of each q, -1 if none)."""
+        if edges is None:
+            edges = slice(None)  # views, no copies
+        eq_, es_ = eq[edges], es[edges]
         if kr == 0 or len(eq_) == 0:
             return np.zeros(len(eq_))
-        r = rn[eq_]  # (E, kr)
-        t = partner[r]
+        t = partner[rn[eq_]]  # (E, kr)
         wgt = phi[eq_] * (t >= 0)
         tot = wgt.sum(axis=1, keepdims=True)
         f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)
         a = ps[es_][:, None, :] - ps[np.maximum(t, 0)]  # p_s - p_t
-        b = pq[eq_][:, None, :] - pq[r]  # p_q - p_r
-        la, lb = np.linalg.norm(a, axis=2), np.linalg.norm(b, axis=2)
+        b, lb = q_to_r[edges], q_to_r_len[edges]  # p_q - p_r
+        la = np.linalg.norm(a, axis=2)
         cos = np.divide(np.einsum("ekj,ekj->ek", a, b), la * lb, out=np.zeros_like(la), where=(la * lb) > 0)
         return (w.w_l * (f * np.abs(la - lb)).sum(axis=1) / unit + 0.5 * w.w_d * (f * (1.0 - cos)).sum(axis=1))
 
     def pairing_cost(sel, partner):
-        g = coherence(eq[sel], es[sel], partner)
+        g = coherence(sel, partner)
         return float((c[sel] + g).sum() + miss * (n_q - len(sel)))
 
     def partner_of(sel):
@@ -405,7 +412,7 @@ def greedy_pairing(
     partner = partner_of(sel)
     costs = [pairing_cost(sel, partner)]
     for _ in range(int(iterations)):
-        total = c + coherence(eq, es, partner)
+        total = c + coherence(None, partner)
         new_sel = _greedy_match(eq, es, np.lexsort((tie, total)))
         new_partner = partner_of(new_sel)
         cost = pairing_cost(new_sel, new_partner)
@@ -476,9 +483,15 @@ class ThinPlateSpline:
 
     @staticmethod
     def _r2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        r2 = (a[:, None, 0] - b[None, :, 0]) ** 2
-        r2 += (a[:, None, 1] - b[None, :, 1]) ** 2
-        r2 += (a[:, None, 2] - b[None, :, 2]) ** 2
+        """(len(a), len(b)) squared distances, summed x, y, z in that order (in place: one
+        temporary instead of five)."""
+        r2 = np.subtract.outer(a[:, 0], b[:, 0])
+        np.square(r2, out=r2)
+        t = np.empty_like(r2)
+        for j in (1, 2):
+            np.subtract.outer(a[:, j], b[:, j], out=t)
+            np.square(t, out=t)
+            r2 += t
         return r2
 
     @staticmethod
