@@ -140,10 +140,29 @@ class WarpResult:
 
 
 
-def _kdtree(points: np.ndarray):
-    from scipy.spatial import cKDTree
+class _KDTree:
+    """k nearest neighbours by pykdtree (float64, exact), in cKDTree's form: ``query(x, k,
+    distance_upper_bound)`` -> (distances, int64 indices; index len(points) and distance inf
+    where fewer than k lie within the bound). On every built-in's warp queries it gave
+    cKDTree's indices in the same order and the same distances, in about 2/3 of the CPU
+    time (bench/RESULTS.md, M2); geometry_texture runs it with one OpenMP thread."""
 
-    return cKDTree(points)
+    def __init__(self, points: np.ndarray):
+        from geosynth.pointmodels import passive_openmp_threads
+
+        passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
+        from pykdtree.kdtree import KDTree
+
+        self.n = len(points)
+        self.tree = KDTree(np.ascontiguousarray(points, np.float64), leafsize=16)
+
+    def query(self, x: np.ndarray, k: int = 1, distance_upper_bound: float | None = None):
+        d, i = self.tree.query(np.ascontiguousarray(x, np.float64), k=int(k), distance_upper_bound=distance_upper_bound)
+        return d, i.astype(np.int64)
+
+
+def _kdtree(points: np.ndarray) -> _KDTree:
+    return _KDTree(points)
 
 
 # ------------------------------------------------------------------------ surface variation
