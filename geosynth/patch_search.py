@@ -132,26 +132,30 @@ def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     proj = q.copy()
     f0 = np.full(m, np.nan)
     active = np.arange(m)
+    pn = np.concatenate([p, nrm], axis=1)  # one gather a step for positions and normals
     for _ in range(steps):
         if active.size == 0:
             break
+        # Each active query's points within reach as one flat list (no padding to the longest:
+        # thin-sheet exemplars' flagged queries have very uneven counts); sums per query by bincount.
         lists = tree.query_ball_point(y[active], reach * (1 + 1e-9))
         counts = np.fromiter((len(v) for v in lists), np.int64, len(lists))
-        width = max(1, int(counts.max(initial=0)))
-        idx = np.zeros((len(lists), width), np.int64)
-        valid = np.arange(width)[None, :] < counts[:, None]
-        if counts.sum():
-            idx[valid] = np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)])
-        diff = p[idx] - y[active, None, :]
-        d2 = (diff * diff).sum(axis=2)
-        w = np.where(valid & (d2 < reach * reach), np.exp(-d2 / (h * h)), 0.0)
-        ws = w.sum(axis=1)
-        msum = np.einsum("mk,mkc->mc", w, nrm[idx])
+        flat = np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)]) if counts.sum() \
+            else np.zeros(0, np.int64)
+        row = np.repeat(np.arange(len(lists)), counts)
+        nb = pn[flat]
+        diff = nb[:, :3] - y[active][row]
+        d2 = np.einsum("ij,ij->i", diff, diff)
+        w = np.where(d2 < reach * reach, np.exp(-d2 / (h * h)), 0.0)
+        na = len(lists)
+        ws = np.bincount(row, w, na)
+        sums = np.stack([np.bincount(row, w * nb[:, c], na) for c in range(6)], axis=1)  # sum w p, sum w n
+        msum = sums[:, 3:]
         mlen = np.linalg.norm(msum, axis=1)
         ok = (ws > 0) & (mlen > 0)
         a_idx = active[ok]
         n = msum[ok] / mlen[ok, None]
-        a = np.einsum("mk,mkc->mc", w[ok], p[idx[ok]]) / ws[ok, None]
+        a = sums[ok, :3] / ws[ok, None]
         f = np.einsum("mc,mc->m", n, y[a_idx] - a)
         first = np.isnan(f0[a_idx])
         f0[a_idx[first]] = f[first]
