@@ -181,26 +181,30 @@ class MLSSurface:
         self.pn = np.concatenate([self.p, self.n], axis=1)
 
     def neighbours(self, x: np.ndarray):
-        """``(nb, valid)``: (m, k, 6) positions and normals of each query's k nearest
-        points and (m, k) whether each lies within reach."""
+        """``(nb, valid, sq)``: (m, k, 6) positions and normals of each query's k nearest
+        points, (m, k) whether each lies within reach and (m, k) each one's squared norm
+        |p|^2 (reused by every evaluation with these neighbours). Any rows of the three
+        (:func:`_rows`) are the neighbours of those queries."""
         m = len(x)
         _, idx = self.tree.query(np.ascontiguousarray(x, np.float64), k=self.k, distance_upper_bound=self.reach)
         idx = idx.reshape(m, self.k).astype(np.int64)
         valid = idx < len(self.p)
-        return self.pn[np.where(valid, idx, 0)], valid
+        nb = self.pn[np.where(valid, idx, 0)]
+        pos = nb[:, :, :3]
+        return nb, valid, np.einsum("mkj,mkj->mk", pos, pos)
 
     def evaluate(self, x: np.ndarray, gathered=None):
         """``(f, n, support)`` at (m, 3) points: the implicit function (m,), the MLS
         normal (m, 3) (zero without support) and whether any point lies within reach.
 
-        ``gathered``: ``(nb, valid)`` from :meth:`neighbours` at nearby points, to use
-        instead of each query's own nearest points."""
+        ``gathered``: :meth:`neighbours` at nearby points, to use instead of each query's
+        own nearest points."""
         m = len(x)
         if self.tree is None or m == 0:
             return np.zeros(m), np.zeros((m, 3)), np.zeros(m, bool)
-        nb, valid = self.neighbours(x) if gathered is None else gathered
+        nb, valid, sq = self.neighbours(x) if gathered is None else gathered
         pos = nb[:, :, :3]
-        d2 = np.einsum("mkj,mkj->mk", pos, pos) - 2.0 * np.einsum("mkj,mj->mk", pos, x) + np.einsum("mj,mj->m", x, x)[:, None]
+        d2 = sq - 2.0 * np.einsum("mkj,mj->mk", pos, x) + np.einsum("mj,mj->m", x, x)[:, None]
         w = np.exp(d2 * (-1.0 / (self.h * self.h)))
         w[~valid | (d2 > self.reach * self.reach)] = 0.0
         wsum = w.sum(axis=1)
@@ -229,14 +233,14 @@ class MLSSurface:
             if todo.size == 0:
                 break
             start = y[todo].copy()
-            nb, valid = gathered if (_round == 0 and gathered is not None) else self.neighbours(start)
+            near = gathered if (_round == 0 and gathered is not None) else self.neighbours(start)
             active = np.arange(todo.size)
             conv_here = np.zeros(todo.size, bool)
             for it in range(max_iter):
                 if active.size == 0:
                     break
                 q = todo[active]
-                g = (nb, valid) if it == 0 else (nb[active], valid[active])
+                g = near if it == 0 else _rows(near, active)
                 f, nn, sup = self.evaluate(y[q], g)
                 normal[q] = nn
                 conv = sup & (np.abs(f) <= _TOL * self.h)
@@ -285,6 +289,11 @@ class MLSSurface:
         return t, normal, ok
 
 
+def _rows(gathered, rows):
+    """The :meth:`MLSSurface.neighbours` of the queries ``rows`` out of those of all."""
+    return tuple(a[rows] for a in gathered)
+
+
 # ------------------------------------------------------------------------ counterparts and blending
 
 
@@ -330,7 +339,7 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
     how[ok] = RAY
     rest = np.flatnonzero(~ok)
     if rest.size:
-        y, ny, good = surface.project(p[rest], max_move=max_ray * spacing, gathered=(near[0][rest], near[1][rest]))
+        y, ny, good = surface.project(p[rest], max_move=max_ray * spacing, gathered=_rows(near, rest))
         good &= np.einsum("mj,mj->m", ny, n[rest]) >= _MIN_FACING
         good &= np.linalg.norm(y - p[rest], axis=1) <= max_ray * spacing
         keep = rest[good]

@@ -14,7 +14,9 @@ within_tolerance`) and one is drawn with the seeded generator (step 2 and 3 of S
 Identical on every device: the fields are quantized to uint8 (the distance over the band
 [-band, band] and each gradient component over [-1, 1] to the codes 0..254, zero at 127)
 and scored in exact integer arithmetic. The kernel projects with a fixed FIXED_STEPS steps
-(no early stop, which would let two devices stop one step apart); a value it gives within
+(no early stop at a tolerance, which would let two devices stop one step apart; only at an
+exact fixed point, where every later step would repeat the last one bit for bit), and
+gives each projection's residual in the same launch; a value it gives within
 ARBITER_TOL of a rounding boundary (where two devices' float32 results, a few ulps apart,
 could round apart), a projection that has not converged (thin sheets closer than the MLS
 width make it oscillate: devices then disagree by more than rounding), and the few
@@ -83,17 +85,32 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     x = np.asarray(queries, np.float64).reshape(-1, 3)
     tree = cKDTree(p) if tree is None else tree
     reach = MLS_REACH * h
-    f0, grad, proj = _iterate(p, nrm, tree, x, h, fixed)
+    m = len(x)
+    # The nearest points of the queries that are probably far are projected in the same loop
+    # as the queries (which are far is known only after it): one loop instead of two. A far
+    # query left out (no weight although its nearest point is within reach: rounding at the
+    # reach, or normals that cancel) gets its nearest point projected in a second loop.
+    nearest_d, nearest = tree.query(x, k=1)
+    likely_far = np.flatnonzero(nearest_d >= reach * (1 - 1e-6))
+    used, inverse = np.unique(nearest[likely_far], return_inverse=True)
+    f0, grad, proj = _iterate(p, nrm, tree, np.concatenate([x, p[used]]), h, fixed)
+    gn, yp = grad[m:], proj[m:]
+    f0, grad, proj = f0[:m], grad[:m], proj[:m]
     near = ~np.isnan(f0)
-    dist = np.full(len(x), reach)
+    dist = np.full(m, reach)
     length = np.minimum(np.linalg.norm(x - proj, axis=1), reach)
     dist[near] = np.where(f0[near] < 0, -length[near], length[near])
     far = np.flatnonzero(~near)
     if far.size:
-        _, nearest = tree.query(x[far], k=1)
-        used, inverse = np.unique(nearest, return_inverse=True)
-        _, gn, yp = _iterate(p, nrm, tree, p[used], h, fixed)
-        yv, nv = yp[inverse], gn[inverse]
+        slot = np.full(m, -1, np.int64)  # each far query's row in (gn, yp)
+        slot[likely_far] = inverse
+        missing = far[slot[far] < 0]
+        if missing.size:
+            more, more_inverse = np.unique(nearest[missing], return_inverse=True)
+            _, g_more, y_more = _iterate(p, nrm, tree, p[more], h, fixed)
+            slot[missing] = len(used) + more_inverse
+            gn, yp = np.concatenate([gn, g_more]), np.concatenate([yp, y_more])
+        yv, nv = yp[slot[far]], gn[slot[far]]
         v = x[far] - yv
         side = np.where(np.einsum("ij,ij->i", v, nv) < 0, -1.0, 1.0)
         dist[far] = side * np.linalg.norm(v, axis=1)
@@ -115,26 +132,30 @@ def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     proj = q.copy()
     f0 = np.full(m, np.nan)
     active = np.arange(m)
+    pn = np.concatenate([p, nrm], axis=1)  # one gather a step for positions and normals
     for _ in range(steps):
         if active.size == 0:
             break
+        # Each active query's points within reach as one flat list (no padding to the longest:
+        # thin-sheet exemplars' flagged queries have very uneven counts); sums per query by bincount.
         lists = tree.query_ball_point(y[active], reach * (1 + 1e-9))
         counts = np.fromiter((len(v) for v in lists), np.int64, len(lists))
-        width = max(1, int(counts.max(initial=0)))
-        idx = np.zeros((len(lists), width), np.int64)
-        valid = np.arange(width)[None, :] < counts[:, None]
-        if counts.sum():
-            idx[valid] = np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)])
-        diff = p[idx] - y[active, None, :]
-        d2 = (diff * diff).sum(axis=2)
-        w = np.where(valid & (d2 < reach * reach), np.exp(-d2 / (h * h)), 0.0)
-        ws = w.sum(axis=1)
-        msum = np.einsum("mk,mkc->mc", w, nrm[idx])
+        flat = np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)]) if counts.sum() \
+            else np.zeros(0, np.int64)
+        row = np.repeat(np.arange(len(lists)), counts)
+        nb = pn[flat]
+        diff = nb[:, :3] - y[active][row]
+        d2 = np.einsum("ij,ij->i", diff, diff)
+        w = np.where(d2 < reach * reach, np.exp(-d2 / (h * h)), 0.0)
+        na = len(lists)
+        ws = np.bincount(row, w, na)
+        sums = np.stack([np.bincount(row, w * nb[:, c], na) for c in range(6)], axis=1)  # sum w p, sum w n
+        msum = sums[:, 3:]
         mlen = np.linalg.norm(msum, axis=1)
         ok = (ws > 0) & (mlen > 0)
         a_idx = active[ok]
         n = msum[ok] / mlen[ok, None]
-        a = np.einsum("mk,mkc->mc", w[ok], p[idx[ok]]) / ws[ok, None]
+        a = sums[ok, :3] / ws[ok, None]
         f = np.einsum("mc,mc->m", n, y[a_idx] - a)
         first = np.isnan(f0[a_idx])
         f0[a_idx[first]] = f[first]
@@ -160,7 +181,8 @@ def _round_codes(v: np.ndarray) -> np.ndarray:
 def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, device, steps: int,
                cells=None):
     """The MLS projection by the ``PointsOps.mls_project`` kernel with exactly ``steps``
-    steps (tolerance 0: no early stop, so that every device stops at the same step).
+    steps (tolerance 0: no early stop, so that every device stops at the same step; a
+    projection at a fixed point stops there, which changes nothing), in one launch.
 
     Args:
         points, normals: (N, 3) the point set; queries: (M, 3) float positions.
@@ -170,7 +192,9 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
 
     Returns:
         ((M,) float32 signed distance (reach where no point is within reach), (M, 3)
-        float32 last MLS normal (0 there), (M, 3) float64 projection, cells).
+        float32 last MLS normal (0 there), (M, 3) float64 projection, (M,) float32
+        residual f at the projection (how far one more step would move it; reach where
+        no point is within reach of the projection), cells).
     """
     from geosynth import _checks
     from geosynth.pointsets import MLS_REACH, CellGrid
@@ -186,10 +210,12 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
     dist = backend.empty((m,), np.float32)
     grad = backend.empty((m * 3,), np.float32)
     proj = backend.empty((m * 3,), np.float32)
+    resid = backend.empty((m,), np.float32)
     backend.mls_project(pn, start, tuple(grid.origin), 1.0 / grid.cell, tuple(int(d) for d in grid.dims),
-                        1.0 / (h * h), reach, 0.0, int(steps), backend.to_device(rel), None, m, dist, grad, proj)
+                        1.0 / (h * h), reach, 0.0, int(steps), backend.to_device(rel), None, m, dist, grad, proj,
+                        resid)
     return (dist.numpy(), grad.numpy().reshape(m, 3), proj.numpy().reshape(m, 3).astype(np.float64) + grid.shift,
-            cells)
+            resid.numpy(), cells)
 
 
 def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, band: float,
@@ -233,12 +259,10 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     # the far queries' nearest points are projected in the same launch as the queries
     far = np.flatnonzero(nearest_d >= reach)
     used, inverse = np.unique(nearest[far], return_inverse=True)
-    d, g, proj, cells = kernel_mls(p, nrm, np.concatenate([q, p[used]]), h, device, FIXED_STEPS)
+    d, g, proj, res, _ = kernel_mls(p, nrm, np.concatenate([q, p[used]]), h, device, FIXED_STEPS)
     m = len(q)
-    gn, yp = g[m:], proj[m:]
-    d, g, proj = d[:m].astype(np.float64), g[:m].astype(np.float64), proj[:m]
-    res, _, _, _ = kernel_mls(p, nrm, np.concatenate([proj, yp]), h, device, 1, cells)
-    rp = res[m:]
+    gn, yp, rp = g[m:], proj[m:], res[m:]
+    d, g = d[:m].astype(np.float64), g[:m].astype(np.float64)
     # near or far is decided by the tree (float64, the same on every device); the kernel agrees
     # but where the nearest point lies at the reach, to rounding: those go to the host
     flag = np.abs(nearest_d - reach) <= 1e-5 * reach

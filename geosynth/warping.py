@@ -51,6 +51,7 @@ Choices where the paper is vague (stated here once):
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -139,10 +140,29 @@ class WarpResult:
 
 
 
-def _kdtree(points: np.ndarray):
-    from scipy.spatial import cKDTree
+class _KDTree:
+    """k nearest neighbours by pykdtree (float64, exact), in cKDTree's form: ``query(x, k,
+    distance_upper_bound)`` -> (distances, int64 indices; index len(points) and distance inf
+    where fewer than k lie within the bound). On every built-in's warp queries it gave
+    cKDTree's indices in the same order and the same distances, in about 2/3 of the CPU
+    time (bench/RESULTS.md, M2); geometry_texture runs it with one OpenMP thread."""
 
-    return cKDTree(points)
+    def __init__(self, points: np.ndarray):
+        from geosynth.pointmodels import passive_openmp_threads
+
+        passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
+        from pykdtree.kdtree import KDTree
+
+        self.n = len(points)
+        self.tree = KDTree(np.ascontiguousarray(points, np.float64), leafsize=16)
+
+    def query(self, x: np.ndarray, k: int = 1, distance_upper_bound: float | None = None):
+        d, i = self.tree.query(np.ascontiguousarray(x, np.float64), k=int(k), distance_upper_bound=distance_upper_bound)
+        return d, i.astype(np.int64)
+
+
+def _kdtree(points: np.ndarray) -> _KDTree:
+    return _KDTree(points)
 
 
 # ------------------------------------------------------------------------ surface variation
@@ -204,23 +224,30 @@ _LOPSIDED = 0.6  # a target whose k-neighbour centroid is this far (x mean neigh
 
 
 def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
-                       limit: int | None = None) -> np.ndarray | None:
+                       limit: int | None = None, fallback_size: int | None = None) -> np.ndarray | None:
     """Hierarchical clustering (Pauly et al. 2002): clusters are split through their
     centroid across their principal axis while they hold more than ``max_size`` points
     or their surface variation exceeds ``max_variation`` (and they hold more than 2).
     Returns the index of each cluster's representative (its member nearest the
-    centroid, the lowest index on ties), sorted; None as soon as there are more than
-    ``limit`` clusters (clusters are only ever split, so the answer would have more)."""
+    centroid, the lowest index on ties), sorted.
+
+    With more than ``limit`` clusters: None, or with ``fallback_size`` the clustering by
+    size alone (split while more than ``fallback_size >= max_size`` points). Both come
+    from one pass: a cluster's split depends only on its points, and every cluster the
+    size-only clustering splits (more than fallback_size points) the first one splits
+    too, so the fallback's clusters are nodes of the first one's split tree; the pass
+    keeps a second label per point for them and, once the first clustering is over
+    the limit, goes on splitting only those. The same representatives as two runs."""
     n = len(p)
     if n == 0:
         return np.zeros(0, np.int64)
-    labels = np.zeros(n, np.int64)
+    if fallback_size is not None and fallback_size < max_size:
+        raise ValueError(f"fallback_size ({fallback_size}) must be >= max_size ({max_size}).")
+    labels = np.zeros(n, np.int64)  # the finest clusters so far (the first clustering's while it is kept)
+    fallback = np.zeros(n, np.int64) if fallback_size is not None else None  # the size-only clustering's
     frozen = np.zeros(1, bool)  # clusters whose points cannot be split (coincident along the axis)
-
-    def stats(n_clusters):
-        counts = np.bincount(labels, minlength=n_clusters).astype(np.float64)
-        mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
-        return counts, mean
+    in_fallback = np.ones(1, bool)  # clusters (of labels) that are clusters of the fallback too
+    first_kept = True  # the first clustering is within the limit so far
 
     # A cluster that is not split in a round keeps its points, so it is never split later:
     # each round looks only at the points of the clusters the previous round split (in
@@ -241,7 +268,12 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
-        split = ~frozen[ids] & ((counts > max_size) | ((var > max_variation) & (counts > 2)))
+        open_ = ~frozen[ids]
+        split_first = open_ & ((counts > max_size) | ((var > max_variation) & (counts > 2))) if first_kept \
+            else np.zeros(m, bool)
+        split_fallback = open_ & in_fallback[ids] & (counts > fallback_size) if fallback is not None \
+            else np.zeros(m, bool)
+        split = split_first | split_fallback
         if not split.any():
             break
         positive = np.einsum("ij,ij->i", d, vecs[local, :, 2]) > 0
@@ -253,12 +285,30 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         new_id[real] = len(frozen) + np.arange(n_new)
         move = real[local] & positive
         labels[active[move]] = new_id[local[move]]
+        if fallback is not None:
+            move_fb = move & split_fallback[local]
+            fallback[active[move_fb]] = new_id[local[move_fb]]
+        # both halves of a fallback split are fallback clusters; of a split the fallback
+        # does not make, neither (the unsplit parent is)
+        in_fallback[ids[real & ~split_fallback]] = False
+        in_fallback = np.concatenate([in_fallback, split_fallback[real]])
         frozen = np.concatenate([frozen, np.zeros(n_new, bool)])
-        if limit is not None and len(frozen) > limit:
-            return None
-        active = active[real[local]]
-    n_clusters = len(frozen)
-    counts, mean = stats(n_clusters)
+        if first_kept and limit is not None and len(frozen) > limit:
+            if fallback is None:
+                return None
+            first_kept = False
+        keep = real if first_kept else real & split_fallback
+        active = active[keep[local]]
+    return _representatives(p, labels if first_kept else fallback)
+
+
+def _representatives(p: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Each cluster's member nearest its centroid (the lowest index on ties), sorted."""
+    n = len(p)
+    _, labels = np.unique(labels, return_inverse=True)
+    n_clusters = int(labels.max()) + 1
+    counts = np.bincount(labels, minlength=n_clusters).astype(np.float64)
+    mean = np.stack([np.bincount(labels, p[:, j], n_clusters) for j in range(3)], 1) / counts[:, None]
     dist = np.linalg.norm(p - mean[labels], axis=1)
     order = np.lexsort((np.arange(n), dist, labels))  # by cluster, then distance, then index
     first = np.ones(n, bool)
@@ -346,23 +396,30 @@ def greedy_pairing(
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
 
-    def coherence(eq_, es_, partner):
-        """g of the edges (eq_, es_) given ``partner`` (source of each q, -1 if none)."""
+    # p_q - p_r and its length for every edge's q and its neighbours r: the same in every pass
+    q_to_r = pq[eq][:, None, :] - pq[rn[eq]] if kr > 0 else np.zeros((len(eq), 0, 3))
+    q_to_r_len = np.linalg.norm(q_to_r, axis=2)
+
+    def coherence(edges, partner):
+        """g of the edges ``edges`` (indices into eq, es; None: every edge) given
+        ``partner`` (source of each q, -1 if none)."""
+        if edges is None:
+            edges = slice(None)  # views, no copies
+        eq_, es_ = eq[edges], es[edges]
         if kr == 0 or len(eq_) == 0:
             return np.zeros(len(eq_))
-        r = rn[eq_]  # (E, kr)
-        t = partner[r]
+        t = partner[rn[eq_]]  # (E, kr)
         wgt = phi[eq_] * (t >= 0)
         tot = wgt.sum(axis=1, keepdims=True)
         f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)
         a = ps[es_][:, None, :] - ps[np.maximum(t, 0)]  # p_s - p_t
-        b = pq[eq_][:, None, :] - pq[r]  # p_q - p_r
-        la, lb = np.linalg.norm(a, axis=2), np.linalg.norm(b, axis=2)
+        b, lb = q_to_r[edges], q_to_r_len[edges]  # p_q - p_r
+        la = np.linalg.norm(a, axis=2)
         cos = np.divide(np.einsum("ekj,ekj->ek", a, b), la * lb, out=np.zeros_like(la), where=(la * lb) > 0)
         return (w.w_l * (f * np.abs(la - lb)).sum(axis=1) / unit + 0.5 * w.w_d * (f * (1.0 - cos)).sum(axis=1))
 
     def pairing_cost(sel, partner):
-        g = coherence(eq[sel], es[sel], partner)
+        g = coherence(sel, partner)
         return float((c[sel] + g).sum() + miss * (n_q - len(sel)))
 
     def partner_of(sel):
@@ -374,7 +431,7 @@ def greedy_pairing(
     partner = partner_of(sel)
     costs = [pairing_cost(sel, partner)]
     for _ in range(int(iterations)):
-        total = c + coherence(eq, es, partner)
+        total = c + coherence(None, partner)
         new_sel = _greedy_match(eq, es, np.lexsort((tie, total)))
         new_partner = partner_of(new_sel)
         cost = pairing_cost(new_sel, new_partner)
@@ -445,9 +502,15 @@ class ThinPlateSpline:
 
     @staticmethod
     def _r2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        r2 = (a[:, None, 0] - b[None, :, 0]) ** 2
-        r2 += (a[:, None, 1] - b[None, :, 1]) ** 2
-        r2 += (a[:, None, 2] - b[None, :, 2]) ** 2
+        """(len(a), len(b)) squared distances, summed x, y, z in that order (in place: one
+        temporary instead of five)."""
+        r2 = np.subtract.outer(a[:, 0], b[:, 0])
+        np.square(r2, out=r2)
+        t = np.empty_like(r2)
+        for j in (1, 2):
+            np.subtract.outer(a[:, j], b[:, j], out=t)
+            np.square(t, out=t)
+            r2 += t
         return r2
 
     @staticmethod
@@ -484,10 +547,8 @@ class ThinPlateSpline:
         return x + disp * self.scale, jac
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
-        from threadpoolctl import threadpool_limits
-
         # thin products: one BLAS thread is faster and thread-count independent (geometry_texture says why)
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _blas_controller().limit(limits=1, user_api="blas"):
             return self._eval(x, want_jacobian)
 
     def __call__(self, points) -> np.ndarray:
@@ -512,6 +573,17 @@ class ThinPlateSpline:
         cross[bad] = n[bad]
         length[bad] = 1.0
         return wp, cross / length[:, None]
+
+
+@functools.lru_cache(maxsize=1)
+def _blas_controller():
+    """One threadpoolctl controller for every spline evaluation: ``threadpool_limits`` scans
+    the process's loaded libraries on each call (about 2 ms, once a patch: 0.1-0.2 s of a
+    Table 1 row); a controller scans once. Made after scipy.linalg is loaded (by the first
+    spline), so that SciPy's OpenBLAS is among the libraries it limits."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
 
 
 def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -633,9 +705,8 @@ def warp_patch(
     # keep an even draw of max_pairs of them.
     size = max(int(cluster_size), int(math.ceil(len(core) / max_pairs)))
     # (the first clustering stops as soon as it passes max_pairs: the second one is used then)
-    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION, limit=max_pairs)
-    if q_local is None:
-        q_local = _adaptive_clusters(pt[core], max(size, int(math.ceil(1.5 * len(core) / max_pairs))), math.inf)
+    q_local = _adaptive_clusters(pt[core], size, _CLUSTER_VARIATION, limit=max_pairs,
+                                 fallback_size=max(size, int(math.ceil(1.5 * len(core) / max_pairs))))
     if len(q_local) > max_pairs:
         q_local = q_local[np.sort(rng.choice(len(q_local), max_pairs, replace=False))]
     q_index = core[q_local]

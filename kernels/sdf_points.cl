@@ -5,8 +5,12 @@
 //   a(y) = sum w_i p_i / sum w_i,   n(y) = normalize(sum w_i n_i),   f(y) = n(y) . (y - a(y)).
 // mls_project iterates the quasi-orthogonal projection y <- y - f(y) n(y) from each query
 // point x and writes the signed distance sign(f(x)) |x - proj(x)| (clamped to +-reach),
-// the MLS normal at the projection (the gradient) and, when asked, the projection.
-// A query with no point within reach gets distance +reach, gradient 0, proj = x.
+// the MLS normal at the projection (the gradient) and, when asked, the projection and the
+// residual f(proj) (how far one more step would move it; +reach where no point is within
+// reach of proj). A query with no point within reach gets distance +reach, gradient 0,
+// proj = x. A projection that reaches a fixed point (a step that leaves y's bits unchanged)
+// stops there: the later steps would repeat it exactly, so the result is the same as with
+// all max_iter steps, sooner.
 //
 // Neighbours come from a cell-sorted grid built on the host (geosynth.pointsets): the
 // points sorted by linear cell index (cz * ny + cy) * nx + cx, cell_start[c] the first
@@ -97,7 +101,8 @@ inline float mls_sums(__global const float8* pn, __global const int* cell_start,
 // One work-item per query. Queries are read from `queries` (m x 3) when use_queries != 0,
 // else generated on a lattice: query i = (ix, iy, iz) in raster order (x fastest) sits at
 // (qox + ix qsx, qoy + iy qsy, qoz + iz qsz). Outputs: dist (m), grad (m x 3), and
-// proj (m x 3) when write_proj != 0. Range: round_up(m, 64), local 64.
+// proj (m x 3) when write_proj != 0, resid (m) when write_resid != 0. Range: round_up(m, 64),
+// local 64.
 __kernel void mls_project(__global const float8* pn, __global const int* cell_start,
                           const float gx, const float gy, const float gz, const float inv_cell,
                           const int nx, const int ny, const int nz,
@@ -107,7 +112,8 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
                           const float qsx, const float qsy, const float qsz,
                           const int qnx, const int qny,
                           const int m, __global float* dist, __global float* grad,
-                          __global float* proj, const int write_proj)
+                          __global float* proj, const int write_proj,
+                          __global float* resid, const int write_resid)
 {
     const int i = get_global_id(0);
     if (i >= m)
@@ -128,8 +134,8 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
     float yx = xx, yy = xy, yz = xz;           // the current iterate
     float px = xx, py = xy, pz = xz;           // the projection so far
     float nx_ = 0.0f, ny_ = 0.0f, nz_ = 0.0f;  // the MLS normal at the last iterate
-    float f0 = 0.0f;
-    int found = 0;
+    float f0 = 0.0f, f_last = 0.0f;
+    int found = 0, settled = 0;
     for (int it = 0; it < max_iter; ++it) {
         float sx, sy, sz, mx, my, mz;
         const float ws = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach,
@@ -145,9 +151,14 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
             found = 1;
         }
         nx_ = ux; ny_ = uy; nz_ = uz;
+        f_last = f;
         px = yx - f * ux; py = yy - f * uy; pz = yz - f * uz;
         if ((f < 0.0f ? -f : f) <= tol)
             break;
+        if (px == yx && py == yy && pz == yz) {
+            settled = 1;  // a fixed point: every later step would repeat this one bit for bit
+            break;
+        }
         yx = px; yy = py; yz = pz;
     }
     float d = reach;
@@ -165,5 +176,23 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
         proj[3 * i] = px;
         proj[3 * i + 1] = py;
         proj[3 * i + 2] = pz;
+    }
+    if (write_resid != 0) {
+        // f at the projection (reach where no point is within reach of it): one more step's
+        // size; at a fixed point the last step's f, which is f there
+        float r = reach;
+        if (settled) {
+            r = f_last;
+        } else {
+            float sx, sy, sz, mx, my, mz;
+            const float ws = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach,
+                                      px, py, pz, &sx, &sy, &sz, &mx, &my, &mz);
+            const float mm = mx * mx + my * my + mz * mz;
+            if (ws > 0.0f && mm > 0.0f) {
+                const float inv = 1.0f / sqrt(mm);
+                r = -(mx * inv * sx + my * inv * sy + mz * inv * sz) / ws;
+            }
+        }
+        resid[i] = r;
     }
 }

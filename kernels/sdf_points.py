@@ -9,8 +9,10 @@ The MLS surface of an oriented point set (Adamson and Alexa): with Gaussian weig
 ``f(y) = n(y) . (y - a(y))``. ``mls_project_kernel`` (<-> ``mls_project``) iterates the
 quasi-orthogonal projection ``y <- y - f(y) n(y)`` from each query point x and writes
 the signed distance ``sign(f(x)) |x - proj(x)|`` (clamped to +-reach), the MLS normal at
-the projection (the gradient) and, when asked, the projection. A query with no point
-within reach gets distance +reach, gradient 0, proj = x.
+the projection (the gradient) and, when asked, the projection and the residual f(proj)
+(+reach where no point is within reach of proj). A query with no point within reach gets
+distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step
+that leaves y's bits unchanged) stops there: the later steps would repeat it exactly.
 
 Neighbours come from the same host-built cell-sorted grid as in sdf_points.cl: points
 sorted by linear cell index ``(cz * ny + cy) * nx + cx``, ``cell_start[c]`` the first
@@ -130,6 +132,8 @@ def mls_project_kernel(
     grad: wp.array(dtype=wp.float32),  # (m * 3,)
     proj: wp.array(dtype=wp.float32),  # (m * 3,) or a dummy when write_proj == 0
     write_proj: int,
+    resid: wp.array(dtype=wp.float32),  # (m,) f at the projection, or a dummy when write_resid == 0
+    write_resid: int,
 ):
     i = wp.tid()
     if i >= m:
@@ -146,7 +150,9 @@ def mls_project_kernel(
     p = x
     n = wp.vec3(0.0, 0.0, 0.0)
     f0 = float(0.0)
+    f_last = float(0.0)
     found = int(0)
+    settled = int(0)
     for it in range(max_iter):
         ws, s, msum = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach, y)
         mm = wp.dot(msum, msum)
@@ -158,8 +164,12 @@ def mls_project_kernel(
             f0 = f
             found = 1
         n = u
+        f_last = f
         p = y - f * u
         if wp.abs(f) <= tol:
+            break
+        if p[0] == y[0] and p[1] == y[1] and p[2] == y[2]:
+            settled = 1  # a fixed point: every later step would repeat this one bit for bit
             break
         y = p
     d = reach
@@ -175,3 +185,15 @@ def mls_project_kernel(
         proj[3 * i] = p[0]
         proj[3 * i + 1] = p[1]
         proj[3 * i + 2] = p[2]
+    if write_resid != 0:
+        # f at the projection (reach where no point is within reach of it): one more step's
+        # size; at a fixed point the last step's f, which is f there
+        r = reach
+        if settled != 0:
+            r = f_last
+        else:
+            ws2, s2, m2 = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach, p)
+            mm2 = wp.dot(m2, m2)
+            if ws2 > 0.0 and mm2 > 0.0:
+                r = -wp.dot(m2 * (1.0 / wp.sqrt(mm2)), s2) / ws2
+        resid[i] = r

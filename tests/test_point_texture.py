@@ -61,6 +61,53 @@ def test_host_mls_matches_the_kernel(wavy, one_device, rng):
     np.testing.assert_allclose(g, gk, atol=2e-5)
 
 
+def _mls_f(points, normals, y, h):
+    """f(y) = n(y) . (y - a(y)) of the MLS surface in plain NumPy, float64 ((m,) NaN where
+    no point lies within reach)."""
+    p, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    d2 = ((y[:, None, :] - p[None]) ** 2).sum(axis=2)
+    w = np.where(d2 < (MLS_REACH * h) ** 2, np.exp(-d2 / h ** 2), 0.0)
+    ws = w.sum(axis=1)
+    m = w @ n
+    ml = np.linalg.norm(m, axis=1)
+    ok = (ws > 0) & (ml > 0)
+    a = (w @ p) / np.where(ok, ws, 1.0)[:, None]
+    f = np.einsum("ij,ij->i", m / np.where(ok, ml, 1.0)[:, None], y - a)
+    return np.where(ok, f, np.nan)
+
+
+def test_fixed_step_kernel_residual_and_projection(wavy, device, rng):
+    """kernel_mls on every device: FIXED_STEPS steps (stopping early only at an exact fixed
+    point) give the float64 host projection's distance and normal to float32 accuracy where
+    they converge, and the residual, computed in the same launch, is f at the returned
+    projection (NumPy reference; what a fresh one-step launch from there gives), reach
+    where no point is within reach."""
+    from geosynth.patch_search import FIXED_STEPS, RESIDUAL_TOL, kernel_mls
+
+    h = 2 * wavy.spacing
+    reach = MLS_REACH * h
+    near = rng.uniform([0.1, 0.1, -0.08], [0.9, 0.9, 0.08], (300, 3))
+    far = np.array([[0.5, 0.5, 1.0], [0.2, 0.7, -0.9]])  # nothing within reach
+    q = np.concatenate([near, far])
+    d, g, proj, res, cells = kernel_mls(wavy.points, wavy.normals, q, h, device, FIXED_STEPS)
+    want = _mls_f(wavy.points, wavy.normals, proj[:300], h)
+    support = np.isfinite(want)  # a projection can wander out of every point's reach
+    assert support.sum() > 280
+    np.testing.assert_allclose(res[:300][support], want[support], atol=1e-5 * h)
+    np.testing.assert_array_equal(res[:300][~support], np.float32(reach))
+    conv = np.flatnonzero(np.abs(res[:300]) <= RESIDUAL_TOL * h)  # the pipeline's converged test
+    assert 250 < conv.size < 300  # most converge in FIXED_STEPS steps, the farthest do not
+    dh, gh = host_mls(wavy.points, wavy.normals, near[conv], h, fixed=True)
+    np.testing.assert_allclose(d[conv], dh, atol=2e-5 * h)
+    np.testing.assert_allclose(g[conv], gh, atol=2e-5)
+    np.testing.assert_array_equal(res[300:], np.float32(reach))
+    np.testing.assert_array_equal(d[300:], np.float32(reach))
+    # one step from the projection: a residual of f there (the same definition, a fresh launch)
+    d1, _, _, _, _ = kernel_mls(wavy.points, wavy.normals, proj[:300], h, device, 1, cells)
+    np.testing.assert_allclose(np.abs(res[:300]), np.abs(d1), atol=1e-6 * h)
+
+
 def test_patch_field_cut_from_d_tin_equals_the_direct_field(wavy, device):
     s = _search(wavy, device)
     o = s.origins[len(s.origins) // 2 + 3]

@@ -282,3 +282,40 @@ def test_synthesis_and_spline_hold_one_blas_thread_and_restore(monkeypatch):
         spline(c)
         assert seen and all(n == 1 for n in seen[-1])
         assert blas_threads() == before
+
+
+def test_one_pass_clustering_with_fallback_equals_two_runs():
+    """_adaptive_clusters with ``fallback_size`` gives, in one pass, what two runs gave: the
+    variation clustering when it stays within the limit, else the size-only clustering
+    from scratch. Point sets where the first run passes the limit and where it does not,
+    with coincident points (clusters that cannot be split)."""
+    import math
+
+    from geosynth.warping import _adaptive_clusters
+
+    rng = np.random.default_rng(5)
+    fallbacks = firsts = 0
+    for trial in range(60):
+        n = int(rng.integers(20, 3000))
+        if trial % 3 == 0:
+            p = rng.random((n, 3)) * [10, 10, 1]
+        elif trial % 3 == 1:
+            t = rng.random(n) * 20
+            p = np.c_[3 * np.cos(t) + rng.random(n), 3 * np.sin(t), rng.normal(0, 0.3, n)]
+        else:
+            p = np.round(rng.random((n, 3)) * [20, 20, 2]) / 2  # many coincident points
+        limit = int(rng.integers(5, 300))
+        size = max(12, math.ceil(n / limit))
+        fallback = max(size, math.ceil(1.5 * n / limit))
+        first = _adaptive_clusters(p, size, 0.05, limit=limit)
+        want = first if first is not None else _adaptive_clusters(p, fallback, math.inf)
+        if first is None:
+            fallbacks += 1
+            assert len(want) <= len(_adaptive_clusters(p, size, 0.05))  # the fallback is coarser
+        else:
+            firsts += 1
+            assert len(first) <= limit
+        np.testing.assert_array_equal(_adaptive_clusters(p, size, 0.05, limit=limit, fallback_size=fallback), want)
+    assert fallbacks > 5 and firsts > 5
+    with pytest.raises(ValueError, match="fallback_size"):
+        _adaptive_clusters(p, 20, 0.05, limit=10, fallback_size=10)

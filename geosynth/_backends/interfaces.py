@@ -105,7 +105,7 @@ class PointsOps(ABC):
         self, pn: DeviceArray, cell_start: DeviceArray, grid_origin: tuple[float, float, float], inv_cell: float,
         grid_dims: tuple[int, int, int], inv_h2: float, reach: float, tol: float, max_iter: int,
         queries: DeviceArray | None, lattice: tuple | None, m: int, dist: DeviceArray, grad: DeviceArray,
-        proj: DeviceArray | None,
+        proj: DeviceArray | None, residual: DeviceArray | None = None,
     ) -> None:
         """MLS signed distance, gradient and (optionally) projection of m query points.
 
@@ -122,6 +122,11 @@ class PointsOps(ABC):
             m: query count.
             dist: (m,) float32 out; grad: (m * 3,) float32 out; proj: (m * 3,) float32
                 out, or None for no projection.
+            residual: (m,) float32 out, f at the projection (the size of one more step;
+                +reach where no point is within reach of it), or None.
+
+        A projection stops early at a fixed point (a step that leaves its bits unchanged):
+        the result is that of every max_iter step, bit for bit.
         """
 
 

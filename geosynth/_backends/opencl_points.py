@@ -27,7 +27,7 @@ class OpenCLPointsOps(PointsOps):
         self, pn: DeviceArray, cell_start: DeviceArray, grid_origin: tuple[float, float, float], inv_cell: float,
         grid_dims: tuple[int, int, int], inv_h2: float, reach: float, tol: float, max_iter: int,
         queries: DeviceArray | None, lattice: tuple | None, m: int, dist: DeviceArray, grad: DeviceArray,
-        proj: DeviceArray | None,
+        proj: DeviceArray | None, residual: DeviceArray | None = None,
     ) -> None:
         if queries is None:
             (qo, qs, qn) = lattice
@@ -43,4 +43,5 @@ class OpenCLPointsOps(PointsOps):
             *(f32(v) for v in qo), *(f32(v) for v in qs), *(i32(v) for v in qn),
             i32(m), dist.data, grad.data,
             proj.data if proj is not None else self._dummy(np.float32), i32(proj is not None),
+            residual.data if residual is not None else self._dummy(np.float32), i32(residual is not None),
         )

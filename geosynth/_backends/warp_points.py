@@ -25,7 +25,7 @@ class WarpPointsOps(PointsOps):
         self, pn: DeviceArray, cell_start: DeviceArray, grid_origin: tuple[float, float, float], inv_cell: float,
         grid_dims: tuple[int, int, int], inv_h2: float, reach: float, tol: float, max_iter: int,
         queries: DeviceArray | None, lattice: tuple | None, m: int, dist: DeviceArray, grad: DeviceArray,
-        proj: DeviceArray | None,
+        proj: DeviceArray | None, residual: DeviceArray | None = None,
     ) -> None:
         if queries is None:
             (qo, qs, qn) = lattice
@@ -33,6 +33,7 @@ class WarpPointsOps(PointsOps):
             qo, qs, qn = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1, 1)
         q = queries.data if queries is not None else self._dummy(np.float32)
         pr = proj.data if proj is not None else self._dummy(np.float32)
+        res = residual.data if residual is not None else self._dummy(np.float32)
         self._launch(
             points_kernels.mls_project_kernel,
             m,
@@ -41,5 +42,6 @@ class WarpPointsOps(PointsOps):
                 *(int(v) for v in grid_dims), float(inv_h2), float(reach), float(tol), int(max_iter),
                 q, int(queries is not None), *(float(v) for v in qo), *(float(v) for v in qs),
                 *(int(v) for v in qn), int(m), dist.data, grad.data, pr, int(proj is not None),
+                res, int(residual is not None),
             ],
         )
