@@ -485,8 +485,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
 
+    slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
+
     def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
-        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block)
+        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab)
 
     source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
                                          args.device, check=check_tiling)
@@ -498,8 +500,11 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     result = synthesize_volume_tiled(
         source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
         search=args.search, spacing=spacing, workers=args.workers, scheduler=args.scheduler, store=args.store,
-        gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs,
+        gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs, slab=slab,
         progress=not args.quiet)
+    if result.grid.slab:
+        say(f"slab exemplar: blocks span its full thickness along z, grown across only"
+            + (" (chosen automatically)" if slab is None else ""))
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces (tiles merged)")
     if result.store:

@@ -82,7 +82,7 @@ class _Exemplar:
     """The exemplar's pyramid and the run's parameters: scattered to every worker once."""
 
     sources: list  # uint8 (Z, Y, X) per level, coarsest first
-    blocks: list
+    blocks: list  # per level: N, or a slab's (Z_l, N, N) (TileGrid.block_shape)
     caps: list
     device: str | None
     search: str
@@ -127,7 +127,7 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         t0 = time.perf_counter()
         region, core = grid.region(level, index), grid.core_region(level, index)
         shape = grid.level_shape(level)
-        source, b = ex.sources[level], ex.blocks[level]
+        source, b = ex.sources[level], grid.block_shape(level)
         if level == 0:
             rng = np.random.default_rng(ex.seed) if grid.whole(level) else tile_rng(ex.seed, level, index)
             target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
@@ -144,8 +144,8 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         finest = level == grid.levels - 1
         matcher = _matcher(ex, level)
         got = optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
-                             stride=level_stride(b, finest), sigma=level_sigma(finest), final=level_final(finest),
-                             fixed=mask)
+                             stride=level_stride(grid.blocks[level], finest), sigma=level_sigma(finest),
+                             final=level_final(finest), fixed=mask)
         out = np.ascontiguousarray(target[region.local(core)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "tile": index, "phase": grid.phase(index), "start": start, "end": time.time(),
@@ -171,10 +171,9 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
         mask = np.ones(target.shape, bool)
         mask[window.local(free)] = False
         finest = level == grid.levels - 1
-        b = ex.blocks[level]
-        got = optimize_level(ex.sources[level], target, b, _matcher(ex, level), iterations=int(ex.caps[level]),
-                             stride=level_stride(b, finest), sigma=level_sigma(finest), final=level_final(finest),
-                             fixed=mask)
+        got = optimize_level(ex.sources[level], target, grid.block_shape(level), _matcher(ex, level),
+                             iterations=int(ex.caps[level]), stride=level_stride(grid.blocks[level], finest),
+                             sigma=level_sigma(finest), final=level_final(finest), fixed=mask)
         out = np.ascontiguousarray(target[window.local(free)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "corner": k, "phase": PHASE_C, "start": start, "end": time.time(), "seconds": seconds,
@@ -472,9 +471,9 @@ def tile_task_bytes(grid: TileGrid, level: int, index: int) -> int:
     z = grid.level_shape(level)[0]
     shape = (z,) + r.shape
     n = int(np.prod(shape))
-    b = grid.blocks[level]
     fixed = bool(grid.fixed_parts(level, index))
-    optimize = memory_estimate(shape, b, level_stride(b, level == grid.levels - 1), fixed=fixed)
+    optimize = memory_estimate(shape, grid.block_shape(level), level_stride(grid.blocks[level], level == grid.levels - 1),
+                               fixed=fixed)
     upsample = _UPSAMPLE_SAMPLE_BYTES * n if level > 0 else 0
     return _TILE_SAMPLE_BYTES * n + max(optimize, upsample) + z * c.shape[0] * c.shape[1] + _TASK_BYTES
 
@@ -494,8 +493,8 @@ def corner_task_bytes(grid: TileGrid, level: int, k: int) -> int:
     z = grid.level_shape(level)[0]
     shape = (z,) + w.shape
     n = int(np.prod(shape))
-    b = grid.blocks[level]
-    optimize = memory_estimate(shape, b, level_stride(b, level == grid.levels - 1), fixed=True)
+    optimize = memory_estimate(shape, grid.block_shape(level), level_stride(grid.blocks[level], level == grid.levels - 1),
+                               fixed=True)
     return _TILE_SAMPLE_BYTES * n + optimize + z * f.shape[0] * f.shape[1] + _TASK_BYTES
 
 
@@ -513,7 +512,7 @@ def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool
     for _ in range(grid.levels - 1):
         shapes.insert(0, tuple(v // 2 for v in shapes[0]))
     pyramid = sum(int(np.prod(s)) for s in shapes)
-    searches = sum(matcher_bytes(shapes[level], grid.blocks[level], search) for level in range(grid.levels))
+    searches = sum(matcher_bytes(shapes[level], grid.block_shape(level), search) for level in range(grid.levels))
     worst = 0
     for level in range(grid.levels):
         for t in grid.tasks(level):
@@ -552,22 +551,25 @@ def _faces_per_sample(source: np.ndarray) -> float:
 
 
 def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int | None = None,
-              coarse_whole: bool = True) -> TileGrid:
+              coarse_whole: bool = True, slab: bool | None = None) -> TileGrid:
     """The tiling of a synthesis from a source of ``source_shape`` to ``target_shape``
     (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the blocks per level
-    (:func:`geosynth.volume.plan_blocks`) and :meth:`TileGrid.make`. Needs the shapes
-    only, so a tiling whose cores are smaller than a block plus the margin is refused
-    before any field is computed.
+    (:func:`geosynth.volume.plan_blocks`; with ``slab``, or when None and
+    :func:`geosynth.volume.is_slab`, blocks through each level's full thickness, as
+    :func:`geosynth.volume.synthesize_volume` makes them) and :meth:`TileGrid.make`.
+    Needs the shapes only, so a tiling whose cores are smaller than a block plus the
+    margin is refused before any field is computed.
 
     Raises:
         ValueError / TypeError: bad tiles, blocks that do not fit, cores too small.
     """
-    from geosynth.volume import level_blocks, plan_blocks
+    from geosynth.volume import is_slab, level_blocks, plan_blocks
 
+    source_shape = tuple(int(v) for v in source_shape)
     target_shape = tuple(int(v) for v in target_shape)
-    blocks = plan_blocks(tuple(int(v) for v in source_shape), target_shape, levels, block,
-                         level_blocks(levels, block))
-    return TileGrid.make(target_shape, parse_tiles(tiles), blocks, margin, coarse_whole)
+    slab = is_slab(source_shape, target_shape) if slab is None else bool(slab)
+    blocks = plan_blocks(source_shape, target_shape, levels, block, level_blocks(levels, block, slab), slab)
+    return TileGrid.make(target_shape, parse_tiles(tiles), blocks, margin, coarse_whole, slab)
 
 
 def parse_tiles(tiles) -> tuple[int, int]:
@@ -645,6 +647,7 @@ def synthesize_volume_tiled(
     margin: int | None = None,
     coarse_whole: bool = True,
     phases: int = 3,
+    slab: bool | None = None,
     progress: bool = True,
 ) -> TiledResult:
     """Tiled M1 synthesis (texture optimization) of a field larger than one process
@@ -680,6 +683,9 @@ def synthesize_volume_tiled(
             point, where two phase-B tiles meet diagonally: :meth:`TileGrid.corners`),
             2 (the checkerboard only: the B-B corners chosen twice) or 1 (every tile
             independent: the naive baseline whose seams the schedule removes).
+        slab: blocks through each level's full thickness along z, grown across only,
+            as :func:`geosynth.volume.synthesize_volume` (None: when the exemplar is a
+            slab, :func:`geosynth.volume.is_slab`; chainmail, rings, domes).
         progress: a progress bar over the tile tasks.
 
     Returns:
@@ -697,15 +703,17 @@ def synthesize_volume_tiled(
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
     from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
-                                 level_blocks, quantize_field)
+                                 level_blocks, max_levels, quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
     if src.ndim != 3 or src.size == 0:
         raise ValueError(f"source must be a non-empty (Z, Y, X) volume, got shape {src.shape}.")
     check_size(size)
-    check_common(levels, max(1, int(min(src.shape)).bit_length() - 1), f" (each level halves the source {src.shape})",
-                  block, False, seed, device, search, progress)
+    if slab is not None:
+        _checks.check_bool("slab", slab)
+    check_common(levels, max_levels(src.shape, slab), f" (each level halves the source {src.shape})",
+                 block, False, seed, device, search, progress)
     _checks.check_bool("mesh", mesh)
     _checks.check_bool("coarse_whole", coarse_whole)
     if phases not in (1, 2, 3):
@@ -717,7 +725,7 @@ def synthesize_volume_tiled(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
     nx, ny = parse_tiles(tiles)
     band, _, target_shape = check_source_and_size(src, size, levels, band, level_blocks(levels, block))
-    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole)
+    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab)
     blocks = list(grid.blocks)
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
@@ -753,8 +761,8 @@ def synthesize_volume_tiled(
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**63))
     digest = hashlib.sha1(b"".join(s.tobytes() for s in sources)
-                          + repr((blocks, caps, device, search, int(seed))).encode()).hexdigest()
-    ex = _Exemplar(sources, list(blocks), [int(c) for c in caps], device, search, int(seed), digest)
+                          + repr((blocks, grid.slab, caps, device, search, int(seed))).encode()).hexdigest()
+    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device, search, int(seed), digest)
     estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
                           phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}
@@ -774,7 +782,7 @@ def synthesize_volume_tiled(
             fits = None
             for n in range(max(nx, ny) + 1, 257):
                 try:
-                    g = TileGrid.make(target_shape, (n, n), blocks, margin, coarse_whole)
+                    g = TileGrid.make(target_shape, (n, n), blocks, margin, coarse_whole, grid.slab)
                 except ValueError:
                     break
                 if worker_need(g, tile_bytes(g, src.shape, search, mesh or mesh_dir is not None,
@@ -814,7 +822,7 @@ def synthesize_volume_tiled(
             arr = zarr.open_array(tmp_store, mode="w", shape=target_shape, chunks=chunks, dtype="uint8",
                                   fill_value=0)
             arr.attrs.update({"band": float(band), "spacing": float(spacing), "seed": int(seed),
-                              "tiles": [nx, ny], "blocks": list(blocks), "levels": levels,
+                              "tiles": [nx, ny], "blocks": list(blocks), "slab": grid.slab, "levels": levels,
                               "what": "uint8 signed distance codes (geosynth.volume.quantize_field), z y x"})
             for t, c in cores.items():
                 graphs.append(delayed(_write_tile, pure=False)(tmp_store, finest[t], c,

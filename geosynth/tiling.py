@@ -87,6 +87,8 @@ class TileGrid:
         core: (cy, cx) finest-level core size (the last tile along an axis takes the rest).
         coarse_whole: run the levels that fit in one tile whole (False: tile every level
             whose cores still hold a block plus the margin).
+        slab: the blocks span each level's full thickness along z (a slab exemplar,
+            :func:`geosynth.volume.is_slab`); ``blocks`` are then their sides across.
     """
 
     shape: tuple[int, int, int]
@@ -95,11 +97,14 @@ class TileGrid:
     margin: tuple[int, ...]
     core: tuple[int, int]
     coarse_whole: bool = True
+    slab: bool = False
 
     @classmethod
-    def make(cls, shape, tiles, blocks, margin: int | None = None, coarse_whole: bool = True) -> "TileGrid":
+    def make(cls, shape, tiles, blocks, margin: int | None = None, coarse_whole: bool = True,
+             slab: bool = False) -> "TileGrid":
         """The grid for a target ``shape`` (Z, Y, X), ``tiles`` (nx, ny) and the blocks
-        per level; ``margin`` (samples at every level) defaults to the largest block.
+        per level (a slab's: their sides across); ``margin`` (samples at every level)
+        defaults to the largest block.
 
         Raises:
             ValueError: a tile count below 1, more tiles than the target has level
@@ -123,7 +128,7 @@ class TileGrid:
                 raise ValueError(f"tiles {nx}x{ny}: {count} tiles along {axis} cannot split {n} samples in cores of "
                                  f"multiples of 2^(levels-1) = {factor}; use fewer tiles.")
             core.append(c)
-        grid = cls(shape, (nx, ny), blocks, (m,) * levels, (core[0], core[1]), bool(coarse_whole))
+        grid = cls(shape, (nx, ny), blocks, (m,) * levels, (core[0], core[1]), bool(coarse_whole), bool(slab))
         grid._check()
         return grid
 
@@ -143,6 +148,13 @@ class TileGrid:
 
     def level_shape(self, level: int) -> tuple[int, int, int]:
         return tuple(n // self.scale(level) for n in self.shape)
+
+    def block_shape(self, level: int):
+        """The block the synthesis of ``level`` matches: N (a cube) or, for a slab,
+        (Z_l, N, N) with Z_l the level's thickness (:func:`geosynth.volume.level_block_shapes`)."""
+        from geosynth.volume import level_block_shapes
+
+        return level_block_shapes(self.shape, self.levels, list(self.blocks), self.slab)[level]
 
     def index(self, ix: int, iy: int) -> int:
         return iy * self.tiles[0] + ix

@@ -62,6 +62,7 @@ __all__ = [
     "block_text",
     "downsample",
     "is_slab",
+    "max_levels",
     "resolve_method",
     "quantize_field",
     "scan_positions",
@@ -102,6 +103,17 @@ def is_slab(source_shape, target_shape) -> bool:
     target is no thicker than the source (it grows across only)."""
     z, y, x = (int(v) for v in source_shape)
     return z * SLAB_RATIO <= min(y, x) and int(target_shape[0]) <= z
+
+
+def max_levels(source_shape, slab: bool | None = None) -> int:
+    """The most levels a (Z, Y, X) source allows: each level halves it, and beyond log2
+    of its smallest side no block fits (a slab's: of its smallest side across, while its
+    thickness keeps a sample). ``slab`` None: a slab when the source is SLAB_RATIO times
+    thinner along z than across."""
+    z, y, x = (int(v) for v in source_shape)
+    thin = slab is True or (slab is None and z * SLAB_RATIO <= min(y, x))
+    most = max(1, min((y, x) if thin else (z, y, x)).bit_length() - 1)
+    return min(most, z.bit_length()) if thin else most
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -715,14 +727,8 @@ def synthesize_volume(
     if src.size == 0:
         raise ValueError(f"source is empty (shape {src.shape}).")
     check_size(size)
-    # Each level halves the source: beyond log2 of its smallest side, no block fits (a
-    # slab's: of its smallest side across, while its thickness keeps a sample).
-    thin = slab is True or (slab is None and src.shape[0] * SLAB_RATIO <= min(src.shape[1:]))
-    max_levels = max(1, int(min(src.shape[1:] if thin else src.shape)).bit_length() - 1)
-    if thin:
-        max_levels = min(max_levels, int(src.shape[0]).bit_length())
-    check_common(levels, max_levels, f" (each level halves the source {src.shape})", block, tileable, seed,
-                  device, search, progress)
+    check_common(levels, max_levels(src.shape, slab), f" (each level halves the source {src.shape})", block,
+                 tileable, seed, device, search, progress)
     if band is not None:
         check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
     check_scale("spacing", spacing, "the world size of one sample")

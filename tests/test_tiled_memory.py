@@ -25,10 +25,16 @@ def terrain():
     return src
 
 
-def test_tile_task_estimate_bounds_the_traced_peak(terrain, monkeypatch):
+@pytest.mark.parametrize("name", ["terrain", "chainmail slab"])
+def test_tile_task_estimate_bounds_the_traced_peak(terrain, monkeypatch, name):
     # every level tiled (coarse_whole=False), 2 x 1 tiles: a phase A and a phase B task at
     # both levels (regions 16 x 24 and 32 x 40, x y). Two iterations: the second holds
-    # the first's matches too. (Traced, the run is ~20x slower: one small run.)
+    # the first's matches too. (Traced, the run is ~20x slower: one small run.) The slab's
+    # blocks span the thickness (8 x 8 x 14 at the finest level), as its tasks match them;
+    # its target is twice as wide (regions 32 x 40 and 64 x 72): in a task as small as the
+    # terrain's coarse phase B, the fixed per-task allowance is most of the estimate (1.9x).
+    source, slab = (terrain, None) if name == "terrain" else (exemplar_source("chainmail", 32, 2)[0], True)
+    width = 32 if slab is None else 64
     peaks = []
     task = tiled._tile_task
 
@@ -42,10 +48,10 @@ def test_tile_task_estimate_bounds_the_traced_peak(terrain, monkeypatch):
         return out
 
     monkeypatch.setattr(tiled, "_tile_task", traced)
-    z = terrain.shape[0] // 2 * 2
-    synthesize_volume_tiled(terrain, (z, 32, 64), (2, 1), levels=2, block=8, seed=1, iterations=2,
+    z = source.shape[0] // 2 * 2
+    synthesize_volume_tiled(source, (z, width, 2 * width), (2, 1), levels=2, block=8, seed=1, iterations=2, slab=slab,
                             progress=False, device=ONE_DEVICE, scheduler="threads", workers=1, coarse_whole=False)
-    assert len(peaks) == 4
+    assert len(peaks) == 4 and peaks[0][0].slab == bool(slab)
     phases = {(lv, g.phase(t)) for g, lv, t, _ in peaks}
     assert phases == {(0, 0), (0, 1), (1, 0), (1, 1)}
     for grid, level, index, peak in peaks:
