@@ -170,14 +170,14 @@ def _iterate(p, nrm, tree, q, h, fixed: bool = False):
             stale[fresh] = True
             keep = ~stale[c_qid]
             c_qid = np.concatenate([c_qid[keep], np.repeat(fresh, counts)])
-            c_nb = np.concatenate([c_nb[keep], pn[flat]])
+            c_nb = np.concatenate([c_nb[keep], np.take(pn, flat, axis=0)])  # take: fancy indexing's rows, faster
             bins = None
         na = active.size
         if bins is None:  # each entry's (query, channel) bins, while the cache is unchanged
             pos[active] = np.arange(na)
             row = pos[c_qid]
             bins = (row[:, None] * 7 + chan).ravel()
-        diff = c_nb[:, :3] - y[active][row]
+        diff = c_nb[:, :3] - np.take(np.take(y, active, axis=0), row, axis=0)
         d2 = np.einsum("ij,ij->i", diff, diff)
         w = np.where(d2 < reach * reach, np.exp(-d2 / (h * h)), 0.0)
         # sum w, sum w p, sum w n in one bincount: each (query, channel) bin sums in entry order
