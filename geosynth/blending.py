@@ -183,15 +183,18 @@ class MLSSurface:
     def neighbours(self, x: np.ndarray):
         """``(nb, valid, sq)``: (m, k, 6) positions and normals of each query's k nearest
         points, (m, k) whether each lies within reach and (m, k) each one's squared norm
-        |p|^2 (reused by every evaluation with these neighbours). Any rows of the three
+        |p|^2 (reused by every evaluation with these neighbours; inf where not valid). Any rows of the three
         (:func:`_rows`) are the neighbours of those queries."""
         m = len(x)
         _, idx = self.tree.query(np.ascontiguousarray(x, np.float64), k=self.k, distance_upper_bound=self.reach)
         idx = idx.reshape(m, self.k).astype(np.int64)
         valid = idx < len(self.p)
-        nb = self.pn[np.where(valid, idx, 0)]
+        # np.take: the same rows as fancy indexing, several times faster on (K, 6) arrays
+        nb = np.take(self.pn, np.where(valid, idx, 0), axis=0)
         pos = nb[:, :, :3]
-        return nb, valid, np.einsum("mkj,mkj->mk", pos, pos)
+        sq = np.einsum("mkj,mkj->mk", pos, pos)
+        sq[~valid] = np.inf  # an absent neighbour is infinitely far: weight 0 in evaluate()
+        return nb, valid, sq
 
     def evaluate(self, x: np.ndarray, gathered=None):
         """``(f, n, support)`` at (m, 3) points: the implicit function (m,), the MLS
@@ -205,8 +208,9 @@ class MLSSurface:
         nb, valid, sq = self.neighbours(x) if gathered is None else gathered
         pos = nb[:, :, :3]
         d2 = sq - 2.0 * np.einsum("mkj,mj->mk", pos, x) + np.einsum("mj,mj->m", x, x)[:, None]
-        w = np.exp(d2 * (-1.0 / (self.h * self.h)))
-        w[~valid | (d2 > self.reach * self.reach)] = 0.0
+        w = d2 * (-1.0 / (self.h * self.h))
+        np.exp(w, out=w)
+        w[d2 > self.reach * self.reach] = 0.0  # beyond reach, or not valid (sq = inf)
         wsum = w.sum(axis=1)
         sums = np.einsum("mk,mkc->mc", w, nb)  # sum w p, sum w n
         nn = sums[:, 3:]
@@ -241,7 +245,7 @@ class MLSSurface:
                     break
                 q = todo[active]
                 g = near if it == 0 else _rows(near, active)
-                f, nn, sup = self.evaluate(y[q], g)
+                f, nn, sup = self.evaluate(np.take(y, q, axis=0), g)
                 normal[q] = nn
                 conv = sup & (np.abs(f) <= _TOL * self.h)
                 conv_here[active[conv]] = True
@@ -275,7 +279,7 @@ class MLSSurface:
         ``gathered``: the queries' :meth:`neighbours` at x, when already known."""
 
         def step(q, f, nn, go, y, state):
-            slope = np.einsum("mj,mj->m", nn, d[q])
+            slope = np.einsum("mj,mj->m", nn, np.take(d, q, axis=0))
             go = go & (np.abs(slope) >= _MIN_SLOPE)
             qg = q[go]
             state[qg] -= f[go] / slope[go]
@@ -291,7 +295,7 @@ class MLSSurface:
 
 def _rows(gathered, rows):
     """The :meth:`MLSSurface.neighbours` of the queries ``rows`` out of those of all."""
-    return tuple(a[rows] for a in gathered)
+    return tuple(np.take(a, rows, axis=0) for a in gathered)
 
 
 # ------------------------------------------------------------------------ counterparts and blending

@@ -28,6 +28,7 @@ distance, where converged float32 projections are good to ~1e-7).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,7 @@ CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 
 ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
 FIXED_STEPS = 12  # projection steps of the coded fields, never fewer (no early stop): devices stop alike
 RESIDUAL_TOL = 1e-5  # of h: a projection one more step would move farther is not converged (host)
+_GATHER_SLACK = 0.5  # of h: host_mls gathers each query's points within reach + this, again once it moved farther
 
 
 # ------------------------------------------------------------------ the fields
@@ -118,10 +120,20 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     return dist, grad
 
 
+def _gather(tree, y: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The points within ``radius`` of each (m, 3) query, as one flat (L,) int64 index list
+    in ascending index order per query, and (m,) int64 counts."""
+    lists = tree.query_ball_point(y, radius, return_sorted=True)
+    counts = np.fromiter(map(len, lists), np.int64, len(lists))
+    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(counts.sum()))
+    return flat, counts
+
+
 def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     """The projection loop: (f at the query (NaN: no point within reach), last MLS normal,
     projection), float64, for (M, 3) queries; ``fixed``: FIXED_STEPS steps, no early stop
-    (as :func:`kernel_mls`)."""
+    at a tolerance (as :func:`kernel_mls`), only at an exact fixed point, where every later
+    step would repeat the last one bit for bit."""
     from geosynth.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
 
     reach = MLS_REACH * h
@@ -132,37 +144,78 @@ def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     proj = q.copy()
     f0 = np.full(m, np.nan)
     active = np.arange(m)
-    pn = np.concatenate([p, nrm], axis=1)  # one gather a step for positions and normals
+    pn = np.concatenate([p, nrm], axis=1)  # one gather for positions and normals
+    # Each query's points within reach + slack of an anchor, gathered once and kept while the
+    # iterate stays within slack of the anchor (after the first step it hardly moves): a superset
+    # of the points within reach, in ascending index order, as the exact set. Those beyond reach
+    # get weight 0, and adding 0 changes no sum: the same bits as gathering at every step.
+    slack = _GATHER_SLACK * h
+    radius = reach * (1 + 1e-9) + slack
+    anchor = q.copy()
+    # The cache holds the active queries' entries only: (L,) query ids and (L, 6) neighbours;
+    # a query's entries are consecutive, in ascending point index order (the sums' order).
+    c_qid = np.zeros(0, np.int64)
+    c_nb = np.zeros((0, 6))
+    fresh = active  # queries to gather for
+    pos = np.zeros(m, np.int64)
+    chan = np.arange(7)
+    bins = None
     for _ in range(steps):
         if active.size == 0:
             break
-        # Each active query's points within reach as one flat list (no padding to the longest:
-        # thin-sheet exemplars' flagged queries have very uneven counts); sums per query by bincount.
-        lists = tree.query_ball_point(y[active], reach * (1 + 1e-9))
-        counts = np.fromiter((len(v) for v in lists), np.int64, len(lists))
-        flat = np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)]) if counts.sum() \
-            else np.zeros(0, np.int64)
-        row = np.repeat(np.arange(len(lists)), counts)
-        nb = pn[flat]
-        diff = nb[:, :3] - y[active][row]
+        if fresh.size:
+            anchor[fresh] = y[fresh]
+            flat, counts = _gather(tree, y[fresh], radius)
+            stale = np.zeros(m, bool)
+            stale[fresh] = True
+            keep = ~stale[c_qid]
+            c_qid = np.concatenate([c_qid[keep], np.repeat(fresh, counts)])
+            c_nb = np.concatenate([c_nb[keep], np.take(pn, flat, axis=0)])  # take: fancy indexing's rows, faster
+            bins = None
+        na = active.size
+        if bins is None:  # each entry's (query, channel) bins, while the cache is unchanged
+            pos[active] = np.arange(na)
+            row = pos[c_qid]
+            bins = (row[:, None] * 7 + chan).ravel()
+        diff = c_nb[:, :3] - np.take(np.take(y, active, axis=0), row, axis=0)
         d2 = np.einsum("ij,ij->i", diff, diff)
         w = np.where(d2 < reach * reach, np.exp(-d2 / (h * h)), 0.0)
-        na = len(lists)
-        ws = np.bincount(row, w, na)
-        sums = np.stack([np.bincount(row, w * nb[:, c], na) for c in range(6)], axis=1)  # sum w p, sum w n
-        msum = sums[:, 3:]
+        # sum w, sum w p, sum w n in one bincount: each (query, channel) bin sums in entry order
+        terms = np.empty((len(w), 7))
+        terms[:, 0] = w
+        np.multiply(w[:, None], c_nb, out=terms[:, 1:])
+        sums = np.bincount(bins, terms.ravel(), 7 * na).reshape(na, 7)
+        ws = sums[:, 0]
+        msum = sums[:, 4:]
         mlen = np.linalg.norm(msum, axis=1)
         ok = (ws > 0) & (mlen > 0)
         a_idx = active[ok]
         n = msum[ok] / mlen[ok, None]
-        a = sums[ok, :3] / ws[ok, None]
-        f = np.einsum("mc,mc->m", n, y[a_idx] - a)
+        a = sums[ok, 1:4] / ws[ok, None]
+        ya = y[a_idx]
+        f = np.einsum("mc,mc->m", n, ya - a)
         first = np.isnan(f0[a_idx])
         f0[a_idx[first]] = f[first]
         grad[a_idx] = n
-        proj[a_idx] = y[a_idx] - f[:, None] * n
-        y[a_idx] = proj[a_idx]
-        active = a_idx[np.abs(f) > tol]
+        pa = ya - f[:, None] * n
+        proj[a_idx] = pa
+        y[a_idx] = pa
+        # an exact fixed point (a step that leaves y's bits unchanged) would repeat forever: stop
+        go = (np.abs(f) > tol) & (pa != ya).any(axis=1)
+        fresh = a_idx[:0]
+        if go.all() and a_idx.size == na:
+            off = pa - anchor[active]
+            fresh = active[np.einsum("ij,ij->i", off, off) > slack * slack]
+            continue
+        active = a_idx[go]
+        live = np.zeros(m, bool)
+        live[active] = True
+        keep = live[c_qid]
+        c_qid, c_nb = c_qid[keep], c_nb[keep]
+        bins = None
+        if active.size:
+            off = y[active] - anchor[active]
+            fresh = active[np.einsum("ij,ij->i", off, off) > slack * slack]
     return f0, grad, proj
 
 

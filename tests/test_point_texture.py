@@ -267,3 +267,70 @@ def test_relaxed_plane_stays_a_plane(one_device):
     pts, report, _ = synthesize_point_texture(tex, device=one_device, relax=True, **SMALL)
     assert np.abs(pts.positions[:, 2]).max() < 1e-4
     assert len(pts) > 0.9 * 4000 * 1.44 / 2.25
+
+
+def _iterate_every_step(p, nrm, q, h, steps, tol):
+    """host_mls's projection loop as first written: each query's points within reach asked
+    of the k-d tree at every step, sums per query by bincount in ascending point order (the
+    oracle of the cached gathering, which must give the same bits)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(p)
+    reach = MLS_REACH * h
+    m = len(q)
+    y, proj, grad, f0 = q.copy(), q.copy(), np.zeros((m, 3)), np.full(m, np.nan)
+    active = np.arange(m)
+    pn = np.concatenate([p, nrm], axis=1)
+    for _ in range(steps):
+        if active.size == 0:
+            break
+        lists = tree.query_ball_point(y[active], reach * (1 + 1e-9), return_sorted=True)
+        counts = np.array([len(v) for v in lists], np.int64)
+        flat = np.concatenate([np.asarray(v, np.int64) for v in lists] + [np.zeros(0, np.int64)])
+        row = np.repeat(np.arange(len(lists)), counts)
+        nb = pn[flat]
+        diff = nb[:, :3] - y[active][row]
+        d2 = np.einsum("ij,ij->i", diff, diff)
+        w = np.where(d2 < reach * reach, np.exp(-d2 / (h * h)), 0.0)
+        ws = np.bincount(row, w, len(lists))
+        sums = np.stack([np.bincount(row, w * nb[:, c], len(lists)) for c in range(6)], axis=1)
+        mlen = np.linalg.norm(sums[:, 3:], axis=1)
+        ok = (ws > 0) & (mlen > 0)
+        a_idx = active[ok]
+        n = sums[ok, 3:] / mlen[ok, None]
+        f = np.einsum("mc,mc->m", n, y[a_idx] - sums[ok, :3] / ws[ok, None])
+        first = np.isnan(f0[a_idx])
+        f0[a_idx[first]] = f[first]
+        grad[a_idx] = n
+        proj[a_idx] = y[a_idx] - f[:, None] * n
+        y[a_idx] = proj[a_idx]
+        active = a_idx[np.abs(f) > tol]
+    return f0, grad, proj
+
+
+@pytest.mark.parametrize("fixed", [True, False])
+def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
+    """host_mls's loop gathers each query's points within reach + slack once (again only when
+    the iterate moved farther) and stops at an exact fixed point: the same bits as asking
+    the tree at every step, also for queries a reach away from the surface (first steps
+    move them far: regathered) and on two sheets closer than the MLS width (where the
+    projections do not converge)."""
+    from scipy.spatial import cKDTree
+
+    from geosynth.patch_search import FIXED_STEPS, _iterate
+    from geosynth.pointsets import MLS_MAX_ITER, MLS_TOL
+
+    h = 2 * wavy.spacing
+    sheet = wavy.points[::2] * [1, 1, 0]
+    away = np.concatenate([np.tile([0.0, 0.0, -1.0], (len(sheet), 1)), np.tile([0.0, 0.0, 1.0], (len(sheet), 1))])
+    cases = [(wavy.points, wavy.normals / np.linalg.norm(wavy.normals, axis=1, keepdims=True),
+              rng.uniform([0.1, 0.1, -MLS_REACH * h], [0.9, 0.9, MLS_REACH * h], (300, 3)))]
+    for gap in (0.8, 1.2):  # two sheets facing away, gap h apart: at 1.2 h no projection converges
+        cases.append((np.concatenate([sheet, sheet + [0, 0, gap * h]]), away,
+                      rng.uniform([0.1, 0.1, -h], [0.9, 0.9, 2 * h], (200, 3))))
+    steps, tol = (FIXED_STEPS, 0.0) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
+    for p, n, q in cases:
+        got = _iterate(p, n, cKDTree(p), q, h, fixed)
+        want = _iterate_every_step(p, n, q, h, steps, tol)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
