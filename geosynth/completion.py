@@ -47,8 +47,8 @@ pairs of vertices of a part about one target spacing apart (the capture's own ve
 the completed targets; they see whether neighbouring displacements and colours fit
 together); each beside a baseline that gives every target the displacement (in the
 frames) and colour of a uniformly random candidate, reported as the mean (with min and
-max) over ``BASELINE_DRAWS`` seeded draws, since one draw is a noisy yardstick. The baseline keeps the distribution
-of |h| and of the colours by construction: on the volume and histogram numbers it shows
+max) over ``BASELINE_DRAWS`` seeded draws, since one draw is a noisy yardstick. The
+baseline keeps the distribution of |h| and of the colours by construction: on the volume and histogram numbers it shows
 the sampling noise of independent copies, which a completion made of coherent patches
 (fewer independent draws) only matches by chance; the slope and colour step are where
 random copies fail. The honest yardstick for the volume and histogram numbers is the
@@ -144,9 +144,10 @@ class CompletionReport:
             (None without colour). The baseline's numbers are means over ``baseline_draws``
             (``BASELINE_DRAWS``, 5) seeded random-copy draws; ``volume_baseline_diff_pct_range``,
             ``slope_baseline_diff_pct_range``, ``colour_step_baseline_diff_pct_range`` and
-            ``hist_baseline_range`` hold the draws' (min, max). ``volume_self_diff_pct`` and ``hist_self`` (the capture's
-            two halves, split at the median of the first fit parameter, against each other:
-            how much two real parts of the surface differ; ``hist_self`` None without colour).
+            ``hist_baseline_range`` hold the draws' (min, max). ``volume_self_diff_pct`` and
+            ``hist_self`` (the capture's two halves, split at the median of the first fit
+            parameter, against each other: how much two real parts of the surface differ;
+            ``hist_self`` None without colour).
         device: the device string the matching ran on.
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
@@ -550,8 +551,8 @@ def _baseline_draw(rs: ReliefSurface, h: np.ndarray, tgt: np.ndarray, rng: np.ra
     """One random-copy baseline: every target takes a uniformly random candidate's
     displacement (frame components) and colour. Returns (pick, heights of every vertex)."""
     pick = rng.integers(0, n_candidates, len(tgt))  # the completion's candidates: vertices 0..n_candidates-1
-    comp = np.stack([(rs.displacement[pick] * rs.frame_u[pick]).sum(1), (rs.displacement[pick] * rs.frame_v[pick]).sum(1),
-                     (rs.displacement[pick] * rs.normals[pick]).sum(1)], 1)
+    d = rs.displacement[pick]
+    comp = np.stack([(d * rs.frame_u[pick]).sum(1), (d * rs.frame_v[pick]).sum(1), (d * rs.normals[pick]).sum(1)], 1)
     dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
     hb = h.copy()
     hb[tgt] = rs.fit.distance(rs.base[tgt] + dbase)
