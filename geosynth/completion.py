@@ -46,8 +46,9 @@ slope |h_i - h_j| / |b_i - b_j| and the mean colour step |c_i - c_j| (RGB L1 / 3
 pairs of vertices of a part about one target spacing apart (the capture's own vertices,
 the completed targets; they see whether neighbouring displacements and colours fit
 together); each beside a baseline that gives every target the displacement (in the
-frames) and colour of a uniformly random candidate. The baseline keeps the distribution
-of |h| and of the colours by construction: on the volume and histogram numbers it shows
+frames) and colour of a uniformly random candidate, reported as the mean (with min and
+max) over ``BASELINE_DRAWS`` seeded draws, since one draw is a noisy yardstick. The
+baseline keeps the distribution of |h| and of the colours by construction: on the volume and histogram numbers it shows
 the sampling noise of independent copies, which a completion made of coherent patches
 (fewer independent draws) only matches by chance; the slope and colour step are where
 random copies fail. The honest yardstick for the volume and histogram numbers is the
@@ -83,6 +84,7 @@ HINT_RINGS = 3  # coherence hints: the candidates within 3 edge rings of the sam
 HINT_PROBES: tuple[int, ...] | None = ()  # stride probes after the hints (None: find_matches' default)
 BALANCE_STRENGTH = 4.0  # the histogram-aware draw: weights exp(strength x deficit score), score in [-1, 1]
 BALANCE_PENALTY = 0.5  # codes x (1 + penalty x (1 - score) / 2) before the 1.1x rule (find_matches at 1.1 x 1.5)
+BASELINE_DRAWS = 5  # the random-copy baseline: mean (and min, max) over this many seeded draws
 
 
 @dataclass
@@ -139,9 +141,13 @@ class CompletionReport:
             ``slope_completed``, ``slope_diff_pct``, ``slope_baseline``,
             ``slope_baseline_diff_pct``, ``colour_step_original``, ``colour_step_completed``,
             ``colour_step_diff_pct``, ``colour_step_baseline``, ``colour_step_baseline_diff_pct``
-            (None without colour), ``volume_self_diff_pct`` and ``hist_self`` (the capture's
-            two halves, split at the median of the first fit parameter, against each other:
-            how much two real parts of the surface differ; ``hist_self`` None without colour).
+            (None without colour). The baseline's numbers are means over ``baseline_draws``
+            (``BASELINE_DRAWS``, 5) seeded random-copy draws; ``volume_baseline_diff_pct_range``,
+            ``slope_baseline_diff_pct_range``, ``colour_step_baseline_diff_pct_range`` and
+            ``hist_baseline_range`` hold the draws' (min, max). ``volume_self_diff_pct`` and
+            ``hist_self`` (the capture's two halves, split at the median of the first fit
+            parameter, against each other: how much two real parts of the surface differ;
+            ``hist_self`` None without colour).
         device: the device string the matching ran on.
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
@@ -180,21 +186,27 @@ class CompletionReport:
                f"{self.picked_original:.0%} of the copies from the capture's own vertices "
                f"({self.samples and self.n_original / self.samples:.0%} of the samples)"]
         if q:
+            lo, hi = q["volume_baseline_diff_pct_range"]
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
-                       f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline "
-                       f"{q['volume_baseline']:.5g} ({q['volume_baseline_diff_pct']:.2f}%)")
+                       f"{q['volume_completed']:.5g} ({q['volume_diff_pct']:.2f}% difference); random baseline, "
+                       f"mean of {q['baseline_draws']} draws: {q['volume_baseline']:.5g} "
+                       f"({q['volume_baseline_diff_pct']:.2f}%, draws {lo:.2f}-{hi:.2f}%)")
             out.append(f"the capture's two halves against each other: volume {q['volume_self_diff_pct']:.2f}% "
                        f"difference" + ("" if q.get("hist_self") is None else
                                         f", RGB histogram distance {q['hist_self']:.4f}"))
             out.append(f"relief slope at the target spacing: original {q['slope_original']:.4g}, completed "
                        f"{q['slope_completed']:.4g} ({q['slope_diff_pct']:.1f}% difference); random baseline "
-                       f"{q['slope_baseline']:.4g} ({q['slope_baseline_diff_pct']:.1f}%)")
+                       f"{q['slope_baseline']:.4g} ({q['slope_baseline_diff_pct']:.1f}%, mean of "
+                       f"{q['baseline_draws']} draws)")
             if q.get("hist_distance") is not None:
+                lo, hi = q["hist_baseline_range"]
                 out.append(f"RGB histogram distance original vs completed: {q['hist_distance']:.4f}; random "
-                           f"baseline {q['hist_baseline']:.4f} (0 = same histograms, 1 = disjoint)")
+                           f"baseline, mean of {q['baseline_draws']} draws: {q['hist_baseline']:.4f} (draws "
+                           f"{lo:.4f}-{hi:.4f}; 0 = same histograms, 1 = disjoint)")
                 out.append(f"colour step at the target spacing: original {q['colour_step_original']:.4g}, completed "
                            f"{q['colour_step_completed']:.4g} ({q['colour_step_diff_pct']:.1f}% difference); random "
-                           f"baseline {q['colour_step_baseline']:.4g} ({q['colour_step_baseline_diff_pct']:.1f}%)")
+                           f"baseline {q['colour_step_baseline']:.4g} ({q['colour_step_baseline_diff_pct']:.1f}%, mean "
+                           f"of {q['baseline_draws']} draws)")
         return out
 
 
@@ -500,24 +512,31 @@ def _histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
     return total / 3
 
 
-def _pair_means(rs: ReliefSurface, h: np.ndarray, colours: np.ndarray | None, part: np.ndarray):
-    """(mean |h_i - h_j| / |b_i - b_j|, mean |c_i - c_j| (RGB L1 / 3, 0..255) or None) over
-    the pairs of the part's vertices whose base positions lie 0.7 to 1.3 target spacings
-    apart (one scale for every part, so that the oversampled capture and the coarser
-    targets compare)."""
+def _pairs(rs: ReliefSurface, part: np.ndarray):
+    """(i, j, length): the pairs of the part's vertices whose base positions lie 0.7 to 1.3
+    target spacings apart (one scale for every part, so that the oversampled capture and
+    the coarser targets compare); None when there are none."""
     from scipy.spatial import cKDTree
 
     ids = np.flatnonzero(part)
     if len(ids) < 2:
-        return float("nan"), None if colours is None else float("nan")
+        return None
     b = rs.base[ids]
     pairs = cKDTree(b).query_pairs(1.3 * rs.spacing, output_type="ndarray")
     length = np.linalg.norm(b[pairs[:, 0]] - b[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
     keep = length >= 0.7 * rs.spacing
     if not keep.any():
+        return None
+    return ids[pairs[keep, 0]], ids[pairs[keep, 1]], length[keep]
+
+
+def _pair_means(pairs, h: np.ndarray, colours: np.ndarray | None):
+    """(mean |h_i - h_j| / |b_i - b_j|, mean |c_i - c_j| (RGB L1 / 3, 0..255) or None) over
+    ``pairs`` (:func:`_pairs`)."""
+    if pairs is None:
         return float("nan"), None if colours is None else float("nan")
-    i, j = ids[pairs[keep, 0]], ids[pairs[keep, 1]]
-    slope = float(np.mean(np.abs(h[i] - h[j]) / length[keep]))
+    i, j, length = pairs
+    slope = float(np.mean(np.abs(h[i] - h[j]) / length))
     if colours is None:
         return slope, None
     step = float(np.mean(np.abs(colours[i].astype(np.float64) - colours[j].astype(np.float64)).mean(1)))
@@ -528,20 +547,24 @@ def _pct(a: float, b: float) -> float:
     return 100.0 * abs(b - a) / abs(a) if a != 0 else (0.0 if b == 0 else math.inf)
 
 
+def _baseline_draw(rs: ReliefSurface, h: np.ndarray, tgt: np.ndarray, rng: np.random.Generator, n_candidates: int):
+    """One random-copy baseline: every target takes a uniformly random candidate's
+    displacement (frame components) and colour. Returns (pick, heights of every vertex)."""
+    pick = rng.integers(0, n_candidates, len(tgt))  # the completion's candidates: vertices 0..n_candidates-1
+    d = rs.displacement[pick]
+    comp = np.stack([(d * rs.frame_u[pick]).sum(1), (d * rs.frame_v[pick]).sum(1), (d * rs.normals[pick]).sum(1)], 1)
+    dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
+    hb = h.copy()
+    hb[tgt] = rs.fit.distance(rs.base[tgt] + dbase)
+    return pick, hb
+
+
 def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: int) -> dict:
     fit = rs.fit
     n_s, n0 = rs.n_samples, rs.n_original
     tgt = np.arange(n_s, rs.n_vertices)
     done = tgt[textured[tgt]]
     h = fit.distance(rs.positions)
-    # baseline: each target takes a uniformly random sample's displacement (frame components) and colour
-    brng = np.random.default_rng([seed, 1])
-    pick = brng.integers(0, n_candidates, len(tgt))  # the completion's candidates: vertices 0..n_candidates-1
-    comp = np.stack([(rs.displacement[pick] * rs.frame_u[pick]).sum(1), (rs.displacement[pick] * rs.frame_v[pick]).sum(1),
-                     (rs.displacement[pick] * rs.normals[pick]).sum(1)], 1)
-    dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
-    hb = h.copy()
-    hb[tgt] = fit.distance(rs.base[tgt] + dbase)
     orig = np.zeros(rs.n_vertices, bool)
     orig[:n0] = True  # the capture's own vertices
     part = np.zeros(rs.n_vertices, bool)
@@ -550,22 +573,48 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: i
     allt[tgt] = True
     vo = float(np.mean(np.abs(h[:n0])))
     vc = float(np.mean(np.abs(h[done]))) if len(done) else float("nan")
-    vb = float(np.mean(np.abs(hb[tgt])))
-    cb = None
+    (so, co), (sc, cc) = _pair_means(_pairs(rs, orig), h, rs.colors), _pair_means(_pairs(rs, part), h, rs.colors)
+    # the baseline: BASELINE_DRAWS independent random-copy draws (seeds [seed, 1, k]); one
+    # draw is a noisy yardstick, so its numbers are reported as the mean over the draws with
+    # their min and max
+    target_pairs = _pairs(rs, allt)
+    draws = {k: [] for k in ("vb", "vbp", "sb", "sbp", "cbs", "cbsp", "hb")}
+    for k in range(BASELINE_DRAWS):
+        pick, hb = _baseline_draw(rs, h, tgt, np.random.default_rng([seed, 1, k]), n_candidates)
+        vb = float(np.mean(np.abs(hb[tgt])))
+        cb = None
+        if rs.colors is not None:
+            cb = rs.colors.copy()
+            cb[tgt] = rs.colors[pick]
+        sb, cbs = _pair_means(target_pairs, hb, cb)
+        draws["vb"].append(vb)
+        draws["vbp"].append(_pct(vo, vb))
+        draws["sb"].append(sb)
+        draws["sbp"].append(_pct(so, sb))
+        if rs.colors is not None:
+            draws["cbs"].append(cbs)
+            draws["cbsp"].append(_pct(co, cbs))
+            draws["hb"].append(_histogram_distance(rs.colors[:n0], rs.colors[pick]))
+
+    def mean(key):
+        return float(np.mean(draws[key])) if draws[key] else None
+
+    def span(key):
+        return (float(np.min(draws[key])), float(np.max(draws[key]))) if draws[key] else None
+
+    q = dict(volume_original=vo, volume_completed=vc, volume_diff_pct=_pct(vo, vc), volume_baseline=mean("vb"),
+             volume_baseline_diff_pct=mean("vbp"), volume_baseline_diff_pct_range=span("vbp"), slope_original=so,
+             slope_completed=sc, slope_diff_pct=_pct(so, sc), slope_baseline=mean("sb"),
+             slope_baseline_diff_pct=mean("sbp"), slope_baseline_diff_pct_range=span("sbp"),
+             hist_distance=None, hist_baseline=None, hist_baseline_range=None, colour_step_original=co,
+             colour_step_completed=cc, colour_step_diff_pct=None, colour_step_baseline=mean("cbs"),
+             colour_step_baseline_diff_pct=None, colour_step_baseline_diff_pct_range=None,
+             baseline_draws=BASELINE_DRAWS)
     if rs.colors is not None:
-        cb = rs.colors.copy()
-        cb[tgt] = rs.colors[pick]
-    (so, co), (sc, cc), (sb, cbs) = (_pair_means(rs, h, rs.colors, orig), _pair_means(rs, h, rs.colors, part),
-                                     _pair_means(rs, hb, cb, allt))
-    q = dict(volume_original=vo, volume_completed=vc, volume_diff_pct=_pct(vo, vc), volume_baseline=vb,
-             volume_baseline_diff_pct=_pct(vo, vb), slope_original=so, slope_completed=sc,
-             slope_diff_pct=_pct(so, sc), slope_baseline=sb, slope_baseline_diff_pct=_pct(so, sb),
-             hist_distance=None, hist_baseline=None, colour_step_original=co, colour_step_completed=cc,
-             colour_step_diff_pct=None, colour_step_baseline=cbs, colour_step_baseline_diff_pct=None)
-    if rs.colors is not None:
-        q["colour_step_diff_pct"], q["colour_step_baseline_diff_pct"] = _pct(co, cc), _pct(co, cbs)
+        q["colour_step_diff_pct"] = _pct(co, cc)
+        q["colour_step_baseline_diff_pct"], q["colour_step_baseline_diff_pct_range"] = mean("cbsp"), span("cbsp")
         q["hist_distance"] = _histogram_distance(rs.colors[:n0], rs.colors[done])
-        q["hist_baseline"] = _histogram_distance(rs.colors[:n0], rs.colors[pick])
+        q["hist_baseline"], q["hist_baseline_range"] = mean("hb"), span("hb")
     # the capture against itself: its two halves split at the median of the first parameter
     # (two coherent regions; how much real parts of this surface differ)
     u = rs.param[:n0, 0]

@@ -77,6 +77,23 @@ def test_wave_keeps_amplitude_and_period(wave_run):
     assert timings["grow"] > 0 and timings["targets_per_s"] > 0
 
 
+def test_baseline_is_a_mean_over_seeded_draws(wave_run):
+    """The random baseline is reported as the mean of BASELINE_DRAWS seeded draws with their
+    min and max; each draw is reproducible from the seed alone."""
+    from geosynth.completion import BASELINE_DRAWS
+
+    _, report, _ = wave_run
+    q = report.quality
+    assert q["baseline_draws"] == BASELINE_DRAWS >= 2
+    for key in ("volume_baseline_diff_pct", "slope_baseline_diff_pct", "colour_step_baseline_diff_pct",
+                "hist_baseline"):
+        lo, hi = q[key + "_range"] if key != "hist_baseline" else q["hist_baseline_range"]
+        assert lo <= q[key] <= hi, key
+    assert q["hist_baseline_range"][0] < q["hist_baseline_range"][1]  # independent draws differ
+    text = "\n".join(report.lines())
+    assert f"mean of {BASELINE_DRAWS} draws" in text
+
+
 def test_report_lines_and_outputs(wave_run, tmp_path):
     surface, report, _ = wave_run
     text = "\n".join(report.lines())
