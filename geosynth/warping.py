@@ -514,6 +514,17 @@ class ThinPlateSpline:
         return r2
 
     @staticmethod
+    def _r2_into(a: np.ndarray, b_cols: list[np.ndarray], out: np.ndarray, tmp: np.ndarray) -> None:
+        """:meth:`_r2` of a (m, 3) against the columns (x, y, z; each (n,)) of b, written into
+        ``out`` ((m, n), a's dtype) with ``tmp`` (same shape) as scratch: the same sums."""
+        np.subtract.outer(a[:, 0], b_cols[0], out=out)
+        np.square(out, out=out)
+        for j in (1, 2):
+            np.subtract.outer(a[:, j], b_cols[j], out=tmp)
+            np.square(tmp, out=tmp)
+            out += tmp
+
+    @staticmethod
     def _phi(r2: np.ndarray) -> np.ndarray:
         return 0.5 * r2 * np.log(np.where(r2 > 0, r2, 1.0))  # r^2 log r, 0 at r = 0
 
@@ -524,26 +535,38 @@ class ThinPlateSpline:
             jac = np.broadcast_to(np.eye(3) + self.affine[1:].T, (len(x), 3, 3)).copy() if want_jacobian else None
             return x + disp * self.scale, jac
         dt = self.dtype
+        n = len(self.centres)
         disp = np.empty_like(u)
         jac = np.empty((len(u), 3, 3)) if want_jacobian else None
         centres, w = self.centres.astype(dt), self.w.astype(dt)
-        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(len(self.w), 9)  # w_ik c_ij
+        cols = [np.ascontiguousarray(centres[:, j]) for j in range(3)]
+        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)  # w_ik c_ij
         w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
         eye_a = self.affine[1:].T[None] + np.eye(3)[None]
+        u_dt = u.astype(dt)
+        # The (chunk, n) matrices are made once and reused by every chunk: a fresh ~1 MB
+        # array per step cost page faults beside ~12 passes of arithmetic. The chunk size
+        # stays _CHUNK: the BLAS products' rows round differently with other row counts.
+        rows = min(self._CHUNK, len(u))
+        r2_buf, tmp_buf, log_buf = (np.empty((rows, n), dt) for _ in range(3))
+        pos_buf = np.empty((rows, n), bool)
         for lo in range(0, len(u), self._CHUNK):
-            uc = u[lo:lo + self._CHUNK]
-            r2 = self._r2(uc.astype(dt), centres)
-            pos = r2 > 0
-            log_r2 = np.log(r2, out=np.ones_like(r2), where=pos)  # log r^2, 0 at r = 0
-            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2
-            disp[lo:lo + self._CHUNK] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
+            m = min(self._CHUNK, len(u) - lo)
+            r2, tmp, log_r2, pos = r2_buf[:m], tmp_buf[:m], log_buf[:m], pos_buf[:m]
+            self._r2_into(u_dt[lo:lo + m], cols, r2, tmp)
+            np.greater(r2, 0, out=pos)
+            log_r2.fill(1)
+            np.log(r2, out=log_r2, where=pos)  # log r^2, 1 (unused) at r = 0
+            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
+            uc = u[lo:lo + m]
+            disp[lo:lo + m] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
                 log_r2 += dt(1.0)
                 log_r2 *= pos  # psi
                 pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
-                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(uc), 3, 3)
-                jac[lo:lo + self._CHUNK] = j + eye_a
+                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(m, 3, 3)
+                np.add(j, eye_a, out=jac[lo:lo + m])
         return x + disp * self.scale, jac
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
