@@ -396,26 +396,31 @@ def greedy_pairing(
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
 
-    # p_q - p_r and its length for every edge's q and its neighbours r: the same in every pass
-    q_to_r = pq[eq][:, None, :] - pq[rn[eq]] if kr > 0 else np.zeros((len(eq), 0, 3))
+    # What g reads per edge and does not change between passes: q's neighbours r, their
+    # Gaussian weights, p_s, and p_q - p_r with its length.
+    rn_e, phi_e = rn[eq], phi[eq]  # (E, kr)
+    ps_e = ps[es][:, None, :]  # (E, 1, 3)
+    q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
     q_to_r_len = np.linalg.norm(q_to_r, axis=2)
 
     def coherence(edges, partner):
         """g of the edges ``edges`` (indices into eq, es; None: every edge) given
-        ``partner`` (source of each q, -1 if none)."""
+        ``partner`` (source of each q, -1 if none). Edge by edge the same arithmetic
+        whichever edges are asked for, so a subset's values are the full call's."""
         if edges is None:
             edges = slice(None)  # views, no copies
-        eq_, es_ = eq[edges], es[edges]
-        if kr == 0 or len(eq_) == 0:
-            return np.zeros(len(eq_))
-        t = partner[rn[eq_]]  # (E, kr)
-        wgt = phi[eq_] * (t >= 0)
+        if kr == 0 or len(eq[edges]) == 0:
+            return np.zeros(len(eq[edges]))
+        t = partner[rn_e[edges]]  # (E, kr)
+        wgt = phi_e[edges] * (t >= 0)
         tot = wgt.sum(axis=1, keepdims=True)
         f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)
-        a = ps[es_][:, None, :] - ps[np.maximum(t, 0)]  # p_s - p_t
+        a = ps_e[edges] - ps[np.maximum(t, 0)]  # p_s - p_t
         b, lb = q_to_r[edges], q_to_r_len[edges]  # p_q - p_r
-        la = np.linalg.norm(a, axis=2)
-        cos = np.divide(np.einsum("ekj,ekj->ek", a, b), la * lb, out=np.zeros_like(la), where=(la * lb) > 0)
+        sq = a * a
+        la = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # np.linalg.norm's sums, without its overhead
+        lab = la * lb
+        cos = np.divide(np.einsum("ekj,ekj->ek", a, b), lab, out=np.zeros_like(la), where=lab > 0)
         return (w.w_l * (f * np.abs(la - lb)).sum(axis=1) / unit + 0.5 * w.w_d * (f * (1.0 - cos)).sum(axis=1))
 
     def pairing_cost(sel, partner):
