@@ -639,11 +639,25 @@ def _free_corners(target: np.ndarray, box_min: np.ndarray, box_max: np.ndarray, 
     return np.concatenate([np.c_[free, np.full(len(free), z_lo)], np.c_[free, np.full(len(free), z_hi)]])
 
 
+def _neighbour_mean(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``p[idx].mean(axis=1)`` for (m, k) neighbour indices, (m, 3) float64, summed in the
+    same order (neighbour 0, 1, ..., k - 1: what that reduction over the middle axis does;
+    the same bits), a coordinate at a time from contiguous columns: no (m, k, 3) copy."""
+    out = np.empty((len(idx), 3))
+    for j in range(3):
+        g = np.ascontiguousarray(p[:, j])[idx]  # (m, k)
+        acc = g[:, 0].copy()
+        for i in range(1, idx.shape[1]):
+            acc += g[:, i]
+        out[:, j] = acc
+    return out / idx.shape[1]
+
+
 def _outskirts(p: np.ndarray, k: int) -> np.ndarray:
     """Targets whose k-neighbour centroid lies far from them (boundary of the set)."""
     k = int(min(k, len(p)))
     dist, idx = _kdtree(p).query(p, k=k)
-    offset = np.linalg.norm(p[idx].mean(axis=1) - p, axis=1)
+    offset = np.linalg.norm(_neighbour_mean(p, idx) - p, axis=1)
     mean_d = dist[:, 1:].mean(axis=1) if k > 1 else np.zeros(len(p))
     return offset > _LOPSIDED * mean_d, idx
 
