@@ -254,17 +254,22 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
     # ascending order, so that every cluster's sums run over the same points in the same
     # order as over all points: the same bits).
     active = np.arange(n)
+    cols = [np.ascontiguousarray(p[:, j]) for j in range(3)]
     while active.size:
-        ids, local = np.unique(labels[active], return_inverse=True)
+        # ids (ascending) and each active point's rank among them: np.unique's, without a sort
+        lab = labels[active]
+        present = np.zeros(len(frozen), bool)
+        present[lab] = True
+        ids = np.flatnonzero(present)
         m = len(ids)
-        pa = p[active]
+        local = (np.cumsum(present) - 1)[lab]
         counts = np.bincount(local, minlength=m).astype(np.float64)
-        mean = np.stack([np.bincount(local, pa[:, j], m) for j in range(3)], 1) / counts[:, None]
-        d = pa - mean[local]
-        cov = np.zeros((m, 3, 3))
+        mean = [np.bincount(local, c[active], m) / counts for c in cols]
+        dc = [c[active] - mu[local] for c, mu in zip(cols, mean)]  # columns of p - centroid
+        cov = np.empty((m, 3, 3))
         for i in range(3):
             for j in range(i, 3):
-                cov[:, i, j] = cov[:, j, i] = np.bincount(local, d[:, i] * d[:, j], m)
+                cov[:, i, j] = cov[:, j, i] = np.bincount(local, dc[i] * dc[j], m)
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
@@ -276,7 +281,7 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         split = split_first | split_fallback
         if not split.any():
             break
-        positive = np.einsum("ij,ij->i", d, vecs[local, :, 2]) > 0
+        positive = np.einsum("ij,ij->i", np.stack(dc, 1), vecs[local, :, 2]) > 0
         n_pos = np.bincount(local[positive], minlength=m)
         real = split & (n_pos > 0) & (n_pos < counts)
         frozen[ids[split & ~real]] = True
