@@ -333,17 +333,23 @@ def _greedy_match(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarr
     eq, es = eq[order], es[order]
     alive = np.arange(len(order))
     taken = []
+    if not alive.size:
+        return np.zeros(0, np.int64)
+    n_q, n_s = int(eq.max()) + 1, int(es.max()) + 1
+    first_q, first_s = np.empty(n_q, np.int64), np.empty(n_s, np.int64)
     while alive.size:
         q, s = eq[alive], es[alive]
-        first_q = np.zeros(alive.size, bool)
-        first_q[np.unique(q, return_index=True)[1]] = True
-        first_s = np.zeros(alive.size, bool)
-        first_s[np.unique(s, return_index=True)[1]] = True
-        win = first_q & first_s
+        rank = np.arange(alive.size)
+        # the first remaining edge of each q and of each s (np.minimum.at: no sort)
+        first_q.fill(alive.size)
+        np.minimum.at(first_q, q, rank)
+        first_s.fill(alive.size)
+        np.minimum.at(first_s, s, rank)
+        win = (first_q[q] == rank) & (first_s[s] == rank)
         taken.append(alive[win])
-        used_q = np.zeros(int(eq.max()) + 1, bool)
+        used_q = np.zeros(n_q, bool)
         used_q[q[win]] = True
-        used_s = np.zeros(int(es.max()) + 1, bool)
+        used_s = np.zeros(n_s, bool)
         used_s[s[win]] = True
         alive = alive[~(used_q[q] | used_s[s])]
     return order[np.sort(np.concatenate(taken))] if taken else np.zeros(0, np.int64)
