@@ -414,46 +414,44 @@ def greedy_pairing(
     q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
     q_to_r_len = np.linalg.norm(q_to_r, axis=2)
 
-    def coherence(edges, partner):
-        """g of the edges ``edges`` (indices into eq, es; None: every edge) given
-        ``partner`` (source of each q, -1 if none). Edge by edge the same arithmetic
-        whichever edges are asked for, so a subset's values are the full call's."""
-        if edges is None:
-            edges = slice(None)  # views, no copies
-        if kr == 0 or len(eq[edges]) == 0:
-            return np.zeros(len(eq[edges]))
-        t = partner[rn_e[edges]]  # (E, kr)
-        wgt = phi_e[edges] * (t >= 0)
+    def coherence(partner):
+        """g of every edge given ``partner`` (source of each q, -1 if none), (E,)."""
+        if kr == 0 or len(eq) == 0:
+            return np.zeros(len(eq))
+        t = partner[rn_e]  # (E, kr)
+        wgt = phi_e * (t >= 0)
         tot = wgt.sum(axis=1, keepdims=True)
         f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)
-        a = ps_e[edges] - ps[np.maximum(t, 0)]  # p_s - p_t
-        b, lb = q_to_r[edges], q_to_r_len[edges]  # p_q - p_r
+        a = ps_e - ps[np.maximum(t, 0)]  # p_s - p_t
+        b, lb = q_to_r, q_to_r_len  # p_q - p_r
         sq = a * a
         la = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # np.linalg.norm's sums, without its overhead
         lab = la * lb
         cos = np.divide(np.einsum("ekj,ekj->ek", a, b), lab, out=np.zeros_like(la), where=lab > 0)
         return (w.w_l * (f * np.abs(la - lb)).sum(axis=1) / unit + 0.5 * w.w_d * (f * (1.0 - cos)).sum(axis=1))
 
-    def pairing_cost(sel, partner):
-        g = coherence(sel, partner)
-        return float((c[sel] + g).sum() + miss * (n_q - len(sel)))
+    def pairing_cost(sel, g):
+        return float((c[sel] + g[sel]).sum() + miss * (n_q - len(sel)))
 
     def partner_of(sel):
         partner = np.full(n_q, -1, np.int64)
         partner[eq[sel]] = es[sel]
         return partner
 
+    # g of every edge is computed once per pairing: the next pass's edge costs and this
+    # pairing's cost C both read it.
     sel = _greedy_match(eq, es, np.lexsort((tie, c)))
-    partner = partner_of(sel)
-    costs = [pairing_cost(sel, partner)]
+    g = coherence(partner_of(sel))
+    costs = [pairing_cost(sel, g)]
     for _ in range(int(iterations)):
-        total = c + coherence(None, partner)
-        new_sel = _greedy_match(eq, es, np.lexsort((tie, total)))
-        new_partner = partner_of(new_sel)
-        cost = pairing_cost(new_sel, new_partner)
-        if cost > costs[-1] or np.array_equal(new_sel, sel):
+        new_sel = _greedy_match(eq, es, np.lexsort((tie, c + g)))
+        if np.array_equal(new_sel, sel):
             break
-        sel, partner = new_sel, new_partner
+        new_g = coherence(partner_of(new_sel))
+        cost = pairing_cost(new_sel, new_g)
+        if cost > costs[-1]:
+            break
+        sel, g = new_sel, new_g
         costs.append(cost)
     pairs = np.stack([es[sel], eq[sel]], 1).astype(np.int64)
     return pairs[np.argsort(pairs[:, 1], kind="stable")], tuple(costs)
