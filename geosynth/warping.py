@@ -563,21 +563,25 @@ class ThinPlateSpline:
         # stays _CHUNK: the BLAS products' rows round differently with other row counts.
         rows = min(self._CHUNK, len(u))
         r2_buf, tmp_buf, log_buf = (np.empty((rows, n), dt) for _ in range(3))
-        pos_buf = np.empty((rows, n), bool)
+        zero_buf = np.empty((rows, n), bool)
         for lo in range(0, len(u), self._CHUNK):
             m = min(self._CHUNK, len(u) - lo)
-            r2, tmp, log_r2, pos = r2_buf[:m], tmp_buf[:m], log_buf[:m], pos_buf[:m]
+            r2, tmp, log_r2, zero = r2_buf[:m], tmp_buf[:m], log_buf[:m], zero_buf[:m]
             self._r2_into(u_dt[lo:lo + m], cols, r2, tmp)
-            np.greater(r2, 0, out=pos)
-            log_r2.fill(1)
-            np.log(r2, out=log_r2, where=pos)  # log r^2, 1 (unused) at r = 0
+            # r = 0 only where a point is a centre: a few entries, set by index rather than
+            # masking every entry (the same values as a masked log and a multiply by r > 0)
+            np.equal(r2, 0, out=zero)
+            at_centre = np.flatnonzero(zero)
+            with np.errstate(divide="ignore"):
+                np.log(r2, out=log_r2)  # log r^2
+            log_r2.flat[at_centre] = 1.0  # (unused) instead of -inf
             np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
             uc = u[lo:lo + m]
             disp[lo:lo + m] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
                 log_r2 += dt(1.0)
-                log_r2 *= pos  # psi
+                log_r2.flat[at_centre] = 0.0  # psi
                 pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
                 j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(m, 3, 3)
                 np.add(j, eye_a, out=jac[lo:lo + m])
