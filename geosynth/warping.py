@@ -408,8 +408,8 @@ def greedy_pairing(
         phi = np.zeros((n_q, 0))
 
     # What g reads per edge and does not change between passes: q's neighbours r, their
-    # Gaussian weights, p_s, and p_q - p_r with its length.
-    rn_e, phi_e = rn[eq], phi[eq]  # (E, kr)
+    # p_s, and p_q - p_r with its length.
+    rn_e = rn[eq]  # (E, kr)
     ps_e = ps[es][:, None, :]  # (E, 1, 3)
     q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
     q_to_r_len = np.linalg.norm(q_to_r, axis=2)
@@ -418,11 +418,12 @@ def greedy_pairing(
         """g of every edge given ``partner`` (source of each q, -1 if none), (E,)."""
         if kr == 0 or len(eq) == 0:
             return np.zeros(len(eq))
-        t = partner[rn_e]  # (E, kr)
-        wgt = phi_e * (t >= 0)
+        # f(q, r) depends on q and the pairing only: computed per q, then read per edge
+        t_q = partner[rn]  # (|Q|, kr)
+        wgt = phi * (t_q >= 0)
         tot = wgt.sum(axis=1, keepdims=True)
-        f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)
-        a = ps_e - ps[np.maximum(t, 0)]  # p_s - p_t
+        f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)[eq]  # (E, kr)
+        a = ps_e - ps[np.maximum(t_q, 0)][eq]  # p_s - p_t, (E, kr, 3)
         b, lb = q_to_r, q_to_r_len  # p_q - p_r
         sq = a * a
         la = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # np.linalg.norm's sums, without its overhead
