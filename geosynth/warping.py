@@ -407,8 +407,8 @@ def greedy_pairing(
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
 
-    # What g reads per edge and does not change between passes: q's neighbours r, their
-    # p_s, and p_q - p_r with its length.
+    # What g reads per edge and does not change between passes: q's neighbours r, p_s,
+    # and p_q - p_r with its length.
     rn_e = rn[eq]  # (E, kr)
     ps_e = ps[es][:, None, :]  # (E, 1, 3)
     q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
