@@ -264,8 +264,9 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         m = len(ids)
         local = (np.cumsum(present) - 1)[lab]
         counts = np.bincount(local, minlength=m).astype(np.float64)
-        mean = [np.bincount(local, c[active], m) / counts for c in cols]
-        dc = [c[active] - mu[local] for c, mu in zip(cols, mean)]  # columns of p - centroid
+        ca = [c[active] for c in cols]
+        mean = [np.bincount(local, c, m) / counts for c in ca]
+        dc = [c - mu[local] for c, mu in zip(ca, mean)]  # columns of p - centroid
         cov = np.empty((m, 3, 3))
         for i in range(3):
             for j in range(i, 3):
@@ -281,7 +282,7 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         split = split_first | split_fallback
         if not split.any():
             break
-        positive = np.einsum("ij,ij->i", np.stack(dc, 1), vecs[local, :, 2]) > 0
+        positive = np.einsum("ij,ij->i", np.stack(dc, 1), vecs[:, :, 2][local]) > 0
         n_pos = np.bincount(local[positive], minlength=m)
         real = split & (n_pos > 0) & (n_pos < counts)
         frozen[ids[split & ~real]] = True
