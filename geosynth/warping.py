@@ -655,9 +655,10 @@ def _free_corners(target: np.ndarray, box_min: np.ndarray, box_max: np.ndarray, 
 
 
 def _neighbour_mean(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``p[idx].mean(axis=1)`` for (m, k) neighbour indices, (m, 3) float64, summed in the
-    same order (neighbour 0, 1, ..., k - 1: what that reduction over the middle axis does;
-    the same bits), a coordinate at a time from contiguous columns: no (m, k, 3) copy."""
+    """``p[idx].mean(axis=1)`` for (m, k) neighbour indices: (m, 3) float64, the same bits
+    (NumPy reduces that middle axis neighbour by neighbour, 0, 1, ..., k - 1; so does this,
+    tests/test_warping.py checks it), a coordinate at a time from contiguous columns, without
+    the (m, k, 3) copy."""
     out = np.empty((len(idx), 3))
     for j in range(3):
         g = np.ascontiguousarray(p[:, j])[idx]  # (m, k)
