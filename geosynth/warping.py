@@ -254,17 +254,23 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
     # ascending order, so that every cluster's sums run over the same points in the same
     # order as over all points: the same bits).
     active = np.arange(n)
+    cols = [np.ascontiguousarray(p[:, j]) for j in range(3)]
     while active.size:
-        ids, local = np.unique(labels[active], return_inverse=True)
+        # ids (ascending) and each active point's rank among them: np.unique's, without a sort
+        lab = labels[active]
+        present = np.zeros(len(frozen), bool)
+        present[lab] = True
+        ids = np.flatnonzero(present)
         m = len(ids)
-        pa = p[active]
+        local = (np.cumsum(present) - 1)[lab]
         counts = np.bincount(local, minlength=m).astype(np.float64)
-        mean = np.stack([np.bincount(local, pa[:, j], m) for j in range(3)], 1) / counts[:, None]
-        d = pa - mean[local]
-        cov = np.zeros((m, 3, 3))
+        ca = [c[active] for c in cols]
+        mean = [np.bincount(local, c, m) / counts for c in ca]
+        dc = [c - mu[local] for c, mu in zip(ca, mean)]  # columns of p - centroid
+        cov = np.empty((m, 3, 3))
         for i in range(3):
             for j in range(i, 3):
-                cov[:, i, j] = cov[:, j, i] = np.bincount(local, d[:, i] * d[:, j], m)
+                cov[:, i, j] = cov[:, j, i] = np.bincount(local, dc[i] * dc[j], m)
         vals, vecs = np.linalg.eigh(cov)
         total = vals.sum(axis=1)
         var = np.where(total > 0, np.clip(vals[:, 0], 0, None) / np.where(total > 0, total, 1), 0.0)
@@ -276,7 +282,7 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
         split = split_first | split_fallback
         if not split.any():
             break
-        positive = np.einsum("ij,ij->i", d, vecs[local, :, 2]) > 0
+        positive = np.einsum("ij,ij->i", np.stack(dc, 1), vecs[:, :, 2][local]) > 0
         n_pos = np.bincount(local[positive], minlength=m)
         real = split & (n_pos > 0) & (n_pos < counts)
         frozen[ids[split & ~real]] = True
@@ -328,17 +334,23 @@ def _greedy_match(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarr
     eq, es = eq[order], es[order]
     alive = np.arange(len(order))
     taken = []
+    if not alive.size:
+        return np.zeros(0, np.int64)
+    n_q, n_s = int(eq.max()) + 1, int(es.max()) + 1
+    first_q, first_s = np.empty(n_q, np.int64), np.empty(n_s, np.int64)
     while alive.size:
         q, s = eq[alive], es[alive]
-        first_q = np.zeros(alive.size, bool)
-        first_q[np.unique(q, return_index=True)[1]] = True
-        first_s = np.zeros(alive.size, bool)
-        first_s[np.unique(s, return_index=True)[1]] = True
-        win = first_q & first_s
+        rank = np.arange(alive.size)
+        # the first remaining edge of each q and of each s (np.minimum.at: no sort)
+        first_q.fill(alive.size)
+        np.minimum.at(first_q, q, rank)
+        first_s.fill(alive.size)
+        np.minimum.at(first_s, s, rank)
+        win = (first_q[q] == rank) & (first_s[s] == rank)
         taken.append(alive[win])
-        used_q = np.zeros(int(eq.max()) + 1, bool)
+        used_q = np.zeros(n_q, bool)
         used_q[q[win]] = True
-        used_s = np.zeros(int(es.max()) + 1, bool)
+        used_s = np.zeros(n_s, bool)
         used_s[s[win]] = True
         alive = alive[~(used_q[q] | used_s[s])]
     return order[np.sort(np.concatenate(taken))] if taken else np.zeros(0, np.int64)
@@ -396,48 +408,52 @@ def greedy_pairing(
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
 
-    # p_q - p_r and its length for every edge's q and its neighbours r: the same in every pass
-    q_to_r = pq[eq][:, None, :] - pq[rn[eq]] if kr > 0 else np.zeros((len(eq), 0, 3))
+    # What g reads per edge and does not change between passes: q's neighbours r, p_s,
+    # and p_q - p_r with its length.
+    rn_e = rn[eq]  # (E, kr)
+    ps_e = ps[es][:, None, :]  # (E, 1, 3)
+    q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
     q_to_r_len = np.linalg.norm(q_to_r, axis=2)
 
-    def coherence(edges, partner):
-        """g of the edges ``edges`` (indices into eq, es; None: every edge) given
-        ``partner`` (source of each q, -1 if none)."""
-        if edges is None:
-            edges = slice(None)  # views, no copies
-        eq_, es_ = eq[edges], es[edges]
-        if kr == 0 or len(eq_) == 0:
-            return np.zeros(len(eq_))
-        t = partner[rn[eq_]]  # (E, kr)
-        wgt = phi[eq_] * (t >= 0)
+    def coherence(partner):
+        """g of every edge given ``partner`` (source of each q, -1 if none), (E,)."""
+        if kr == 0 or len(eq) == 0:
+            return np.zeros(len(eq))
+        # f(q, r) depends on q and the pairing only: computed per q, then read per edge
+        t_q = partner[rn]  # (|Q|, kr)
+        wgt = phi * (t_q >= 0)
         tot = wgt.sum(axis=1, keepdims=True)
-        f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)
-        a = ps[es_][:, None, :] - ps[np.maximum(t, 0)]  # p_s - p_t
-        b, lb = q_to_r[edges], q_to_r_len[edges]  # p_q - p_r
-        la = np.linalg.norm(a, axis=2)
-        cos = np.divide(np.einsum("ekj,ekj->ek", a, b), la * lb, out=np.zeros_like(la), where=(la * lb) > 0)
+        f = np.divide(wgt, tot, out=np.zeros_like(wgt), where=tot > 0)[eq]  # (E, kr)
+        a = ps_e - ps[np.maximum(t_q, 0)][eq]  # p_s - p_t, (E, kr, 3)
+        b, lb = q_to_r, q_to_r_len  # p_q - p_r
+        sq = a * a
+        la = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # np.linalg.norm's sums, without its overhead
+        lab = la * lb
+        cos = np.divide(np.einsum("ekj,ekj->ek", a, b), lab, out=np.zeros_like(la), where=lab > 0)
         return (w.w_l * (f * np.abs(la - lb)).sum(axis=1) / unit + 0.5 * w.w_d * (f * (1.0 - cos)).sum(axis=1))
 
-    def pairing_cost(sel, partner):
-        g = coherence(sel, partner)
-        return float((c[sel] + g).sum() + miss * (n_q - len(sel)))
+    def pairing_cost(sel, g):
+        return float((c[sel] + g[sel]).sum() + miss * (n_q - len(sel)))
 
     def partner_of(sel):
         partner = np.full(n_q, -1, np.int64)
         partner[eq[sel]] = es[sel]
         return partner
 
+    # g of every edge is computed once per pairing: the next pass's edge costs and this
+    # pairing's cost C both read it.
     sel = _greedy_match(eq, es, np.lexsort((tie, c)))
-    partner = partner_of(sel)
-    costs = [pairing_cost(sel, partner)]
+    g = coherence(partner_of(sel))
+    costs = [pairing_cost(sel, g)]
     for _ in range(int(iterations)):
-        total = c + coherence(None, partner)
-        new_sel = _greedy_match(eq, es, np.lexsort((tie, total)))
-        new_partner = partner_of(new_sel)
-        cost = pairing_cost(new_sel, new_partner)
-        if cost > costs[-1] or np.array_equal(new_sel, sel):
+        new_sel = _greedy_match(eq, es, np.lexsort((tie, c + g)))
+        if np.array_equal(new_sel, sel):
             break
-        sel, partner = new_sel, new_partner
+        new_g = coherence(partner_of(new_sel))
+        cost = pairing_cost(new_sel, new_g)
+        if cost > costs[-1]:
+            break
+        sel, g = new_sel, new_g
         costs.append(cost)
     pairs = np.stack([es[sel], eq[sel]], 1).astype(np.int64)
     return pairs[np.argsort(pairs[:, 1], kind="stable")], tuple(costs)
@@ -514,6 +530,17 @@ class ThinPlateSpline:
         return r2
 
     @staticmethod
+    def _r2_into(a: np.ndarray, b_cols: list[np.ndarray], out: np.ndarray, tmp: np.ndarray) -> None:
+        """:meth:`_r2` of a (m, 3) against the columns (x, y, z; each (n,)) of b, written into
+        ``out`` ((m, n), a's dtype) with ``tmp`` (same shape) as scratch: the same sums."""
+        np.subtract.outer(a[:, 0], b_cols[0], out=out)
+        np.square(out, out=out)
+        for j in (1, 2):
+            np.subtract.outer(a[:, j], b_cols[j], out=tmp)
+            np.square(tmp, out=tmp)
+            out += tmp
+
+    @staticmethod
     def _phi(r2: np.ndarray) -> np.ndarray:
         return 0.5 * r2 * np.log(np.where(r2 > 0, r2, 1.0))  # r^2 log r, 0 at r = 0
 
@@ -524,26 +551,42 @@ class ThinPlateSpline:
             jac = np.broadcast_to(np.eye(3) + self.affine[1:].T, (len(x), 3, 3)).copy() if want_jacobian else None
             return x + disp * self.scale, jac
         dt = self.dtype
+        n = len(self.centres)
         disp = np.empty_like(u)
         jac = np.empty((len(u), 3, 3)) if want_jacobian else None
         centres, w = self.centres.astype(dt), self.w.astype(dt)
-        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(len(self.w), 9)  # w_ik c_ij
+        cols = [np.ascontiguousarray(centres[:, j]) for j in range(3)]
+        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)  # w_ik c_ij
         w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
         eye_a = self.affine[1:].T[None] + np.eye(3)[None]
+        u_dt = u.astype(dt)
+        # The (chunk, n) matrices are made once and reused by every chunk: a fresh ~1 MB
+        # array per step cost page faults beside ~12 passes of arithmetic. The chunk size
+        # stays _CHUNK: the BLAS products' rows round differently with other row counts.
+        rows = min(self._CHUNK, len(u))
+        r2_buf, tmp_buf, log_buf = (np.empty((rows, n), dt) for _ in range(3))
+        zero_buf = np.empty((rows, n), bool)
         for lo in range(0, len(u), self._CHUNK):
-            uc = u[lo:lo + self._CHUNK]
-            r2 = self._r2(uc.astype(dt), centres)
-            pos = r2 > 0
-            log_r2 = np.log(r2, out=np.ones_like(r2), where=pos)  # log r^2, 0 at r = 0
-            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2
-            disp[lo:lo + self._CHUNK] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
+            m = min(self._CHUNK, len(u) - lo)
+            r2, tmp, log_r2, zero = r2_buf[:m], tmp_buf[:m], log_buf[:m], zero_buf[:m]
+            self._r2_into(u_dt[lo:lo + m], cols, r2, tmp)
+            # r = 0 only where a point is a centre: a few entries, set by index rather than
+            # masking every entry (the same values as a masked log and a multiply by r > 0)
+            np.equal(r2, 0, out=zero)
+            at_centre = np.flatnonzero(zero)
+            with np.errstate(divide="ignore"):
+                np.log(r2, out=log_r2)  # log r^2
+            log_r2.flat[at_centre] = 1.0  # (unused) instead of -inf
+            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
+            uc = u[lo:lo + m]
+            disp[lo:lo + m] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
                 log_r2 += dt(1.0)
-                log_r2 *= pos  # psi
+                log_r2.flat[at_centre] = 0.0  # psi
                 pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
-                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(uc), 3, 3)
-                jac[lo:lo + self._CHUNK] = j + eye_a
+                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(m, 3, 3)
+                np.add(j, eye_a, out=jac[lo:lo + m])
         return x + disp * self.scale, jac
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
@@ -611,11 +654,26 @@ def _free_corners(target: np.ndarray, box_min: np.ndarray, box_max: np.ndarray, 
     return np.concatenate([np.c_[free, np.full(len(free), z_lo)], np.c_[free, np.full(len(free), z_hi)]])
 
 
+def _neighbour_mean(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``p[idx].mean(axis=1)`` for (m, k) neighbour indices: (m, 3) float64, the same bits
+    (NumPy reduces that middle axis neighbour by neighbour, 0, 1, ..., k - 1; so does this,
+    tests/test_warping.py checks it), a coordinate at a time from contiguous columns, without
+    the (m, k, 3) copy."""
+    out = np.empty((len(idx), 3))
+    for j in range(3):
+        g = np.ascontiguousarray(p[:, j])[idx]  # (m, k)
+        acc = g[:, 0].copy()
+        for i in range(1, idx.shape[1]):
+            acc += g[:, i]
+        out[:, j] = acc
+    return out / idx.shape[1]
+
+
 def _outskirts(p: np.ndarray, k: int) -> np.ndarray:
     """Targets whose k-neighbour centroid lies far from them (boundary of the set)."""
     k = int(min(k, len(p)))
     dist, idx = _kdtree(p).query(p, k=k)
-    offset = np.linalg.norm(p[idx].mean(axis=1) - p, axis=1)
+    offset = np.linalg.norm(_neighbour_mean(p, idx) - p, axis=1)
     mean_d = dist[:, 1:].mean(axis=1) if k > 1 else np.zeros(len(p))
     return offset > _LOPSIDED * mean_d, idx
 

@@ -319,3 +319,64 @@ def test_one_pass_clustering_with_fallback_equals_two_runs():
     assert fallbacks > 5 and firsts > 5
     with pytest.raises(ValueError, match="fallback_size"):
         _adaptive_clusters(p, 20, 0.05, limit=10, fallback_size=10)
+
+
+def test_greedy_match_is_the_sequential_scan():
+    """_greedy_match (vectorized rounds of "first remaining edge of its q and its s") takes
+    exactly the edges a sequential scan in the given order takes, in that order."""
+    from geosynth.warping import _greedy_match
+
+    rng = np.random.default_rng(11)
+    for trial in range(40):
+        e = int(rng.integers(1, 600))
+        eq = rng.integers(0, int(rng.integers(1, 60)), e)
+        es = rng.integers(0, int(rng.integers(1, 200)), e)
+        order = rng.permutation(e)
+        used_q, used_s, want = set(), set(), []
+        for k in order:
+            if eq[k] not in used_q and es[k] not in used_s:
+                used_q.add(eq[k])
+                used_s.add(es[k])
+                want.append(k)
+        np.testing.assert_array_equal(_greedy_match(eq, es, order), np.array(want, np.int64))
+    assert _greedy_match(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)).size == 0
+
+
+def test_neighbour_mean_is_the_mean_bit_for_bit(rng):
+    from geosynth.warping import _neighbour_mean
+
+    p = rng.normal(size=(500, 3)) * [3.0, 1.0, 0.01] + 100.0
+    for k in (1, 2, 7, 16):
+        idx = rng.integers(0, len(p), (500, k))
+        assert np.array_equal(_neighbour_mean(p, idx), p[idx].mean(axis=1))
+
+
+def test_spline_evaluation_is_the_plain_formula_bit_for_bit(rng):
+    """The chunked evaluation with reused buffers and r = 0 set by index gives the bits of
+    the formula written out with fresh arrays (masked log, multiply by r > 0), at one BLAS
+    thread as the spline runs, including points that are centres and a last, partial chunk."""
+    from geosynth.warping import _blas_controller
+
+    c = rng.uniform(0, 1, (90, 3)) * [1, 1, 0.1]
+    y = c + rng.normal(scale=0.3 * SP, size=c.shape)
+    x = np.concatenate([rng.uniform(0, 1, (2500, 3)) * [1, 1, 0.1], c[::3]])  # some points are centres
+    for dtype in (np.float32, np.float64):
+        spline = ThinPlateSpline(c, y, dtype=dtype)
+        dt = spline.dtype
+        u = (x - spline.shift) / spline.scale
+        w = spline.w.astype(dt)
+        wc = (spline.w[:, :, None] * spline.centres[:, None, :]).reshape(len(spline.w), 9)
+        w12 = np.concatenate([spline.w, wc], axis=1).astype(dt)
+        disp, jac = np.empty_like(u), np.empty((len(u), 3, 3))
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            for lo in range(0, len(u), ThinPlateSpline._CHUNK):
+                uc = u[lo:lo + ThinPlateSpline._CHUNK]
+                r2 = ThinPlateSpline._r2(uc.astype(dt), spline.centres.astype(dt))
+                pos = r2 > 0
+                log_r2 = np.log(r2, out=np.ones_like(r2), where=pos)
+                disp[lo:lo + len(uc)] = dt(0.5) * ((r2 * log_r2) @ w) + spline.affine[0] + uc @ spline.affine[1:]
+                pp = (((log_r2 + dt(1.0)) * pos) @ w12).astype(np.float64)
+                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(uc), 3, 3)
+                jac[lo:lo + len(uc)] = j + (spline.affine[1:].T[None] + np.eye(3)[None])
+        assert np.array_equal(spline(x), x + disp * spline.scale)
+        assert np.array_equal(spline.jacobian(x), jac)
