@@ -260,13 +260,16 @@ def read_with_trimesh(p: Path) -> Geometry:
             geom = _trimesh_load(trimesh, p, suffix)
         parts = list(geom.dump()) if isinstance(geom, trimesh.Scene) else [geom]
         meshes = [g for g in parts if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        # a mangled OBJ can parse into vertices of shape (N, 1) (a bit flip in "v x y z")
+        shapes = [np.shape(g.vertices) for g in meshes or parts
+                  if isinstance(g, (trimesh.Trimesh, trimesh.PointCloud)) and len(g.vertices)]
+        if any(len(v) != 2 or v[1] != 3 for v in shapes):
+            raise ValueError(f"its vertices have shape {shapes}, not (N, 3)")
         if meshes:
             mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
             return Geometry(np.asarray(mesh.vertices, np.float64), faces=np.asarray(mesh.faces, np.int64))
         points = [np.asarray(g.vertices, np.float64) for g in parts
                   if isinstance(g, (trimesh.Trimesh, trimesh.PointCloud)) and len(g.vertices)]
-        if any(v.ndim != 2 or v.shape[1] != 3 for v in points):
-            raise ValueError(f"its vertices have shape {[v.shape for v in points]}, not (N, 3)")
     except Exception as exc:  # trimesh raises many kinds (IndexError, ValueError, KeyError, ...) on bad files
         raise ValueError(f"{_name(p)} is not a readable {kind} file: {reason(exc)}; give a complete {kind} file."
                          ) from exc

@@ -247,6 +247,17 @@ def test_obj_without_faces_is_a_point_set(tmp_path):
         load_mesh(path)
 
 
+def test_obj_with_one_coordinate_per_vertex_is_refused(tmp_path):
+    # trimesh parses "v 0.5" lines into (N, 1) vertices: a mangled OBJ (found by the fuzz test below)
+    path = tmp_path / "one.obj"
+    path.write_text("v 0.5\nv 1\nv 2\nf 1 2 3\n")
+    for reader in (load_mesh, read_geometry):
+        with pytest.raises(ValueError, match=r"one.obj' is not a readable OBJ file: its vertices have shape "
+                                             r"\[\(3, 1\)\], not \(N, 3\)") as err:
+            reader(path)
+        _one_line_naming(err.value, path)
+
+
 def test_nan_vertex_in_obj_is_refused_with_count_and_first_index(tmp_path):
     src = _sphere()
     lines = src.export(file_type="obj").splitlines()
