@@ -517,7 +517,7 @@ def synthesize_point_texture(
     elif not isinstance(weights, WarpWeights):
         raise TypeError(f"weights must be a geosynth.warping.WarpWeights, got {type(weights).__name__}.")
     backend = _checks.resolve_backend(device)
-    device_name = getattr(backend, "device", None) or (device or "auto")
+    device = backend.name  # the resolved device ("auto" / None made concrete): every stage runs on this one
     if patch is None:
         from geosynth.point_examples import POINT_EXAMPLES
 
@@ -549,7 +549,7 @@ def synthesize_point_texture(
         exemplar=texture.name, points_in=len(texture), points_out=len(p), size=tuple(float(v) for v in lay.size),
         tileable=tileable, grid=search.shape, cell=lay.cell, patch=lay.patch, extra=lay.extra, overlap=lay.overlap,
         patches=lay.cols * lay.rows, candidates=float(np.mean(stats["candidates"])) if stats["candidates"] else 0.0,
-        spacing=spacing, radius=h, arbitrated=search.arbitrated + stats["arbitrated"], device=str(device_name),
+        spacing=spacing, radius=h, arbitrated=search.arbitrated + stats["arbitrated"], device=device,
     )
     if quality:
         tq = time.perf_counter()

@@ -177,6 +177,18 @@ def test_the_seed_decides_the_points(one_device, small_weave):
     assert a.positions.shape != other.positions.shape or not np.array_equal(a.positions, other.positions)
 
 
+def test_no_device_given_runs_on_auto(small_weave):
+    # device=None (the CLI without --device) means "auto", resolved once for every stage (it once
+    # reached the gather scorer as None and failed)
+    from geosynth.backend import resolve_device
+
+    auto = resolve_device("auto")
+    a, report, _ = synthesize_point_texture(small_weave, device=None, seed=5, **SMALL)
+    b, _, _ = synthesize_point_texture(small_weave, device=auto, seed=5, **SMALL)
+    assert report.device == auto
+    np.testing.assert_array_equal(a.positions, b.positions)
+
+
 def test_synthesis_beats_random_pasting(one_device, small_weave):
     _, report, timings = synthesize_point_texture(small_weave, device=one_device, seed=1,
                                                   **{**SMALL, "quality": True, "quality_samples": 6})
