@@ -580,12 +580,16 @@ def has_pieces(points, spacing: float, *, link: float = 3.5, min_points: int = M
     return bool((_whole(p, labels, (p[:, :2].min(axis=0), p[:, :2].max(axis=0)), r) & big).any())
 
 
-def _whole(points, labels, window, tol):
+def _whole(points, labels, window, tol, beyond=None):
     """(L,) whether each piece keeps ``tol`` away from the borders of the xy ``window``
-    ((lo, hi)) the points were cut out of: only such a piece is all there."""
+    ((lo, hi)) the points were cut out of: only such a piece is all there. ``beyond``: (M,)
+    bool, points whose nearness to the border does not count (a patch piece cut only by
+    the window's overlap sides is the part of a piece that N_k would hold)."""
     lo, hi = (np.asarray(w, np.float64)[:2] for w in window)
     xy = points[:, :2]
     near = ((xy - lo < tol) | (hi - xy < tol)).any(axis=1)
+    if beyond is not None:
+        near &= ~beyond
     bad = np.zeros(labels.max() + 1 if len(labels) else 0, bool)
     bad[labels[near]] = True
     return ~bad
@@ -674,13 +678,17 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
         return np.isfinite(d)
 
     sides = []  # per set: labels, whole, unmatched, mean ramp, reaches outside the box
-    for x, rx, other, win, counted in ((p, r, q, window or bounds(p), r > 0),
-                                        (q, rq, p, neighbourhood_window or bounds(q), (rq > 0) & in_box(q))):
+    # The patch's points outside the box with ramp 1 lie across an overlap side: a patch piece
+    # cut by the window only there is a candidate too (it reaches outside the box: unmatched,
+    # it would be pasted as half a piece, so it is dropped).
+    for x, rx, other, win, counted, beyond in (
+            (p, r, q, window or bounds(p), r > 0, (r >= 1) & ~in_box(p)),
+            (q, rq, p, neighbourhood_window or bounds(q), (rq > 0) & in_box(q), None)):
         lab = pieces(x, link)
         n_lab = lab.max() + 1
         size = np.bincount(lab, minlength=n_lab)
         total = np.bincount(lab[counted], minlength=n_lab)
-        candidate = _whole(x, lab, win, link) & (size >= min_points) & (total > 0)
+        candidate = _whole(x, lab, win, link, beyond) & (size >= min_points) & (total > 0)
         ask = counted & candidate[lab]  # only the candidates' points are asked for a match
         near = np.bincount(lab[ask], weights=near_other(x[ask], other).astype(np.float64), minlength=n_lab)
         unmatched = candidate & (2 * near < total)
