@@ -677,47 +677,48 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
         d, _ = cKDTree(local).query(x, distance_upper_bound=match)
         return np.isfinite(d)
 
+    inb_p, inb_q = in_box(p), in_box(q)
     sides = []  # per set: labels, whole, unmatched, mean ramp, reaches outside the box
     # The patch's points outside the box with ramp 1 lie across an overlap side: a patch piece
     # cut by the window only there is a candidate too (it reaches outside the box: unmatched,
     # it would be pasted as half a piece, so it is dropped).
-    for x, rx, other, win, counted, beyond in (
-            (p, r, q, window or bounds(p), r > 0, (r >= 1) & ~in_box(p)),
-            (q, rq, p, neighbourhood_window or bounds(q), (rq > 0) & in_box(q), None)):
+    for x, rx, other, win, counted, beyond, inb in (
+            (p, r, q, window or bounds(p), r > 0, (r >= 1) & ~inb_p, inb_p),
+            (q, rq, p, neighbourhood_window or bounds(q), (rq > 0) & inb_q, None, inb_q)):
         lab = pieces(x, link)
         n_lab = lab.max() + 1
         size = np.bincount(lab, minlength=n_lab)
         total = np.bincount(lab[counted], minlength=n_lab)
-        candidate = _whole(x, lab, win, link, beyond) & (size >= min_points) & (total > 0)
+        whole = _whole(x, lab, win, link, beyond)
+        candidate = whole & (size >= min_points) & (total > 0)
         ask = counted & candidate[lab]  # only the candidates' points are asked for a match
         near = np.bincount(lab[ask], weights=near_other(x[ask], other).astype(np.float64), minlength=n_lab)
         unmatched = candidate & (2 * near < total)
         # which side a piece is on: the mean ramp of its points (1 beyond the box's edge)
         rc = np.bincount(lab, weights=rx, minlength=n_lab) / size
         outside = np.zeros(n_lab, bool)
-        outside[lab[~in_box(x)]] = True
-        sides.append((lab, candidate, unmatched, rc, outside))
+        outside[lab[~inb]] = True
+        sides.append((lab, whole, unmatched, rc, outside))
     (lp, wp, up, rcp, op), (lq, wq, uq, rcq, oq) = sides
     keep_q = uq & ((rcq >= 0.5) | oq)
-    restore = keep_q[lq] & in_box(q)
+    restore = keep_q[lq] & inb_q
     drop_piece = up & ((rcp >= 0.5) | op)
     unblend = (up & ~drop_piece)[lp]
     drop = drop_piece[lp]
     # One flower, never two in one place: a whole patch piece kept goes if it touches (less
     # than link) a restored N_k piece, or, unmatched, an N_k piece that stays outside the box.
-    whole_q = _whole(q, lq, neighbourhood_window or bounds(q), link)[lq]
-    stays = whole_q & (restore | ~in_box(q))
-    if stays.any():
-        d, i = cKDTree(q[stays]).query(p, distance_upper_bound=link)
+    stays = wq[lq] & (restore | ~inb_q)
+    may_go = (_whole(p, lp, window or bounds(p), link) & ~drop_piece)[lp]  # only these are asked
+    if stays.any() and may_go.any():
+        ask = np.flatnonzero(may_go)
+        d, i = cKDTree(q[stays]).query(p[ask], distance_upper_bound=link)
         hit = np.isfinite(d)
-        restored = np.zeros(len(p), bool)
-        restored[hit] = restore[np.flatnonzero(stays)[i[hit]]]
         n_lab = lp.max() + 1
         touch_restored = np.zeros(n_lab, bool)
-        touch_restored[lp[restored]] = True
+        touch_restored[lp[ask[hit][restore[np.flatnonzero(stays)[i[hit]]]]]] = True
         touch = np.zeros(n_lab, bool)
-        touch[lp[hit]] = True
-        gone = (touch_restored | (touch & up)) & _whole(p, lp, window or bounds(p), link) & ~drop_piece
+        touch[lp[ask[hit]]] = True
+        gone = touch_restored | (touch & up)
         drop |= gone[lp]
         unblend &= ~drop
     return drop, unblend, restore
