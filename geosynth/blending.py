@@ -605,13 +605,14 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
     it cannot remove a piece (a flower) that one side has in the overlap and the other
     lacks, and it drags such a piece's points toward whatever surface lies within reach (a
     petal toward the ground). Here a *piece* is a connected component (:func:`pieces`,
-    points chained less than ``link`` spacings apart) that lies wholly inside the window
-    its set was cut from (one touching the window's border is part of a larger surface,
-    the ground plane, a thread: it is blended as before) and has at least ``min_points``
-    points (fewer, by default fewer than one MLS evaluation's neighbours, are sampling
-    debris, not geometry the MLS surface resolves: blended as before). A piece is *unmatched* when fewer
-    than half of its points in the overlap (ramp > 0; N_k's: inside the box too) have a
-    point of the other set within ``match`` spacings. Unmatched pieces are not blended but
+    points chained less than ``link`` spacings apart) with at least ``min_points`` points
+    (fewer, by default fewer than one MLS evaluation's neighbours, are sampling debris) that
+    lies wholly inside the window its set was cut from. One touching the window's border is
+    part of a larger surface (the ground plane, a thread) and is blended as before; but a
+    patch piece that the window cuts only across the overlap's sides (ramp 1, outside the
+    box) counts: it continues into what N_k holds. A piece is *unmatched* when fewer than
+    half of its points in the overlap (ramp > 0; N_k's: inside the box too) have a point of
+    the other set within ``match`` spacings. Unmatched pieces are not blended but
     kept or dropped whole, by the mean ramp of their points (>= 1/2: N_k's side):
 
     - a patch piece is dropped where N_k's side is kept, and where it reaches outside the
@@ -624,9 +625,10 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
       or, unmatched, a piece of N_k that stays outside the box, is dropped: one flower,
       never two in one place.
 
-    On a connected surface (a height field, a weave's threads) or pieces that warping
-    matched (chainmail's rings) nothing is unmatched, and nothing changes. Host float64
-    and integer decisions only: the same on every device.
+    On a connected surface (a height field, a weave's threads) nothing is a piece and
+    nothing changes; :func:`geosynth.geometry_texture.synthesize_point_texture` calls this
+    only for an exemplar that has pieces (:func:`has_pieces`). Host float64 and integer
+    decisions only: the same on every device.
 
     Args:
         points: (M, 3) float, the warped patch F'_k; ramp: (M,) its overlap ramp.

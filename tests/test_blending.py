@@ -254,7 +254,8 @@ def flowers_scene(rng):
             xy = np.concatenate([grid_xy(-0.4, 0.3, -0.4, 1.0, rng, 0.3), grid_xy(0.3, 1.0, -0.4, 0.3, rng, 0.3)])
         else:
             xy = grid_xy(*region, rng, 0.3)
-        pts, nrm, lab = [np.c_[xy, np.full(len(xy), offset)]], [np.tile([0.0, 0, 1], (len(xy), 1))], [np.full(len(xy), -1)]
+        pts, nrm = [np.c_[xy, np.full(len(xy), offset)]], [np.tile([0.0, 0, 1], (len(xy), 1))]
+        lab = [np.full(len(xy), -1)]
         for i, c in enumerate(centres):
             bp, bn = blob((c[0], c[1], lift + offset))
             pts.append(bp), nrm.append(bn), lab.append(np.full(len(bp), i))
