@@ -242,14 +242,15 @@ def blob(centre, radius=3 * SP):
 
 def flowers_scene(rng):
     """A ground plane with small blobs floating 5 spacings above it (flowers): the patch
-    over the box [0, 1]^2 (and 3 spacings beyond its -x and -y sides), N_k on the L-shaped
+    over the box [0, 1]^2 (and 3 spacings beyond its sides, 5 beyond +x, +y), N_k on the L-shaped
     region left of x = 0.3 and below y = 0.3. Their blobs differ: each side has blobs the
     other lacks. Returns per side (points, normals, blob label per point: -1 the ground)."""
     lift = 0.16  # blob centres: radius 3 spacings, bottom 5 spacings above the ground
     blobs_n = [(0.05, 0.5), (-0.02, 0.75), (0.25, 0.5)]  # N_k's side, across the box's edge, the patch's side
-    blobs_p = [(0.1, 0.22), (0.22, 0.8), (0.6, 0.6)]  # N_k's side, the patch's side, outside the overlap
+    # N_k's side, the patch's side, outside the overlap, across the box's edge (cut by the patch's window there)
+    blobs_p = [(0.1, 0.22), (0.22, 0.8), (0.6, 0.6), (-0.02, 0.95)]
     sides = []
-    for region, centres, offset in (((-0.06, 1.0, -0.06, 1.0), blobs_p, 0.5 * SP), (None, blobs_n, 0.0)):
+    for region, centres, offset in (((-0.06, 1.1, -0.06, 1.1), blobs_p, 0.5 * SP), (None, blobs_n, 0.0)):
         if region is None:
             xy = np.concatenate([grid_xy(-0.4, 0.3, -0.4, 1.0, rng, 0.3), grid_xy(0.3, 1.0, -0.4, 0.3, rng, 0.3)])
         else:
@@ -280,13 +281,14 @@ def test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error(rng):
     drop, unblend, restore = cut_pieces(p, ramp, q, ramp_q, *box, SP)
     # Whole pieces, one side each: N_k's blob near the edge and the one across the edge are
     # kept (restored inside the box), its blob on the patch's side goes with the box; the
-    # patch's blob on N_k's side is dropped, the one on its side kept and not blended.
+    # patch's blob on N_k's side is dropped, and so is the one across the box's edge (the
+    # paste would cut it in half); the one on its side is kept and not blended.
     in_box = ((q[:, :2] >= 0) & (q[:, :2] < 1)).all(axis=1)
     for i, kept in enumerate((True, True, False)):
         m = (lq == i) & in_box
         assert restore[m].all() if kept else not restore[m].any(), i
     assert not restore[lq == -1].any()
-    np.testing.assert_array_equal(drop, lp == 0)
+    np.testing.assert_array_equal(drop, np.isin(lp, [0, 3]))
     np.testing.assert_array_equal(unblend, lp == 1)
     # The pasted result (the patch's points inside the box, less those dropped, and N_k's
     # outside it and restored) holds every blob whole or not at all: no half piece.
@@ -294,7 +296,7 @@ def test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error(rng):
     p_in = ((bp[:, :2] >= 0) & (bp[:, :2] < 1)).all(axis=1) & ~drop
     q_out = ~in_box | restore
     for lab, kept in ((lp, p_in), (lq, q_out)):
-        for i in range(3):
+        for i in range(lab.max() + 1):
             share = kept[lab == i].mean()
             assert share in (0.0, 1.0), (i, share)
     # The seam error along the overlap's outer edge (through the ground and the blobs'
