@@ -187,6 +187,17 @@ def test_synthesis_beats_random_pasting(one_device, small_weave):
     assert set(timings) >= {"search", "warp", "blend", "other", "total"}
 
 
+@pytest.mark.parametrize("name, expected", [("flowers", True), ("heightfield", False), ("chainmail", False),
+                                            ("weave", False)])
+def test_only_the_flowers_have_disconnected_pieces(name, expected):
+    """The overlap is cut rather than blended only for an exemplar with disconnected pieces
+    (blending.has_pieces): the flowers; the other built-ins' outputs are left as they were."""
+    from geosynth.blending import has_pieces
+
+    tex = point_texture_example(name, count=10_000)
+    assert has_pieces(tex.points, tex.spacing) is expected
+
+
 def test_blending_lowers_the_seam_error_on_flowers(one_device):
     """Flowers (small disconnected pieces on a plane): blending alone hardly lowered the
     seam error (a flower one side lacks cannot be blended away); with the pieces N_k or
