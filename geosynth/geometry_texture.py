@@ -217,14 +217,16 @@ class _Timer:
 
 
 def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer, *,
-          baseline=False, seams_wanted=True, progress=False, label="synthesis"):
+          baseline=False, seams_wanted=True, progress=False, label="synthesis", cut=False):
     """Steps 1 to 7 of Sec. 4; returns (PointGrid, stats dict). ``seams_wanted``: measure the
-    seam errors (quality numbers; their time goes to the timer's "quality", not to a stage)."""
+    seam errors (quality numbers; their time goes to the timer's "quality", not to a stage).
+    ``cut``: the exemplar has disconnected pieces (blending.has_pieces): those one side of
+    the overlap lacks are cut whole instead of blended (blending.cut_pieces)."""
     from geosynth.patch_search import quantized_fields
 
     if not baseline:
         from geosynth.warping import warp_patch
-        from geosynth.blending import blend_patch, overlap_ramp, seam_error
+        from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
 
     cell, pc = lay.cell, lay.patch
     reach = 3.0 * h
@@ -271,6 +273,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
             sel = ((inp[:, :2] >= src - margin) & (inp[:, :2] < src + (hi - lo) + margin)).all(axis=1)
             fp, fn = inp[sel] + shift, inn[sel]
             box_min, box_max = np.r_[lo, zlo], np.r_[hi, zhi]
+            drop = restore = None
             if not baseline and len(offsets) and len(nb_p):
                 # --- warp (step 4): targets are N_k's points in the overlap
                 ramp_nb = overlap_ramp(nb_p, box_min, box_max, lay.overlap * cell, lay.overlap * cell,
@@ -280,15 +283,30 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
                 wr = warp_patch(fp, fn, nb_p[inside], nb_n[inside], box_min, box_max, weights, spacing, rng,
                                 src_variation=variation[sel])
                 t0 = timer.add("warp", t0)
-                # --- blend (step 5)
-                ramp = overlap_ramp(wr.points, box_min, box_max, lay.overlap * cell, lay.overlap * cell,
-                                    [s for s, _ in sides])
+                # --- blend (step 5); disconnected pieces that one side lacks are cut, not blended
+                names = [s for s, _ in sides]
+                ramp = overlap_ramp(wr.points, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
+                if cut:
+                    wide = 0.5 * pc * cell  # N_k's pieces are whole up to half a patch beyond the box
+                    if lay.period is not None:  # one image of each point: the window within a period
+                        wide = min(wide, max(0.0, 0.5 * float((lay.period - (hi - lo)).min()) - cell))
+                    cq, cqn = grid.in_box(lo - wide, hi + wide)
+                    ramp_q = overlap_ramp(cq, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
+                    drop, unblend, restore = cut_pieces(wr.points, ramp, cq, ramp_q, box_min, box_max, spacing,
+                                                        window=(lo - margin, hi + margin),
+                                                        neighbourhood_window=(lo - wide, hi + wide))
+                    if unblend.any():
+                        ramp = np.where(unblend, 0.0, ramp)
                 bp, bn = blend_patch(wr.points, wr.normals, ramp, nb_p, nb_n, spacing, device)
                 t0 = timer.add("blend", t0)
                 if seams_wanted:
                     edge = _edge_samples(search, offsets, q, sides)
                     seams["before"].append(seam_error(wr.points, wr.normals, nb_p, nb_n, edge, spacing))
-                    seams["after"].append(seam_error(bp, bn, nb_p, nb_n, edge, spacing))
+                    # after: what is pasted there, the patch's points kept and N_k's pieces restored
+                    ap, an = bp, bn
+                    if drop is not None and (drop.any() or restore.any()):
+                        ap, an = np.concatenate([bp[~drop], cq[restore]]), np.concatenate([bn[~drop], cqn[restore]])
+                    seams["after"].append(seam_error(ap, an, nb_p, nb_n, edge, spacing))
                     t0 = timer.add("quality", t0)  # the seam numbers are quality, not synthesis
                 fp, fn = bp, bn
             elif baseline and seams_wanted and len(offsets) and nb_p is not None and len(nb_p):
@@ -298,8 +316,12 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
                 seams["baseline"].append(_seam(fp, fn, nb_p, nb_n, edge, spacing))
             # --- paste (step 6)
             keep = ((fp[:, :2] >= lo) & (fp[:, :2] < hi)).all(axis=1)
+            if drop is not None:
+                keep &= ~drop
             grid.remove_box(lo, hi)
             grid.insert(fp[keep], fn[keep])
+            if restore is not None and restore.any():  # N_k's pieces kept whole go back in
+                grid.insert(cq[restore], cqn[restore])
             t0 = timer.add("other", t0) if not baseline else time.perf_counter()
             if bar is not None:
                 bar.update(1)
@@ -501,6 +523,7 @@ def synthesize_point_texture(
         TypeError: arguments of the wrong type.
     """
     from geosynth import _checks
+    from geosynth.blending import has_pieces
     from geosynth.patch_search import PatchSearch
     from geosynth.pointsets import MLS_REACH, PointSet
     from geosynth.warping import WarpWeights, surface_variation
@@ -531,10 +554,11 @@ def synthesize_point_texture(
     band = MLS_REACH * h
     search = PatchSearch(texture, lay.cell, lay.patch, lay.extra, h, band, device)
     variation = surface_variation(texture.points)
+    cut = has_pieces(texture.points, spacing)  # disconnected pieces (flowers): cut, not blended
     timer.add("precompute", t_start)
     rng = np.random.default_rng(seed)
     grid, stats = _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer,
-                        seams_wanted=quality, progress=progress)
+                        seams_wanted=quality, progress=progress, cut=cut)
     t0 = time.perf_counter()
     p, n = _cut(grid, lay, texture, tileable)
     if relax:

@@ -1,7 +1,7 @@
 """M2 blending (Sec. 5.3): the overlap ramp, counterparts on N_k's MLS surface (line
 crossing first, projection as the fallback), blending lowering the seam error and
 leaving no overlap point off the surface, the border cut, relaxation; the same bits on
-every device."""
+every device; disconnected pieces one side lacks cut whole instead of blended."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ from geosynth.blending import (
     blend_patch,
     border_cut,
     counterparts,
+    cut_pieces,
     overlap_ramp,
+    pieces,
     relax_points,
     seam_error,
 )
@@ -223,3 +225,102 @@ def test_relaxation_keeps_curved_geometry(rng):
     assert abs(np.mean(r - radius)) < 0.01 * SP, np.mean(r - radius) / SP  # no shrinking
     assert np.abs(r - radius).max() < 0.15 * SP, np.abs(r - radius).max() / SP
     np.testing.assert_allclose(rn, n, atol=1e-12)
+
+
+# ------------------------------------------------------------------ cutting disconnected pieces
+
+
+def blob(centre, radius=3 * SP):
+    """A small sphere (a flower's stand-in) of evenly spread points, about one spacing apart."""
+    count = int(4 * np.pi * radius ** 2 / SP ** 2)
+    k = np.arange(count) + 0.5
+    z = 1 - 2 * k / count
+    a = np.pi * (1 + 5 ** 0.5) * k
+    d = np.c_[np.sqrt(1 - z * z) * np.cos(a), np.sqrt(1 - z * z) * np.sin(a), z]
+    return np.asarray(centre, float) + radius * d, d
+
+
+def flowers_scene(rng):
+    """A ground plane with small blobs floating 5 spacings above it (flowers): the patch
+    over the box [0, 1]^2 (and 3 spacings beyond its sides, 5 beyond +x, +y), N_k on the L-shaped
+    region left of x = 0.3 and below y = 0.3. Their blobs differ: each side has blobs the
+    other lacks. Returns per side (points, normals, blob label per point: -1 the ground)."""
+    lift = 0.16  # blob centres: radius 3 spacings, bottom 5 spacings above the ground
+    blobs_n = [(0.05, 0.5), (-0.02, 0.75), (0.25, 0.5)]  # N_k's side, across the box's edge, the patch's side
+    # N_k's side, the patch's side, outside the overlap, across the box's edge (cut by the patch's window there)
+    blobs_p = [(0.1, 0.22), (0.22, 0.8), (0.6, 0.6), (-0.02, 0.95)]
+    sides = []
+    for region, centres, offset in (((-0.06, 1.1, -0.06, 1.1), blobs_p, 0.5 * SP), (None, blobs_n, 0.0)):
+        if region is None:
+            xy = np.concatenate([grid_xy(-0.4, 0.3, -0.4, 1.0, rng, 0.3), grid_xy(0.3, 1.0, -0.4, 0.3, rng, 0.3)])
+        else:
+            xy = grid_xy(*region, rng, 0.3)
+        pts, nrm = [np.c_[xy, np.full(len(xy), offset)]], [np.tile([0.0, 0, 1], (len(xy), 1))]
+        lab = [np.full(len(xy), -1)]
+        for i, c in enumerate(centres):
+            bp, bn = blob((c[0], c[1], lift + offset))
+            pts.append(bp), nrm.append(bn), lab.append(np.full(len(bp), i))
+        sides.append((np.concatenate(pts), np.concatenate(nrm), np.concatenate(lab)))
+    return sides
+
+
+def test_pieces_are_connected_components():
+    a, _ = blob((0, 0, 0.16))
+    b, _ = blob((0.3, 0, 0.16))
+    ground = np.c_[grid_xy(-0.5, 0.5, -0.5, 0.5), np.zeros(2500)]
+    lab = pieces(np.concatenate([ground, a, b]), 3.5 * SP)
+    assert len(np.unique(lab[:2500])) == 1 and len(np.unique(lab[2500:2500 + len(a)])) == 1
+    assert len({lab[0], lab[2500], lab[-1]}) == 3  # the blobs float 5 spacings up: apart
+
+
+def test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error(rng):
+    (p, n, lp), (q, qn, lq) = flowers_scene(rng)
+    box = ([0, 0, -1], [1, 1, 1])
+    ramp = overlap_ramp(p, *box, 0.3, 0.3)
+    ramp_q = overlap_ramp(q, *box, 0.3, 0.3)
+    drop, unblend, restore = cut_pieces(p, ramp, q, ramp_q, *box, SP)
+    # Whole pieces, one side each: N_k's blob near the edge and the one across the edge are
+    # kept (restored inside the box), its blob on the patch's side goes with the box; the
+    # patch's blob on N_k's side is dropped, and so is the one across the box's edge (the
+    # paste would cut it in half); the one on its side is kept and not blended.
+    in_box = ((q[:, :2] >= 0) & (q[:, :2] < 1)).all(axis=1)
+    for i, kept in enumerate((True, True, False)):
+        m = (lq == i) & in_box
+        assert restore[m].all() if kept else not restore[m].any(), i
+    assert not restore[lq == -1].any()
+    np.testing.assert_array_equal(drop, np.isin(lp, [0, 3]))
+    np.testing.assert_array_equal(unblend, lp == 1)
+    # The pasted result (the patch's points inside the box, less those dropped, and N_k's
+    # outside it and restored) holds every blob whole or not at all: no half piece.
+    bp, bn = blend_patch(p, n, np.where(unblend, 0.0, ramp), q, qn, SP)
+    p_in = ((bp[:, :2] >= 0) & (bp[:, :2] < 1)).all(axis=1) & ~drop
+    q_out = ~in_box | restore
+    for lab, kept in ((lp, p_in), (lq, q_out)):
+        for i in range(lab.max() + 1):
+            share = kept[lab == i].mean()
+            assert share in (0.0, 1.0), (i, share)
+    # The seam error along the overlap's outer edge (through the ground and the blobs'
+    # heights): blending alone cannot remove a blob one side lacks; the cut does.
+    t = np.linspace(0.02, 0.98, 49)
+    edge_xy = np.concatenate([np.c_[np.full(49, 0.01), t], np.c_[t, np.full(49, 0.01)]])
+    edge = np.concatenate([np.c_[edge_xy, np.full(len(edge_xy), z)] for z in (0.0, 0.12, 0.16, 0.2)])
+    plain, _ = blend_patch(p, n, ramp, q, qn, SP)
+    warped = seam_error(p, n, q, qn, edge, SP)
+    blended = seam_error(plain, n, q, qn, edge, SP)
+    cut = seam_error(np.concatenate([bp[~drop], q[restore]]), np.concatenate([bn[~drop], qn[restore]]), q, qn,
+                     edge, SP)
+    assert cut < 0.5 * blended and cut < 0.5 * warped, (warped, blended, cut)
+    # The patch's blob kept on its side is not dragged toward N_k's ground.
+    np.testing.assert_array_equal(bp[lp == 1], p[lp == 1])
+
+
+def test_cutting_is_a_no_op_on_a_connected_surface(rng):
+    (p, n), (nbp, nbn) = scene(2.0, rng)
+    box = ([0, 0], [1, 1])
+    drop, unblend, restore = cut_pieces(p, overlap_ramp(p, *box, 0.3, 0.3), nbp, overlap_ramp(nbp, *box, 0.3, 0.3),
+                                        *box, SP)
+    assert not drop.any() and not unblend.any() and not restore.any()
+    with pytest.raises(ValueError, match="min_points"):
+        cut_pieces(p, np.zeros(len(p)), nbp, np.zeros(len(nbp)), *box, SP, min_points=0)
+    with pytest.raises(ValueError, match="ramp"):
+        cut_pieces(p, np.zeros(3), nbp, np.zeros(len(nbp)), *box, SP)

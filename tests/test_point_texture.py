@@ -199,6 +199,28 @@ def test_synthesis_beats_random_pasting(one_device, small_weave):
     assert set(timings) >= {"search", "warp", "blend", "other", "total"}
 
 
+@pytest.mark.parametrize("name, expected", [("flowers", True), ("heightfield", False), ("chainmail", False),
+                                            ("weave", False)])
+def test_only_the_flowers_have_disconnected_pieces(name, expected):
+    """The overlap is cut rather than blended only for an exemplar with disconnected pieces
+    (blending.has_pieces): the flowers; the other built-ins' outputs are left as they were."""
+    from geosynth.blending import has_pieces
+
+    tex = point_texture_example(name, count=10_000)
+    assert has_pieces(tex.points, tex.spacing) is expected
+
+
+def test_blending_lowers_the_seam_error_on_flowers(one_device):
+    """Flowers (small disconnected pieces on a plane): blending alone hardly lowered the
+    seam error (a flower one side lacks cannot be blended away); with the pieces N_k or
+    the patch lacks cut whole (blending.cut_pieces) it does."""
+    tex = point_texture_example("flowers", count=10_000)
+    _, report, _ = synthesize_point_texture(tex, device=one_device, seed=0,
+                                            **{**SMALL, "patch": 0.4, "quality": True, "quality_samples": 4})
+    q = report.quality
+    assert q["seam_after"] < 0.97 * q["seam_before"], (q["seam_before"], q["seam_after"])
+
+
 def test_tileable_output_continues_across_its_borders(one_device, wavy):
     pts, report, _ = synthesize_point_texture(wavy, device=one_device, tileable=True, **SMALL)
     assert report.tileable
