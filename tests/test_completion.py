@@ -192,6 +192,12 @@ def test_cli_complete(tmp_path, capsys):
     assert main(["complete", "--example", "flat", "-o", str(tmp_path / "y.ply"), "--mu", "2"]) == 2
     err = capsys.readouterr().err
     assert "mu must be" in err and err.count("\n") <= 3
+    with pytest.raises(SystemExit):  # argparse's one-line choice error
+        main(["complete", "--example", "flat", "-o", str(tmp_path / "z.ply"), "--frames", "axis"])
+    assert "--frames" in capsys.readouterr().err
+    assert main(["complete", "--example", "flat", "-o", str(tmp_path / "f.ply"), "--frames", "fit", "--rotations", "2",
+                 "--device", ONE_DEVICE]) == 0
+    assert "rotations 2, frames fit" in capsys.readouterr().out
 
 
 def test_batched_classes_equal_one_target_at_a_time(one_device, monkeypatch):
