@@ -105,7 +105,8 @@ def main(argv=None) -> int:
     for name, seed in [(n, sd) for n in names for sd in seeds]:
         ex = completion_example(name)
         c0 = time.process_time()
-        surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window, mu=ex.mu,
+        surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window, rotations=ex.rotations,
+                                            frames=ex.frames, mu=ex.mu,
                                             device=dev, seed=seed)
         cpu = time.process_time() - c0
         q = rep.quality

@@ -763,18 +763,21 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         capture, label, region = ex.capture, f"example {args.example} ({ex.note})", ex.region
         fit = args.fit or ex.fit
         window = args.window or ex.window
+        rotations = args.rotations or ex.rotations
+        frames = args.frames or ex.frames
     else:
         from geosynth.pointsets import read_geometry
 
         capture, label, fit, window = read_geometry(args.input), args.input, args.fit, args.window or 3
+        rotations, frames = args.rotations or 4, args.frames or "paper"
     mu = args.mu if args.mu is not None else 0.5
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
-        f"captured points, fit {fit or 'by residual'}, window {window}, rotations {args.rotations}, mu {mu:g}, "
+        f"captured points, fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
         f"seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
-                                                rotations=args.rotations, mu=mu, max_error=args.max_error,
+                                                rotations=rotations, mu=mu, max_error=args.max_error,
                                                 device=args.device, seed=args.seed, progress=not args.quiet,
-                                                balance=not args.no_balance)
+                                                balance=not args.no_balance, frames=frames)
     for line in report.lines():
         say(line)
     say("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items() if k != "targets_per_s")
@@ -923,8 +926,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the underlying surface (default: chosen by residual; built-ins: their own)")
     p.add_argument("--window", type=_int_type(1, 12), default=None,
                    help="neighbourhood window W in edge rings, 1 to 12 (default 3; built-ins: their own)")
-    p.add_argument("--rotations", type=_int_type(1, 64), default=4,
-                   help="orientations tried about the normal, 1 to 64 (default 4)")
+    p.add_argument("--rotations", type=_int_type(1, 64), default=None,
+                   help="orientations tried about the normal, 1 to 64 (default 4; built-ins: their own)")
+    p.add_argument("--frames", choices=["paper", "fit"], default=None,
+                   help="tangent frames the rotations start from: the paper's per-normal ones, or the fit's own "
+                        "orientation (cylinder: around and along the axis; plane: its axes; not for a sphere) "
+                        "(default paper; built-ins: their own)")
     p.add_argument("--mu", type=_float_type(0, inclusive=True), default=None,
                    help="weight of shape against colour, 0 to 1 (1: relief only; default 0.5)")
     p.add_argument("--max-error", type=_float_type(0, inclusive=False), default=0.1,

@@ -67,7 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.relief_prep import ReliefSurface, as_capture, prepare_relief, ring_neighbourhoods
-from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_surface
+from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
 
 __all__ = ["CompletedSurface", "CompletionReport", "complete_surface", "completion_picture", "write_completion"]
 
@@ -172,13 +172,14 @@ class CompletionReport:
     device: str = "cpu"
     picked_original: float = float("nan")
     n_original: int = 0
+    frames: str = "paper"
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
         q = self.quality
         out = [f"fit: {self.fit}",
                f"samples {self.samples:,} (captured part oversampled once), targets {self.targets:,} at spacing "
-               f"{self.spacing:.4g}; window {self.window}, rotations {self.rotations}, mu {self.mu:g}, device "
+               f"{self.spacing:.4g}; window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
                f"{self.device}",
                f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
                f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
@@ -644,7 +645,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                      rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
                      max_targets: int | None = 200_000, oversample: str = "butterfly",
-                     candidates: str = "capture", balance: bool | float = True):
+                     candidates: str = "capture", balance: bool | float = True, frames: str = "paper"):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -673,6 +674,12 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         balance: True (default): the histogram-aware pick among the matches within 1.1x
             the best (our extension, :class:`_Balance`, strength ``BALANCE_STRENGTH``); a
             number > 0: the same with that strength; False: the paper's uniform pick.
+        frames: the tangent frames the R rotations start from: "paper" (default, Sec. 3:
+            per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
+            own orientation, on a cylinder u around it and v along its axis, on a plane its
+            u and v axes, :func:`geosynth.surface_fit.fit_frames`; not for a sphere). With
+            "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
+            turn is a symmetry of the relief).
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -690,6 +697,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
 
     t0 = time.perf_counter()
     _check_params(window, rotations, mu, max_error, seed)
+    if not isinstance(frames, str) or frames not in ("paper", "fit"):
+        raise ValueError(f"frames must be 'paper' or 'fit', got {frames!r}.")
     cap = as_capture(capture)
     need = 3 * window * (window + 1) + 1  # vertices of one W-ring neighbourhood of a regular triangulation
     if len(cap) < need:
@@ -702,6 +711,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         sf = fit_surface(cap.positions, fit, normals=cap.normals)
     else:
         raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
+    if frames == "fit" and sf.kind == "sphere":
+        fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
     t2 = time.perf_counter()
@@ -711,6 +722,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         raise ValueError(f"balance must be True, False or a finite strength > 0, got {balance!r}.")
     if candidates not in ("capture", "samples"):
         raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
+    frame_rows = None
+    if frames == "fit":
+        fu, fv = fit_frames(sf, rs.normals)
+        frame_rows = np.stack([fu, fv, rs.normals / np.linalg.norm(rs.normals, axis=1, keepdims=True)], axis=1)
     partners = np.arange(rs.n_samples, dtype=np.int64)
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
     textured0 = np.zeros(rs.n_vertices, dtype=bool)
@@ -718,7 +733,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
     use_mu = float(mu) if rs.colors is not None else 1.0
     index = rm.ReliefIndex.build(rs.base, rs.normals, rs.displacement, textured0, rs.faces, samples,
-                                 colours=colours, partners=partners, device=dev)
+                                 colours=colours, partners=partners, frames=frame_rows, device=dev)
     t3 = time.perf_counter()
     rng = np.random.default_rng(seed)
     strength = BALANCE_STRENGTH if balance is True else float(balance) if balance is not False else 0.0
@@ -743,7 +758,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         spacing=rs.spacing, window=int(window), rotations=int(rotations), mu=use_mu, max_error=float(max_error),
         final_max_error=stats["final_max_error"], lists=stats["lists"],
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
-        quality=quality, device=str(dev), n_original=rs.n_original,
+        quality=quality, device=str(dev), n_original=rs.n_original, frames=frames,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

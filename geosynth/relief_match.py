@@ -176,7 +176,7 @@ class ReliefIndex:
 
     @classmethod
     def build(cls, base, normals, displacements, textured, triangles, samples, *, colours=None,
-              partners="samples", device: str = "cpu") -> ReliefIndex:
+              partners="samples", frames=None, device: str = "cpu") -> ReliefIndex:
         """Prepare and upload the triangulation for FindMatches.
 
         Args:
@@ -194,6 +194,9 @@ class ReliefIndex:
                 int ids of textured vertices: a fixed set of usable partners apart from
                 the candidates, e.g. every oversampled sample while only the capture's
                 own vertices are candidates (:func:`geosynth.completion.complete_surface`).
+            frames: None (the paper's frames from ``normals``, :func:`paper_frames`) or
+                (V, 3, 3) frames, rows u, v, n (e.g. the fit's own,
+                :func:`geosynth.surface_fit.fit_frames`); n must be ``normals``' direction.
             device: a device string of geosynth.devices().
 
         Returns:
@@ -241,7 +244,16 @@ class ReliefIndex:
             col = _float_array("colours", colours, (3,), v)
             if col.min() < 0 or col.max() > 1:
                 _fail("colours", f"values in [{col.min():.3g}, {col.max():.3g}]", "pass RGB in [0, 1]")
-        frames = paper_frames(normals)
+        if frames is None:
+            frames = paper_frames(normals)
+        else:
+            frames = np.asarray(frames, dtype=np.float64)
+            if frames.shape != (v, 3, 3) or not np.all(np.isfinite(frames)):
+                _fail("frames", f"shape {frames.shape} or non-finite values", f"pass ({v}, 3, 3) finite frames or None")
+            unit_n = normals / lengths[:, None]
+            ortho = np.einsum("vij,vkj->vik", frames, frames) - np.eye(3)
+            if np.abs(ortho).max() > 1e-6 or np.abs(frames[:, 2] - unit_n).max() > 1e-6:
+                _fail("frames", "rows not orthonormal or n not the normal", "pass rows u, v, n with n = the unit normal")
         pos = base + disp
         heights = np.einsum("ij,ij->i", disp[samples], frames[samples, 2])
         shape_norm = float(heights.max() - heights.min())

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FIT_KINDS", "SurfaceFit", "fit_surface", "tangent_frames"]
+__all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "tangent_frames"]
 
 FIT_KINDS = ("plane", "sphere", "cylinder")
 _CHOICE_SLACK = 1.25  # a simpler model within 25% of the best residual is preferred
@@ -54,6 +54,39 @@ def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     zero = np.zeros_like(x)
     u = np.where((k == 0)[:, None], np.stack([zero, -z, y], 1),
                  np.where((k == 1)[:, None], np.stack([z, zero, -x], 1), np.stack([-y, x, zero], 1)))
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    v = np.cross(n, u)
+    return u, v
+
+
+def fit_frames(fit: "SurfaceFit", normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frames that follow the fit's own orientation, one tangent field without turns (our
+    alternative to the paper's per-normal construct, whose choice of axis switches between
+    vertices and turns the frame by 90 degrees there): on a cylinder u = axis x n (around
+    the circumference) and v = n x u = the axis (up); on a plane u = basis[0], v = n x u.
+    A relief with a preferred direction (rows of arches, vertical ridges) keeps it under
+    these frames, so that R = 1 (or 2 for a half-turn symmetric relief) suffices. A sphere
+    has no tangent field without a singular point (the hairy ball theorem): refused.
+
+    Args:
+        fit: a plane or cylinder :class:`SurfaceFit`.
+        normals: (N, 3) unit normals of the fit.
+
+    Returns:
+        (u, v): two (N, 3) float64 arrays, unit, orthogonal to n and to each other.
+
+    Raises:
+        ValueError: a sphere fit.
+    """
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    if fit.kind == "sphere":
+        raise ValueError("frames='fit' needs a plane or cylinder fit (a sphere has no tangent field without a "
+                         "singular point); use frames='paper'.")
+    if fit.kind == "cylinder":
+        u = np.cross(np.asarray(fit.axis, np.float64)[None, :], n)
+    else:
+        u = np.broadcast_to(np.asarray(fit.basis[0], np.float64), n.shape).copy()
+        u = u - (u * n).sum(1, keepdims=True) * n
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     v = np.cross(n, u)
     return u, v

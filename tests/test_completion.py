@@ -170,9 +170,13 @@ def test_bad_input(one_device):
     with pytest.raises(ValueError, match="is empty"):
         complete_surface(cap, fit="plane", region=((0.5, 0.1), (0.0, 0.3)), device=one_device)
     for kw, msg in [(dict(window=0), "window"), (dict(rotations=0), "rotations"), (dict(mu=1.5), "mu"),
-                    (dict(seed=-1), "seed"), (dict(fit="cone"), "fit")]:
+                    (dict(seed=-1), "seed"), (dict(fit="cone"), "fit"), (dict(frames="axis"), "frames must be"),
+                    (dict(frames=None), "frames must be")]:
         with pytest.raises(ValueError, match=msg):
             complete_surface(cap, region=region, device=one_device, **kw)
+    d = np.random.default_rng(1).normal(size=(900, 3))
+    with pytest.raises(ValueError, match="frames='fit' needs a plane or cylinder fit"):
+        complete_surface(d / np.linalg.norm(d, axis=1, keepdims=True), fit="sphere", frames="fit", device=one_device)
 
 
 def test_cli_complete(tmp_path, capsys):
@@ -188,6 +192,12 @@ def test_cli_complete(tmp_path, capsys):
     assert main(["complete", "--example", "flat", "-o", str(tmp_path / "y.ply"), "--mu", "2"]) == 2
     err = capsys.readouterr().err
     assert "mu must be" in err and err.count("\n") <= 3
+    with pytest.raises(SystemExit):  # argparse's one-line choice error
+        main(["complete", "--example", "flat", "-o", str(tmp_path / "z.ply"), "--frames", "axis"])
+    assert "--frames" in capsys.readouterr().err
+    assert main(["complete", "--example", "flat", "-o", str(tmp_path / "f.ply"), "--frames", "fit", "--rotations", "2",
+                 "--device", ONE_DEVICE]) == 0
+    assert "rotations 2, frames fit" in capsys.readouterr().out
 
 
 def test_batched_classes_equal_one_target_at_a_time(one_device, monkeypatch):
@@ -285,3 +295,34 @@ def test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram():
         uni.add(int(s[rng_u.integers(12)]))  # the paper's uniform pick
     dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
     assert dist[0] < 0.5 * dist[1], dist
+
+
+def _small_cylinder(seed):
+    """A third of a unit cylinder with horizontal grooves (a relief with a direction)."""
+    rng = np.random.default_rng(seed)
+    q = _hex(2.0, 0.5, 0.06)
+    a, z = q[:, 0], q[:, 1]
+    r = 1 + 0.03 * np.cos(2 * math.pi * z / 0.25) + 0.002 * rng.standard_normal(len(q))
+    col = np.clip(np.stack([100 + 800 * (r - 1)] * 3, 1) + rng.normal(0, 4, (len(q), 3)), 0, 255).astype(np.uint8)
+    return Capture(np.stack([r * np.cos(a), r * np.sin(a), z], 1), col)
+
+
+def test_fit_frames_follow_the_axis_and_keep_same_bits_on_every_device(device_pair):
+    """frames='fit' on a cylinder: u around it, v along its axis at every vertex (the paper's
+    frames turn by 90 degrees where the normal's smallest component switches); the same
+    seed gives the same bits on every device."""
+    from geosynth.surface_fit import fit_frames, fit_surface
+
+    cap = _small_cylinder(2)
+    sf = fit_surface(cap.positions, "cylinder")
+    n = sf.normal(cap.positions)
+    u, v = fit_frames(sf, n)
+    assert np.allclose(v, sf.axis[None, :], atol=1e-9)
+    assert np.allclose(np.cross(u, v), n, atol=1e-9)
+    a, b = device_pair
+    sa, ra, _ = complete_surface(cap, fit="cylinder", window=2, rotations=1, frames="fit",
+                                 device=a, seed=4)
+    sb, rb, _ = complete_surface(cap, fit="cylinder", window=2, rotations=1, frames="fit",
+                                 device=b, seed=4)
+    assert ra.frames == "fit" and "frames fit" in ra.lines()[1]
+    assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
