@@ -752,7 +752,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.completion import complete_surface, completion_picture, write_completion
+    from geosynth.completion import DEFAULT_ROTATIONS, complete_surface, completion_picture, write_completion
     from geosynth.completion_examples import completion_example
     from geosynth.files import write_image
 
@@ -769,7 +769,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         from geosynth.pointsets import read_geometry
 
         capture, label, fit, window = read_geometry(args.input), args.input, args.fit, args.window or 3
-        rotations, frames = args.rotations or 4, args.frames or "paper"
+        rotations, frames = args.rotations or DEFAULT_ROTATIONS, args.frames or "paper"
     mu = args.mu if args.mu is not None else 0.5
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
         f"captured points, fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "

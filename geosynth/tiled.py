@@ -127,7 +127,7 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         t0 = time.perf_counter()
         region, core = grid.region(level, index), grid.core_region(level, index)
         shape = grid.level_shape(level)
-        source, b = ex.sources[level], grid.block_shape(level)
+        source, b = ex.sources[level], ex.blocks[level]
         if level == 0:
             rng = np.random.default_rng(ex.seed) if grid.whole(level) else tile_rng(ex.seed, level, index)
             target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
@@ -171,7 +171,7 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
         mask = np.ones(target.shape, bool)
         mask[window.local(free)] = False
         finest = level == grid.levels - 1
-        got = optimize_level(ex.sources[level], target, grid.block_shape(level), _matcher(ex, level),
+        got = optimize_level(ex.sources[level], target, ex.blocks[level], _matcher(ex, level),
                              iterations=int(ex.caps[level]), stride=level_stride(grid.blocks[level], finest),
                              sigma=level_sigma(finest), final=level_final(finest), fixed=mask)
         out = np.ascontiguousarray(target[window.local(free)])

@@ -520,13 +520,8 @@ class ThinPlateSpline:
     def _r2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(len(a), len(b)) squared distances, summed x, y, z in that order (in place: one
         temporary instead of five)."""
-        r2 = np.subtract.outer(a[:, 0], b[:, 0])
-        np.square(r2, out=r2)
-        t = np.empty_like(r2)
-        for j in (1, 2):
-            np.subtract.outer(a[:, j], b[:, j], out=t)
-            np.square(t, out=t)
-            r2 += t
+        r2 = np.empty((len(a), len(b)), np.result_type(a, b))
+        ThinPlateSpline._r2_into(a, [b[:, j] for j in range(3)], r2, np.empty_like(r2))
         return r2
 
     @staticmethod
