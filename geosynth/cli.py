@@ -770,6 +770,9 @@ def _cmd_complete(args: argparse.Namespace) -> int:
 
         capture, label, fit, window = read_geometry(args.input), args.input, args.fit, args.window or 3
         rotations, frames = args.rotations or DEFAULT_ROTATIONS, args.frames or "paper"
+    if frames == "fit" and fit == "sphere":  # known before any fit or preparation: refused now
+        raise ValueError("--frames fit needs a plane or cylinder fit (a sphere has no tangent field without a "
+                         "singular point); use --frames paper or another --fit.")
     mu = args.mu if args.mu is not None else 0.5
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
         f"captured points, fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "

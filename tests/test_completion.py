@@ -195,6 +195,10 @@ def test_cli_complete(tmp_path, capsys):
     with pytest.raises(SystemExit):  # argparse's one-line choice error
         main(["complete", "--example", "flat", "-o", str(tmp_path / "z.ply"), "--frames", "axis"])
     assert "--frames" in capsys.readouterr().err
+    assert main(["complete", "--example", "golf", "-o", str(tmp_path / "g.ply"), "--frames", "fit"]) == 2
+    out, err = capsys.readouterr()
+    assert "--frames fit needs a plane or cylinder fit" in err and err.count("\n") == 1 and not out
+    assert not (tmp_path / "g.ply").exists()
     assert main(["complete", "--example", "flat", "-o", str(tmp_path / "f.ply"), "--frames", "fit", "--rotations", "2",
                  "--device", ONE_DEVICE]) == 0
     assert "rotations 2, frames fit" in capsys.readouterr().out
