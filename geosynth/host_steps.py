@@ -1,0 +1,69 @@
+"""Where do the compiled host steps run? Implements no paper section.
+
+Some steps decide bits that go straight into an output (M2's blended positions, the float64
+recomputation of a search's flagged samples, the warped points): they must give the same
+bits whatever ``device=`` a run uses. DESIGN.md allows two ways: the same values on every
+backend, or computed once in one place for all of them. These steps take the second:
+they are Warp kernels (``geosynth.kernels.host_*``, float64) launched on Warp's ``"cpu"``
+device for every run, whichever device the run's kernels use, so cpu, opencl and cuda
+runs share them bit for bit. They replace per-element NumPy passes (each a Python call
+and a pass over memory) with one compiled loop per query; Warp's CPU device runs them on
+one thread, like the NumPy they replace.
+
+Each such kernel has a plain NumPy twin (its oracle, beside the caller or in
+``geosynth.reference``) and a test comparing them to a float64 tolerance; they are not
+required to agree bit for bit with NumPy (its sums are pairwise, the kernels' sequential).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+_DTYPES: dict[np.dtype, Any] = {}
+
+
+def _warp():
+    from geosynth.backend import _warp_status
+
+    wp, err = _warp_status()
+    if wp is None:  # Warp is a dependency: a broken install is an error, never skipped
+        raise RuntimeError(f"geosynth's host steps need Warp's CPU device, and Warp failed to load: {err}")
+    if not _DTYPES:
+        _DTYPES.update({np.dtype(np.float64): wp.float64, np.dtype(np.float32): wp.float32,
+                        np.dtype(np.int32): wp.int32, np.dtype(np.int64): wp.int64,
+                        np.dtype(np.uint8): wp.uint8, np.dtype(np.int8): wp.int8,
+                        np.dtype(np.uint32): wp.uint32})
+    return wp
+
+
+def host_array(array: np.ndarray, dtype=None):
+    """A Warp ``"cpu"`` array over ``array``'s memory (no copy), flattened.
+
+    Args:
+        array: any shape; made C-contiguous in ``dtype`` (default its own) first, which
+            copies only when it is not already. Writes by a kernel land in the returned
+            array's memory: pass an array you own (e.g. from ``np.empty``) for outputs.
+        dtype: a NumPy dtype among float64, float32, int64, int32, int8, uint8, uint32.
+
+    Returns:
+        ``(warp_array, numpy_array)``: the Warp view and the contiguous NumPy array it
+        views (keep the latter alive while the former is in use).
+    """
+    wp = _warp()
+    a = np.ascontiguousarray(array, dtype=dtype)
+    flat = a.reshape(-1)
+    if flat.size == 0:  # Warp wants memory behind a launch argument
+        flat = np.zeros(1, a.dtype)
+    return wp.array(flat, dtype=_DTYPES[a.dtype], device="cpu", copy=False), a
+
+
+def host_launch(kernel, dim: int, inputs: Sequence[Any]) -> None:
+    """Launch a ``geosynth.kernels.host_*`` kernel over ``dim`` threads on Warp's CPU
+    device (no-op for ``dim == 0``); ``inputs`` as :func:`warp.launch` takes them (Warp
+    arrays from :func:`host_array`, Python ints and floats for scalars)."""
+    wp = _warp()
+    if dim <= 0:
+        return
+    wp.launch(kernel, dim=int(dim), inputs=list(inputs), device="cpu")
