@@ -135,6 +135,8 @@ class CompletionReport:
         window, rotations, mu, max_error: the parameters; ``final_max_error`` the
             MaxErrThreshold at the end.
         lists, passes_without_progress, failed_matches: growth statistics.
+        refine: refinement passes after the growth; ``refined``: how many targets
+            changed their source sample in them (summed over the passes).
         quality: name -> value; keys ``volume_original``, ``volume_completed``,
             ``volume_diff_pct``, ``volume_baseline``, ``volume_baseline_diff_pct``,
             ``hist_distance``, ``hist_baseline`` (None without colour), ``slope_original``,
@@ -173,6 +175,8 @@ class CompletionReport:
     picked_original: float = float("nan")
     n_original: int = 0
     frames: str = "paper"
+    refine: int = 0
+    refined: int = 0
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
@@ -186,6 +190,9 @@ class CompletionReport:
                f"{self.final_max_error:.4g}), {self.unreached} targets unreached; "
                f"{self.picked_original:.0%} of the copies from the capture's own vertices "
                f"({self.samples and self.n_original / self.samples:.0%} of the samples)"]
+        if self.refine:
+            out.append(f"refinement: {self.refine} pass{'es' if self.refine > 1 else ''} over every completed target "
+                       f"with its whole window, {self.refined:,} source changes")
         if q:
             lo, hi = q["volume_baseline_diff_pct_range"]
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
@@ -353,6 +360,65 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
     return textured, stats
 
 
+
+def _refine(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, rng: np.random.Generator,
+            picked: np.ndarray, textured: np.ndarray, passes: int, balance: "_Balance | None" = None) -> int:
+    """Refinement passes after GrowSurface (our extension, not the paper's; the two-pass idea
+    of Wei and Levoy 2000, "Fast texture synthesis using tree-structured vector quantization",
+    Sec. 3.4): every completed target is matched again against its whole W-ring, which is
+    textured on every side now (the growth saw only the side it grew from), and takes the
+    picked match's displacement and colour. Broken thin features (a tower's one-row ledges)
+    are rejoined by the context of both sides. Targets are visited in the growth's batch
+    order (classes of targets none of which lies in another's window, by id), so the result
+    is the same as one target at a time in that order; the pick is the growth's rule (the
+    balanced draw or the paper's uniform one), with no MaxErrThreshold (every target keeps a
+    match: its old one is among the candidates). Updates rs, index, picked and balance in
+    place; returns how many targets changed their source sample."""
+    n_v, n_s = rs.n_vertices, rs.n_samples
+    targets = np.arange(n_s, n_v, dtype=np.int64)
+    slot_of = np.full(n_v, -1, dtype=np.int64)
+    slot_of[targets] = np.arange(len(targets))
+    ring_ptr, ring_idx, ring_d = ring_neighbourhoods(rs.adjacency, targets, window)
+    w_t = np.full(len(targets), window, dtype=np.int64)
+    sigmas = {w: (2 * w + 1) * rs.spacing / 6.4 for w in range(1, window + 1)}
+    per_launch = max(1, min(_MAX_BATCH, _BATCH_CODES // max(1, len(index.samples) * rotations)))
+    hints = _HintTable(rs, index) if HINT_RINGS > 0 else None
+    tolerance = TOLERANCE if balance is None else TOLERANCE * (1.0 + balance.penalty)
+    accept_all = rm.CODE_CAP / rm.SCORE_ONE  # a MaxErrThreshold every unclamped code is below
+    changed = 0
+    for _ in range(passes):
+        todo = targets[textured[targets]]
+        for cls in _classes(todo, w_t, ring_ptr, ring_idx, ring_d, slot_of):
+            for start in range(0, len(cls), per_launch):
+                chunk = cls[start:start + per_launch]
+                got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
+                                   rotations, mu, accept_all, hints, picked, textured, tolerance)
+                at, src, rot = [], [], []
+                for t, m in zip(chunk, got):  # picks in list order, one draw each
+                    if len(m.sample) == 0:
+                        continue
+                    if balance is not None:
+                        balance.remove(int(picked[t]))  # t's old copy leaves the counts before the draw
+                        j = balance.pick(m, rng)
+                        balance.add(int(m.sample[j]))
+                    else:
+                        j = int(rng.integers(len(m.sample)))
+                    changed += int(m.sample[j] != picked[t])
+                    at.append(int(t))
+                    src.append(int(m.sample[j]))
+                    rot.append(int(m.rotation[j]))
+                if at:
+                    at_a, src_a = np.asarray(at, dtype=np.int64), np.asarray(src, dtype=np.int64)
+                    d = index.transfer(src_a, np.asarray(rot, dtype=np.int64), at_a, rotations)
+                    rs.displacement[at_a] = d
+                    picked[at_a] = src_a
+                    col = None
+                    if rs.colors is not None:
+                        rs.colors[at_a] = rs.colors[src_a]
+                        col = rs.colors[at_a].astype(np.float64) / 255.0
+                    index.update(at_a, d, col)
+    return changed
+
 class _Balance:
     """A histogram-aware pick among the matches (our extension, not the paper's).
 
@@ -423,6 +489,11 @@ class _Balance:
         """Count a copy of ``sample``'s values into the completed part."""
         self.counts[np.arange(len(self.bins)), self.bins[:, sample]] += 1
         self.n += 1
+
+    def remove(self, sample: int) -> None:
+        """Take a copy of ``sample``'s values out of the counts (a refined target's old one)."""
+        self.counts[np.arange(len(self.bins)), self.bins[:, sample]] -= 1
+        self.n -= 1
 
 
 class _HintTable:
@@ -645,7 +716,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                      rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
                      max_targets: int | None = 200_000, oversample: str = "butterfly",
-                     candidates: str = "capture", balance: bool | float = True, frames: str = "paper"):
+                     candidates: str = "capture", balance: bool | float = True, frames: str = "paper",
+                     refine: int = 0):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -680,11 +752,15 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             u and v axes, :func:`geosynth.surface_fit.fit_frames`; not for a sphere). With
             "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
             turn is a symmetry of the relief).
+        refine: refinement passes after the growth (our extension; 0, the default, is
+            the paper's single pass): every completed target matched again against its
+            whole window, textured on every side by then (:func:`_refine`). 0 to 8.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
         :class:`CompletionReport` (quality numbers included) and a dict of seconds
-        (``fit``, ``prepare``, ``index``, ``grow``, ``quality``, ``total``) plus
+        (``fit``, ``prepare``, ``index``, ``grow`` (the refinement passes included),
+        ``quality``, ``total``) plus
         ``targets_per_s``.
 
     Raises:
@@ -699,6 +775,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     _check_params(window, rotations, mu, max_error, seed)
     if not isinstance(frames, str) or frames not in ("paper", "fit"):
         raise ValueError(f"frames must be 'paper' or 'fit', got {frames!r}.")
+    if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or not 0 <= refine <= 8:
+        raise ValueError(f"refine must be an integer from 0 to 8 (refinement passes), got {refine!r}.")
     cap = as_capture(capture)
     need = 3 * window * (window + 1) + 1  # vertices of one W-ring neighbourhood of a regular triangulation
     if len(cap) < need:
@@ -739,6 +817,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     strength = BALANCE_STRENGTH if balance is True else float(balance) if balance is not False else 0.0
     bal = _Balance(rs, strength, BALANCE_PENALTY) if strength > 0 else None
     textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress, bal)
+    refined = _refine(rs, index, rm, int(window), int(rotations), use_mu, rng, stats["picked"], textured,
+                      int(refine), bal) if refine else 0
     t4 = time.perf_counter()
     quality = _quality(rs, textured, int(seed), len(samples))
     t5 = time.perf_counter()
@@ -758,7 +838,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         spacing=rs.spacing, window=int(window), rotations=int(rotations), mu=use_mu, max_error=float(max_error),
         final_max_error=stats["final_max_error"], lists=stats["lists"],
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
-        quality=quality, device=str(dev), n_original=rs.n_original, frames=frames,
+        quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

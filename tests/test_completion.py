@@ -202,6 +202,9 @@ def test_cli_complete(tmp_path, capsys):
     assert main(["complete", "--example", "flat", "-o", str(tmp_path / "f.ply"), "--frames", "fit", "--rotations", "2",
                  "--device", ONE_DEVICE]) == 0
     assert "rotations 2, frames fit" in capsys.readouterr().out
+    with pytest.raises(SystemExit):  # argparse's one-line range error
+        main(["complete", "--example", "flat", "-o", str(tmp_path / "r.ply"), "--refine", "9"])
+    assert "--refine" in capsys.readouterr().err and not (tmp_path / "r.ply").exists()
 
 
 def test_batched_classes_equal_one_target_at_a_time(one_device, monkeypatch):
@@ -330,3 +333,32 @@ def test_fit_frames_follow_the_axis_and_keep_same_bits_on_every_device(device_pa
                                  device=b, seed=4)
     assert ra.frames == "fit" and "frames fit" in ra.lines()[1]
     assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
+
+
+def test_refinement_passes_keep_the_wave_and_change_sources():
+    """refine=2 (our extension): every completed target matched again with its whole window;
+    the wave's amplitude and period survive, sources change, nothing is left untextured."""
+    surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
+                                          device=ONE_DEVICE, seed=0, refine=2)
+    assert report.refine == 2 and report.refined > 0 and report.unreached == 0
+    assert any(line.startswith("refinement: 2 passes") for line in report.lines())
+    p = surface.positions[surface.completed].astype(np.float64)
+    amp, period = _sine_fit(surface.fit.to_param(p)[:, 0], surface.fit.distance(p))
+    assert abs(amp - AMPLITUDE) <= 0.1 * AMPLITUDE, amp
+    assert abs(period - PERIOD) <= 0.1 * PERIOD, period
+    q = report.quality
+    assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"] and q["hist_distance"] < q["hist_baseline"]
+
+
+def test_refinement_same_bits_on_every_device_and_bad_values(device_pair):
+    a, b = device_pair
+    cap, region = _small(3), ((0.0, 0.9), (0.0, 0.45))
+    s0, _, _ = complete_surface(cap, fit="plane", region=region, window=2, device=a, seed=5)
+    sa, ra, _ = complete_surface(cap, fit="plane", region=region, window=2, device=a, seed=5, refine=1)
+    sb, rb, _ = complete_surface(cap, fit="plane", region=region, window=2, device=b, seed=5, refine=1)
+    assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
+    assert ra.refined == rb.refined > 0
+    assert not np.array_equal(s0.positions, sa.positions)  # the pass changed the completion
+    for bad in (-1, 9, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="refine must be an integer from 0 to 8"):
+            complete_surface(cap, fit="plane", region=region, window=2, device=a, refine=bad)
