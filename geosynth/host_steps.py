@@ -64,8 +64,11 @@ def host_array(array: np.ndarray, dtype=None):
         flat = np.zeros(1, a.dtype)
     # From the pointer: about half the Python work of wp.array(flat, copy=False) (~13 us
     # against ~24 us a call; a patch of M2 wraps about 80 arrays).
-    view = wp.array(ptr=flat.__array_interface__["data"][0], shape=(flat.size,), dtype=_DTYPES[a.dtype],
-                    device=_STATE["cpu"])
+    kind = _DTYPES.get(a.dtype)
+    if kind is None:  # a programming error of a caller, never user input
+        raise TypeError(f"host_array: dtype {a.dtype} has no Warp twin here; use one of "
+                        f"{', '.join(str(d) for d in _DTYPES)}.")
+    view = wp.array(ptr=flat.__array_interface__["data"][0], shape=(flat.size,), dtype=kind, device=_STATE["cpu"])
     view._geosynth_memory = flat  # the memory lives as long as the view
     return view, a
 
