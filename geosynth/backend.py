@@ -148,6 +148,15 @@ def _warp_status() -> tuple[Any, Exception | None]:
         return None, exc
 
 
+def warp_module():
+    """Warp, initialized quietly as every backend here does (the host steps' way in:
+    :mod:`geosynth.host_steps`); a broken install raises a RuntimeError saying why."""
+    wp, err = _warp_status()
+    if wp is None:  # Warp is a dependency: a broken install is an error, never skipped
+        raise RuntimeError(f"Warp failed to load ({err}); reinstall warp-lang (make test builds .venv with it).")
+    return wp
+
+
 def _pin_pocl_threads() -> None:
     """Ask PoCL's CPU driver to pin its worker threads, one per core (``POCL_AFFINITY``),
     unless the user chose otherwise or this process may not run on every core (PoCL pins

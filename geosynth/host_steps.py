@@ -29,11 +29,9 @@ def _warp():
     wp = _STATE.get("wp")
     if wp is not None:
         return wp
-    from geosynth.backend import _warp_status
+    from geosynth.backend import warp_module
 
-    wp, err = _warp_status()
-    if wp is None:  # Warp is a dependency: a broken install is an error, never skipped
-        raise RuntimeError(f"geosynth's host steps need Warp's CPU device, and Warp failed to load: {err}")
+    wp = warp_module()
     _DTYPES.update({np.dtype(np.float64): wp.float64, np.dtype(np.float32): wp.float32,
                     np.dtype(np.int32): wp.int32, np.dtype(np.int64): wp.int64,
                     np.dtype(np.uint8): wp.uint8, np.dtype(np.int8): wp.int8,
