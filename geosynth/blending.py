@@ -305,6 +305,9 @@ def _rows(gathered, rows):
 # ------------------------------------------------------------------------ the compiled host steps
 
 _CELL_REACHES = 0.5  # the kernels' cell grid: cells half a reach (1.5 h) wide (the speed only)
+# Launch width of the host_blend kernels: each worker thread does every _WORKERS-th point with one
+# scratch slot, hot in the cache (one slot per point made every point's lists cold memory).
+_WORKERS = 4
 _scratch_cache = threading.local()
 
 
@@ -328,16 +331,10 @@ def _gauss_table():
 
 
 def _scratch(entries: int):
-    """(int32, float64) Warp scratch arrays of at least ``entries`` entries, reused from call
-    to call in this thread (fresh pages cost more to fault in than the kernels take)."""
+    """(int32, float64) Warp scratch arrays of ``entries`` entries (the workers' lists)."""
     from geosynth.host_steps import host_array
 
-    held = getattr(_scratch_cache, "arrays", None)
-    if held is None or held[2] < entries:
-        size = max(entries, 1 << 16, 0 if held is None else 2 * held[2])
-        held = (host_array(np.empty(size, np.int32)), host_array(np.empty(size, np.float64)), size)
-        _scratch_cache.arrays = held
-    return held[0][0], held[1][0]
+    return host_array(np.empty(entries, np.int32))[0], host_array(np.empty(entries, np.float64))[0]
 
 
 class _CellGrid:
@@ -358,26 +355,23 @@ class _CellGrid:
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, cell: float):
-        from geosynth.host_steps import host_array
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels.host_blend import build_grid_kernel
 
-        lo = points.min(axis=0)
-        extent = points.max(axis=0) - lo
-        dims = np.floor(extent / cell).astype(np.int64) + 1
-        cap = 4 * len(points) + 64
-        while int(np.prod(dims)) > cap:
-            cell *= 1.05 * (float(np.prod(dims)) / cap) ** (1.0 / 3.0)
-            dims = np.floor(extent / cell).astype(np.int64) + 1
-        # the kernel's own arithmetic for a query's cell: floor((q - origin) * (1 / cell))
-        ijk = np.minimum(np.floor((points - lo) * (1.0 / cell)).astype(np.int64), dims - 1)
-        nx, ny, nz = (int(v) for v in dims)
-        linear = (ijk[:, 2] * ny + ijk[:, 1]) * nx + ijk[:, 0]
-        order = np.argsort(linear, kind="stable")
-        start = np.zeros(nx * ny * nz + 1, np.int32)
-        np.cumsum(np.bincount(linear, minlength=nx * ny * nz), out=start[1:])
-        self.origin, self.cell, self.dims = lo, float(cell), (nx, ny, nz)
-        self.wp_pn, self.pn = host_array(np.concatenate([points, normals], axis=1)[order], np.float64)
-        self.wp_ids, self.ids = host_array(order, np.int32)
-        self.wp_start, self.cell_start = host_array(start, np.int32)
+        count = len(points)
+        max_cells = 4 * count + 64
+        wp_p, self._p = host_array(points, np.float64)
+        wp_n, self._n = host_array(normals, np.float64)
+        self.wp_pn, self.pn = host_array(np.empty(6 * count, np.float64))
+        self.wp_ids, self.ids = host_array(np.empty(count, np.int32))
+        self.wp_start, self.cell_start = host_array(np.empty(max_cells + 1, np.int32))
+        wp_cursor, self._cursor = host_array(np.empty(max_cells, np.int32))
+        wp_cell_of, self._cell_of = host_array(np.empty(count, np.int32))
+        wp_info, info = host_array(np.empty(7, np.float64))
+        host_launch(build_grid_kernel, 1, [wp_p, wp_n, count, float(cell), max_cells, self.wp_pn, self.wp_ids,
+                                          self.wp_start, wp_cursor, wp_cell_of, wp_info])
+        self.origin, self.cell = info[:3].copy(), float(info[3])
+        self.dims = tuple(int(v) for v in info[4:7])
 
     def launch_args(self) -> list:
         """The grid's leading arguments of the host_blend kernels."""
@@ -403,42 +397,42 @@ def _counterparts_compiled(p: np.ndarray, n: np.ndarray, nb_p: np.ndarray, nb_n:
     wp_x, x = host_array(p, np.float64)
     wp_d, d = host_array(n, np.float64)
     cap = _list_room(k)
-    wp_nbr, wp_nd2 = _scratch(m * 2 * cap)
+    wp_nbr, wp_nd2 = _scratch(_WORKERS * 2 * cap)
     wp_op, out_p = host_array(np.empty((m, 3), np.float64))
     wp_on, out_n = host_array(np.empty((m, 3), np.float64))
     wp_how, how = host_array(np.empty(m, np.int8))
-    host_launch(counterparts_kernel, m,
+    host_launch(counterparts_kernel, min(m, _WORKERS),
                 [_gauss_table(), *grid.launch_args(), k, cap, h, reach, _TOL * h, tmax, _MIN_SLOPE, _MIN_FACING, _LINE_ITER,
-                 _PROJ_ITER, wp_x, wp_d, wp_nbr, wp_nd2, wp_op, wp_on, wp_how])
+                 _PROJ_ITER, wp_x, wp_d, wp_nbr, wp_nd2, wp_op, wp_on, wp_how, m, min(m, _WORKERS)])
     return out_p, out_n, how
 
 
-def _blend_compiled(p: np.ndarray, n: np.ndarray, sel: np.ndarray, r: np.ndarray, c: np.ndarray,
+def _blend_compiled(p: np.ndarray, n: np.ndarray, ps: np.ndarray, ns: np.ndarray, r: np.ndarray, c: np.ndarray,
                     nc: np.ndarray, how: np.ndarray, h: float, relative: bool):
-    """:func:`blend_patch`'s blend, one ``host_blend.blend_kernel`` thread per point of
-    ``sel`` ((s,) int64 indices into p, n: (M, 3) float64 F'_k and its unit normals), with
-    r (s,) their ramp and c, nc, how their :func:`counterparts`. Returns (s, 3) float64
-    blended points and unit normals."""
+    """:func:`blend_patch`'s blend by ``host_blend.blend_kernel``: p, n (M, 3) float64 F'_k
+    and its unit normals (its own MLS surface), ps, ns (s, 3) the points to blend (those
+    with ramp > 0), r (s,) their ramp and c, nc, how their :func:`counterparts`. Returns
+    (s, 3) float64 blended points and unit normals."""
     from geosynth.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import blend_kernel
 
-    s = len(sel)
+    s = len(ps)
     k = int(max(1, min(MLS_NEIGHBOURS, len(p))))
     reach = _REACH * h
     grid = _CellGrid(p, n, _CELL_REACHES * reach) if relative else None
     args = grid.launch_args() if relative else [*_CellGrid(p[:1], n[:1], reach).launch_args()]
-    wp_x, x = host_array(p[sel], np.float64)
-    wp_d, d = host_array(n[sel], np.float64)
+    wp_x, x = host_array(ps, np.float64)
+    wp_d, d = host_array(ns, np.float64)
     wp_r, rr = host_array(r, np.float64)
     wp_c, cc = host_array(c, np.float64)
     wp_nc, ncc = host_array(nc, np.float64)
     wp_how, hh = host_array(how, np.int8)
     cap = _list_room(k)
-    wp_nbr, wp_nd2 = _scratch(s * cap if relative else 1)
+    wp_nbr, wp_nd2 = _scratch(_WORKERS * cap)
     wp_op, out_p = host_array(np.empty((s, 3), np.float64))
     wp_on, out_n = host_array(np.empty((s, 3), np.float64))
-    host_launch(blend_kernel, s, [_gauss_table(), *args, k, cap, h, reach, _MIN_SLOPE, int(bool(relative)), wp_x, wp_d, wp_r, wp_c,
-                                  wp_nc, wp_how, wp_nbr, wp_nd2, wp_op, wp_on])
+    host_launch(blend_kernel, min(s, _WORKERS), [_gauss_table(), *args, k, cap, h, reach, _MIN_SLOPE, int(bool(relative)), wp_x, wp_d, wp_r, wp_c,
+                                  wp_nc, wp_how, wp_nbr, wp_nd2, wp_op, wp_on, s, min(s, _WORKERS)])
     return out_p, out_n
 
 
@@ -583,13 +577,21 @@ def _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norm
     if sel.size == 0 or len(np.asarray(neighbourhood_points).reshape(-1, 3)) == 0:
         check_positive("spacing", spacing)
         return out_p, out_n
-    find = counterparts if compiled else _counterparts_numpy
-    c, nc, how = find(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
-                      radius=radius, max_ray=max_ray)
-    h = 2.0 * spacing if radius is None else check_positive("radius", radius)
-    if compiled:
-        out_p[sel], out_n[sel] = _blend_compiled(p, n, sel, r[sel], c, nc, how, h, relative)
+    if compiled:  # counterparts() without checking p[sel] and n[sel] again
+        spacing = check_positive("spacing", spacing)
+        h = 2.0 * spacing if radius is None else check_positive("radius", radius)
+        max_ray = check_positive("max_ray", max_ray)
+        _check_device(device)
+        nb_p = as_points3("neighbourhood_points", neighbourhood_points)
+        nb_n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", neighbourhood_normals,
+                                                                   len(nb_p)))
+        ps, ns = p[sel], n[sel]
+        c, nc, how = _counterparts_compiled(ps, ns, nb_p, nb_n, h, max_ray * spacing)
+        out_p[sel], out_n[sel] = _blend_compiled(p, n, ps, ns, r[sel], c, nc, how, h, relative)
         return out_p, out_n
+    c, nc, how = _counterparts_numpy(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
+                                     radius=radius, max_ray=max_ray)
+    h = 2.0 * spacing if radius is None else check_positive("radius", radius)
     own = p[sel].copy()
     rs = r[sel, None]
     if relative:

@@ -303,8 +303,8 @@ def mls_at(
     return zero, wp.vec3d(zero, zero, zero), False
 
 
-@wp.kernel
-def counterparts_kernel(
+@wp.func
+def _counterpart_of(
     table: wp.array(dtype=wp.float64),  # (9 GAUSS_STEPS + 2,) gauss()'s exp(-j / GAUSS_STEPS)
     pn: wp.array(dtype=wp.float64),  # (K * 6,) N_k sorted by cell, with unit normals
     ids: wp.array(dtype=wp.int32),  # (K,)
@@ -326,23 +326,24 @@ def counterparts_kernel(
     proj_iter: int,
     points: wp.array(dtype=wp.float64),  # (m * 3,) queries p'
     dirs: wp.array(dtype=wp.float64),  # (m * 3,) their unit normals n'
-    nbr: wp.array(dtype=wp.int32),  # (m * 2 cap,) scratch: neighbours at p', then re-gathered
-    nd2: wp.array(dtype=wp.float64),  # (m * 2 cap,) scratch
+    nbr: wp.array(dtype=wp.int32),  # (workers * 2 cap,) scratch: neighbours at p', then re-gathered
+    nd2: wp.array(dtype=wp.float64),  # (workers * 2 cap,) scratch
     out_p: wp.array(dtype=wp.float64),  # (m * 3,) counterpart (p' where none)
     out_n: wp.array(dtype=wp.float64),  # (m * 3,) MLS normal there (n' where none)
     how: wp.array(dtype=wp.int8),  # (m,) 0 none, RAY, PROJECTION
+    i: int,  # the point
+    slot: int,  # its worker's scratch slot
 ):
     """:func:`geosynth.blending.counterparts` for one query: the ray-plane iteration along
     +-n' (MLSSurface.intersect_line), else the projection (MLSSurface.project), each with
     MLSSurface._iterate's re-gathering (a query that converged more than h from where its
     neighbours were gathered is gathered again there, at most 3 gatherings)."""
-    i = wp.tid()
     zero = wp.float64(0.0)
     inv_h2 = wp.float64(1.0) / (h * h)
     reach2 = reach * reach
     x = wp.vec3d(points[3 * i], points[3 * i + 1], points[3 * i + 2])
     d = wp.vec3d(dirs[3 * i], dirs[3 * i + 1], dirs[3 * i + 2])
-    at_x = 2 * cap * i  # neighbours gathered at p' (both searches start there)
+    at_x = 2 * cap * slot  # neighbours gathered at p' (both searches start there)
     again = at_x + cap  # re-gathered ones
     count_x = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, x, k, reach, nbr, nd2, at_x, cap)
     result = int(0)
@@ -426,9 +427,47 @@ def counterparts_kernel(
         out_n[3 * i + c] = cn[c]
     how[i] = wp.int8(result)
 
-
 @wp.kernel
-def blend_kernel(
+def counterparts_kernel(
+    table: wp.array(dtype=wp.float64),
+    pn: wp.array(dtype=wp.float64),
+    ids: wp.array(dtype=wp.int32),
+    cell_start: wp.array(dtype=wp.int32),
+    g: wp.vec3d,
+    cell: wp.float64,
+    nx: int,
+    ny: int,
+    nz: int,
+    k: int,
+    cap: int,
+    h: wp.float64,
+    reach: wp.float64,
+    tol: wp.float64,
+    tmax: wp.float64,
+    min_slope: wp.float64,
+    min_facing: wp.float64,
+    line_iter: int,
+    proj_iter: int,
+    points: wp.array(dtype=wp.float64),
+    dirs: wp.array(dtype=wp.float64),
+    nbr: wp.array(dtype=wp.int32),
+    nd2: wp.array(dtype=wp.float64),
+    out_p: wp.array(dtype=wp.float64),
+    out_n: wp.array(dtype=wp.float64),
+    how: wp.array(dtype=wp.int8),
+    m: int,  # the points
+    workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
+):
+    """_counterpart_of for the points w, w + workers, ...: one scratch slot per worker, reused
+    from point to point (hot in the cache; a slot per point would be cold memory each time)."""
+    w = wp.tid()
+    for i in range(w, m, workers):
+        _counterpart_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, tol, tmax, min_slope, min_facing, line_iter, proj_iter, points, dirs, nbr, nd2, out_p, out_n, how, i, w)
+
+
+
+@wp.func
+def _blend_of(
     table: wp.array(dtype=wp.float64),  # (9 GAUSS_STEPS + 2,) gauss()'s exp(-j / GAUSS_STEPS)
     pn: wp.array(dtype=wp.float64),  # (M * 6,) the patch F'_k sorted by cell, unit normals
     ids: wp.array(dtype=wp.int32),
@@ -450,16 +489,17 @@ def blend_kernel(
     cp: wp.array(dtype=wp.float64),  # (s * 3,) counterparts c on N_k
     cn: wp.array(dtype=wp.float64),  # (s * 3,) MLS normals n_c there
     how: wp.array(dtype=wp.int8),  # (s,)
-    nbr: wp.array(dtype=wp.int32),  # (s * cap,) scratch
-    nd2: wp.array(dtype=wp.float64),  # (s * cap,) scratch
+    nbr: wp.array(dtype=wp.int32),  # (workers * cap,) scratch
+    nd2: wp.array(dtype=wp.float64),  # (workers * cap,) scratch
     out_p: wp.array(dtype=wp.float64),  # (s * 3,) p''
     out_n: wp.array(dtype=wp.float64),  # (s * 3,) n''
+    i: int,  # the point
+    slot: int,  # its worker's scratch slot
 ):
     """The blend of :func:`geosynth.blending.blend_patch` for one point: ``p'' = p' + r (c -
     c')``, ``n'' = normalize(n' + r (n_c - n_c'))`` with c' one ray-plane step (RAY) or one
     projection step (PROJECTION) on F'_k's own MLS surface at p' (relative), else
     ``p'' = (1 - r) p' + r c``, ``n'' = normalize((1 - r) n' + r n_c)``."""
-    i = wp.tid()
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     x = wp.vec3d(points[3 * i], points[3 * i + 1], points[3 * i + 2])
@@ -473,8 +513,8 @@ def blend_kernel(
     if relative != 0:
         turn = wp.vec3d(zero, zero, zero)
         if kind != 0:  # only where N_k gave a counterpart
-            count = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, x, k, reach, nbr, nd2, cap * i, cap)
-            f, n_own, sup = mls_at(table, pn, nbr, cap * i, count, x, one / (h * h), reach * reach)
+            count = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, x, k, reach, nbr, nd2, cap * slot, cap)
+            f, n_own, sup = mls_at(table, pn, nbr, cap * slot, count, x, one / (h * h), reach * reach)
             slope = wp.dot(n_own, d)
             moved = False
             if kind == RAY and sup and wp.abs(slope) >= min_slope:
@@ -495,3 +535,106 @@ def blend_kernel(
     for a in range(3):
         out_p[3 * i + a] = q[a]
         out_n[3 * i + a] = blended[a]
+
+
+@wp.kernel
+def blend_kernel(
+    table: wp.array(dtype=wp.float64),
+    pn: wp.array(dtype=wp.float64),
+    ids: wp.array(dtype=wp.int32),
+    cell_start: wp.array(dtype=wp.int32),
+    g: wp.vec3d,
+    cell: wp.float64,
+    nx: int,
+    ny: int,
+    nz: int,
+    k: int,
+    cap: int,
+    h: wp.float64,
+    reach: wp.float64,
+    min_slope: wp.float64,
+    relative: int,
+    points: wp.array(dtype=wp.float64),
+    dirs: wp.array(dtype=wp.float64),
+    ramp: wp.array(dtype=wp.float64),
+    cp: wp.array(dtype=wp.float64),
+    cn: wp.array(dtype=wp.float64),
+    how: wp.array(dtype=wp.int8),
+    nbr: wp.array(dtype=wp.int32),
+    nd2: wp.array(dtype=wp.float64),
+    out_p: wp.array(dtype=wp.float64),
+    out_n: wp.array(dtype=wp.float64),
+    m: int,  # the points
+    workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
+):
+    """_blend_of for the points w, w + workers, ...: one scratch slot per worker (as
+    counterparts_kernel)."""
+    w = wp.tid()
+    for i in range(w, m, workers):
+        _blend_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, min_slope, relative, points, dirs, ramp, cp, cn, how, nbr, nd2, out_p, out_n, i, w)
+
+
+@wp.kernel
+def build_grid_kernel(
+    points: wp.array(dtype=wp.float64),  # (K * 3,) K >= 1
+    normals: wp.array(dtype=wp.float64),  # (K * 3,) unit normals
+    count: int,  # K
+    cell0: wp.float64,  # the wanted cell side
+    max_cells: int,  # the most cells: a larger box gets larger cells
+    pn: wp.array(dtype=wp.float64),  # out (K * 6,) points and normals sorted by cell
+    ids: wp.array(dtype=wp.int32),  # out (K,) input index of each sorted point
+    cell_start: wp.array(dtype=wp.int32),  # out (max_cells + 1,); the first nx*ny*nz + 1 used
+    cursor: wp.array(dtype=wp.int32),  # scratch (max_cells,)
+    cell_of: wp.array(dtype=wp.int32),  # scratch (K,)
+    info: wp.array(dtype=wp.float64),  # out (7,) origin x, y, z, cell, nx, ny, nz
+):
+    """The cell grid of ``nearest`` (one thread, a stable counting sort): the points' box
+    from its minimum corner, cells of side cell0 (grown while the box would need more
+    than max_cells), each point's cell ``floor((p - origin) / cell)`` (the arithmetic of
+    ``nearest``'s queries) clamped into the grid."""
+    lo = wp.vec3d(points[0], points[1], points[2])
+    hi = lo
+    for i in range(1, count):
+        p = wp.vec3d(points[3 * i], points[3 * i + 1], points[3 * i + 2])
+        lo = wp.min(lo, p)
+        hi = wp.max(hi, p)
+    extent = hi - lo
+    cell = cell0
+    nx = int(wp.min(wp.floor(extent[0] / cell), wp.float64(1.0e9))) + 1
+    ny = int(wp.min(wp.floor(extent[1] / cell), wp.float64(1.0e9))) + 1
+    nz = int(wp.min(wp.floor(extent[2] / cell), wp.float64(1.0e9))) + 1
+    while wp.float64(nx) * wp.float64(ny) * wp.float64(nz) > wp.float64(max_cells):
+        ratio = wp.float64(nx) * wp.float64(ny) * wp.float64(nz) / wp.float64(max_cells)
+        cell = cell * wp.float64(1.05) * wp.pow(ratio, wp.float64(1.0) / wp.float64(3.0))
+        nx = int(wp.min(wp.floor(extent[0] / cell), wp.float64(1.0e9))) + 1
+        ny = int(wp.min(wp.floor(extent[1] / cell), wp.float64(1.0e9))) + 1
+        nz = int(wp.min(wp.floor(extent[2] / cell), wp.float64(1.0e9))) + 1
+    inv_cell = wp.float64(1.0) / cell
+    cells = nx * ny * nz
+    for c in range(cells + 1):
+        cell_start[c] = 0
+    for i in range(count):
+        cx = wp.min(_cell_of(points[3 * i], lo[0], inv_cell), nx - 1)
+        cy = wp.min(_cell_of(points[3 * i + 1], lo[1], inv_cell), ny - 1)
+        cz = wp.min(_cell_of(points[3 * i + 2], lo[2], inv_cell), nz - 1)
+        c = (cz * ny + cy) * nx + cx
+        cell_of[i] = c
+        cell_start[c + 1] = cell_start[c + 1] + 1
+    for c in range(cells):
+        cell_start[c + 1] = cell_start[c + 1] + cell_start[c]
+        cursor[c] = cell_start[c]
+    for i in range(count):  # in input order: stable within a cell
+        c = cell_of[i]
+        j = cursor[c]
+        cursor[c] = j + 1
+        ids[j] = i
+        for a in range(3):
+            pn[6 * j + a] = points[3 * i + a]
+            pn[6 * j + 3 + a] = normals[3 * i + a]
+    info[0] = lo[0]
+    info[1] = lo[1]
+    info[2] = lo[2]
+    info[3] = cell
+    info[4] = wp.float64(nx)
+    info[5] = wp.float64(ny)
+    info[6] = wp.float64(nz)
