@@ -738,7 +738,32 @@ def pieces(points, link: float) -> np.ndarray:
     ``link`` or more are joined only through other points between them. Cheaper than the
     k-d tree's pairs within ``link`` (:func:`has_pieces`; 5-8 times the CPU time) and
     sometimes finer: the flowers' pieces are about the same, the chainmail's interlinked
-    rings (within ``link`` of each other, one piece by the pairs) come apart."""
+    rings (within ``link`` of each other, one piece by the pairs) come apart.
+
+    Labels number the pieces in the order of their first points. Computed by the compiled
+    host step ``geosynth.kernels.host_blend.pieces_kernel`` (union-find over the points);
+    :func:`_pieces_numpy` is its NumPy twin (SciPy's labels, numbered in the cells' raster
+    order: the same pieces)."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels.host_blend import pieces_kernel
+
+    p = np.asarray(points, np.float64)
+    if len(p) == 0:
+        return np.zeros(0, np.int64)
+    lo = np.array([p[:, 0].min(), p[:, 1].min(), p[:, 2].min()])
+    ijk = np.floor((p - lo) / (0.5 * float(link))).astype(np.int32)
+    dims = [int(ijk[:, a].max()) + 1 for a in range(3)]
+    wp_cells, _cells = host_array(ijk, np.int32)
+    wp_voxel, _voxel = host_array(np.full(dims[0] * dims[1] * dims[2], -1, np.int32))
+    wp_parent, _parent = host_array(np.empty(len(p), np.int32))
+    wp_labels, labels = host_array(np.empty(len(p), np.int32))
+    host_launch(pieces_kernel, 1, [wp_cells, len(p), *dims, wp_voxel, wp_parent, wp_labels])
+    return labels.astype(np.int64)
+
+
+def _pieces_numpy(points, link: float) -> np.ndarray:
+    """:func:`pieces` by SciPy's ``ndimage.label`` (labels in the cells' raster order): the
+    oracle of the compiled host step."""
     from scipy import ndimage
 
     p = np.asarray(points, np.float64)

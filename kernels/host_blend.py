@@ -638,3 +638,63 @@ def build_grid_kernel(
     info[4] = wp.float64(nx)
     info[5] = wp.float64(ny)
     info[6] = wp.float64(nz)
+
+
+@wp.func
+def _root(parent: wp.array(dtype=wp.int32), i: int) -> int:
+    """The root of i's set (path halving on the way)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@wp.kernel
+def pieces_kernel(
+    cells: wp.array(dtype=wp.int32),  # (M * 3,) each point's cell (i, j, k), cells link / 2 wide
+    count: int,  # M >= 1
+    nx: int,
+    ny: int,
+    nz: int,
+    voxel: wp.array(dtype=wp.int32),  # scratch (nx * ny * nz,) all -1: a cell's first point
+    parent: wp.array(dtype=wp.int32),  # scratch (M,)
+    labels: wp.array(dtype=wp.int32),  # out (M,) 0, 1, ... in the order of each piece's first point
+):
+    """geosynth.blending.pieces: occupied cells joined through faces, edges or corners
+    (26-connectivity), by union-find over the points (one thread); each cell's points hang
+    on its first point, whose set is joined with the first points of its occupied
+    neighbour cells."""
+    for i in range(count):
+        v = (cells[3 * i + 2] * ny + cells[3 * i + 1]) * nx + cells[3 * i]
+        if voxel[v] < 0:
+            voxel[v] = i
+        parent[i] = voxel[v]
+    for i in range(count):
+        cx = cells[3 * i]
+        cy = cells[3 * i + 1]
+        cz = cells[3 * i + 2]
+        if voxel[(cz * ny + cy) * nx + cx] == i:
+            for dz in range(-1, 2):
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        x = cx + dx
+                        y = cy + dy
+                        z = cz + dz
+                        if x >= 0 and x < nx and y >= 0 and y < ny and z >= 0 and z < nz:
+                            other = voxel[(z * ny + y) * nx + x]
+                            if other >= 0:
+                                a = _root(parent, i)
+                                b = _root(parent, other)
+                                if a < b:
+                                    parent[b] = a
+                                if b < a:
+                                    parent[a] = b
+    for i in range(count):
+        labels[i] = -1
+    n = int(0)
+    for i in range(count):
+        r = _root(parent, i)
+        if labels[r] < 0:
+            labels[r] = n
+            n += 1
+        labels[i] = labels[r]
