@@ -193,11 +193,12 @@ def nearest(
             for iy in range(y0, y1 + 1):
                 dy = _slab_distance(q[1], g[1] + wp.float64(iy) * cell, cell)
                 rest = bound2 - dz * dz - dy * dy
-                if rest >= zero:
+                row = (iz * ny + iy) * nx
+                # (most rows of a surface's grid are empty: two loads say so)
+                if rest >= zero and x0 <= x1 and cell_start[row + x0] < cell_start[row + x1 + 1]:
                     rx = wp.sqrt(rest)  # this row's cells that the ball reaches
                     a = wp.max(x0, _cell_of(q[0] - rx, g[0], inv_cell))
                     b = wp.min(x1, _cell_of(q[0] + rx, g[0], inv_cell))
-                    row = (iz * ny + iy) * nx
                     if wp.abs(iz - cz) == r or wp.abs(iy - cy) == r:
                         if a <= b:  # a row on the shell's z or y faces: all of it is new
                             count, bound2, bound_j = _collect(pn, ids, cell_start[row + a], cell_start[row + b + 1],
