@@ -27,11 +27,13 @@ positions are output positions that later searches read, and float64 host arithm
 makes them the same bits whichever device runs the rest. The device's float32 MLS
 kernel (:func:`geosynth.pointsets.project_points`) agrees with another device's only to
 about 1e-6, and a pipeline that fed such positions to its next search would diverge
-between devices; measured on a typical height-field patch (2,450 overlap points, 4,800
-points of N_k, 2 loaded cores), the host line crossings take about 25 ms and the host
-projection of the ~7% fallback points about 3 ms, where the OpenCL kernel projects all
-2,450 points in 8 ms: it would save little. ``device=`` is therefore only checked (so
-that a bad device string fails here as elsewhere); it never changes the result.
+between devices. The host evaluation is a compiled host step
+(:mod:`geosynth.kernels.host_blend`, Warp's CPU device for every run, one thread per
+point doing its k nearest points, every iteration and the fallback; see
+:mod:`geosynth.host_steps`); :class:`MLSSurface` and the ``_numpy`` functions are its
+NumPy twins (the oracles of tests/test_blend_kernels.py). ``device=`` is therefore only
+checked (so that a bad device string fails here as elsewhere); it never changes the
+result.
 
 Choices where the paper is vague: the line search is the ray-plane iteration of
 Adamson and Alexa's ray tracing of point-set surfaces (``t <- t - f(x + t n') / (n(y) . n')``
@@ -308,7 +310,7 @@ _CELL_REACHES = 0.5  # the kernels' cell grid: cells half a reach (1.5 h) wide (
 # Launch width of the host_blend kernels: each worker thread does every _WORKERS-th point with one
 # scratch slot, hot in the cache (one slot per point made every point's lists cold memory).
 _WORKERS = 4
-_scratch_cache = threading.local()
+_held = threading.local()  # per thread: the gauss table, wrapped for Warp once
 
 
 def _list_room(k: int) -> int:
@@ -320,13 +322,13 @@ def _list_room(k: int) -> int:
 def _gauss_table():
     """kernels.host_blend.gauss()'s table exp(-j / GAUSS_STEPS), j = 0 .. 9 GAUSS_STEPS + 1
     (float64, libm's exp), wrapped for Warp once."""
-    held = getattr(_scratch_cache, "gauss", None)
+    held = getattr(_held, "gauss", None)
     if held is None:
         from geosynth.host_steps import host_array
         from geosynth.kernels.host_blend import GAUSS_STEPS
 
         held = host_array(np.exp(-np.arange(9 * int(GAUSS_STEPS) + 2) / float(GAUSS_STEPS)), np.float64)
-        _scratch_cache.gauss = held
+        _held.gauss = held
     return held[0]
 
 

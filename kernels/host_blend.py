@@ -7,19 +7,22 @@ Their NumPy twins are :class:`geosynth.blending.MLSSurface` and the ``_numpy`` f
 beside it (the oracles; tests/test_blend_kernels.py compares them). One thread per query
 does all of a query's work: its k nearest points, every iteration of the line search, the
 re-gatherings, the projection fallback, and (``blend_kernel``) the patch's own surface and
-the blend itself, so that a patch costs two launches, not a NumPy pass per operation.
+the blend itself, so that a patch costs a few launches, not a NumPy pass per operation.
+``pieces_kernel`` is :func:`geosynth.blending.pieces` (the flowers' cut, Sec. 5.3).
 
 The MLS surface (Adamson and Alexa, as in :mod:`geosynth.pointsets`): over a query's
 gathered neighbours, ``w_i(y) = exp(-|p_i - y|^2 / h^2)`` (0 beyond ``reach`` = 3h),
 ``n(y) = normalize(sum w_i n_i)``, ``f(y) = n(y) . (y - a(y))`` with ``a`` the weighted mean
-of the points. Sums run over the neighbours nearest first.
+of the points; the weights by :func:`gauss` (an inline exp).
 
-Neighbours come from a host-built dense cell grid (``geosynth.blending._CellGrid``): points
+Neighbours come from a dense cell grid (``geosynth.blending._CellGrid``): points
 sorted by linear cell index ``(cz * ny + cy) * nx + cx`` (stably, so a cell holds its points
 in input order), ``cell_start[c]`` the first point of cell c (``nx*ny*nz + 1`` entries),
 points interleaved with their unit normals, 6 float64 each; ``ids[j]`` the input index of
-sorted point j. :func:`nearest` returns the k nearest points closer than ``reach``, ordered
-by (squared distance, input index), exactly (the cell size only sets the speed).
+sorted point j (``build_grid_kernel``). :func:`nearest` returns the k nearest points closer
+than ``reach`` (ties by lower input index, as pykdtree's), exactly (the cell size only sets
+the speed), in an order of its own: sums over them differ from NumPy's in the last bits
+only, and are the same bits on every run.
 
 Arrays are flat (``(m, 3)`` as ``3 m`` entries, row-major). Nothing here validates.
 """
@@ -459,11 +462,14 @@ def counterparts_kernel(
     m: int,  # the points
     workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
 ):
-    """_counterpart_of for the points w, w + workers, ...: one scratch slot per worker, reused
-    from point to point (hot in the cache; a slot per point would be cold memory each time)."""
+    """:func:`geosynth.blending.counterparts` (``_counterpart_of``) for the points w, w +
+    workers, ...; the arguments as ``_counterpart_of``'s. One scratch slot per worker,
+    reused from point to point (hot in the cache; a slot per point was cold memory each
+    time)."""
     w = wp.tid()
     for i in range(w, m, workers):
-        _counterpart_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, tol, tmax, min_slope, min_facing, line_iter, proj_iter, points, dirs, nbr, nd2, out_p, out_n, how, i, w)
+        _counterpart_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, tol, tmax, min_slope,
+                        min_facing, line_iter, proj_iter, points, dirs, nbr, nd2, out_p, out_n, how, i, w)
 
 
 
@@ -568,11 +574,13 @@ def blend_kernel(
     m: int,  # the points
     workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
 ):
-    """_blend_of for the points w, w + workers, ...: one scratch slot per worker (as
+    """The blend of :func:`geosynth.blending.blend_patch` (``_blend_of``) for the points w,
+    w + workers, ...; the arguments as ``_blend_of``'s, one scratch slot per worker (as
     counterparts_kernel)."""
     w = wp.tid()
     for i in range(w, m, workers):
-        _blend_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, min_slope, relative, points, dirs, ramp, cp, cn, how, nbr, nd2, out_p, out_n, i, w)
+        _blend_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, min_slope, relative, points, dirs,
+                  ramp, cp, cn, how, nbr, nd2, out_p, out_n, i, w)
 
 
 @wp.kernel
