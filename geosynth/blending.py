@@ -27,11 +27,13 @@ positions are output positions that later searches read, and float64 host arithm
 makes them the same bits whichever device runs the rest. The device's float32 MLS
 kernel (:func:`geosynth.pointsets.project_points`) agrees with another device's only to
 about 1e-6, and a pipeline that fed such positions to its next search would diverge
-between devices; measured on a typical height-field patch (2,450 overlap points, 4,800
-points of N_k, 2 loaded cores), the host line crossings take about 25 ms and the host
-projection of the ~7% fallback points about 3 ms, where the OpenCL kernel projects all
-2,450 points in 8 ms: it would save little. ``device=`` is therefore only checked (so
-that a bad device string fails here as elsewhere); it never changes the result.
+between devices. The host evaluation is a compiled host step
+(:mod:`geosynth.kernels.host_blend`, Warp's CPU device for every run, one thread per
+point doing its k nearest points, every iteration and the fallback; see
+:mod:`geosynth.host_steps`); :class:`MLSSurface` and the ``_numpy`` functions are its
+NumPy twins (the oracles of tests/test_blend_kernels.py). ``device=`` is therefore only
+checked (so that a bad device string fails here as elsewhere); it never changes the
+result.
 
 Choices where the paper is vague: the line search is the ray-plane iteration of
 Adamson and Alexa's ray tracing of point-set surfaces (``t <- t - f(x + t n') / (n(y) . n')``
@@ -44,6 +46,7 @@ point has no counterpart (N_k lacks its geometry there) and is left where the wa
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Iterable
 
 import numpy as np
@@ -301,6 +304,140 @@ def _rows(gathered, rows):
     return tuple(np.take(a, rows, axis=0) for a in gathered)
 
 
+# ------------------------------------------------------------------------ the compiled host steps
+
+_CELL_REACHES = 0.5  # the kernels' cell grid: cells half a reach (1.5 h) wide (the speed only)
+# Launch width of the host_blend kernels: each worker thread does every _WORKERS-th point with one
+# scratch slot, hot in the cache (one slot per point made every point's lists cold memory).
+_WORKERS = 4
+_held = threading.local()  # per thread: the gauss table, wrapped for Warp once
+
+
+def _list_room(k: int) -> int:
+    """Room of a compiled neighbour list of k (kernels.host_blend.nearest): candidates
+    within reach are collected unsorted and cut to the k nearest when it is full."""
+    return 4 * k + 8
+
+
+def _gauss_table():
+    """kernels.host_blend.gauss()'s table exp(-j / GAUSS_STEPS), j = 0 .. 9 GAUSS_STEPS + 1
+    (float64, libm's exp), wrapped for Warp once."""
+    held = getattr(_held, "gauss", None)
+    if held is None:
+        from geosynth.host_steps import host_array
+        from geosynth.kernels.host_blend import GAUSS_STEPS
+
+        held = host_array(np.exp(-np.arange(9 * int(GAUSS_STEPS) + 2) / float(GAUSS_STEPS)), np.float64)
+        _held.gauss = held
+    return held[0]
+
+
+def _scratch(entries: int):
+    """(int32, float64) Warp scratch arrays of ``entries`` entries (the workers' lists)."""
+    from geosynth.host_steps import host_array
+
+    return host_array(np.empty(entries, np.int32))[0], host_array(np.empty(entries, np.float64))[0]
+
+
+class _CellGrid:
+    """An oriented point set binned into a dense grid of cubic cells, for the compiled host
+    steps (:mod:`geosynth.kernels.host_blend`, whose ``nearest`` finds a query's k nearest
+    points in it exactly, whatever the cell size).
+
+    Args:
+        points: (K, 3) float64, K >= 1; normals: (K, 3) float64 unit normals.
+        cell: the cell side (world units, > 0); made larger when the points' box would
+            need more than ``4 K + 64`` cells (scattered points: fewer, fuller cells).
+
+    Attributes (host arrays, kept alive with their Warp views): ``pn`` (K * 6,) float64
+    points and normals sorted by linear cell index ``(cz * ny + cy) * nx + cx`` (stably:
+    input order within a cell), ``ids`` (K,) int32 each sorted point's input index,
+    ``cell_start`` (nx * ny * nz + 1,) int32, ``origin`` (3,) the points' minimum corner,
+    ``cell``, ``dims`` (nx, ny, nz).
+    """
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray, cell: float):
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels.host_blend import build_grid_kernel
+
+        count = len(points)
+        max_cells = 4 * count + 64
+        wp_p, self._p = host_array(points, np.float64)
+        wp_n, self._n = host_array(normals, np.float64)
+        self.wp_pn, self.pn = host_array(np.empty(6 * count, np.float64))
+        self.wp_ids, self.ids = host_array(np.empty(count, np.int32))
+        self.wp_start, self.cell_start = host_array(np.empty(max_cells + 1, np.int32))
+        wp_cursor, self._cursor = host_array(np.empty(max_cells, np.int32))
+        wp_cell_of, self._cell_of = host_array(np.empty(count, np.int32))
+        wp_info, info = host_array(np.empty(7, np.float64))
+        host_launch(build_grid_kernel, 1, [wp_p, wp_n, count, float(cell), max_cells, self.wp_pn, self.wp_ids,
+                                          self.wp_start, wp_cursor, wp_cell_of, wp_info])
+        self.origin, self.cell = info[:3].copy(), float(info[3])
+        self.dims = tuple(int(v) for v in info[4:7])
+
+    def launch_args(self) -> list:
+        """The grid's leading arguments of the host_blend kernels."""
+        import warp as wp
+
+        return [self.wp_pn, self.wp_ids, self.wp_start, wp.vec3d(*(float(v) for v in self.origin)),
+                self.cell, *self.dims]
+
+
+def _counterparts_compiled(p: np.ndarray, n: np.ndarray, nb_p: np.ndarray, nb_n: np.ndarray, h: float,
+                           tmax: float):
+    """:func:`counterparts`'s search, one ``host_blend.counterparts_kernel`` thread per point:
+    p, n (M, 3) float64 points and unit normals, nb_p, nb_n (K >= 1, 3) N_k's points and
+    unit normals, h the MLS width, tmax the line's reach and the farthest projection
+    (world units). Returns ``(positions, normals, how)`` as :func:`counterparts` does."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels.host_blend import counterparts_kernel
+
+    m = len(p)
+    k = int(max(1, min(MLS_NEIGHBOURS, len(nb_p))))
+    reach = _REACH * h
+    grid = _CellGrid(nb_p, nb_n, _CELL_REACHES * reach)
+    wp_x, x = host_array(p, np.float64)
+    wp_d, d = host_array(n, np.float64)
+    cap = _list_room(k)
+    wp_nbr, wp_nd2 = _scratch(_WORKERS * 2 * cap)
+    wp_op, out_p = host_array(np.empty((m, 3), np.float64))
+    wp_on, out_n = host_array(np.empty((m, 3), np.float64))
+    wp_how, how = host_array(np.empty(m, np.int8))
+    host_launch(counterparts_kernel, min(m, _WORKERS),
+                [_gauss_table(), *grid.launch_args(), k, cap, h, reach, _TOL * h, tmax, _MIN_SLOPE, _MIN_FACING, _LINE_ITER,
+                 _PROJ_ITER, wp_x, wp_d, wp_nbr, wp_nd2, wp_op, wp_on, wp_how, m, min(m, _WORKERS)])
+    return out_p, out_n, how
+
+
+def _blend_compiled(p: np.ndarray, n: np.ndarray, ps: np.ndarray, ns: np.ndarray, r: np.ndarray, c: np.ndarray,
+                    nc: np.ndarray, how: np.ndarray, h: float, relative: bool):
+    """:func:`blend_patch`'s blend by ``host_blend.blend_kernel``: p, n (M, 3) float64 F'_k
+    and its unit normals (its own MLS surface), ps, ns (s, 3) the points to blend (those
+    with ramp > 0), r (s,) their ramp and c, nc, how their :func:`counterparts`. Returns
+    (s, 3) float64 blended points and unit normals."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels.host_blend import blend_kernel
+
+    s = len(ps)
+    k = int(max(1, min(MLS_NEIGHBOURS, len(p))))
+    reach = _REACH * h
+    grid = _CellGrid(p, n, _CELL_REACHES * reach) if relative else None
+    args = grid.launch_args() if relative else [*_CellGrid(p[:1], n[:1], reach).launch_args()]
+    wp_x, x = host_array(ps, np.float64)
+    wp_d, d = host_array(ns, np.float64)
+    wp_r, rr = host_array(r, np.float64)
+    wp_c, cc = host_array(c, np.float64)
+    wp_nc, ncc = host_array(nc, np.float64)
+    wp_how, hh = host_array(how, np.int8)
+    cap = _list_room(k)
+    wp_nbr, wp_nd2 = _scratch(_WORKERS * cap)
+    wp_op, out_p = host_array(np.empty((s, 3), np.float64))
+    wp_on, out_n = host_array(np.empty((s, 3), np.float64))
+    host_launch(blend_kernel, min(s, _WORKERS), [_gauss_table(), *args, k, cap, h, reach, _MIN_SLOPE, int(bool(relative)), wp_x, wp_d, wp_r, wp_c,
+                                  wp_nc, wp_how, wp_nbr, wp_nd2, wp_op, wp_on, s, min(s, _WORKERS)])
+    return out_p, out_n
+
+
 # ------------------------------------------------------------------------ counterparts and blending
 
 
@@ -310,6 +447,10 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
     through the point along +-its normal nearest to it (within ``max_ray`` spacings),
     else its projection (if within ``max_ray`` spacings too: blending closes small gaps,
     it does not move geometry N_k lacks onto another part of N_k).
+
+    Computed by the compiled host step ``geosynth.kernels.host_blend.counterparts_kernel``
+    (Warp's CPU device, float64, one thread per point); :func:`_counterparts_numpy`
+    is its NumPy twin (:class:`MLSSurface`), equal to a float64 tolerance.
 
     Args:
         points, normals: (M, 3) float, the warped patch's points F'_k (normals need not
@@ -327,12 +468,33 @@ def counterparts(points, normals, neighbourhood_points, neighbourhood_normals, s
         normal where there is none), (M,) int8: 1 ray intersection, 2 projection, 0 no
         usable surface in reach.
     """
+    return _counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing, device,
+                         radius, max_ray, compiled=True)
+
+
+def _counterparts_numpy(points, normals, neighbourhood_points, neighbourhood_normals, spacing: float,
+                        device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0):
+    """:func:`counterparts` in NumPy on :class:`MLSSurface` (pykdtree neighbours): the
+    oracle of the compiled host step. Same arguments and results."""
+    return _counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing, device,
+                         radius, max_ray, compiled=False)
+
+
+def _counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing, device, radius,
+                  max_ray, *, compiled: bool):
     p = as_points3("points", points)
     n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
     spacing = check_positive("spacing", spacing)
     h = 2.0 * spacing if radius is None else check_positive("radius", radius)
     max_ray = check_positive("max_ray", max_ray)
     _check_device(device)
+    if compiled:
+        nb_p = as_points3("neighbourhood_points", neighbourhood_points)
+        nb_n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", neighbourhood_normals,
+                                                                   len(nb_p))) if len(nb_p) else np.zeros((0, 3))
+        if len(p) == 0 or len(nb_p) == 0:
+            return p.copy(), n.copy(), np.zeros(len(p), np.int8)
+        return _counterparts_compiled(p, n, nb_p, nb_n, h, max_ray * spacing)
     surface = MLSSurface(neighbourhood_points, neighbourhood_normals, h)
     out_p, out_n = p.copy(), n.copy()
     how = np.zeros(len(p), np.int8)
@@ -371,6 +533,10 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
     threads) that surface lies inside the sampled one by the MLS smoothing, and a blended
     patch that matched N_k exactly would come out shrunk there.
 
+    Computed by the compiled host steps of ``geosynth.kernels.host_blend`` (Warp's CPU
+    device, float64, one thread per point); :func:`_blend_patch_numpy` is the NumPy twin,
+    equal to a float64 tolerance.
+
     Args:
         points, normals: (M, 3) float F'_k.
         ramp: (M,) float in [0, 1], each point's parameter (:func:`overlap_ramp`).
@@ -382,6 +548,23 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
         ``(points, normals)``: (M, 3) float64 blended positions and unit normals.
         Points with r == 0, or with no usable surface of N_k in reach, are unchanged.
     """
+    return _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing, device,
+                        radius, max_ray, relative, compiled=True)
+
+
+def _blend_patch_numpy(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing: float,
+                       device: str | None = None, *, radius: float | None = None, max_ray: float = 4.0,
+                       relative: bool = True):
+    """:func:`blend_patch` in NumPy on :class:`MLSSurface` (:func:`_counterparts_numpy`): the
+    oracle of the compiled host steps. Same arguments and results."""
+    return _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing, device,
+                        radius, max_ray, relative, compiled=False)
+
+
+def _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing, device, radius,
+                 max_ray, relative, *, compiled: bool):
+    from geosynth import _checks
+
     p = as_points3("points", points)
     n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
     r = np.asarray(ramp, np.float64).reshape(-1)
@@ -389,20 +572,31 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
         raise ValueError(f"ramp must have shape ({len(p)},) to match points, got {np.shape(ramp)}.")
     if not (np.isfinite(r).all() and (r >= 0).all() and (r <= 1).all()):
         raise ValueError("ramp must hold finite values in [0, 1] (see overlap_ramp).")
+    if relative:
+        _checks.check_bool("relative", relative)
     out_p, out_n = p.copy(), n.copy()
     sel = np.flatnonzero(r > 0)
     if sel.size == 0 or len(np.asarray(neighbourhood_points).reshape(-1, 3)) == 0:
         check_positive("spacing", spacing)
         return out_p, out_n
-    c, nc, how = counterparts(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
-                              radius=radius, max_ray=max_ray)
+    if compiled:  # counterparts() without checking p[sel] and n[sel] again
+        spacing = check_positive("spacing", spacing)
+        h = 2.0 * spacing if radius is None else check_positive("radius", radius)
+        max_ray = check_positive("max_ray", max_ray)
+        _check_device(device)
+        nb_p = as_points3("neighbourhood_points", neighbourhood_points)
+        nb_n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", neighbourhood_normals,
+                                                                   len(nb_p)))
+        ps, ns = p[sel], n[sel]
+        c, nc, how = _counterparts_compiled(ps, ns, nb_p, nb_n, h, max_ray * spacing)
+        out_p[sel], out_n[sel] = _blend_compiled(p, n, ps, ns, r[sel], c, nc, how, h, relative)
+        return out_p, out_n
+    c, nc, how = _counterparts_numpy(p[sel], n[sel], neighbourhood_points, neighbourhood_normals, spacing, device,
+                                     radius=radius, max_ray=max_ray)
+    h = 2.0 * spacing if radius is None else check_positive("radius", radius)
     own = p[sel].copy()
     rs = r[sel, None]
     if relative:
-        from geosynth import _checks
-
-        _checks.check_bool("relative", relative)
-        h = 2.0 * spacing if radius is None else check_positive("radius", radius)
         f_own, n_own, sup = np.zeros(sel.size), np.zeros((sel.size, 3)), np.zeros(sel.size, bool)
         found = np.flatnonzero(how != NO_SURFACE)  # only where N_k gave a counterpart
         if found.size:
@@ -422,6 +616,7 @@ def blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norma
     good = length > 1e-9
     out_n[sel[good]] = blended[good] / length[good, None]
     return out_p, out_n
+
 
 
 # ------------------------------------------------------------------------ border cut, relaxation, seam error
@@ -545,7 +740,32 @@ def pieces(points, link: float) -> np.ndarray:
     ``link`` or more are joined only through other points between them. Cheaper than the
     k-d tree's pairs within ``link`` (:func:`has_pieces`; 5-8 times the CPU time) and
     sometimes finer: the flowers' pieces are about the same, the chainmail's interlinked
-    rings (within ``link`` of each other, one piece by the pairs) come apart."""
+    rings (within ``link`` of each other, one piece by the pairs) come apart.
+
+    Labels number the pieces in the order of their first points. Computed by the compiled
+    host step ``geosynth.kernels.host_blend.pieces_kernel`` (union-find over the points);
+    :func:`_pieces_numpy` is its NumPy twin (SciPy's labels, numbered in the cells' raster
+    order: the same pieces)."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels.host_blend import pieces_kernel
+
+    p = np.asarray(points, np.float64)
+    if len(p) == 0:
+        return np.zeros(0, np.int64)
+    lo = np.array([p[:, 0].min(), p[:, 1].min(), p[:, 2].min()])
+    ijk = np.floor((p - lo) / (0.5 * float(link))).astype(np.int32)
+    dims = [int(ijk[:, a].max()) + 1 for a in range(3)]
+    wp_cells, _cells = host_array(ijk, np.int32)
+    wp_voxel, _voxel = host_array(np.full(dims[0] * dims[1] * dims[2], -1, np.int32))
+    wp_parent, _parent = host_array(np.empty(len(p), np.int32))
+    wp_labels, labels = host_array(np.empty(len(p), np.int32))
+    host_launch(pieces_kernel, 1, [wp_cells, len(p), *dims, wp_voxel, wp_parent, wp_labels])
+    return labels.astype(np.int64)
+
+
+def _pieces_numpy(points, link: float) -> np.ndarray:
+    """:func:`pieces` by SciPy's ``ndimage.label`` (labels in the cells' raster order): the
+    oracle of the compiled host step."""
     from scipy import ndimage
 
     p = np.asarray(points, np.float64)
