@@ -225,7 +225,55 @@ _LOPSIDED = 0.6  # a target whose k-neighbour centroid is this far (x mean neigh
 
 def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
                        limit: int | None = None, fallback_size: int | None = None) -> np.ndarray | None:
-    """Hierarchical clustering (Pauly et al. 2002): clusters are split through their
+    """Hierarchical clustering (Pauly et al. 2002) of (n, 3) float64 points ``p``, as
+    :func:`_adaptive_clusters_numpy` (the oracle: the same arguments, the same result on
+    points in general position), by the compiled host step
+    ``host_warp.adaptive_clusters_kernel`` (one thread, depth first). Returns the sorted
+    (m,) int64 indices of the clusters' representatives; with more than ``limit``
+    clusters None, or with ``fallback_size`` the clustering by size alone (a second run
+    of the kernel: it is cheap, and stops as soon as the first passes the limit).
+
+    Where a point lies exactly on a splitting plane, or a cluster's principal axis is
+    not unique (a double eigenvalue), the kernel's axis (closed-form eigenvalues, cross
+    products for the vector) may differ from LAPACK's in sign or direction, and so may
+    the split."""
+    n = len(p)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    if fallback_size is not None and fallback_size < max_size:
+        raise ValueError(f"fallback_size ({fallback_size}) must be >= max_size ({max_size}).")
+    reps = _cluster_run(p, int(max_size), float(max_variation), -1 if limit is None else int(limit))
+    if reps is None:
+        if fallback_size is None:
+            return None
+        reps = _cluster_run(p, int(fallback_size), math.inf, -1)
+    return np.sort(reps)
+
+
+def _cluster_run(p: np.ndarray, max_size: int, max_variation: float, limit: int) -> np.ndarray | None:
+    """One launch of ``adaptive_clusters_kernel``: the (m,) int64 representatives in no
+    order, or None with more than ``limit >= 0`` clusters."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    n = len(p)
+    pw, _ = host_array(p, np.float64)
+    perm, _perm = host_array(np.empty(n, np.int32))
+    stack, _stack = host_array(np.empty(2 * n + 4, np.int32))
+    reps_np = np.empty(n, np.int32)
+    reps, _ = host_array(reps_np)
+    count_np = np.zeros(1, np.int32)
+    count, _ = host_array(count_np)
+    host_launch(host_warp.adaptive_clusters_kernel, 1,
+                [pw, n, max_size, max_variation, limit, perm, stack, reps, count])
+    if count_np[0] < 0:
+        return None
+    return reps_np[:count_np[0]].astype(np.int64)
+
+
+def _adaptive_clusters_numpy(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
+                             limit: int | None = None, fallback_size: int | None = None) -> np.ndarray | None:
+    """The NumPy form of :func:`_adaptive_clusters` (its oracle). Hierarchical clustering (Pauly et al. 2002): clusters are split through their
     centroid across their principal axis while they hold more than ``max_size`` points
     or their surface variation exceeds ``max_variation`` (and they hold more than 2).
     Returns the index of each cluster's representative (its member nearest the
@@ -325,9 +373,11 @@ def _representatives(p: np.ndarray, labels: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------ greedy pairing
 
 
-def _greedy_match(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Indices of the edges the sequential greedy takes when it scans the edges in the
-    given ``order`` (a permutation) and keeps each whose q and s are both unused.
+def _greedy_match_numpy(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """The NumPy form of the greedy scan of ``host_warp.greedy_pairing_kernel`` (its
+    oracle, used by ``_greedy_pairing(..., numpy_oracle=True)``): the indices of the edges the
+    sequential greedy takes when it scans the edges in the given ``order`` (a
+    permutation) and keeps each whose q and s are both unused, in scan order.
 
     Vectorized: an edge that is the first remaining one for its q and for its s is
     taken by the scan; remove the edges touching those, repeat."""
@@ -356,6 +406,46 @@ def _greedy_match(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarr
     return order[np.sort(np.concatenate(taken))] if taken else np.zeros(0, np.int64)
 
 
+def _greedy_passes(eq, es, c, tie, ps, pq, rn, phi, kr: int, length_weight: float, direction_weight: float,
+                   miss: float, iterations: int) -> tuple[np.ndarray, tuple[float, ...]]:
+    """The passes of the greedy pairing in one launch of ``host_warp.greedy_pairing_kernel``.
+
+    Args:
+        eq, es: (E,) int target and source of each allowed edge; c: (E,) float64 its cost
+            c(s, q); tie: (E,) int seeded permutation ordering equal costs.
+        ps, pq: (S, 3), (|Q|, 3) float64 positions; rn, phi: (|Q|, kr) the neighbours r of
+            each q in Q and their Gaussian weights.
+        length_weight, direction_weight: w_l / unit and w_d / 2 of g; miss: the cost of
+            an unpaired q; iterations: passes after the first.
+
+    Returns:
+        ``(sel, costs)``: (P,) int64 the kept pairing's edges in scan order, and C after
+        each kept pass.
+    """
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    n_e, n_q = len(eq), len(pq)
+    if n_e == 0:
+        return np.zeros(0, np.int64), (float(miss * n_q),)
+    i32 = lambda a: host_array(a, np.int32)[0]  # noqa: E731
+    f64 = lambda a: host_array(a, np.float64)[0]  # noqa: E731
+    q_to_r = pq[:, None, :] - pq[rn] if kr > 0 else np.zeros((n_q, 0, 3))  # (|Q|, kr, 3)
+    q_to_r_len = np.sqrt(np.einsum("qkj,qkj->qk", q_to_r, q_to_r))
+    sel_np = np.empty(n_e, np.int32)
+    costs_np = np.empty(iterations + 1)
+    counts_np = np.zeros(2, np.int32)
+    args = [i32(eq), i32(es), f64(c), i32(tie), n_e, f64(ps), n_q, i32(rn), f64(phi), f64(q_to_r), f64(q_to_r_len),
+            int(kr), float(length_weight), float(direction_weight), float(miss), int(iterations),
+            f64(np.empty(n_e)), f64(np.empty(n_e)), f64(np.empty(n_e)), i32(np.empty(n_e, np.int32)),
+            i32(np.empty(n_e, np.int32)), i32(np.full(n_q, -1, np.int32)), i32(np.full(n_q, -1, np.int32)),
+            i32(np.empty(n_q, np.int32)), i32(np.zeros(n_q, np.int32)),
+            i32(np.zeros(len(ps), np.int32)), i32(np.empty(n_e, np.int32)),
+            host_array(sel_np)[0], host_array(costs_np)[0], host_array(counts_np)[0]]
+    host_launch(host_warp.greedy_pairing_kernel, 1, args)
+    return sel_np[:counts_np[0]].astype(np.int64), tuple(float(v) for v in costs_np[:counts_np[1]])
+
+
 def greedy_pairing(
     ps, ns, vs, pq, nq, vq, weights: WarpWeights, spacing: float, rng: np.random.Generator, *,
     iterations: int = 3, candidates: int = 12, length_unit: float = 32.0, neighbours: int = 8,
@@ -377,6 +467,21 @@ def greedy_pairing(
         ``(pairs, costs)``: (P, 2) int64 (source index, target index) sorted by target,
         and the cost C(pi) after each kept pass (non-increasing).
     """
+    return _greedy_pairing(ps, ns, vs, pq, nq, vq, weights, spacing, rng, iterations=iterations,
+                           candidates=candidates, length_unit=length_unit, neighbours=neighbours)
+
+
+def _greedy_pairing(
+    ps, ns, vs, pq, nq, vq, weights: WarpWeights, spacing: float, rng: np.random.Generator, *,
+    iterations: int = 3, candidates: int = 12, length_unit: float = 32.0, neighbours: int = 8,
+    numpy_oracle: bool = False,
+) -> tuple[np.ndarray, tuple[float, ...]]:
+    """:func:`greedy_pairing`. The candidate edges and their costs c are found here
+    (k-d tree, NumPy); the passes (sort by cost, greedy scan, coherence term g of every
+    edge, pairing cost C) run in one launch of the compiled host step
+    ``host_warp.greedy_pairing_kernel`` or, with ``numpy_oracle``, in NumPy (the oracle:
+    the same pairs and costs to rounding, except where rounding decides between two
+    pairings of nearly equal cost)."""
     w = weights
     n_s, n_q = len(ps), len(pq)
     if n_s == 0 or n_q == 0:
@@ -410,12 +515,13 @@ def greedy_pairing(
 
     # What g reads per edge and does not change between passes: q's neighbours r, p_s,
     # and p_q - p_r with its length.
-    rn_e = rn[eq]  # (E, kr)
-    ps_e = ps[es][:, None, :]  # (E, 1, 3)
-    q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
-    q_to_r_len = np.linalg.norm(q_to_r, axis=2)
+    if numpy_oracle:
+        rn_e = rn[eq]  # (E, kr)
+        ps_e = ps[es][:, None, :]  # (E, 1, 3)
+        q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
+        q_to_r_len = np.linalg.norm(q_to_r, axis=2)
 
-    def coherence(partner):
+    def coherence_numpy(partner):
         """g of every edge given ``partner`` (source of each q, -1 if none), (E,)."""
         if kr == 0 or len(eq) == 0:
             return np.zeros(len(eq))
@@ -440,21 +546,24 @@ def greedy_pairing(
         partner[eq[sel]] = es[sel]
         return partner
 
-    # g of every edge is computed once per pairing: the next pass's edge costs and this
-    # pairing's cost C both read it.
-    sel = _greedy_match(eq, es, np.lexsort((tie, c)))
-    g = coherence(partner_of(sel))
-    costs = [pairing_cost(sel, g)]
-    for _ in range(int(iterations)):
-        new_sel = _greedy_match(eq, es, np.lexsort((tie, c + g)))
-        if np.array_equal(new_sel, sel):
-            break
-        new_g = coherence(partner_of(new_sel))
-        cost = pairing_cost(new_sel, new_g)
-        if cost > costs[-1]:
-            break
-        sel, g = new_sel, new_g
-        costs.append(cost)
+    if numpy_oracle:
+        # g of every edge is computed once per pairing: the next pass's edge costs and this
+        # pairing's cost C both read it.
+        sel = _greedy_match_numpy(eq, es, np.lexsort((tie, c)))
+        g = coherence_numpy(partner_of(sel))
+        costs = [pairing_cost(sel, g)]
+        for _ in range(int(iterations)):
+            new_sel = _greedy_match_numpy(eq, es, np.lexsort((tie, c + g)))
+            if np.array_equal(new_sel, sel):
+                break
+            new_g = coherence_numpy(partner_of(new_sel))
+            cost = pairing_cost(new_sel, new_g)
+            if cost > costs[-1]:
+                break
+            sel, g = new_sel, new_g
+            costs.append(cost)
+    else:
+        sel, costs = _greedy_passes(eq, es, c, tie, ps, pq, rn, phi, kr, w.w_l / unit, 0.5 * w.w_d, miss, int(iterations))
     pairs = np.stack([es[sel], eq[sel]], 1).astype(np.int64)
     return pairs[np.argsort(pairs[:, 1], kind="stable")], tuple(costs)
 
@@ -476,7 +585,13 @@ class ThinPlateSpline:
             size (the warp uses it: a thousandth of a spacing).
     """
 
-    _CHUNK = 1024
+    # Rows per evaluation step: 256 keeps the step's three (256, |Q|) float32 matrices
+    # (~200 KB each at |Q| = 200) in the L2 cache; 1,024 rows (before) took ~20% longer.
+    # OpenBLAS's products round a row differently with other row counts: this decides bits.
+    _CHUNK = 256
+    # r^2 (in units of the centres' extent) at or below which an evaluation point counts
+    # as a centre (r = 0): above the product's rounding, below any real spacing.
+    _AT_CENTRE = 1e-12
 
     def __init__(self, centres, values, smoothing: float = 0.0, dtype=np.float64):
         import scipy.linalg
@@ -549,37 +664,51 @@ class ThinPlateSpline:
         n = len(self.centres)
         disp = np.empty_like(u)
         jac = np.empty((len(u), 3, 3)) if want_jacobian else None
-        centres, w = self.centres.astype(dt), self.w.astype(dt)
-        cols = [np.ascontiguousarray(centres[:, j]) for j in range(3)]
+        w = self.w.astype(dt)
         wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)  # w_ik c_ij
         w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
         eye_a = self.affine[1:].T[None] + np.eye(3)[None]
-        u_dt = u.astype(dt)
-        # The (chunk, n) matrices are made once and reused by every chunk: a fresh ~1 MB
-        # array per step cost page faults beside ~12 passes of arithmetic. The chunk size
-        # stays _CHUNK: the BLAS products' rows round differently with other row counts.
+        # r^2 = |u|^2 + |c|^2 - 2 u.c as one float64 product of (m, 5) [u, |u|^2, 1] by (5, n)
+        # [-2 c; 1; |c|^2]: one pass instead of eight (differences, squares, sums). Its
+        # rounding (~1e-16 of the unit box) is far below float32's; where u is a centre it
+        # leaves ~1e-16 instead of 0, so entries r^2 <= _AT_CENTRE count as r = 0.
+        u_aug = np.empty((len(u), 5))
+        u_aug[:, :3] = u
+        u_aug[:, 3] = np.einsum("ij,ij->i", u, u)
+        u_aug[:, 4] = 1.0
+        c_aug = np.empty((5, n))
+        c_aug[:3] = -2.0 * self.centres.T
+        c_aug[3] = 1.0
+        c_aug[4] = np.einsum("ij,ij->i", self.centres, self.centres)
+        # The (chunk, n) matrices are made once and reused by every chunk: a fresh array
+        # per step cost page faults beside the passes of arithmetic.
         rows = min(self._CHUNK, len(u))
-        r2_buf, tmp_buf, log_buf = (np.empty((rows, n), dt) for _ in range(3))
-        zero_buf = np.empty((rows, n), bool)
+        r2_64 = np.empty((rows, n))
+        r2_buf = r2_64 if dt is np.float64 else np.empty((rows, n), dt)
+        log_buf = np.empty((rows, n), dt)
+        near_buf = np.empty((rows, n), bool)
+        out3, out12 = np.empty((rows, 3), dt), np.empty((rows, 12), dt)
         for lo in range(0, len(u), self._CHUNK):
             m = min(self._CHUNK, len(u) - lo)
-            r2, tmp, log_r2, zero = r2_buf[:m], tmp_buf[:m], log_buf[:m], zero_buf[:m]
-            self._r2_into(u_dt[lo:lo + m], cols, r2, tmp)
-            # r = 0 only where a point is a centre: a few entries, set by index rather than
-            # masking every entry (the same values as a masked log and a multiply by r > 0)
-            np.equal(r2, 0, out=zero)
-            at_centre = np.flatnonzero(zero)
-            with np.errstate(divide="ignore"):
-                np.log(r2, out=log_r2)  # log r^2
-            log_r2.flat[at_centre] = 1.0  # (unused) instead of -inf
+            r2, log_r2, near = r2_buf[:m], log_buf[:m], near_buf[:m]
+            np.matmul(u_aug[lo:lo + m], c_aug, out=r2_64[:m])
+            np.less_equal(r2_64[:m], self._AT_CENTRE, out=near)
+            at_centre = np.flatnonzero(near)  # a few entries: the points that are centres
+            if r2 is not r2_64[:m]:
+                np.copyto(r2, r2_64[:m], casting="same_kind")
+            # r^2 = 1 there gives log 0, so 2 phi = r^2 log r^2 = 0; psi is zeroed below
+            r2.flat[at_centre] = 1.0
+            np.log(r2, out=log_r2)  # log r^2
             np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
             uc = u[lo:lo + m]
-            disp[lo:lo + m] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
+            np.matmul(r2, w, out=out3[:m])
+            disp[lo:lo + m] = dt(0.5) * out3[:m] + self.affine[0] + uc @ self.affine[1:]
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
                 log_r2 += dt(1.0)
                 log_r2.flat[at_centre] = 0.0  # psi
-                pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
+                np.matmul(log_r2, w12, out=out12[:m])
+                pp = out12[:m].astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
                 j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(m, 3, 3)
                 np.add(j, eye_a, out=jac[lo:lo + m])
         return x + disp * self.scale, jac
@@ -604,13 +733,35 @@ class ThinPlateSpline:
         p = as_points3("points", points)
         n = as_unit_vectors("normals", as_points3("normals", normals, len(p)))
         wp, jac = self._eval_single(p, True)
-        u, v = _tangents(n)
-        cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
-        length = np.linalg.norm(cross, axis=1)
-        bad = length < 1e-12
-        cross[bad] = n[bad]
-        length[bad] = 1.0
-        return wp, cross / length[:, None]
+        return wp, _jacobian_normals(jac, n)
+
+
+def _jacobian_normals(jac: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The warped normals ``(J u x J v) / |J u x J v|`` ((m, 3) float64) from the Jacobians
+    ``jac`` ((m, 3, 3), J[m, k, j] = dW_k/dx_j) and unit normals ``n`` ((m, 3)), with u, v
+    the tangents of :func:`_tangents`; n where the Jacobian collapses them (|J u x J v| <
+    1e-12). The compiled host step ``host_warp.jacobian_normals_kernel``;
+    :func:`_jacobian_normals_numpy` is its oracle."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    out = np.empty((len(n), 3))
+    jw, _j = host_array(jac, np.float64)
+    nw, _n = host_array(n, np.float64)
+    ow, _ = host_array(out)
+    host_launch(host_warp.jacobian_normals_kernel, len(n), [jw, nw, ow])
+    return out
+
+
+def _jacobian_normals_numpy(jac: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The NumPy form of :func:`_jacobian_normals` (its oracle)."""
+    u, v = _tangents(n)
+    cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
+    length = np.linalg.norm(cross, axis=1)
+    bad = length < 1e-12
+    cross[bad] = n[bad]
+    length[bad] = 1.0
+    return cross / length[:, None]
 
 
 @functools.lru_cache(maxsize=1)
