@@ -165,6 +165,7 @@ def _kdtree(points: np.ndarray) -> _KDTree:
     return _KDTree(points)
 
 
+
 # ------------------------------------------------------------------------ surface variation
 
 
@@ -662,8 +663,7 @@ class ThinPlateSpline:
             return x + disp * self.scale, jac
         dt = self.dtype
         n = len(self.centres)
-        disp = np.empty_like(u)
-        jac = np.empty((len(u), 3, 3)) if want_jacobian else None
+        jac = None
         w = self.w.astype(dt)
         wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)  # w_ik c_ij
         w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
@@ -687,7 +687,10 @@ class ThinPlateSpline:
         r2_buf = r2_64 if dt is np.float64 else np.empty((rows, n), dt)
         log_buf = np.empty((rows, n), dt)
         near_buf = np.empty((rows, n), bool)
-        out3, out12 = np.empty((rows, 3), dt), np.empty((rows, 12), dt)
+        # per point: sum_i phi_i w_i (3) and sum_i psi_i w_ik, sum_i psi_i w_ik c_ij (12),
+        # assembled into displacements and Jacobians once after the loop
+        sums3 = np.empty((len(u), 3), dt)
+        sums12 = np.empty((len(u), 12), dt) if want_jacobian else None
         for lo in range(0, len(u), self._CHUNK):
             m = min(self._CHUNK, len(u) - lo)
             r2, log_r2, near = r2_buf[:m], log_buf[:m], near_buf[:m]
@@ -700,17 +703,17 @@ class ThinPlateSpline:
             r2.flat[at_centre] = 1.0
             np.log(r2, out=log_r2)  # log r^2
             np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
-            uc = u[lo:lo + m]
-            np.matmul(r2, w, out=out3[:m])
-            disp[lo:lo + m] = dt(0.5) * out3[:m] + self.affine[0] + uc @ self.affine[1:]
+            np.matmul(r2, w, out=sums3[lo:lo + m])
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
                 log_r2 += dt(1.0)
                 log_r2.flat[at_centre] = 0.0  # psi
-                np.matmul(log_r2, w12, out=out12[:m])
-                pp = out12[:m].astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
-                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(m, 3, 3)
-                np.add(j, eye_a, out=jac[lo:lo + m])
+                np.matmul(log_r2, w12, out=sums12[lo:lo + m])
+        disp = dt(0.5) * sums3 + self.affine[0] + u @ self.affine[1:]
+        if want_jacobian:
+            pp = sums12.astype(np.float64)
+            jac = u[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(u), 3, 3)
+            jac += eye_a
         return x + disp * self.scale, jac
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
