@@ -192,9 +192,23 @@ def surface_variation(points, k: int = 16) -> np.ndarray:
 
 
 def _variation_of(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Surface variation of the neighbourhoods ``p[idx]`` ((m, k) indices): the smallest
-    eigenvalue of each covariance over its trace, by the closed form for symmetric 3x3
-    matrices (Smith 1961), vectorized."""
+    """Surface variation of the neighbourhoods ``p[idx]`` ((n, 3) float64 points, (m, k)
+    int indices): (m,) float64, the smallest eigenvalue of each covariance over its trace
+    (Smith 1961's closed form), by the compiled host step ``host_warp.variation_kernel``;
+    :func:`_variation_of_numpy` is its oracle."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    idx = np.asarray(idx).reshape(len(idx), -1)
+    out = np.empty(len(idx))
+    host_launch(host_warp.variation_kernel, len(idx), [host_array(p, np.float64)[0], host_array(idx, np.int32)[0],
+                                                       int(idx.shape[1]), host_array(out)[0]])
+    return out
+
+
+def _variation_of_numpy(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The NumPy form of :func:`_variation_of` (its oracle): the closed form for
+    symmetric 3x3 matrices (Smith 1961), vectorized."""
     nb = p[idx]
     d = nb - nb.mean(axis=1, keepdims=True)
     a00, a11, a22 = (d[..., 0] ** 2).sum(1), (d[..., 1] ** 2).sum(1), (d[..., 2] ** 2).sum(1)
@@ -796,7 +810,11 @@ def _free_corners(target: np.ndarray, box_min: np.ndarray, box_max: np.ndarray, 
     corners = np.array([[box_min[0], box_min[1]], [box_max[0], box_min[1]],
                         [box_min[0], box_max[1]], [box_max[0], box_max[1]]])
     if len(target):
-        d, _ = _kdtree(np.c_[target[:, :2], np.zeros(len(target))]).query(np.c_[corners, np.zeros(4)], k=1)
+        # the nearest target of each corner, horizontally: 4 x T squared distances directly
+        # (a k-d tree over the targets cost more to build than this)
+        dx = target[None, :, 0] - corners[:, 0, None]
+        dy = target[None, :, 1] - corners[:, 1, None]
+        d = np.sqrt((dx * dx + dy * dy).min(axis=1))
         free = corners[d > radius]
     else:
         free = corners
@@ -818,10 +836,28 @@ def _neighbour_mean(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out / idx.shape[1]
 
 
-def _outskirts(p: np.ndarray, k: int) -> np.ndarray:
-    """Targets whose k-neighbour centroid lies far from them (boundary of the set)."""
+def _outskirts(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Targets whose k-neighbour centroid lies far from them (boundary of the set):
+    ((n,) bool outskirt flags, (n, k) int64 the neighbour indices), for (n, 3) float64
+    points. The k-d tree query, then the compiled host step ``host_warp.outskirts_kernel``;
+    :func:`_outskirts_numpy` is its oracle."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
     k = int(min(k, len(p)))
     dist, idx = _kdtree(p).query(p, k=k)
+    dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
+    flags = np.empty(len(p), np.int32)
+    host_launch(host_warp.outskirts_kernel, len(p), [host_array(p, np.float64)[0], host_array(dist, np.float64)[0],
+                                                     host_array(idx, np.int32)[0], k, _LOPSIDED, host_array(flags)[0]])
+    return flags.astype(bool), idx
+
+
+def _outskirts_numpy(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The NumPy form of :func:`_outskirts` (its oracle)."""
+    k = int(min(k, len(p)))
+    dist, idx = _kdtree(p).query(p, k=k)
+    dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
     offset = np.linalg.norm(_neighbour_mean(p, idx) - p, axis=1)
     mean_d = dist[:, 1:].mean(axis=1) if k > 1 else np.zeros(len(p))
     return offset > _LOPSIDED * mean_d, idx
@@ -951,7 +987,8 @@ def warp_patch(
     centres = np.concatenate([ps[pairs[:, 0]], fixed])
     values = np.concatenate([pt[pairs[:, 1]], fixed])
     spline = ThinPlateSpline(centres, values, smoothing=smoothing, dtype=np.float32)
-    wp, wn = spline.transform(ps, ns)
+    wp, jac = spline._eval_single(ps, True)  # spline.transform without re-checking ps and ns
+    wn = _jacobian_normals(jac, ns)
     return WarpResult(wp, wn, pairs, fixed, costs, q_index)
 
 

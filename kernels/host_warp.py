@@ -466,3 +466,93 @@ def greedy_pairing_kernel(
         last = total
     counts[0] = n_sel
     counts[1] = n_costs
+
+
+# ------------------------------------------------------------------------ neighbourhood statistics
+
+
+@wp.kernel
+def outskirts_kernel(
+    p: wp.array(dtype=wp.float64),  # (n * 3,) points
+    dist: wp.array(dtype=wp.float64),  # (n * k,) distances to each point's k nearest (itself first)
+    idx: wp.array(dtype=wp.int32),  # (n * k,) their indices
+    k: int,
+    lopsided: wp.float64,  # the outskirt threshold, x the mean neighbour distance
+    out: wp.array(dtype=wp.int32),  # (n,) out: 1 where the point is an outskirt
+):
+    """warping._outskirts_numpy's test, one thread per point: the centroid of its k
+    neighbours (summed in neighbour order) lies farther from it than ``lopsided`` times
+    the mean distance to its k - 1 nearest others."""
+    i = wp.tid()
+    zero = wp.float64(0.0)
+    sx = zero
+    sy = zero
+    sz = zero
+    for j in range(k):
+        q = idx[i * k + j]
+        sx += p[3 * q]
+        sy += p[3 * q + 1]
+        sz += p[3 * q + 2]
+    fk = wp.float64(k)
+    dx = sx / fk - p[3 * i]
+    dy = sy / fk - p[3 * i + 1]
+    dz = sz / fk - p[3 * i + 2]
+    offset = wp.sqrt(dx * dx + dy * dy + dz * dz)
+    mean_d = zero
+    if k > 1:
+        for j in range(1, k):
+            mean_d += dist[i * k + j]
+        mean_d = mean_d / wp.float64(k - 1)
+    flag = int(0)
+    if offset > lopsided * mean_d:
+        flag = 1
+    out[i] = flag
+
+
+@wp.kernel
+def variation_kernel(
+    p: wp.array(dtype=wp.float64),  # (n * 3,) points
+    idx: wp.array(dtype=wp.int32),  # (m * k,) each row's neighbour indices
+    k: int,
+    out: wp.array(dtype=wp.float64),  # (m,) out: surface variation
+):
+    """Surface variation of the neighbourhood ``p[idx[r]]`` (warping._variation_of_numpy):
+    the smallest eigenvalue of its covariance over the trace, in [0, 1/3] (0 where the
+    trace is 0), by the closed form of Smith (1961)."""
+    r = wp.tid()
+    zero = wp.float64(0.0)
+    sx = zero
+    sy = zero
+    sz = zero
+    for j in range(k):
+        q = idx[r * k + j]
+        sx += p[3 * q]
+        sy += p[3 * q + 1]
+        sz += p[3 * q + 2]
+    fk = wp.float64(k)
+    mx = sx / fk
+    my = sy / fk
+    mz = sz / fk
+    a00 = zero
+    a11 = zero
+    a22 = zero
+    a01 = zero
+    a02 = zero
+    a12 = zero
+    for j in range(k):
+        q = idx[r * k + j]
+        dx = p[3 * q] - mx
+        dy = p[3 * q + 1] - my
+        dz = p[3 * q + 2] - mz
+        a00 += dx * dx
+        a11 += dy * dy
+        a22 += dz * dz
+        a01 += dx * dy
+        a02 += dx * dz
+        a12 += dy * dz
+    trace = a00 + a11 + a22
+    v = zero
+    if trace > zero:
+        small, large = _sym3_extremes(a00, a11, a22, a01, a02, a12)
+        v = wp.clamp(small / trace, zero, wp.float64(1.0) / wp.float64(3.0))
+    out[r] = v

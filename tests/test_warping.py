@@ -508,3 +508,28 @@ def test_jacobian_normals_kernel_equals_numpy(rng):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(got[-40:], n[-40:])
     assert _jacobian_normals(np.zeros((0, 3, 3)), np.zeros((0, 3))).shape == (0, 3)
+
+
+def test_variation_and_outskirt_kernels_equal_numpy(rng):
+    """The compiled surface variation and outskirt test equal their NumPy forms (float64
+    rounding; the outskirt flags exactly away from the threshold), on a bumpy sheet, a
+    blob, and degenerate neighbourhoods (coincident points: variation 0; a line: 0)."""
+    from geosynth.warping import _outskirts, _outskirts_numpy, _variation_of, _variation_of_numpy
+
+    p, _ = bumpy_patch()
+    blob = rng.normal(size=(400, 3))
+    line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]
+    same = np.ones((30, 3))
+    for pts in (p, blob, line, same):
+        for k in (3, 7, 16):
+            idx = rng.integers(0, len(pts), (200, k))
+            np.testing.assert_allclose(_variation_of(pts, idx), _variation_of_numpy(pts, idx), rtol=0, atol=1e-12)
+    assert np.all(_variation_of(same, np.zeros((5, 16), np.int64)) == 0)
+    assert np.abs(_variation_of(line, np.arange(50)[None])).max() < 1e-12
+    edge = p[(p[:, 0] < 0.3) | (p[:, 1] > 0.7)]  # an L-shaped strip: outskirts along its borders
+    for pts in (edge, blob):
+        got, got_idx = _outskirts(pts, 16)
+        want, want_idx = _outskirts_numpy(pts, 16)
+        np.testing.assert_array_equal(got_idx, want_idx)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < got.sum() < len(pts)
