@@ -670,18 +670,29 @@ class ThinPlateSpline:
         return 0.5 * r2 * np.log(np.where(r2 > 0, r2, 1.0))  # r^2 log r, 0 at r = 0
 
     def _eval(self, x: np.ndarray, want_jacobian: bool):
+        """W(x) ((m, 3) float64) and, if wanted, the Jacobians ((m, 3, 3) float64)."""
+        points, u, sums12 = self._eval_sums(x, want_jacobian)
+        jac = None
+        if want_jacobian:
+            pp = sums12.astype(np.float64)
+            jac = u[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(u), 3, 3)
+            jac += self.affine[1:].T[None] + np.eye(3)[None]
+        return points, jac
+
+    def _eval_sums(self, x: np.ndarray, want_sums: bool):
+        """W(x) ((m, 3) float64), the normalized points u ((m, 3) float64) and, if wanted,
+        the Jacobian's kernel sums ((m, 12), the evaluation's dtype): sum_i psi_i w_ik
+        (k < 3), then sum_i psi_i w_ik c_ij at 3 + 3 k + j (psi = 2 log r + 1, 0 at r = 0)."""
         u = (x - self.shift) / self.scale
         if len(self.centres) == 0:
             disp = self.affine[0] + u @ self.affine[1:]
-            jac = np.broadcast_to(np.eye(3) + self.affine[1:].T, (len(x), 3, 3)).copy() if want_jacobian else None
-            return x + disp * self.scale, jac
+            return x + disp * self.scale, u, np.zeros((len(x), 12), self.dtype) if want_sums else None
         dt = self.dtype
         n = len(self.centres)
-        jac = None
+        want_jacobian = want_sums
         w = self.w.astype(dt)
         wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)  # w_ik c_ij
         w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
-        eye_a = self.affine[1:].T[None] + np.eye(3)[None]
         # r^2 = |u|^2 + |c|^2 - 2 u.c as one float64 product of (m, 5) [u, |u|^2, 1] by (5, n)
         # [-2 c; 1; |c|^2]: one pass instead of eight (differences, squares, sums). Its
         # rounding (~1e-16 of the unit box) is far below float32's; where u is a centre it
@@ -702,7 +713,7 @@ class ThinPlateSpline:
         log_buf = np.empty((rows, n), dt)
         near_buf = np.empty((rows, n), bool)
         # per point: sum_i phi_i w_i (3) and sum_i psi_i w_ik, sum_i psi_i w_ik c_ij (12),
-        # assembled into displacements and Jacobians once after the loop
+        # assembled into displacements (and Jacobians) once after the loop
         sums3 = np.empty((len(u), 3), dt)
         sums12 = np.empty((len(u), 12), dt) if want_jacobian else None
         for lo in range(0, len(u), self._CHUNK):
@@ -724,11 +735,7 @@ class ThinPlateSpline:
                 log_r2.flat[at_centre] = 0.0  # psi
                 np.matmul(log_r2, w12, out=sums12[lo:lo + m])
         disp = dt(0.5) * sums3 + self.affine[0] + u @ self.affine[1:]
-        if want_jacobian:
-            pp = sums12.astype(np.float64)
-            jac = u[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(u), 3, 3)
-            jac += eye_a
-        return x + disp * self.scale, jac
+        return x + disp * self.scale, u, sums12
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
         # thin products: one BLAS thread is faster and thread-count independent (geometry_texture says why)
@@ -749,8 +756,26 @@ class ThinPlateSpline:
         tangents the Jacobian collapses keeps its direction."""
         p = as_points3("points", points)
         n = as_unit_vectors("normals", as_points3("normals", normals, len(p)))
-        wp, jac = self._eval_single(p, True)
-        return wp, _jacobian_normals(jac, n)
+        return self._transform_checked(p, n)
+
+    def _transform_checked(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`transform` of checked (m, 3) float64 points and unit normals. With float32
+        kernel matrices the Jacobians are assembled from the kernel sums inside the compiled
+        host step ``host_warp.spline_normals_kernel`` (no (m, 3, 3) array); else as
+        :func:`_jacobian_normals` of :meth:`jacobian` (the oracle)."""
+        if self.dtype is not np.float32:
+            wp, jac = self._eval_single(p, True)
+            return wp, _jacobian_normals(jac, n)
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels import host_warp
+
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            wp, u, sums12 = self._eval_sums(p, True)
+        out = np.empty((len(p), 3))
+        host_launch(host_warp.spline_normals_kernel, len(p), [
+            host_array(u, np.float64)[0], host_array(sums12, np.float32)[0], host_array(self.affine, np.float64)[0],
+            host_array(n, np.float64)[0], host_array(out)[0]])
+        return wp, out
 
 
 def _jacobian_normals(jac: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -987,8 +1012,7 @@ def warp_patch(
     centres = np.concatenate([ps[pairs[:, 0]], fixed])
     values = np.concatenate([pt[pairs[:, 1]], fixed])
     spline = ThinPlateSpline(centres, values, smoothing=smoothing, dtype=np.float32)
-    wp, jac = spline._eval_single(ps, True)  # spline.transform without re-checking ps and ns
-    wn = _jacobian_normals(jac, ns)
+    wp, wn = spline._transform_checked(ps, ns)
     return WarpResult(wp, wn, pairs, fixed, costs, q_index)
 
 

@@ -556,3 +556,59 @@ def variation_kernel(
         small, large = _sym3_extremes(a00, a11, a22, a01, a02, a12)
         v = wp.clamp(small / trace, zero, wp.float64(1.0) / wp.float64(3.0))
     out[r] = v
+
+
+# ------------------------------------------------------------------------ spline normals
+
+
+@wp.kernel
+def spline_normals_kernel(
+    u: wp.array(dtype=wp.float64),  # (m * 3,) evaluation points in the spline's normalized coordinates
+    sums: wp.array(dtype=wp.float32),  # (m * 12,) sum_i psi_i w_ik (k < 3), then sum_i psi_i w_ik c_ij at 3 + 3 k + j
+    affine: wp.array(dtype=wp.float64),  # (12,) rows a_0, then A's rows for x, y, z
+    normals: wp.array(dtype=wp.float64),  # (m * 3,) unit normals n
+    out: wp.array(dtype=wp.float64),  # (m * 3,) out: the warped unit normals
+):
+    """The warped normals of a thin-plate spline from its kernel sums (warping's
+    ThinPlateSpline evaluation, float32 kernel matrices): the Jacobian
+    J[k, j] = delta_kj + A[j, k] + u_j sum_i psi_i w_ik - sum_i psi_i w_ik c_ij, then the
+    normals of jacobian_normals_kernel. One thread per point."""
+    i = wp.tid()
+    o = 12 * i
+    u0 = u[3 * i]
+    u1 = u[3 * i + 1]
+    u2 = u[3 * i + 2]
+    s0 = wp.float64(sums[o])
+    s1 = wp.float64(sums[o + 1])
+    s2 = wp.float64(sums[o + 2])
+    one = wp.float64(1.0)
+    j00 = u0 * s0 - wp.float64(sums[o + 3]) + affine[3] + one
+    j01 = u1 * s0 - wp.float64(sums[o + 4]) + affine[6]
+    j02 = u2 * s0 - wp.float64(sums[o + 5]) + affine[9]
+    j10 = u0 * s1 - wp.float64(sums[o + 6]) + affine[4]
+    j11 = u1 * s1 - wp.float64(sums[o + 7]) + affine[7] + one
+    j12 = u2 * s1 - wp.float64(sums[o + 8]) + affine[10]
+    j20 = u0 * s2 - wp.float64(sums[o + 9]) + affine[5]
+    j21 = u1 * s2 - wp.float64(sums[o + 10]) + affine[8]
+    j22 = u2 * s2 - wp.float64(sums[o + 11]) + affine[11] + one
+    zero = wp.float64(0.0)
+    n = wp.vec3d(normals[3 * i], normals[3 * i + 1], normals[3 * i + 2])
+    h = wp.vec3d(one, zero, zero)
+    if not (wp.abs(n[0]) < wp.float64(0.9)):
+        h = wp.vec3d(zero, one, zero)
+    a = wp.cross(h, n)
+    a = a / wp.sqrt(wp.dot(a, a))
+    b = wp.cross(n, a)
+    ja = wp.vec3d(j00 * a[0] + j01 * a[1] + j02 * a[2], j10 * a[0] + j11 * a[1] + j12 * a[2],
+                  j20 * a[0] + j21 * a[1] + j22 * a[2])
+    jb = wp.vec3d(j00 * b[0] + j01 * b[1] + j02 * b[2], j10 * b[0] + j11 * b[1] + j12 * b[2],
+                  j20 * b[0] + j21 * b[1] + j22 * b[2])
+    c = wp.cross(ja, jb)
+    length = wp.sqrt(wp.dot(c, c))
+    if length < wp.float64(1.0e-12):
+        c = n
+    else:
+        c = c / length
+    out[3 * i] = c[0]
+    out[3 * i + 1] = c[1]
+    out[3 * i + 2] = c[2]

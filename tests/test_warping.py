@@ -533,3 +533,20 @@ def test_variation_and_outskirt_kernels_equal_numpy(rng):
         np.testing.assert_array_equal(got_idx, want_idx)
         np.testing.assert_array_equal(got, want)
         assert 0 < got.sum() < len(pts)
+
+
+def test_float32_transform_kernel_equals_the_numpy_jacobian_normals(rng):
+    """With float32 kernel matrices, transform assembles each Jacobian from its kernel sums
+    inside the compiled host step; the NumPy route (jacobian(), then the normals' NumPy
+    form) gives the same positions and normals to float64 rounding, points on centres included."""
+    from geosynth.warping import _jacobian_normals_numpy
+
+    c = rng.uniform(0, 1, (80, 3)) * [1, 1, 0.1]
+    y = c + rng.normal(scale=0.3 * SP, size=c.shape)
+    x = np.concatenate([rng.uniform(0, 1, (600, 3)) * [1, 1, 0.1], c[::4]])
+    n = rng.normal(size=x.shape) + [0, 0, 3]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    spline = ThinPlateSpline(c, y, dtype=np.float32)
+    p, wn = spline.transform(x, n)
+    np.testing.assert_array_equal(p, spline(x))
+    np.testing.assert_allclose(wn, _jacobian_normals_numpy(spline.jacobian(x), n), rtol=0, atol=1e-12)
