@@ -450,11 +450,13 @@ def _greedy_passes(eq, es, c, tie, ps, pq, rn, phi, kr: int, length_weight: floa
     sel_np = np.empty(n_e, np.int32)
     costs_np = np.empty(iterations + 1)
     counts_np = np.zeros(2, np.int32)
-    args = [i32(eq), i32(es), f64(c), i32(tie), n_e, f64(ps), n_q, i32(rn), f64(phi), f64(q_to_r), f64(q_to_r_len),
+    by_tie = np.argsort(tie)  # the edge of each tie rank (tie is a permutation)
+    args = [i32(eq), i32(es), f64(c), i32(by_tie), n_e, f64(ps), n_q, i32(rn), f64(phi), f64(q_to_r), f64(q_to_r_len),
             int(kr), float(length_weight), float(direction_weight), float(miss), int(iterations),
             f64(np.empty(n_e)), f64(np.empty(n_e)), f64(np.empty(n_e)), i32(np.empty(n_e, np.int32)),
             i32(np.empty(n_e, np.int32)), i32(np.full(n_q, -1, np.int32)), i32(np.full(n_q, -1, np.int32)),
-            i32(np.empty(n_q, np.int32)), i32(np.zeros(n_q, np.int32)),
+            i32(np.empty(n_q, np.int32)), i32(np.empty(max(n_q * kr, 1), np.int32)), f64(np.empty(max(n_q * kr, 1))),
+            i32(np.zeros(n_q, np.int32)),
             i32(np.zeros(len(ps), np.int32)), i32(np.empty(n_e, np.int32)),
             host_array(sel_np)[0], host_array(costs_np)[0], host_array(counts_np)[0]]
     host_launch(host_warp.greedy_pairing_kernel, 1, args)

@@ -238,22 +238,13 @@ def adaptive_clusters_kernel(
 
 
 @wp.func
-def _edge_before(key: wp.array(dtype=wp.float64), tie: wp.array(dtype=wp.int32), a: int, b: int):
-    """Edge a sorts before edge b: by key, then by the seeded tie rank (np.lexsort((tie, key)))."""
-    if key[a] < key[b]:
-        return True
-    if key[a] > key[b]:
-        return False
-    return tie[a] < tie[b]
-
-
-@wp.func
-def _sort_edges(key: wp.array(dtype=wp.float64), tie: wp.array(dtype=wp.int32),
+def _sort_edges(key: wp.array(dtype=wp.float64), by_tie: wp.array(dtype=wp.int32),
                 order: wp.array(dtype=wp.int32), tmp: wp.array(dtype=wp.int32), n: int):
-    """order <- the edges 0..n-1 sorted by (key, tie): a bottom-up merge sort (stable; the
-    tie ranks are distinct, so the order is unique)."""
+    """order <- the edges 0..n-1 sorted by (key, tie rank), as np.lexsort((tie, key)): a
+    stable bottom-up merge sort by key alone of the edges in tie-rank order (``by_tie``:
+    the edge of each rank), so that equal keys keep their tie order."""
     for i in range(n):
-        order[i] = i
+        order[i] = by_tie[i]
     width = int(1)
     while width < n:
         lo = int(0)
@@ -264,11 +255,12 @@ def _sort_edges(key: wp.array(dtype=wp.float64), tie: wp.array(dtype=wp.int32),
             j = mid
             k = lo
             while k < hi:
+                # the left run's edge unless the right run's is strictly smaller (stability)
                 take_left = int(0)
                 if i < mid:
                     if j >= hi:
                         take_left = 1
-                    elif not _edge_before(key, tie, order[j], order[i]):
+                    elif key[order[j]] >= key[order[i]]:
                         take_left = 1
                 if take_left != 0:
                     tmp[k] = order[i]
@@ -306,47 +298,40 @@ def _greedy_scan(eq: wp.array(dtype=wp.int32), es: wp.array(dtype=wp.int32), ord
 @wp.func
 def _edge_coherence(e: int, eq: wp.array(dtype=wp.int32), es: wp.array(dtype=wp.int32),
                     ps: wp.array(dtype=wp.float64), q_to_r: wp.array(dtype=wp.float64),
-                    q_to_r_len: wp.array(dtype=wp.float64),
-                    rn: wp.array(dtype=wp.int32), phi: wp.array(dtype=wp.float64), kr: int,
-                    partner: wp.array(dtype=wp.int32), length_weight: wp.float64, direction_weight: wp.float64):
+                    q_to_r_len: wp.array(dtype=wp.float64), kr: int,
+                    slot_t: wp.array(dtype=wp.int32), slot_f: wp.array(dtype=wp.float64),
+                    length_weight: wp.float64, direction_weight: wp.float64):
     """The coherence term g(s, q, pi) of Sec. 5.2 of edge e (warping's NumPy
-    ``coherence_numpy``): over q's neighbours r whose partner t exists, with
-    f(q, r) = phi / sum phi over those,
+    ``coherence_numpy``): over q's neighbours r whose partner t exists,
     g = w_l / unit sum f | |p_s - p_t| - |p_q - p_r| | + w_d / 2 sum f (1 - cos(p_s - p_t, p_q - p_r))
-    (cos taken as 0 where either length is 0). ``q_to_r`` ((|Q| kr) * 3) holds p_q - p_r
-    and ``q_to_r_len`` its length, per (q, r) slot."""
+    (cos taken as 0 where either length is 0), f(q, r) = phi / sum phi over those.
+    Per (q, r) slot: ``q_to_r`` ((|Q| kr) * 3) p_q - p_r, ``q_to_r_len`` its length,
+    ``slot_t`` the partner t (-1: none) and ``slot_f`` f (see _coherence_pass)."""
     q = eq[e]
     s = es[e]
     zero = wp.float64(0.0)
-    tot = zero
+    sx = ps[3 * s]
+    sy = ps[3 * s + 1]
+    sz = ps[3 * s + 2]
+    lsum = zero
+    dsum = zero
     for k in range(kr):
-        if partner[rn[q * kr + k]] >= 0:
-            tot += phi[q * kr + k]
-    out = zero
-    if tot > zero:
-        sx = ps[3 * s]
-        sy = ps[3 * s + 1]
-        sz = ps[3 * s + 2]
-        lsum = zero
-        dsum = zero
-        for k in range(kr):
-            t = partner[rn[q * kr + k]]
-            if t >= 0:
-                f = phi[q * kr + k] / tot
-                ax = sx - ps[3 * t]
-                ay = sy - ps[3 * t + 1]
-                az = sz - ps[3 * t + 2]
-                o = 3 * (q * kr + k)
-                la = wp.sqrt(ax * ax + ay * ay + az * az)
-                lb = q_to_r_len[q * kr + k]
-                lab = la * lb
-                cos = zero
-                if lab > zero:
-                    cos = (ax * q_to_r[o] + ay * q_to_r[o + 1] + az * q_to_r[o + 2]) / lab
-                lsum += f * wp.abs(la - lb)
-                dsum += f * (wp.float64(1.0) - cos)
-        out = length_weight * lsum + direction_weight * dsum
-    return out
+        t = slot_t[q * kr + k]
+        if t >= 0:
+            f = slot_f[q * kr + k]
+            ax = sx - ps[3 * t]
+            ay = sy - ps[3 * t + 1]
+            az = sz - ps[3 * t + 2]
+            o = 3 * (q * kr + k)
+            la = wp.sqrt(ax * ax + ay * ay + az * az)
+            lb = q_to_r_len[q * kr + k]
+            lab = la * lb
+            cos = zero
+            if lab > zero:
+                cos = (ax * q_to_r[o] + ay * q_to_r[o + 1] + az * q_to_r[o + 2]) / lab
+            lsum += f * wp.abs(la - lb)
+            dsum += f * (wp.float64(1.0) - cos)
+    return length_weight * lsum + direction_weight * dsum
 
 
 @wp.func
@@ -356,10 +341,14 @@ def _coherence_pass(n_edges: int, eq: wp.array(dtype=wp.int32), es: wp.array(dty
                     phi: wp.array(dtype=wp.float64), kr: int, n_q: int,
                     partner: wp.array(dtype=wp.int32), old_partner: wp.array(dtype=wp.int32),
                     old_g: wp.array(dtype=wp.float64), have_old: int, dirty: wp.array(dtype=wp.int32),
+                    slot_t: wp.array(dtype=wp.int32), slot_f: wp.array(dtype=wp.float64),
                     length_weight: wp.float64, direction_weight: wp.float64, g: wp.array(dtype=wp.float64)):
-    """g of every edge for ``partner``. With ``have_old``, g of an edge whose q has no
+    """g of every edge for ``partner``. First per q (shared by its edges): the partner t
+    of each neighbour r and f(q, r) = phi / sum phi over the r with a partner (0 for the
+    others and where none has one). With ``have_old``, g of an edge whose q has no
     neighbour r with a changed partner is copied from ``old_g`` (computed for
     ``old_partner``: the same inputs, so the same value); only the others are recomputed."""
+    zero = wp.float64(0.0)
     for q in range(n_q):
         d = int(1)
         if have_old != 0:
@@ -367,11 +356,23 @@ def _coherence_pass(n_edges: int, eq: wp.array(dtype=wp.int32), es: wp.array(dty
             for k in range(kr):
                 r = rn[q * kr + k]
                 if partner[r] != old_partner[r]:
-                    d = 1
+                    d = int(1)
         dirty[q] = d
+        if d != 0:
+            tot = zero
+            for k in range(kr):
+                t = partner[rn[q * kr + k]]
+                slot_t[q * kr + k] = t
+                if t >= 0:
+                    tot += phi[q * kr + k]
+            for k in range(kr):
+                fk = zero
+                if tot > zero and slot_t[q * kr + k] >= 0:
+                    fk = phi[q * kr + k] / tot
+                slot_f[q * kr + k] = fk
     for i in range(n_edges):
         if dirty[eq[i]] != 0:
-            g[i] = _edge_coherence(i, eq, es, ps, q_to_r, q_to_r_len, rn, phi, kr, partner,
+            g[i] = _edge_coherence(i, eq, es, ps, q_to_r, q_to_r_len, kr, slot_t, slot_f,
                                    length_weight, direction_weight)
         else:
             g[i] = old_g[i]
@@ -382,7 +383,7 @@ def greedy_pairing_kernel(
     eq: wp.array(dtype=wp.int32),  # (E,) target q of each allowed edge
     es: wp.array(dtype=wp.int32),  # (E,) source s of each allowed edge
     cost: wp.array(dtype=wp.float64),  # (E,) the pair cost c(s, q) (eq. 2)
-    tie: wp.array(dtype=wp.int32),  # (E,) seeded ranks (a permutation) ordering equal costs
+    by_tie: wp.array(dtype=wp.int32),  # (E,) the edge of each seeded tie rank (equal costs go by rank)
     n_edges: int,
     ps: wp.array(dtype=wp.float64),  # (S * 3,) source positions
     n_q: int,
@@ -403,6 +404,8 @@ def greedy_pairing_kernel(
     partner: wp.array(dtype=wp.int32),  # (|Q|,) scratch, -1 on entry
     new_partner: wp.array(dtype=wp.int32),  # (|Q|,) scratch, -1 on entry
     dirty: wp.array(dtype=wp.int32),  # (|Q|,) scratch
+    slot_t: wp.array(dtype=wp.int32),  # (|Q| * kr,) scratch
+    slot_f: wp.array(dtype=wp.float64),  # (|Q| * kr,) scratch
     used_q: wp.array(dtype=wp.int32),  # (|Q|,) zeros on entry
     used_s: wp.array(dtype=wp.int32),  # (S,) zeros on entry
     new_sel: wp.array(dtype=wp.int32),  # (E,) scratch
@@ -417,12 +420,12 @@ def greedy_pairing_kernel(
     C = sum over the pairs of c + g (in scan order) + miss per unpaired q."""
     for i in range(n_edges):
         key[i] = cost[i]
-    _sort_edges(key, tie, order, tmp, n_edges)
+    _sort_edges(key, by_tie, order, tmp, n_edges)
     n_sel = _greedy_scan(eq, es, order, n_edges, used_q, used_s, sel, n_q)
     for k in range(n_sel):
         partner[eq[sel[k]]] = es[sel[k]]
     _coherence_pass(n_edges, eq, es, ps, q_to_r, q_to_r_len, rn, phi, kr, n_q, partner, partner, g, 0, dirty,
-                    length_weight, direction_weight, g)
+                    slot_t, slot_f, length_weight, direction_weight, g)
     c_sum = wp.float64(0.0)
     for k in range(n_sel):
         c_sum += cost[sel[k]] + g[sel[k]]
@@ -432,7 +435,7 @@ def greedy_pairing_kernel(
     for it in range(iterations):
         for i in range(n_edges):
             key[i] = cost[i] + g[i]
-        _sort_edges(key, tie, order, tmp, n_edges)
+        _sort_edges(key, by_tie, order, tmp, n_edges)
         n_new = _greedy_scan(eq, es, order, n_edges, used_q, used_s, new_sel, n_q)
         same = int(0)
         if n_new == n_sel:
@@ -447,7 +450,7 @@ def greedy_pairing_kernel(
         for k in range(n_new):
             new_partner[eq[new_sel[k]]] = es[new_sel[k]]
         _coherence_pass(n_edges, eq, es, ps, q_to_r, q_to_r_len, rn, phi, kr, n_q, new_partner, partner, g, 1,
-                        dirty, length_weight, direction_weight, new_g)
+                        dirty, slot_t, slot_f, length_weight, direction_weight, new_g)
         c_new = wp.float64(0.0)
         for k in range(n_new):
             c_new += cost[new_sel[k]] + new_g[new_sel[k]]
