@@ -165,6 +165,7 @@ def _kdtree(points: np.ndarray) -> _KDTree:
     return _KDTree(points)
 
 
+
 # ------------------------------------------------------------------------ surface variation
 
 
@@ -191,9 +192,23 @@ def surface_variation(points, k: int = 16) -> np.ndarray:
 
 
 def _variation_of(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Surface variation of the neighbourhoods ``p[idx]`` ((m, k) indices): the smallest
-    eigenvalue of each covariance over its trace, by the closed form for symmetric 3x3
-    matrices (Smith 1961), vectorized."""
+    """Surface variation of the neighbourhoods ``p[idx]`` ((n, 3) float64 points, (m, k)
+    int indices): (m,) float64, the smallest eigenvalue of each covariance over its trace
+    (Smith 1961's closed form), by the compiled host step ``host_warp.variation_kernel``;
+    :func:`_variation_of_numpy` is its oracle."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    idx = np.asarray(idx).reshape(len(idx), -1)
+    out = np.empty(len(idx))
+    host_launch(host_warp.variation_kernel, len(idx), [host_array(p, np.float64)[0], host_array(idx, np.int32)[0],
+                                                       int(idx.shape[1]), host_array(out)[0]])
+    return out
+
+
+def _variation_of_numpy(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The NumPy form of :func:`_variation_of` (its oracle): the closed form for
+    symmetric 3x3 matrices (Smith 1961), vectorized."""
     nb = p[idx]
     d = nb - nb.mean(axis=1, keepdims=True)
     a00, a11, a22 = (d[..., 0] ** 2).sum(1), (d[..., 1] ** 2).sum(1), (d[..., 2] ** 2).sum(1)
@@ -225,7 +240,55 @@ _LOPSIDED = 0.6  # a target whose k-neighbour centroid is this far (x mean neigh
 
 def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
                        limit: int | None = None, fallback_size: int | None = None) -> np.ndarray | None:
-    """Hierarchical clustering (Pauly et al. 2002): clusters are split through their
+    """Hierarchical clustering (Pauly et al. 2002) of (n, 3) float64 points ``p``, as
+    :func:`_adaptive_clusters_numpy` (the oracle: the same arguments, the same result on
+    points in general position), by the compiled host step
+    ``host_warp.adaptive_clusters_kernel`` (one thread, depth first). Returns the sorted
+    (m,) int64 indices of the clusters' representatives; with more than ``limit``
+    clusters None, or with ``fallback_size`` the clustering by size alone (a second run
+    of the kernel: it is cheap, and stops as soon as the first passes the limit).
+
+    Where a point lies exactly on a splitting plane, or a cluster's principal axis is
+    not unique (a double eigenvalue), the kernel's axis (closed-form eigenvalues, cross
+    products for the vector) may differ from LAPACK's in sign or direction, and so may
+    the split."""
+    n = len(p)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    if fallback_size is not None and fallback_size < max_size:
+        raise ValueError(f"fallback_size ({fallback_size}) must be >= max_size ({max_size}).")
+    reps = _cluster_run(p, int(max_size), float(max_variation), -1 if limit is None else int(limit))
+    if reps is None:
+        if fallback_size is None:
+            return None
+        reps = _cluster_run(p, int(fallback_size), math.inf, -1)
+    return np.sort(reps)
+
+
+def _cluster_run(p: np.ndarray, max_size: int, max_variation: float, limit: int) -> np.ndarray | None:
+    """One launch of ``adaptive_clusters_kernel``: the (m,) int64 representatives in no
+    order, or None with more than ``limit >= 0`` clusters."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    n = len(p)
+    pw, _ = host_array(p, np.float64)
+    perm, _perm = host_array(np.empty(n, np.int32))
+    stack, _stack = host_array(np.empty(2 * n + 4, np.int32))
+    reps_np = np.empty(n, np.int32)
+    reps, _ = host_array(reps_np)
+    count_np = np.zeros(1, np.int32)
+    count, _ = host_array(count_np)
+    host_launch(host_warp.adaptive_clusters_kernel, 1,
+                [pw, n, max_size, max_variation, limit, perm, stack, reps, count])
+    if count_np[0] < 0:
+        return None
+    return reps_np[:count_np[0]].astype(np.int64)
+
+
+def _adaptive_clusters_numpy(p: np.ndarray, max_size: int, max_variation: float = _CLUSTER_VARIATION,
+                             limit: int | None = None, fallback_size: int | None = None) -> np.ndarray | None:
+    """The NumPy form of :func:`_adaptive_clusters` (its oracle). Hierarchical clustering (Pauly et al. 2002): clusters are split through their
     centroid across their principal axis while they hold more than ``max_size`` points
     or their surface variation exceeds ``max_variation`` (and they hold more than 2).
     Returns the index of each cluster's representative (its member nearest the
@@ -325,9 +388,11 @@ def _representatives(p: np.ndarray, labels: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------ greedy pairing
 
 
-def _greedy_match(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Indices of the edges the sequential greedy takes when it scans the edges in the
-    given ``order`` (a permutation) and keeps each whose q and s are both unused.
+def _greedy_match_numpy(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """The NumPy form of the greedy scan of ``host_warp.greedy_pairing_kernel`` (its
+    oracle, used by ``_greedy_pairing(..., numpy_oracle=True)``): the indices of the edges the
+    sequential greedy takes when it scans the edges in the given ``order`` (a
+    permutation) and keeps each whose q and s are both unused, in scan order.
 
     Vectorized: an edge that is the first remaining one for its q and for its s is
     taken by the scan; remove the edges touching those, repeat."""
@@ -356,6 +421,48 @@ def _greedy_match(eq: np.ndarray, es: np.ndarray, order: np.ndarray) -> np.ndarr
     return order[np.sort(np.concatenate(taken))] if taken else np.zeros(0, np.int64)
 
 
+def _greedy_passes(eq, es, c, tie, ps, pq, rn, phi, kr: int, length_weight: float, direction_weight: float,
+                   miss: float, iterations: int) -> tuple[np.ndarray, tuple[float, ...]]:
+    """The passes of the greedy pairing in one launch of ``host_warp.greedy_pairing_kernel``.
+
+    Args:
+        eq, es: (E,) int target and source of each allowed edge; c: (E,) float64 its cost
+            c(s, q); tie: (E,) int seeded permutation ordering equal costs.
+        ps, pq: (S, 3), (|Q|, 3) float64 positions; rn, phi: (|Q|, kr) the neighbours r of
+            each q in Q and their Gaussian weights.
+        length_weight, direction_weight: w_l / unit and w_d / 2 of g; miss: the cost of
+            an unpaired q; iterations: passes after the first.
+
+    Returns:
+        ``(sel, costs)``: (P,) int64 the kept pairing's edges in scan order, and C after
+        each kept pass.
+    """
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    n_e, n_q = len(eq), len(pq)
+    if n_e == 0:
+        return np.zeros(0, np.int64), (float(miss * n_q),)
+    i32 = lambda a: host_array(a, np.int32)[0]  # noqa: E731
+    f64 = lambda a: host_array(a, np.float64)[0]  # noqa: E731
+    q_to_r = pq[:, None, :] - pq[rn] if kr > 0 else np.zeros((n_q, 0, 3))  # (|Q|, kr, 3)
+    q_to_r_len = np.sqrt(np.einsum("qkj,qkj->qk", q_to_r, q_to_r))
+    sel_np = np.empty(n_e, np.int32)
+    costs_np = np.empty(iterations + 1)
+    counts_np = np.zeros(2, np.int32)
+    by_tie = np.argsort(tie)  # the edge of each tie rank (tie is a permutation)
+    args = [i32(eq), i32(es), f64(c), i32(by_tie), n_e, f64(ps), n_q, i32(rn), f64(phi), f64(q_to_r), f64(q_to_r_len),
+            int(kr), float(length_weight), float(direction_weight), float(miss), int(iterations),
+            f64(np.empty(n_e)), f64(np.empty(n_e)), f64(np.empty(n_e)), i32(np.empty(n_e, np.int32)),
+            i32(np.empty(n_e, np.int32)), i32(np.full(n_q, -1, np.int32)), i32(np.full(n_q, -1, np.int32)),
+            i32(np.empty(n_q, np.int32)), i32(np.empty(max(n_q * kr, 1), np.int32)), f64(np.empty(max(n_q * kr, 1))),
+            i32(np.zeros(n_q, np.int32)),
+            i32(np.zeros(len(ps), np.int32)), i32(np.empty(n_e, np.int32)),
+            host_array(sel_np)[0], host_array(costs_np)[0], host_array(counts_np)[0]]
+    host_launch(host_warp.greedy_pairing_kernel, 1, args)
+    return sel_np[:counts_np[0]].astype(np.int64), tuple(float(v) for v in costs_np[:counts_np[1]])
+
+
 def greedy_pairing(
     ps, ns, vs, pq, nq, vq, weights: WarpWeights, spacing: float, rng: np.random.Generator, *,
     iterations: int = 3, candidates: int = 12, length_unit: float = 32.0, neighbours: int = 8,
@@ -377,6 +484,21 @@ def greedy_pairing(
         ``(pairs, costs)``: (P, 2) int64 (source index, target index) sorted by target,
         and the cost C(pi) after each kept pass (non-increasing).
     """
+    return _greedy_pairing(ps, ns, vs, pq, nq, vq, weights, spacing, rng, iterations=iterations,
+                           candidates=candidates, length_unit=length_unit, neighbours=neighbours)
+
+
+def _greedy_pairing(
+    ps, ns, vs, pq, nq, vq, weights: WarpWeights, spacing: float, rng: np.random.Generator, *,
+    iterations: int = 3, candidates: int = 12, length_unit: float = 32.0, neighbours: int = 8,
+    numpy_oracle: bool = False,
+) -> tuple[np.ndarray, tuple[float, ...]]:
+    """:func:`greedy_pairing`. The candidate edges and their costs c are found here
+    (k-d tree, NumPy); the passes (sort by cost, greedy scan, coherence term g of every
+    edge, pairing cost C) run in one launch of the compiled host step
+    ``host_warp.greedy_pairing_kernel`` or, with ``numpy_oracle``, in NumPy (the oracle:
+    the same pairs and costs to rounding, except where rounding decides between two
+    pairings of nearly equal cost)."""
     w = weights
     n_s, n_q = len(ps), len(pq)
     if n_s == 0 or n_q == 0:
@@ -410,12 +532,13 @@ def greedy_pairing(
 
     # What g reads per edge and does not change between passes: q's neighbours r, p_s,
     # and p_q - p_r with its length.
-    rn_e = rn[eq]  # (E, kr)
-    ps_e = ps[es][:, None, :]  # (E, 1, 3)
-    q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
-    q_to_r_len = np.linalg.norm(q_to_r, axis=2)
+    if numpy_oracle:
+        rn_e = rn[eq]  # (E, kr)
+        ps_e = ps[es][:, None, :]  # (E, 1, 3)
+        q_to_r = pq[eq][:, None, :] - pq[rn_e] if kr > 0 else np.zeros((len(eq), 0, 3))
+        q_to_r_len = np.linalg.norm(q_to_r, axis=2)
 
-    def coherence(partner):
+    def coherence_numpy(partner):
         """g of every edge given ``partner`` (source of each q, -1 if none), (E,)."""
         if kr == 0 or len(eq) == 0:
             return np.zeros(len(eq))
@@ -440,21 +563,24 @@ def greedy_pairing(
         partner[eq[sel]] = es[sel]
         return partner
 
-    # g of every edge is computed once per pairing: the next pass's edge costs and this
-    # pairing's cost C both read it.
-    sel = _greedy_match(eq, es, np.lexsort((tie, c)))
-    g = coherence(partner_of(sel))
-    costs = [pairing_cost(sel, g)]
-    for _ in range(int(iterations)):
-        new_sel = _greedy_match(eq, es, np.lexsort((tie, c + g)))
-        if np.array_equal(new_sel, sel):
-            break
-        new_g = coherence(partner_of(new_sel))
-        cost = pairing_cost(new_sel, new_g)
-        if cost > costs[-1]:
-            break
-        sel, g = new_sel, new_g
-        costs.append(cost)
+    if numpy_oracle:
+        # g of every edge is computed once per pairing: the next pass's edge costs and this
+        # pairing's cost C both read it.
+        sel = _greedy_match_numpy(eq, es, np.lexsort((tie, c)))
+        g = coherence_numpy(partner_of(sel))
+        costs = [pairing_cost(sel, g)]
+        for _ in range(int(iterations)):
+            new_sel = _greedy_match_numpy(eq, es, np.lexsort((tie, c + g)))
+            if np.array_equal(new_sel, sel):
+                break
+            new_g = coherence_numpy(partner_of(new_sel))
+            cost = pairing_cost(new_sel, new_g)
+            if cost > costs[-1]:
+                break
+            sel, g = new_sel, new_g
+            costs.append(cost)
+    else:
+        sel, costs = _greedy_passes(eq, es, c, tie, ps, pq, rn, phi, kr, w.w_l / unit, 0.5 * w.w_d, miss, int(iterations))
     pairs = np.stack([es[sel], eq[sel]], 1).astype(np.int64)
     return pairs[np.argsort(pairs[:, 1], kind="stable")], tuple(costs)
 
@@ -476,7 +602,13 @@ class ThinPlateSpline:
             size (the warp uses it: a thousandth of a spacing).
     """
 
-    _CHUNK = 1024
+    # Rows per evaluation step: 256 keeps the step's three (256, |Q|) float32 matrices
+    # (~200 KB each at |Q| = 200) in the L2 cache; 1,024 rows (before) took ~20% longer.
+    # OpenBLAS's products round a row differently with other row counts: this decides bits.
+    _CHUNK = 256
+    # r^2 (in units of the centres' extent) at or below which an evaluation point counts
+    # as a centre (r = 0): above the product's rounding, below any real spacing.
+    _AT_CENTRE = 1e-12
 
     def __init__(self, centres, values, smoothing: float = 0.0, dtype=np.float64):
         import scipy.linalg
@@ -540,49 +672,72 @@ class ThinPlateSpline:
         return 0.5 * r2 * np.log(np.where(r2 > 0, r2, 1.0))  # r^2 log r, 0 at r = 0
 
     def _eval(self, x: np.ndarray, want_jacobian: bool):
+        """W(x) ((m, 3) float64) and, if wanted, the Jacobians ((m, 3, 3) float64)."""
+        points, u, sums12 = self._eval_sums(x, want_jacobian)
+        jac = None
+        if want_jacobian:
+            pp = sums12.astype(np.float64)
+            jac = u[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(u), 3, 3)
+            jac += self.affine[1:].T[None] + np.eye(3)[None]
+        return points, jac
+
+    def _eval_sums(self, x: np.ndarray, want_sums: bool):
+        """W(x) ((m, 3) float64), the normalized points u ((m, 3) float64) and, if wanted,
+        the Jacobian's kernel sums ((m, 12), the evaluation's dtype): sum_i psi_i w_ik
+        (k < 3), then sum_i psi_i w_ik c_ij at 3 + 3 k + j (psi = 2 log r + 1, 0 at r = 0)."""
         u = (x - self.shift) / self.scale
         if len(self.centres) == 0:
             disp = self.affine[0] + u @ self.affine[1:]
-            jac = np.broadcast_to(np.eye(3) + self.affine[1:].T, (len(x), 3, 3)).copy() if want_jacobian else None
-            return x + disp * self.scale, jac
+            return x + disp * self.scale, u, np.zeros((len(x), 12), self.dtype) if want_sums else None
         dt = self.dtype
         n = len(self.centres)
-        disp = np.empty_like(u)
-        jac = np.empty((len(u), 3, 3)) if want_jacobian else None
-        centres, w = self.centres.astype(dt), self.w.astype(dt)
-        cols = [np.ascontiguousarray(centres[:, j]) for j in range(3)]
+        want_jacobian = want_sums
+        w = self.w.astype(dt)
         wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)  # w_ik c_ij
         w12 = np.concatenate([self.w, wc], axis=1).astype(dt)  # one product gives sum psi w and sum psi w c
-        eye_a = self.affine[1:].T[None] + np.eye(3)[None]
-        u_dt = u.astype(dt)
-        # The (chunk, n) matrices are made once and reused by every chunk: a fresh ~1 MB
-        # array per step cost page faults beside ~12 passes of arithmetic. The chunk size
-        # stays _CHUNK: the BLAS products' rows round differently with other row counts.
+        # r^2 = |u|^2 + |c|^2 - 2 u.c as one float64 product of (m, 5) [u, |u|^2, 1] by (5, n)
+        # [-2 c; 1; |c|^2]: one pass instead of eight (differences, squares, sums). Its
+        # rounding (~1e-16 of the unit box) is far below float32's; where u is a centre it
+        # leaves ~1e-16 instead of 0, so entries r^2 <= _AT_CENTRE count as r = 0.
+        u_aug = np.empty((len(u), 5))
+        u_aug[:, :3] = u
+        u_aug[:, 3] = np.einsum("ij,ij->i", u, u)
+        u_aug[:, 4] = 1.0
+        c_aug = np.empty((5, n))
+        c_aug[:3] = -2.0 * self.centres.T
+        c_aug[3] = 1.0
+        c_aug[4] = np.einsum("ij,ij->i", self.centres, self.centres)
+        # The (chunk, n) matrices are made once and reused by every chunk: a fresh array
+        # per step cost page faults beside the passes of arithmetic.
         rows = min(self._CHUNK, len(u))
-        r2_buf, tmp_buf, log_buf = (np.empty((rows, n), dt) for _ in range(3))
-        zero_buf = np.empty((rows, n), bool)
+        r2_64 = np.empty((rows, n))
+        r2_buf = r2_64 if dt is np.float64 else np.empty((rows, n), dt)
+        log_buf = np.empty((rows, n), dt)
+        near_buf = np.empty((rows, n), bool)
+        # per point: sum_i phi_i w_i (3) and sum_i psi_i w_ik, sum_i psi_i w_ik c_ij (12),
+        # assembled into displacements (and Jacobians) once after the loop
+        sums3 = np.empty((len(u), 3), dt)
+        sums12 = np.empty((len(u), 12), dt) if want_jacobian else None
         for lo in range(0, len(u), self._CHUNK):
             m = min(self._CHUNK, len(u) - lo)
-            r2, tmp, log_r2, zero = r2_buf[:m], tmp_buf[:m], log_buf[:m], zero_buf[:m]
-            self._r2_into(u_dt[lo:lo + m], cols, r2, tmp)
-            # r = 0 only where a point is a centre: a few entries, set by index rather than
-            # masking every entry (the same values as a masked log and a multiply by r > 0)
-            np.equal(r2, 0, out=zero)
-            at_centre = np.flatnonzero(zero)
-            with np.errstate(divide="ignore"):
-                np.log(r2, out=log_r2)  # log r^2
-            log_r2.flat[at_centre] = 1.0  # (unused) instead of -inf
+            r2, log_r2, near = r2_buf[:m], log_buf[:m], near_buf[:m]
+            np.matmul(u_aug[lo:lo + m], c_aug, out=r2_64[:m])
+            np.less_equal(r2_64[:m], self._AT_CENTRE, out=near)
+            at_centre = np.flatnonzero(near)  # a few entries: the points that are centres
+            if r2 is not r2_64[:m]:
+                np.copyto(r2, r2_64[:m], casting="same_kind")
+            # r^2 = 1 there gives log 0, so 2 phi = r^2 log r^2 = 0; psi is zeroed below
+            r2.flat[at_centre] = 1.0
+            np.log(r2, out=log_r2)  # log r^2
             np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
-            uc = u[lo:lo + m]
-            disp[lo:lo + m] = dt(0.5) * (r2 @ w) + self.affine[0] + uc @ self.affine[1:]
+            np.matmul(r2, w, out=sums3[lo:lo + m])
             if want_jacobian:
                 # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
                 log_r2 += dt(1.0)
                 log_r2.flat[at_centre] = 0.0  # psi
-                pp = (log_r2 @ w12).astype(np.float64)  # (m, 12): sum_i psi_i w_ik, sum_i psi_i w_ik c_ij
-                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(m, 3, 3)
-                np.add(j, eye_a, out=jac[lo:lo + m])
-        return x + disp * self.scale, jac
+                np.matmul(log_r2, w12, out=sums12[lo:lo + m])
+        disp = dt(0.5) * sums3 + self.affine[0] + u @ self.affine[1:]
+        return x + disp * self.scale, u, sums12
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
         # thin products: one BLAS thread is faster and thread-count independent (geometry_texture says why)
@@ -603,14 +758,54 @@ class ThinPlateSpline:
         tangents the Jacobian collapses keeps its direction."""
         p = as_points3("points", points)
         n = as_unit_vectors("normals", as_points3("normals", normals, len(p)))
-        wp, jac = self._eval_single(p, True)
-        u, v = _tangents(n)
-        cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
-        length = np.linalg.norm(cross, axis=1)
-        bad = length < 1e-12
-        cross[bad] = n[bad]
-        length[bad] = 1.0
-        return wp, cross / length[:, None]
+        return self._transform_checked(p, n)
+
+    def _transform_checked(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`transform` of checked (m, 3) float64 points and unit normals. With float32
+        kernel matrices the Jacobians are assembled from the kernel sums inside the compiled
+        host step ``host_warp.spline_normals_kernel`` (no (m, 3, 3) array); else as
+        :func:`_jacobian_normals` of :meth:`jacobian` (the oracle)."""
+        if self.dtype is not np.float32:
+            wp, jac = self._eval_single(p, True)
+            return wp, _jacobian_normals(jac, n)
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels import host_warp
+
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            wp, u, sums12 = self._eval_sums(p, True)
+        out = np.empty((len(p), 3))
+        host_launch(host_warp.spline_normals_kernel, len(p), [
+            host_array(u, np.float64)[0], host_array(sums12, np.float32)[0], host_array(self.affine, np.float64)[0],
+            host_array(n, np.float64)[0], host_array(out)[0]])
+        return wp, out
+
+
+def _jacobian_normals(jac: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The warped normals ``(J u x J v) / |J u x J v|`` ((m, 3) float64) from the Jacobians
+    ``jac`` ((m, 3, 3), J[m, k, j] = dW_k/dx_j) and unit normals ``n`` ((m, 3)), with u, v
+    the tangents of :func:`_tangents`; n where the Jacobian collapses them (|J u x J v| <
+    1e-12). The compiled host step ``host_warp.jacobian_normals_kernel``;
+    :func:`_jacobian_normals_numpy` is its oracle."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
+    out = np.empty((len(n), 3))
+    jw, _j = host_array(jac, np.float64)
+    nw, _n = host_array(n, np.float64)
+    ow, _ = host_array(out)
+    host_launch(host_warp.jacobian_normals_kernel, len(n), [jw, nw, ow])
+    return out
+
+
+def _jacobian_normals_numpy(jac: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The NumPy form of :func:`_jacobian_normals` (its oracle)."""
+    u, v = _tangents(n)
+    cross = np.cross(np.einsum("mkj,mj->mk", jac, u), np.einsum("mkj,mj->mk", jac, v))
+    length = np.linalg.norm(cross, axis=1)
+    bad = length < 1e-12
+    cross[bad] = n[bad]
+    length[bad] = 1.0
+    return cross / length[:, None]
 
 
 @functools.lru_cache(maxsize=1)
@@ -642,7 +837,11 @@ def _free_corners(target: np.ndarray, box_min: np.ndarray, box_max: np.ndarray, 
     corners = np.array([[box_min[0], box_min[1]], [box_max[0], box_min[1]],
                         [box_min[0], box_max[1]], [box_max[0], box_max[1]]])
     if len(target):
-        d, _ = _kdtree(np.c_[target[:, :2], np.zeros(len(target))]).query(np.c_[corners, np.zeros(4)], k=1)
+        # the nearest target of each corner, horizontally: 4 x T squared distances directly
+        # (a k-d tree over the targets cost more to build than this)
+        dx = target[None, :, 0] - corners[:, 0, None]
+        dy = target[None, :, 1] - corners[:, 1, None]
+        d = np.sqrt((dx * dx + dy * dy).min(axis=1))
         free = corners[d > radius]
     else:
         free = corners
@@ -664,10 +863,28 @@ def _neighbour_mean(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out / idx.shape[1]
 
 
-def _outskirts(p: np.ndarray, k: int) -> np.ndarray:
-    """Targets whose k-neighbour centroid lies far from them (boundary of the set)."""
+def _outskirts(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Targets whose k-neighbour centroid lies far from them (boundary of the set):
+    ((n,) bool outskirt flags, (n, k) int64 the neighbour indices), for (n, 3) float64
+    points. The k-d tree query, then the compiled host step ``host_warp.outskirts_kernel``;
+    :func:`_outskirts_numpy` is its oracle."""
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels import host_warp
+
     k = int(min(k, len(p)))
     dist, idx = _kdtree(p).query(p, k=k)
+    dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
+    flags = np.empty(len(p), np.int32)
+    host_launch(host_warp.outskirts_kernel, len(p), [host_array(p, np.float64)[0], host_array(dist, np.float64)[0],
+                                                     host_array(idx, np.int32)[0], k, _LOPSIDED, host_array(flags)[0]])
+    return flags.astype(bool), idx
+
+
+def _outskirts_numpy(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The NumPy form of :func:`_outskirts` (its oracle)."""
+    k = int(min(k, len(p)))
+    dist, idx = _kdtree(p).query(p, k=k)
+    dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
     offset = np.linalg.norm(_neighbour_mean(p, idx) - p, axis=1)
     mean_d = dist[:, 1:].mean(axis=1) if k > 1 else np.zeros(len(p))
     return offset > _LOPSIDED * mean_d, idx
@@ -797,7 +1014,7 @@ def warp_patch(
     centres = np.concatenate([ps[pairs[:, 0]], fixed])
     values = np.concatenate([pt[pairs[:, 1]], fixed])
     spline = ThinPlateSpline(centres, values, smoothing=smoothing, dtype=np.float32)
-    wp, wn = spline.transform(ps, ns)
+    wp, wn = spline._transform_checked(ps, ns)
     return WarpResult(wp, wn, pairs, fixed, costs, q_index)
 
 

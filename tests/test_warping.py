@@ -284,15 +284,17 @@ def test_synthesis_and_spline_hold_one_blas_thread_and_restore(monkeypatch):
         assert blas_threads() == before
 
 
-def test_one_pass_clustering_with_fallback_equals_two_runs():
+@pytest.mark.parametrize("name", ["_adaptive_clusters", "_adaptive_clusters_numpy"])
+def test_one_pass_clustering_with_fallback_equals_two_runs(name):
     """_adaptive_clusters with ``fallback_size`` gives, in one pass, what two runs gave: the
     variation clustering when it stays within the limit, else the size-only clustering
     from scratch. Point sets where the first run passes the limit and where it does not,
     with coincident points (clusters that cannot be split)."""
     import math
 
-    from geosynth.warping import _adaptive_clusters
+    import geosynth.warping
 
+    _adaptive_clusters = getattr(geosynth.warping, name)
     rng = np.random.default_rng(5)
     fallbacks = firsts = 0
     for trial in range(60):
@@ -324,7 +326,7 @@ def test_one_pass_clustering_with_fallback_equals_two_runs():
 def test_greedy_match_is_the_sequential_scan():
     """_greedy_match (vectorized rounds of "first remaining edge of its q and its s") takes
     exactly the edges a sequential scan in the given order takes, in that order."""
-    from geosynth.warping import _greedy_match
+    from geosynth.warping import _greedy_match_numpy as _greedy_match
 
     rng = np.random.default_rng(11)
     for trial in range(40):
@@ -351,32 +353,200 @@ def test_neighbour_mean_is_the_mean_bit_for_bit(rng):
         assert np.array_equal(_neighbour_mean(p, idx), p[idx].mean(axis=1))
 
 
-def test_spline_evaluation_is_the_plain_formula_bit_for_bit(rng):
-    """The chunked evaluation with reused buffers and r = 0 set by index gives the bits of
-    the formula written out with fresh arrays (masked log, multiply by r > 0), at one BLAS
-    thread as the spline runs, including points that are centres and a last, partial chunk."""
-    from geosynth.warping import _blas_controller
-
+def test_spline_evaluation_is_the_plain_formula(rng):
+    """The chunked evaluation (r^2 as one float64 product |u|^2 + |c|^2 - 2 u.c, entries
+    within rounding of 0 taken as r = 0, reused buffers) gives the formula written out with
+    direct differences in float64 (masked log): to float64 rounding with dtype float64, to
+    float32's with float32; including points that are centres and a last, partial chunk."""
     c = rng.uniform(0, 1, (90, 3)) * [1, 1, 0.1]
     y = c + rng.normal(scale=0.3 * SP, size=c.shape)
-    x = np.concatenate([rng.uniform(0, 1, (2500, 3)) * [1, 1, 0.1], c[::3]])  # some points are centres
-    for dtype in (np.float32, np.float64):
-        spline = ThinPlateSpline(c, y, dtype=dtype)
-        dt = spline.dtype
-        u = (x - spline.shift) / spline.scale
-        w = spline.w.astype(dt)
-        wc = (spline.w[:, :, None] * spline.centres[:, None, :]).reshape(len(spline.w), 9)
-        w12 = np.concatenate([spline.w, wc], axis=1).astype(dt)
-        disp, jac = np.empty_like(u), np.empty((len(u), 3, 3))
-        with _blas_controller().limit(limits=1, user_api="blas"):
-            for lo in range(0, len(u), ThinPlateSpline._CHUNK):
-                uc = u[lo:lo + ThinPlateSpline._CHUNK]
-                r2 = ThinPlateSpline._r2(uc.astype(dt), spline.centres.astype(dt))
-                pos = r2 > 0
-                log_r2 = np.log(r2, out=np.ones_like(r2), where=pos)
-                disp[lo:lo + len(uc)] = dt(0.5) * ((r2 * log_r2) @ w) + spline.affine[0] + uc @ spline.affine[1:]
-                pp = (((log_r2 + dt(1.0)) * pos) @ w12).astype(np.float64)
-                j = uc[:, None, :] * pp[:, :3, None] - pp[:, 3:].reshape(len(uc), 3, 3)
-                jac[lo:lo + len(uc)] = j + (spline.affine[1:].T[None] + np.eye(3)[None])
-        assert np.array_equal(spline(x), x + disp * spline.scale)
-        assert np.array_equal(spline.jacobian(x), jac)
+    x = np.concatenate([rng.uniform(0, 1, (700, 3)) * [1, 1, 0.1], c[::3]])  # some points are centres
+    spline = ThinPlateSpline(c, y)
+    u = (x - spline.shift) / spline.scale
+    r2 = ThinPlateSpline._r2(u, spline.centres)
+    pos = r2 > 0
+    log_r2 = np.log(r2, out=np.zeros_like(r2), where=pos)
+    disp = 0.5 * ((r2 * log_r2) @ spline.w) + spline.affine[0] + u @ spline.affine[1:]
+    psi = (log_r2 + 1.0) * pos
+    e = u[:, None, :] - spline.centres[None]  # (m, n, 3)
+    jac = np.einsum("mi,ik,mij->mkj", psi, spline.w, e) + np.eye(3) + spline.affine[1:].T
+    want_p = x + disp * spline.scale
+    assert not pos.all()  # the centres among x hit r = 0
+    for dtype, tol_p, tol_j in ((np.float64, 1e-12, 1e-10), (np.float32, 1e-5, 1e-4)):
+        s = ThinPlateSpline(c, y, dtype=dtype)
+        assert len(x) % s._CHUNK != 0  # a partial last chunk
+        np.testing.assert_allclose(s(x), want_p, rtol=0, atol=tol_p)
+        np.testing.assert_allclose(s.jacobian(x), jac, rtol=0, atol=tol_j)
+
+
+# ---------------------------------------------------------------- compiled host steps vs NumPy
+
+
+def _general_position_sets(rng, count):
+    """Point sets without exact ties (no point on a splitting plane): boxes, rings, sheets."""
+    for trial in range(count):
+        n = int(rng.integers(1, 2500))
+        kind = trial % 3
+        if kind == 0:
+            p = rng.random((n, 3)) * [10, 10, 1]
+        elif kind == 1:
+            t = rng.random(n) * 20
+            p = np.c_[3 * np.cos(t) + rng.random(n), 3 * np.sin(t), rng.normal(0, 0.3, n)]
+        else:
+            xy = rng.random((n, 2)) * 5
+            p = np.c_[xy, 0.2 * np.sin(3 * xy[:, 0]) + 1e-3 * rng.normal(size=n)]
+        yield n, p
+
+
+def test_cluster_kernel_equals_numpy():
+    """The compiled clustering (depth first, closed-form eigenvalues) gives the NumPy
+    clustering's representatives exactly on point sets in general position, with and
+    without the limit and the size-only fallback, and None where both give up."""
+    import math
+
+    from geosynth.warping import _adaptive_clusters, _adaptive_clusters_numpy
+
+    rng = np.random.default_rng(21)
+    nones = 0
+    for n, p in _general_position_sets(rng, 60):
+        limit = int(rng.integers(3, 300))
+        size = max(12, math.ceil(n / limit))
+        fallback = max(size, math.ceil(1.5 * n / limit))
+        for kw in (dict(), dict(limit=limit), dict(limit=limit, fallback_size=fallback)):
+            got, want = _adaptive_clusters(p, size, 0.05, **kw), _adaptive_clusters_numpy(p, size, 0.05, **kw)
+            if want is None:
+                nones += 1
+                assert got is None
+            else:
+                assert got.dtype == np.int64
+                np.testing.assert_array_equal(got, want)
+    assert nones > 5
+    # edge cases: no point, one point, coincident points (never split: the lowest index)
+    for p in (np.zeros((0, 3)), np.ones((1, 3)), np.ones((40, 3)), np.r_[np.ones((20, 3)), np.zeros((20, 3))]):
+        np.testing.assert_array_equal(_adaptive_clusters(p, 12), _adaptive_clusters_numpy(p, 12))
+    np.testing.assert_array_equal(_adaptive_clusters(np.ones((40, 3)), 12), [0])
+
+
+def test_cluster_kernel_splits_coincident_grids_sensibly():
+    """On points with many exact ties (a coarse grid) the split of a point on the plane
+    may differ from LAPACK's axis sign; the clusterings still have about as many clusters
+    and valid, distinct representatives."""
+    from geosynth.warping import _adaptive_clusters, _adaptive_clusters_numpy
+
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        p = np.round(rng.random((int(rng.integers(50, 2000)), 3)) * [20, 20, 2]) / 2
+        got, want = _adaptive_clusters(p, 12), _adaptive_clusters_numpy(p, 12)
+        assert len(np.unique(got)) == len(got) and got.min() >= 0 and got.max() < len(p)
+        assert abs(len(got) - len(want)) <= 0.1 * len(want) + 2
+
+
+def _pairing_case(rng, n_s, n_q, spread):
+    ps = rng.uniform(0, 1, (n_s, 3)) * [1, 1, 0.1]
+    ns = rng.normal(size=(n_s, 3)) + [0, 0, 2]
+    ns /= np.linalg.norm(ns, axis=1, keepdims=True)
+    q = rng.choice(n_s, min(n_q, n_s), replace=False)
+    pq = ps[q] + rng.normal(scale=spread, size=(len(q), 3))
+    nq = ns[q] + rng.normal(scale=0.2, size=(len(q), 3))
+    nq /= np.linalg.norm(nq, axis=1, keepdims=True)
+    return ps, ns, rng.uniform(0, 0.1, n_s), pq, nq, rng.uniform(0, 0.1, len(q))
+
+
+def test_pairing_kernel_equals_numpy():
+    """The passes in one compiled launch give the NumPy passes' pairs and costs (to
+    float64 rounding); they may part only where rounding decides between two pairings of
+    equal cost (a later pass whose cost equals the last one's to ~1e-15): then the pairs
+    of the common passes agree."""
+    from geosynth.warping import _greedy_pairing
+
+    rng = np.random.default_rng(8)
+    w = WarpWeights(1, 2, 15, 6, 5)
+    same = 0
+    for trial in range(40):
+        n_s = int(rng.integers(30, 2500))
+        ps, ns, vs, pq, nq, vq = _pairing_case(rng, n_s, int(rng.integers(1, 220)), 0.02)
+        sp = 1 / np.sqrt(n_s)
+        for it in (0, 3):
+            got = _greedy_pairing(ps, ns, vs, pq, nq, vq, w, sp, np.random.default_rng(trial), iterations=it)
+            want = _greedy_pairing(ps, ns, vs, pq, nq, vq, w, sp, np.random.default_rng(trial), iterations=it,
+                                   numpy_oracle=True)
+            common = min(len(got[1]), len(want[1]))
+            np.testing.assert_allclose(got[1][:common], want[1][:common], rtol=1e-12)
+            if len(got[1]) == len(want[1]):
+                same += 1
+                np.testing.assert_array_equal(got[0], want[0])
+            else:  # an extra pass of equal cost on one side
+                longer = got[1] if len(got[1]) > len(want[1]) else want[1]
+                assert abs(longer[-1] - longer[-2]) <= 1e-12 * abs(longer[-1])
+    assert same >= 70
+    # normals opposite (few allowed edges), all targets out of reach (no edge: no pair,
+    # every q at miss cost), one q (no neighbour r in Q)
+    ps, ns, vs, pq, nq, vq = _pairing_case(rng, 200, 20, 0.01)
+    strict = WarpWeights(1, 2, 15, 6, 5, max_normal=0.3)
+    for args in ((ps, ns, vs, pq, -nq, vq), (ps, ns, vs, pq + 10.0, nq, vq), (ps, ns, vs, pq[:1], nq[:1], vq[:1])):
+        got = _greedy_pairing(*args, strict, 0.05, np.random.default_rng(0))
+        want = _greedy_pairing(*args, strict, 0.05, np.random.default_rng(0), numpy_oracle=True)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-12)
+    far = _greedy_pairing(ps, ns, vs, pq + 10.0, nq, vq, strict, 0.05, np.random.default_rng(0))
+    assert len(far[0]) == 0 and far[1] == (pytest.approx(20 * (4.0 / 32 + 0.5 * 2 * 0.3 + 15 * 0.01 + 5)),)
+
+
+def test_jacobian_normals_kernel_equals_numpy(rng):
+    """The compiled normals from Jacobians equal the NumPy form to float64 rounding,
+    including normals near +-x (the other tangent helper) and collapsed Jacobians."""
+    from geosynth.warping import _jacobian_normals, _jacobian_normals_numpy
+
+    m = 500
+    n = rng.normal(size=(m, 3))
+    n[:50] = [1.0, 0.0, 0.0] + 0.05 * rng.normal(size=(50, 3))  # |n_x| >= 0.9
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    jac = np.eye(3) + 0.3 * rng.normal(size=(m, 3, 3))
+    jac[-20:] = 0.0  # collapsed: the normal is kept
+    jac[-40:-20] = np.outer([1.0, 2.0, 0.5], [0.3, -0.2, 1.0])  # rank 1: collapsed too
+    got, want = _jacobian_normals(jac, n), _jacobian_normals_numpy(jac, n)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got[-40:], n[-40:])
+    assert _jacobian_normals(np.zeros((0, 3, 3)), np.zeros((0, 3))).shape == (0, 3)
+
+
+def test_variation_and_outskirt_kernels_equal_numpy(rng):
+    """The compiled surface variation and outskirt test equal their NumPy forms (float64
+    rounding; the outskirt flags exactly away from the threshold), on a bumpy sheet, a
+    blob, and degenerate neighbourhoods (coincident points: variation 0; a line: 0)."""
+    from geosynth.warping import _outskirts, _outskirts_numpy, _variation_of, _variation_of_numpy
+
+    p, _ = bumpy_patch()
+    blob = rng.normal(size=(400, 3))
+    line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]
+    same = np.ones((30, 3))
+    for pts in (p, blob, line, same):
+        for k in (3, 7, 16):
+            idx = rng.integers(0, len(pts), (200, k))
+            np.testing.assert_allclose(_variation_of(pts, idx), _variation_of_numpy(pts, idx), rtol=0, atol=1e-12)
+    assert np.all(_variation_of(same, np.zeros((5, 16), np.int64)) == 0)
+    assert np.abs(_variation_of(line, np.arange(50)[None])).max() < 1e-12
+    edge = p[(p[:, 0] < 0.3) | (p[:, 1] > 0.7)]  # an L-shaped strip: outskirts along its borders
+    for pts in (edge, blob):
+        got, got_idx = _outskirts(pts, 16)
+        want, want_idx = _outskirts_numpy(pts, 16)
+        np.testing.assert_array_equal(got_idx, want_idx)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < got.sum() < len(pts)
+
+
+def test_float32_transform_kernel_equals_the_numpy_jacobian_normals(rng):
+    """With float32 kernel matrices, transform assembles each Jacobian from its kernel sums
+    inside the compiled host step; the NumPy route (jacobian(), then the normals' NumPy
+    form) gives the same positions and normals to float64 rounding, points on centres included."""
+    from geosynth.warping import _jacobian_normals_numpy
+
+    c = rng.uniform(0, 1, (80, 3)) * [1, 1, 0.1]
+    y = c + rng.normal(scale=0.3 * SP, size=c.shape)
+    x = np.concatenate([rng.uniform(0, 1, (600, 3)) * [1, 1, 0.1], c[::4]])
+    n = rng.normal(size=x.shape) + [0, 0, 3]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    spline = ThinPlateSpline(c, y, dtype=np.float32)
+    p, wn = spline.transform(x, n)
+    np.testing.assert_array_equal(p, spline(x))
+    np.testing.assert_allclose(wn, _jacobian_normals_numpy(spline.jacobian(x), n), rtol=0, atol=1e-12)
