@@ -71,11 +71,22 @@ inline float mls_sums(__global const float8* pn, __global const int* cell_start,
             for (int cy = y0; cy <= y1; ++cy) {
                 const float ylo = gy + (float)cy * cell;
                 const float dy = yy < ylo ? ylo - yy : (yy > ylo + cell ? yy - ylo - cell : 0.0f);
-                if (dz * dz + dy * dy > reach2)
+                const float off2 = dz * dz + dy * dy;
+                if (off2 > reach2)
                     continue;  // the whole row is out of reach
+                // only the row's cells that the ball's chord at this row's offset touches: the
+                // points skipped lie beyond reach (skipping them changes no sum). The chord is
+                // widened by 1e-4 reach^2 under the root for the rounding of slab and point.
+                const float chord = sqrt(reach2 * 1.0001f - off2);
+                const float clo = (yx - chord - gx) * inv_cell;
+                const float chi = (yx + chord - gx) * inv_cell;
+                const int rx0 = max(x0, clo < 0.0f ? 0 : (clo >= (float)nx ? nx : (int)clo));
+                const int rx1 = min(x1, chi < 0.0f ? -1 : (chi >= (float)nx ? nx - 1 : (int)chi));
+                if (rx0 > rx1)
+                    continue;
                 const int row = (cz * ny + cy) * nx;
-                const int end = cell_start[row + x1 + 1];
-                for (int i = cell_start[row + x0]; i < end; ++i) {
+                const int end = cell_start[row + rx1 + 1];
+                for (int i = cell_start[row + rx0]; i < end; ++i) {
                     const float8 q = pn[i];
                     const float ex = q.s0 - yx, ey = q.s1 - yy, ez = q.s2 - yz;
                     const float d2 = ex * ex + ey * ey + ez * ez;
@@ -135,14 +146,16 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
     float px = xx, py = xy, pz = xz;           // the projection so far
     float nx_ = 0.0f, ny_ = 0.0f, nz_ = 0.0f;  // the MLS normal at the last iterate
     float f0 = 0.0f, f_last = 0.0f;
-    int found = 0, settled = 0;
+    int found = 0, settled = 0, lost = 0;
     for (int it = 0; it < max_iter; ++it) {
         float sx, sy, sz, mx, my, mz;
         const float ws = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach,
                                   yx, yy, yz, &sx, &sy, &sz, &mx, &my, &mz);
         const float mm = mx * mx + my * my + mz * mz;
-        if (!(ws > 0.0f) || !(mm > 0.0f))
-            break;  // no point within reach (or normals cancel): keep the last projection
+        if (!(ws > 0.0f) || !(mm > 0.0f)) {
+            lost = 1;  // no point within reach of y == p (or normals cancel): keep the last projection
+            break;
+        }
         const float inv = 1.0f / sqrt(mm);
         const float ux = mx * inv, uy = my * inv, uz = mz * inv;
         const float f = -(ux * sx + uy * sy + uz * sz) / ws;  // n . (y - a)
@@ -153,8 +166,10 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
         nx_ = ux; ny_ = uy; nz_ = uz;
         f_last = f;
         px = yx - f * ux; py = yy - f * uy; pz = yz - f * uz;
-        if ((f < 0.0f ? -f : f) <= tol)
+        if ((f < 0.0f ? -f : f) <= tol) {
+            settled = 1;  // converged: the last step's f stands for f at the projection
             break;
+        }
         if (px == yx && py == yy && pz == yz) {
             settled = 1;  // a fixed point: every later step would repeat this one bit for bit
             break;
@@ -179,11 +194,13 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
     }
     if (write_resid != 0) {
         // f at the projection (reach where no point is within reach of it): one more step's
-        // size; at a fixed point the last step's f, which is f there
+        // size; at a fixed point the last step's f, which is f there; at the tolerance the
+        // last step's f (|f| <= tol: the projection has converged). A projection that lost
+        // its support stopped at p, where the sums just came out empty: reach, not recomputed.
         float r = reach;
         if (settled) {
             r = f_last;
-        } else {
+        } else if (!lost) {
             float sx, sy, sz, mx, my, mz;
             const float ws = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach,
                                       px, py, pz, &sx, &sy, &sz, &mx, &my, &mz);

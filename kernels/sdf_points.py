@@ -89,9 +89,19 @@ def mls_sums(
             dz = slab_distance(y[2], gz + float(cz) * cell, cell)
             for cy in range(y0, y1 + 1):
                 dy = slab_distance(y[1], gy + float(cy) * cell, cell)
-                if dz * dz + dy * dy <= reach2:
+                off2 = dz * dz + dy * dy
+                # only the row's cells that the ball's chord at this row's offset touches: the
+                # points skipped lie beyond reach (skipping them changes no sum). The chord is
+                # widened by 1e-4 reach^2 under the root for the rounding of slab and point.
+                rx0 = x0
+                rx1 = x0 - 1
+                if off2 <= reach2:
+                    chord = wp.sqrt(reach2 * 1.0001 - off2)
+                    rx0 = wp.max(x0, cell_lo(y[0], gx, chord, inv_cell, nx))
+                    rx1 = wp.min(x1, cell_hi(y[0], gx, chord, inv_cell, nx))
+                if rx0 <= rx1:
                     row = (cz * ny + cy) * nx
-                    for i in range(cell_start[row + x0], cell_start[row + x1 + 1]):
+                    for i in range(cell_start[row + rx0], cell_start[row + rx1 + 1]):
                         e = wp.vec3(pn[8 * i] - y[0], pn[8 * i + 1] - y[1], pn[8 * i + 2] - y[2])
                         d2 = wp.dot(e, e)
                         if d2 < reach2:
@@ -153,11 +163,13 @@ def mls_project_kernel(
     f_last = float(0.0)
     found = int(0)
     settled = int(0)
+    lost = int(0)
     for it in range(max_iter):
         ws, s, msum = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach, y)
         mm = wp.dot(msum, msum)
         if not (ws > 0.0) or not (mm > 0.0):
-            break  # no point within reach (or normals cancel): keep the last projection
+            lost = 1  # no point within reach of y == p (or normals cancel): keep the last projection
+            break
         u = msum * (1.0 / wp.sqrt(mm))
         f = -wp.dot(u, s) / ws  # n . (y - a)
         if it == 0:
@@ -167,6 +179,7 @@ def mls_project_kernel(
         f_last = f
         p = y - f * u
         if wp.abs(f) <= tol:
+            settled = 1  # converged: the last step's f stands for f at the projection
             break
         if p[0] == y[0] and p[1] == y[1] and p[2] == y[2]:
             settled = 1  # a fixed point: every later step would repeat this one bit for bit
@@ -187,11 +200,13 @@ def mls_project_kernel(
         proj[3 * i + 2] = p[2]
     if write_resid != 0:
         # f at the projection (reach where no point is within reach of it): one more step's
-        # size; at a fixed point the last step's f, which is f there
+        # size; at a fixed point the last step's f, which is f there; at the tolerance the
+        # last step's f (|f| <= tol: the projection has converged). A projection that lost
+        # its support stopped at p, where the sums just came out empty: reach, not recomputed.
         r = reach
         if settled != 0:
             r = f_last
-        else:
+        elif lost == 0:
             ws2, s2, m2 = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach, p)
             mm2 = wp.dot(m2, m2)
             if ws2 > 0.0 and mm2 > 0.0:
