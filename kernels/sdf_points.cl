@@ -71,22 +71,11 @@ inline float mls_sums(__global const float8* pn, __global const int* cell_start,
             for (int cy = y0; cy <= y1; ++cy) {
                 const float ylo = gy + (float)cy * cell;
                 const float dy = yy < ylo ? ylo - yy : (yy > ylo + cell ? yy - ylo - cell : 0.0f);
-                const float off2 = dz * dz + dy * dy;
-                if (off2 > reach2)
+                if (dz * dz + dy * dy > reach2)
                     continue;  // the whole row is out of reach
-                // only the row's cells that the ball's chord at this row's offset touches: the
-                // points skipped lie beyond reach (skipping them changes no sum). The chord is
-                // widened by 1e-4 reach^2 under the root for the rounding of slab and point.
-                const float chord = sqrt(reach2 * 1.0001f - off2);
-                const float clo = (yx - chord - gx) * inv_cell;
-                const float chi = (yx + chord - gx) * inv_cell;
-                const int rx0 = max(x0, clo < 0.0f ? 0 : (clo >= (float)nx ? nx : (int)clo));
-                const int rx1 = min(x1, chi < 0.0f ? -1 : (chi >= (float)nx ? nx - 1 : (int)chi));
-                if (rx0 > rx1)
-                    continue;
                 const int row = (cz * ny + cy) * nx;
-                const int end = cell_start[row + rx1 + 1];
-                for (int i = cell_start[row + rx0]; i < end; ++i) {
+                const int end = cell_start[row + x1 + 1];
+                for (int i = cell_start[row + x0]; i < end; ++i) {
                     const float8 q = pn[i];
                     const float ex = q.s0 - yx, ey = q.s1 - yy, ez = q.s2 - yz;
                     const float d2 = ex * ex + ey * ey + ez * ez;

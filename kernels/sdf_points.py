@@ -89,19 +89,9 @@ def mls_sums(
             dz = slab_distance(y[2], gz + float(cz) * cell, cell)
             for cy in range(y0, y1 + 1):
                 dy = slab_distance(y[1], gy + float(cy) * cell, cell)
-                off2 = dz * dz + dy * dy
-                # only the row's cells that the ball's chord at this row's offset touches: the
-                # points skipped lie beyond reach (skipping them changes no sum). The chord is
-                # widened by 1e-4 reach^2 under the root for the rounding of slab and point.
-                rx0 = x0
-                rx1 = x0 - 1
-                if off2 <= reach2:
-                    chord = wp.sqrt(reach2 * 1.0001 - off2)
-                    rx0 = wp.max(x0, cell_lo(y[0], gx, chord, inv_cell, nx))
-                    rx1 = wp.min(x1, cell_hi(y[0], gx, chord, inv_cell, nx))
-                if rx0 <= rx1:
+                if dz * dz + dy * dy <= reach2:
                     row = (cz * ny + cy) * nx
-                    for i in range(cell_start[row + rx0], cell_start[row + rx1 + 1]):
+                    for i in range(cell_start[row + x0], cell_start[row + x1 + 1]):
                         e = wp.vec3(pn[8 * i] - y[0], pn[8 * i + 1] - y[1], pn[8 * i + 2] - y[2])
                         d2 = wp.dot(e, e)
                         if d2 < reach2:
