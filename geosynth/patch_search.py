@@ -58,7 +58,7 @@ _GATHER_SLACK = 0.5  # of h: host_mls gathers each query's points within reach +
 
 
 def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, tree=None,
-             fixed: bool = False, nearest=None, compiled: bool = True, grid=None):
+             fixed: bool = False, nearest=None, compiled: bool = True, cells=None):
     """The MLS signed distance and gradient of :func:`geosynth.pointsets.pointset_distance`
     (far="nearest"), vectorized over queries, in float64 on the host.
 
@@ -81,8 +81,8 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
             (``geosynth.kernels.host_search.mls_project_f64``, the same on every device);
             False: by its NumPy oracle :func:`_iterate` (the sums in another order: equal
             to float64 rounding where the projections converge).
-        grid: optional, the points' :class:`geosynth.pointsets.CellGrid` for reach
-            MLS_REACH h (as :func:`kernel_mls` returns it): the host kernel reuses its layout.
+        cells: optional, the :class:`_HostCells` of these points (unit normals) for reach
+            MLS_REACH h, for the compiled loop.
 
     Returns:
         ((M,) distance, (M, 3) gradient), float64.
@@ -105,7 +105,7 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     else:
         nearest_d, nearest = np.asarray(nearest[0], np.float64), np.asarray(nearest[1], np.int64)
     if compiled:
-        cells = _HostCells(p, nrm, reach, grid)
+        cells = _HostCells(p, nrm, reach) if cells is None else cells
 
         def run(q):
             return cells.project(q, h, fixed)
@@ -179,6 +179,23 @@ class _HostCells:
         self.reach = float(reach)
         self._pn = host_array(pn, np.float64)
         self._start = host_array(start, np.int32)
+        self._order = host_array(order, np.int32)
+
+    def nearest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each (M, 3) float64 query's nearest point: ((M,) float64 distance, (M,) int64
+        index; the lowest index on ties), exact in float64 (as a k-d tree's), by one launch
+        of ``nearest_point_f64`` (a query within reach needs one pass over its cells)."""
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels.host_search import nearest_point_f64
+
+        m = len(q)
+        queries = host_array(q - self.shift, np.float64)
+        d2 = host_array(np.empty(m), np.float64)
+        idx = host_array(np.empty(m, np.int32), np.int32)
+        host_launch(nearest_point_f64, m, [
+            self._pn[0], self._start[0], self._order[0], *(float(v) for v in self.origin), float(self.cell),
+            *(int(v) for v in self.dims), self.slack, self.reach, queries[0], d2[0], idx[0]])
+        return np.sqrt(d2[1]), idx[1].astype(np.int64)
 
     def project(self, q: np.ndarray, h: float, fixed: bool):
         """:func:`_iterate`'s outputs for (M, 3) float64 queries: (f at the query (NaN:
@@ -318,7 +335,7 @@ def _round_codes(v: np.ndarray) -> np.ndarray:
 
 
 def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, device, steps: int,
-               cells=None, tol: float = 0.0):
+               cells=None, tol: float = 0.0, grid=None):
     """The MLS projection by the ``PointsOps.mls_project`` kernel with at most ``steps``
     steps, stopping at ``|f| <= tol`` (tol 0: exactly ``steps``; a projection at a fixed
     point stops there, which changes nothing), in one launch.
@@ -332,6 +349,8 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
         cells: the ``cells`` this function returned for the same points, h and device
             (the points' :class:`geosynth.pointsets.CellGrid`, already on the device).
         tol: world units, >= 0.
+        grid: optional, the points' float32 :class:`geosynth.pointsets.CellGrid` for reach
+            MLS_REACH h, when already built (and ``cells`` is None).
 
     Returns:
         ((M,) float32 signed distance (reach where no point is within reach), (M, 3)
@@ -345,7 +364,8 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
 
     reach = MLS_REACH * h
     if cells is None:
-        grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
+        if grid is None:
+            grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
         backend = _checks.resolve_backend(device)
         cells = (grid, backend, backend.to_device(grid.pn), backend.to_device(grid.cell_start))
     grid, backend, pn, start = cells
@@ -363,7 +383,7 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
 
 
 def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, band: float,
-                     device: str | None, tree=None) -> tuple[np.ndarray, int]:
+                     device: str | None) -> tuple[np.ndarray, int]:
     """D(S) at the queries as uint8 codes, the same on every device.
 
     The kernel (:func:`kernel_mls`, FIXED_STEPS steps) gives distance and gradient; each
@@ -383,14 +403,11 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
         queries: (M, 3) where to sample, world units.
         h: MLS kernel width; band: the distance at which the code saturates (> 0).
         device: a device string (None: "auto").
-        tree: an optional cKDTree of ``points``.
 
     Returns:
         ((M, 4) uint8 codes (distance, gx, gy, gz), how many queries the host recomputed).
     """
-    from scipy.spatial import cKDTree
-
-    from geosynth.pointsets import MLS_REACH
+    from geosynth.pointsets import MLS_REACH, CellGrid
 
     q = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
     if len(q) == 0:
@@ -398,18 +415,20 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     p = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     reach = MLS_REACH * h
-    # an unbalanced tree without node compaction builds ~2x faster and answers as fast here
-    tree = cKDTree(p, balanced_tree=False, compact_nodes=False) if tree is None else tree
-    nearest_d, nearest = tree.query(q, k=1)
-    # near or far is decided by the tree (float64, the same on every device); the kernel agrees
+    # one cell layout for the device kernel (float32) and the host's float64 steps: the nearest
+    # points (exact in float64, as a k-d tree's) and the recomputation of the flagged samples
+    grid = CellGrid(p.astype(np.float32), nrm.astype(np.float32), reach)
+    host = _HostCells(p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), reach, grid)
+    nearest_d, nearest = host.nearest(q)
+    # near or far is decided on the host (float64, the same on every device); the kernel agrees
     # but where the nearest point lies at the reach, to rounding: those go to the host. Only the
     # near queries are projected (a far one's kernel values would be replaced), and in the same
     # launch the far queries' nearest points.
     is_near = nearest_d < reach
     near, far = np.flatnonzero(is_near), np.flatnonzero(~is_near)
     used, inverse = np.unique(nearest[far], return_inverse=True)
-    dk, gk, proj, res, cells = kernel_mls(p, nrm, np.concatenate([q[near], p[used]]), h, device, FIXED_STEPS,
-                                      tol=FIXED_TOL * h)
+    dk, gk, proj, res, _ = kernel_mls(p, nrm, np.concatenate([q[near], p[used]]), h, device, FIXED_STEPS,
+                                      tol=FIXED_TOL * h, grid=grid)
     m, k = len(q), len(near)
     gn, yp, rp = gk[k:], proj[k:], res[k:]
     d = np.empty(m)
@@ -430,7 +449,7 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     flag |= ((frac < ARBITER_TOL) & (np.abs(v) < CODE_SCALE + 0.5 + ARBITER_TOL)).any(axis=1)
     bad = np.flatnonzero(flag)
     if bad.size:
-        dh, gh = host_mls(p, nrm, q[bad], h, fixed=True, nearest=(nearest_d[bad], nearest[bad]), grid=cells[0])
+        dh, gh = host_mls(p, nrm, q[bad], h, fixed=True, nearest=(nearest_d[bad], nearest[bad]), cells=host)
         v[bad] = _codes(dh, gh, band)
     return _round_codes(v), int(bad.size)
 
@@ -489,11 +508,7 @@ class PatchSearch:
                 "exemplar box / resolution).")
         self.origin_xy = lo[:2].copy()
         pts = self.sample_points(np.zeros(3, np.int64), np.array(self.shape))
-        from scipy.spatial import cKDTree
-
-        self.tree = cKDTree(texture.points)
-        codes, self.arbitrated = quantized_fields(texture.points, texture.normals, pts, self.h, self.band, device,
-                                                  tree=self.tree)
+        codes, self.arbitrated = quantized_fields(texture.points, texture.normals, pts, self.h, self.band, device)
         self.codes = codes.reshape(nz, ny, nx, 4)
         oy, ox = np.meshgrid(np.arange(ny - span + 1), np.arange(nx - span + 1), indexing="ij")
         self.origins = np.stack([np.zeros(ox.size, np.int64), oy.ravel(), ox.ravel()], axis=1)

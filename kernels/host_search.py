@@ -153,3 +153,62 @@ def mls_project_f64(
     for c in range(3):
         grad[3 * i + c] = n[c]
         proj[3 * i + c] = y[c]
+
+
+@wp.kernel
+def nearest_point_f64(
+    pn: wp.array(dtype=wp.float64),  # (n * 6,) as for mls_project_f64
+    cell_start: wp.array(dtype=wp.int32),  # (nx * ny * nz + 1,)
+    order: wp.array(dtype=wp.int32),  # (n,) sorted position -> the point's input index
+    gx: wp.float64,
+    gy: wp.float64,
+    gz: wp.float64,
+    cell: wp.float64,
+    nx: int,
+    ny: int,
+    nz: int,
+    slack: wp.float64,  # how far a point may lie outside its cell (>= 0)
+    radius: wp.float64,  # the first search radius (> 0): queries nearer than it need one pass
+    queries: wp.array(dtype=wp.float64),  # (m * 3,) relative coordinates
+    dist2: wp.array(dtype=wp.float64),  # (m,) out: squared distance to the nearest point
+    nearest: wp.array(dtype=wp.int32),  # (m,) out: its input index (the lowest on ties)
+):
+    """The nearest point of each query: the cells within r of it are scanned, r = radius,
+    doubled until a point within r is found (every point within r was then scanned, so it
+    is the nearest) or the scan covered the whole grid."""
+    i = wp.tid()
+    y = wp.vec3d(queries[3 * i], queries[3 * i + 1], queries[3 * i + 2])
+    g = wp.vec3d(gx, gy, gz)
+    inv_cell = wp.float64(1.0) / cell
+    best = wp.float64(-1.0)  # < 0: none yet
+    best_i = int(-1)
+    r = radius
+    done = int(0)
+    while done == 0:
+        wide = r * wp.float64(1.000000001) + slack
+        wide2 = wide * wide
+        x0 = cell_first(y[0], g[0], wide, inv_cell, nx)
+        x1 = cell_last(y[0], g[0], wide, inv_cell, nx)
+        y0 = cell_first(y[1], g[1], wide, inv_cell, ny)
+        y1 = cell_last(y[1], g[1], wide, inv_cell, ny)
+        z0 = cell_first(y[2], g[2], wide, inv_cell, nz)
+        z1 = cell_last(y[2], g[2], wide, inv_cell, nz)
+        if x0 <= x1:
+            for cz in range(z0, z1 + 1):
+                dz = slab_gap(y[2], g[2] + wp.float64(cz) * cell, cell)
+                for cy in range(y0, y1 + 1):
+                    dy = slab_gap(y[1], g[1] + wp.float64(cy) * cell, cell)
+                    if dz * dz + dy * dy <= wide2:
+                        row = (cz * ny + cy) * nx
+                        for k in range(cell_start[row + x0], cell_start[row + x1 + 1]):
+                            e = wp.vec3d(pn[6 * k] - y[0], pn[6 * k + 1] - y[1], pn[6 * k + 2] - y[2])
+                            d2 = wp.dot(e, e)
+                            if best < wp.float64(0.0) or d2 < best or (d2 == best and order[k] < best_i):
+                                best = d2
+                                best_i = order[k]
+        whole = x0 == 0 and x1 == nx - 1 and y0 == 0 and y1 == ny - 1 and z0 == 0 and z1 == nz - 1
+        if (best >= wp.float64(0.0) and best <= r * r) or whole:
+            done = 1
+        r = r * wp.float64(2.0)
+    dist2[i] = best
+    nearest[i] = best_i
