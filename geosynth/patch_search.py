@@ -76,7 +76,9 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
         fixed: at most FIXED_STEPS projection steps, stopping at ``|f| <= FIXED_TOL h``,
             as :func:`quantized_fields`'s kernel (the codes are made this way).
         nearest: optional ((M,) float distance, (M,) int index) of each query's nearest
-            point (as ``tree.query(queries, k=1)`` gives them), to skip that query.
+            point (as ``tree.query(queries, k=1)`` gives them), to skip that query; exact
+            where the distance is >= (1 - 1e-5) reach, elsewhere any point nearer than that
+            (as :meth:`_HostCells.nearest` with ``enough`` gives them).
         compiled: the projection loop by the float64 host kernel
             (``geosynth.kernels.host_search.mls_project_f64``, the same on every device);
             False: by its NumPy oracle :func:`_iterate` (the sums in another order: equal
@@ -92,28 +94,36 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     from geosynth.pointsets import MLS_REACH
 
     p = np.asarray(points, np.float64)
-    nrm = np.asarray(normals, np.float64)
-    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
     x = np.asarray(queries, np.float64).reshape(-1, 3)
     reach = MLS_REACH * h
     m = len(x)
     if m == 0:
         return np.zeros(0), np.zeros((0, 3))
-    if nearest is None:
-        tree = cKDTree(p) if tree is None else tree
-        nearest_d, nearest = tree.query(x, k=1)
+    if compiled and cells is not None:
+        nrm = None  # the cells hold the unit normals
     else:
-        nearest_d, nearest = np.asarray(nearest[0], np.float64), np.asarray(nearest[1], np.int64)
+        nrm = np.asarray(normals, np.float64)
+        nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
     if compiled:
         cells = _HostCells(p, nrm, reach) if cells is None else cells
 
         def run(q):
             return cells.project(q, h, fixed)
+
+        def exact_nearest(q):
+            return cells.nearest(q)[1]
     else:
         tree = cKDTree(p) if tree is None else tree
 
         def run(q):
             return _iterate(p, nrm, tree, q, h, fixed)
+
+        def exact_nearest(q):
+            return tree.query(q, k=1)[1]
+    if nearest is None:
+        nearest_d, nearest = (cells.nearest(x) if compiled else tree.query(x, k=1))
+    else:
+        nearest_d, nearest = np.asarray(nearest[0], np.float64), np.asarray(nearest[1], np.int64)
     # The nearest points of the queries that are probably far are projected in the same loop
     # as the queries (which are far is known only after it): one loop instead of two. A far
     # query left out (no weight although its nearest point is within reach: rounding at the
@@ -132,8 +142,8 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
         slot = np.full(m, -1, np.int64)  # each far query's row in (gn, yp)
         slot[likely_far] = inverse
         missing = far[slot[far] < 0]
-        if missing.size:
-            more, more_inverse = np.unique(nearest[missing], return_inverse=True)
+        if missing.size:  # (their given nearest points need not be the nearest: asked again)
+            more, more_inverse = np.unique(exact_nearest(x[missing]), return_inverse=True)
             _, g_more, y_more = run(p[more])
             slot[missing] = len(used) + more_inverse
             gn, yp = np.concatenate([gn, g_more]), np.concatenate([yp, y_more])
@@ -181,10 +191,13 @@ class _HostCells:
         self._start = host_array(start, np.int32)
         self._order = host_array(order, np.int32)
 
-    def nearest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def nearest(self, q: np.ndarray, enough: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Each (M, 3) float64 query's nearest point: ((M,) float64 distance, (M,) int64
         index; the lowest index on ties), exact in float64 (as a k-d tree's), by one launch
-        of ``nearest_point_f64`` (a query within reach needs one pass over its cells)."""
+        of ``nearest_point_f64`` (a query within reach needs one pass over its cells).
+        ``enough`` (<= reach): a query with a point nearer than it gets the first such point
+        met instead (its distance < enough, not necessarily the nearest): exact only where
+        the result is >= enough."""
         from geosynth.host_steps import host_array, host_launch
         from geosynth.kernels.host_search import nearest_point_f64
 
@@ -194,7 +207,7 @@ class _HostCells:
         idx = host_array(np.empty(m, np.int32), np.int32)
         host_launch(nearest_point_f64, m, [
             self._pn[0], self._start[0], self._order[0], *(float(v) for v in self.origin), float(self.cell),
-            *(int(v) for v in self.dims), self.slack, self.reach, queries[0], d2[0], idx[0]])
+            *(int(v) for v in self.dims), self.slack, self.reach, float(enough) ** 2, queries[0], d2[0], idx[0]])
         return np.sqrt(d2[1]), idx[1].astype(np.int64)
 
     def project(self, q: np.ndarray, h: float, fixed: bool):
@@ -419,7 +432,9 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     # points (exact in float64, as a k-d tree's) and the recomputation of the flagged samples
     grid = CellGrid(p.astype(np.float32), nrm.astype(np.float32), reach)
     host = _HostCells(p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), reach, grid)
-    nearest_d, nearest = host.nearest(q)
+    # only whether a point lies within reach (and how near where that is a matter of rounding,
+    # or far) is needed: a query stops at the first point within (1 - 1e-5) reach
+    nearest_d, nearest = host.nearest(q, enough=(1 - 1e-5) * reach)
     # near or far is decided on the host (float64, the same on every device); the kernel agrees
     # but where the nearest point lies at the reach, to rounding: those go to the host. Only the
     # near queries are projected (a far one's kernel values would be replaced), and in the same

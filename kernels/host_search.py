@@ -169,13 +169,16 @@ def nearest_point_f64(
     nz: int,
     slack: wp.float64,  # how far a point may lie outside its cell (>= 0)
     radius: wp.float64,  # the first search radius (> 0): queries nearer than it need one pass
+    enough2: wp.float64,  # a point at d^2 < enough2 ends the search (<= radius^2; 0: never)
     queries: wp.array(dtype=wp.float64),  # (m * 3,) relative coordinates
     dist2: wp.array(dtype=wp.float64),  # (m,) out: squared distance to the nearest point
     nearest: wp.array(dtype=wp.int32),  # (m,) out: its input index (the lowest on ties)
 ):
     """The nearest point of each query: the cells within r of it are scanned, r = radius,
     doubled until a point within r is found (every point within r was then scanned, so it
-    is the nearest) or the scan covered the whole grid."""
+    is the nearest) or the scan covered the whole grid. A query with a point at
+    d^2 < enough2 stops at the first such point: its outputs are that point, not
+    necessarily the nearest (the caller needs only to know that one lies that near)."""
     i = wp.tid()
     y = wp.vec3d(queries[3 * i], queries[3 * i + 1], queries[3 * i + 2])
     g = wp.vec3d(gx, gy, gz)
@@ -193,12 +196,13 @@ def nearest_point_f64(
         y1 = cell_last(y[1], g[1], wide, inv_cell, ny)
         z0 = cell_first(y[2], g[2], wide, inv_cell, nz)
         z1 = cell_last(y[2], g[2], wide, inv_cell, nz)
+        close = int(0)  # a point at d^2 < enough2 was met
         if x0 <= x1:
             for cz in range(z0, z1 + 1):
                 dz = slab_gap(y[2], g[2] + wp.float64(cz) * cell, cell)
                 for cy in range(y0, y1 + 1):
                     dy = slab_gap(y[1], g[1] + wp.float64(cy) * cell, cell)
-                    if dz * dz + dy * dy <= wide2:
+                    if close == 0 and dz * dz + dy * dy <= wide2:
                         row = (cz * ny + cy) * nx
                         for k in range(cell_start[row + x0], cell_start[row + x1 + 1]):
                             e = wp.vec3d(pn[6 * k] - y[0], pn[6 * k + 1] - y[1], pn[6 * k + 2] - y[2])
@@ -206,8 +210,11 @@ def nearest_point_f64(
                             if best < wp.float64(0.0) or d2 < best or (d2 == best and order[k] < best_i):
                                 best = d2
                                 best_i = order[k]
+                            if d2 < enough2:
+                                close = 1
+                                break
         whole = x0 == 0 and x1 == nx - 1 and y0 == 0 and y1 == ny - 1 and z0 == 0 and z1 == nz - 1
-        if (best >= wp.float64(0.0) and best <= r * r) or whole:
+        if close != 0 or (best >= wp.float64(0.0) and best <= r * r) or whole:
             done = 1
         r = r * wp.float64(2.0)
     dist2[i] = best

@@ -108,16 +108,17 @@ def test_host_kernel_with_the_device_layout_far_from_the_origin(rng):
 
 def test_host_mls_compiled_equals_numpy(rng):
     """host_mls (near and far queries, the far ones by their nearest point's projection) by
-    the compiled kernel equals the NumPy loop; the nearest points may be passed in; no
-    queries give empty results."""
+    the compiled kernel equals the NumPy loop; the nearest points may be passed in (exact
+    only where far, as quantized_fields passes them) with the cells; no queries give
+    empty results."""
     p, n, h = _wavy()
     reach = MLS_REACH * h
     q = np.concatenate([rng.uniform([0.1, 0.1, -reach], [0.9, 0.9, reach], (200, 3)),
                         rng.uniform([0.1, 0.1, 2 * reach], [0.9, 0.9, 4 * reach], (30, 3))])
     d_n, g_n = host_mls(p, n, q, h, fixed=True, compiled=False)
     d_k, g_k = host_mls(p, n, q, h, fixed=True)
-    d_t, g_t = host_mls(p, n, q, h, fixed=True, nearest=cKDTree(p).query(q, k=1),
-                        grid=CellGrid(p.astype(np.float32), n.astype(np.float32), reach))
+    cells = _HostCells(p, n, reach, CellGrid(p.astype(np.float32), n.astype(np.float32), reach))
+    d_t, g_t = host_mls(p, n, q, h, fixed=True, nearest=cells.nearest(q, enough=(1 - 1e-5) * reach), cells=cells)
     far = cKDTree(p).query(q, k=1)[0] >= reach
     assert far.sum() >= 30
     for d, g in ((d_k, g_k), (d_t, g_t)):
@@ -188,3 +189,48 @@ def test_host_choice_equals_the_device_selection(one_device):
         i = random_pick(near, np.random.default_rng(7))
         host = sc.numpy()
         assert (got.index, got.score, got.best, got.candidates) == (i, int(host[i]), int(host[best]), len(near))
+
+
+def test_host_nearest_points_equal_the_k_d_tree(rng):
+    """_HostCells.nearest: the nearest point and its distance as cKDTree gives them, for
+    queries within reach, far above and below the sheet, outside the grid's box, and far
+    from the origin with the device layout; the lowest index among equidistant points."""
+    for offset in ((0.0, 0.0, 0.0), (3000.0, -2000.0, 500.0)):
+        p, n, h = _wavy(offset=offset)
+        reach = MLS_REACH * h
+        o = np.asarray(offset)
+        q = o + np.concatenate([rng.uniform([0, 0, -reach], [1, 1, reach], (300, 3)),
+                                rng.uniform([0, 0, 2 * reach], [1, 1, 20 * reach], (50, 3)),
+                                rng.uniform([-3, -3, -3], [4, 4, 3], (50, 3))])
+        grid = CellGrid(p.astype(np.float32), n.astype(np.float32), reach)
+        want_d, want_i = cKDTree(p).query(q, k=1)
+        for cells in (_HostCells(p, n, reach), _HostCells(p, n, reach, grid)):
+            d, i = cells.nearest(q)
+            np.testing.assert_array_equal(i, want_i)
+            np.testing.assert_allclose(d, want_d, rtol=1e-12, atol=1e-12 * reach)
+    # ties: a query equidistant from two points gets the lower index, whatever the cell order
+    p = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 5.0, 0.0]])
+    n = np.tile([0, 0, 1.0], (3, 1))
+    for reach in (0.5, 3.0):
+        d, i = _HostCells(p, n, reach).nearest(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 7.0]]))
+        np.testing.assert_array_equal(i, [0, 0])
+        np.testing.assert_allclose(d, [1.0, np.sqrt(50.0)])
+
+
+def test_host_nearest_stops_at_a_point_near_enough(rng):
+    """With ``enough``, a query with a point nearer than it gets such a point (not always
+    the nearest), and every other query its exact nearest point."""
+    p, n, h = _wavy()
+    reach = MLS_REACH * h
+    q = rng.uniform([0, 0, -2 * reach], [1, 1, 2 * reach], (400, 3))
+    cells = _HostCells(p, n, reach)
+    want_d, want_i = cKDTree(p).query(q, k=1)
+    enough = 0.9 * reach
+    d, i = cells.nearest(q, enough=enough)
+    close = want_d < enough
+    assert 50 < close.sum() < 350
+    np.testing.assert_array_equal(i[~close], want_i[~close])
+    np.testing.assert_allclose(d[~close], want_d[~close], rtol=1e-12)
+    assert (d[close] < enough).all()
+    np.testing.assert_allclose(d[close], np.linalg.norm(p[i[close]] - q[close], axis=1), rtol=1e-12)
+    assert (i[close] != want_i[close]).any()  # it stops early: some are not the nearest
