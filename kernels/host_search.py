@@ -175,8 +175,9 @@ def nearest_point_f64(
     nearest: wp.array(dtype=wp.int32),  # (m,) out: its input index (the lowest on ties)
 ):
     """The nearest point of each query: the cells within r of it are scanned, r = radius,
-    doubled until a point within r is found (every point within r was then scanned, so it
-    is the nearest) or the scan covered the whole grid. A query with a point at
+    doubled while no point was met, else the distance of the nearest met so far, until a
+    point within r is found (every point within r was then scanned, so it is the nearest)
+    or the scan covered the whole grid. A query with a point at
     d^2 < enough2 stops at the first such point: its outputs are that point, not
     necessarily the nearest (the caller needs only to know that one lies that near)."""
     i = wp.tid()
@@ -187,6 +188,7 @@ def nearest_point_f64(
     best_i = int(-1)
     r = radius
     done = int(0)
+    last = int(0)
     while done == 0:
         wide = r * wp.float64(1.000000001) + slack
         wide2 = wide * wide
@@ -214,8 +216,14 @@ def nearest_point_f64(
                                 close = 1
                                 break
         whole = x0 == 0 and x1 == nx - 1 and y0 == 0 and y1 == ny - 1 and z0 == 0 and z1 == nz - 1
-        if close != 0 or (best >= wp.float64(0.0) and best <= r * r) or whole:
+        if close != 0 or last != 0 or (best >= wp.float64(0.0) and best <= r * r) or whole:
             done = 1
-        r = r * wp.float64(2.0)
+        elif best >= wp.float64(0.0):
+            # the nearest lies within the best met so far: the next pass (its box a hair wider)
+            # is the last, whatever the rounding of sqrt(best)^2
+            r = wp.sqrt(best)
+            last = 1
+        else:
+            r = r * wp.float64(2.0)
     dist2[i] = best
     nearest[i] = best_i
