@@ -13,17 +13,21 @@ within_tolerance`) and one is drawn with the seeded generator (step 2 and 3 of S
 
 Identical on every device: the fields are quantized to uint8 (the distance over the band
 [-band, band] and each gradient component over [-1, 1] to the codes 0..254, zero at 127)
-and scored in exact integer arithmetic. The kernel projects with a fixed FIXED_STEPS steps
-(no early stop at a tolerance, which would let two devices stop one step apart; only at an
-exact fixed point, where every later step would repeat the last one bit for bit), and
-gives each projection's residual in the same launch; a value it gives within
-ARBITER_TOL of a rounding boundary (where two devices' float32 results, a few ulps apart,
-could round apart), a projection that has not converged (thin sheets closer than the MLS
-width make it oscillate: devices then disagree by more than rounding), and the few
-ambiguous near/far cases are recomputed on the host in float64 (:func:`host_mls`, the same
-definitions and steps) and quantized from there. Every device then gives the same codes as
-long as its error on the rest stays below ARBITER_TOL of a code (7e-7 of the band for the
-distance, where converged float32 projections are good to ~1e-7).
+and scored in exact integer arithmetic. Near or far (a point within reach or not) is
+decided on the host in float64 (the nearest points by a compiled host kernel, exact where
+it matters); only the near queries and the far ones' nearest points are projected by the
+kernel, with at most FIXED_STEPS steps, stopping at ``|f| <= FIXED_TOL h`` (two devices
+may stop a step apart there, and then differ by about FIXED_TOL h: ~4e-5 of a distance
+code, ~1e-4 of a gradient code where the curvature is 1 / h, far below ARBITER_TOL) or at
+an exact fixed point, and it gives each projection's residual in the same launch; a value
+it gives within ARBITER_TOL of a rounding boundary (where two devices' float32 results, a
+few ulps apart, could round apart), a projection that has not converged (thin sheets closer
+than the MLS width make it oscillate: devices then disagree by more than rounding), and
+the few ambiguous near/far cases are recomputed on the host in float64 (:func:`host_mls`,
+the same definitions and steps, one compiled host kernel launch on Warp's CPU for every
+device: ``geosynth.kernels.host_search``) and quantized from there. Every device then gives
+the same codes as long as its error on the rest stays below ARBITER_TOL of a code (2.4e-5
+of the band for the distance, where converged float32 projections are good to ~1e-7).
 """
 
 from __future__ import annotations
