@@ -7,8 +7,8 @@
 // point x and writes the signed distance sign(f(x)) |x - proj(x)| (clamped to +-reach),
 // the MLS normal at the projection (the gradient) and, when asked, the projection and the
 // residual f(proj) (how far one more step would move it; +reach where no point is within
-// reach of proj; where it stopped at |f| <= tol, that last step's f). A query with no point within reach gets distance +reach, gradient 0,
-// proj = x. A projection that reaches a fixed point (a step that leaves y's bits unchanged)
+// reach of proj; where it stopped at |f| <= tol, that last step's f). A query with no
+// point within reach gets distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step that leaves y's bits unchanged)
 // stops there: the later steps would repeat it exactly, so the result is the same as with
 // all max_iter steps, sooner.
 //

@@ -11,8 +11,7 @@ quasi-orthogonal projection ``y <- y - f(y) n(y)`` from each query point x and w
 the signed distance ``sign(f(x)) |x - proj(x)|`` (clamped to +-reach), the MLS normal at
 the projection (the gradient) and, when asked, the projection and the residual f(proj)
 (+reach where no point is within reach of proj; where it stopped at |f| <= tol, that last
-step's f). A query with no point within reach gets
-distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step
+step's f). A query with no point within reach gets distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step
 that leaves y's bits unchanged) stops there: the later steps would repeat it exactly.
 
 Neighbours come from the same host-built cell-sorted grid as in sdf_points.cl: points
