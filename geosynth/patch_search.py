@@ -13,17 +13,21 @@ within_tolerance`) and one is drawn with the seeded generator (step 2 and 3 of S
 
 Identical on every device: the fields are quantized to uint8 (the distance over the band
 [-band, band] and each gradient component over [-1, 1] to the codes 0..254, zero at 127)
-and scored in exact integer arithmetic. The kernel projects with a fixed FIXED_STEPS steps
-(no early stop at a tolerance, which would let two devices stop one step apart; only at an
-exact fixed point, where every later step would repeat the last one bit for bit), and
-gives each projection's residual in the same launch; a value it gives within
-ARBITER_TOL of a rounding boundary (where two devices' float32 results, a few ulps apart,
-could round apart), a projection that has not converged (thin sheets closer than the MLS
-width make it oscillate: devices then disagree by more than rounding), and the few
-ambiguous near/far cases are recomputed on the host in float64 (:func:`host_mls`, the same
-definitions and steps) and quantized from there. Every device then gives the same codes as
-long as its error on the rest stays below ARBITER_TOL of a code (7e-7 of the band for the
-distance, where converged float32 projections are good to ~1e-7).
+and scored in exact integer arithmetic. Near or far (a point within reach or not) is
+decided on the host in float64 (the nearest points by a compiled host kernel, exact where
+it matters); only the near queries and the far ones' nearest points are projected by the
+kernel, with at most FIXED_STEPS steps, stopping at ``|f| <= FIXED_TOL h`` (two devices
+may stop a step apart there, and then differ by about FIXED_TOL h: ~4e-5 of a distance
+code, ~1e-4 of a gradient code where the curvature is 1 / h, far below ARBITER_TOL) or at
+an exact fixed point, and it gives each projection's residual in the same launch; a value
+it gives within ARBITER_TOL of a rounding boundary (where two devices' float32 results, a
+few ulps apart, could round apart), a projection that has not converged (thin sheets closer
+than the MLS width make it oscillate: devices then disagree by more than rounding), and
+the few ambiguous near/far cases are recomputed on the host in float64 (:func:`host_mls`,
+the same definitions and steps, one compiled host kernel launch on Warp's CPU for every
+device: ``geosynth.kernels.host_search``) and quantized from there. Every device then gives
+the same codes as long as its error on the rest stays below ARBITER_TOL of a code (2.4e-5
+of the band for the distance, where converged float32 projections are good to ~1e-7).
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ __all__ = [
     "ARBITER_TOL",
     "CODE_SCALE",
     "FIXED_STEPS",
+    "FIXED_TOL",
     "RESIDUAL_TOL",
     "PatchSearch",
     "SearchChoice",
@@ -47,7 +52,8 @@ __all__ = [
 
 CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 127
 ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
-FIXED_STEPS = 12  # projection steps of the coded fields, never fewer (no early stop): devices stop alike
+FIXED_STEPS = 12  # projection steps of the coded fields at most
+FIXED_TOL = 1e-6  # of h: the coded fields' projections stop at |f| <= this (devices a step apart differ by less)
 RESIDUAL_TOL = 1e-5  # of h: a projection one more step would move farther is not converged (host)
 _GATHER_SLACK = 0.5  # of h: host_mls gathers each query's points within reach + this, again once it moved farther
 
@@ -56,7 +62,7 @@ _GATHER_SLACK = 0.5  # of h: host_mls gathers each query's points within reach +
 
 
 def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, tree=None,
-             fixed: bool = False):
+             fixed: bool = False, nearest=None, compiled: bool = True, cells=None):
     """The MLS signed distance and gradient of :func:`geosynth.pointsets.pointset_distance`
     (far="nearest"), vectorized over queries, in float64 on the host.
 
@@ -71,8 +77,18 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
         queries: (M, 3) float query points.
         h: the kernel width.
         tree: an optional ``scipy.spatial.cKDTree`` of ``points``.
-        fixed: FIXED_STEPS projection steps with no early stop, as :func:`kernel_mls`
-            (the codes of :func:`quantized_fields` are made this way).
+        fixed: at most FIXED_STEPS projection steps, stopping at ``|f| <= FIXED_TOL h``,
+            as :func:`quantized_fields`'s kernel (the codes are made this way).
+        nearest: optional ((M,) float distance, (M,) int index) of each query's nearest
+            point (as ``tree.query(queries, k=1)`` gives them), to skip that query; exact
+            where the distance is >= (1 - 1e-5) reach, elsewhere any point nearer than that
+            (as :meth:`_HostCells.nearest` with ``enough`` gives them).
+        compiled: the projection loop by the float64 host kernel
+            (``geosynth.kernels.host_search.mls_project_f64``, the same on every device);
+            False: by its NumPy oracle :func:`_iterate` (the sums in another order: equal
+            to float64 rounding where the projections converge).
+        cells: optional, the :class:`_HostCells` of these points (unit normals) for reach
+            MLS_REACH h, for the compiled loop.
 
     Returns:
         ((M,) distance, (M, 3) gradient), float64.
@@ -82,20 +98,43 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     from geosynth.pointsets import MLS_REACH
 
     p = np.asarray(points, np.float64)
-    nrm = np.asarray(normals, np.float64)
-    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
     x = np.asarray(queries, np.float64).reshape(-1, 3)
-    tree = cKDTree(p) if tree is None else tree
     reach = MLS_REACH * h
     m = len(x)
+    if m == 0:
+        return np.zeros(0), np.zeros((0, 3))
+    if compiled and cells is not None:
+        nrm = None  # the cells hold the unit normals
+    else:
+        nrm = np.asarray(normals, np.float64)
+        nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    if compiled:
+        cells = _HostCells(p, nrm, reach) if cells is None else cells
+
+        def run(q):
+            return cells.project(q, h, fixed)
+
+        def exact_nearest(q):
+            return cells.nearest(q)[1]
+    else:
+        tree = cKDTree(p) if tree is None else tree
+
+        def run(q):
+            return _iterate(p, nrm, tree, q, h, fixed)
+
+        def exact_nearest(q):
+            return tree.query(q, k=1)[1]
+    if nearest is None:
+        nearest_d, nearest = (cells.nearest(x) if compiled else tree.query(x, k=1))
+    else:
+        nearest_d, nearest = np.asarray(nearest[0], np.float64), np.asarray(nearest[1], np.int64)
     # The nearest points of the queries that are probably far are projected in the same loop
     # as the queries (which are far is known only after it): one loop instead of two. A far
     # query left out (no weight although its nearest point is within reach: rounding at the
     # reach, or normals that cancel) gets its nearest point projected in a second loop.
-    nearest_d, nearest = tree.query(x, k=1)
     likely_far = np.flatnonzero(nearest_d >= reach * (1 - 1e-6))
     used, inverse = np.unique(nearest[likely_far], return_inverse=True)
-    f0, grad, proj = _iterate(p, nrm, tree, np.concatenate([x, p[used]]), h, fixed)
+    f0, grad, proj = run(np.concatenate([x, p[used]]))
     gn, yp = grad[m:], proj[m:]
     f0, grad, proj = f0[:m], grad[:m], proj[:m]
     near = ~np.isnan(f0)
@@ -107,9 +146,9 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
         slot = np.full(m, -1, np.int64)  # each far query's row in (gn, yp)
         slot[likely_far] = inverse
         missing = far[slot[far] < 0]
-        if missing.size:
-            more, more_inverse = np.unique(nearest[missing], return_inverse=True)
-            _, g_more, y_more = _iterate(p, nrm, tree, p[more], h, fixed)
+        if missing.size:  # (their given nearest points need not be the nearest: asked again)
+            more, more_inverse = np.unique(exact_nearest(x[missing]), return_inverse=True)
+            _, g_more, y_more = run(p[more])
             slot[missing] = len(used) + more_inverse
             gn, yp = np.concatenate([gn, g_more]), np.concatenate([yp, y_more])
         yv, nv = yp[slot[far]], gn[slot[far]]
@@ -118,6 +157,85 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
         dist[far] = side * np.linalg.norm(v, axis=1)
         grad[far] = nv
     return dist, grad
+
+
+class _HostCells:
+    """A point set sorted by cell in float64, for the host projection kernel
+    (``geosynth.kernels.host_search.mls_project_f64``; layout of
+    :func:`geosynth.pointsets.cell_sort`).
+
+    Args:
+        p, nrm: (N, 3) float64 positions and unit normals, N >= 1; reach: MLS_REACH h.
+        grid: optional, the :class:`geosynth.pointsets.CellGrid` of the same points (their
+            float32 copies) for this reach: its layout is reused (no second sort). A float64
+            point may then lie outside its cell by the float32 rounding of the positions; the
+            kernel's cell and row ranges are widened by twice the largest such rounding.
+    """
+
+    def __init__(self, p: np.ndarray, nrm: np.ndarray, reach: float, grid=None):
+        from geosynth.host_steps import host_array
+        from geosynth.pointsets import cell_sort
+
+        if grid is None:
+            rel, order, start, self.shift, self.origin, self.cell, self.dims = cell_sort(p, reach)
+            rel = rel[order]
+            self.slack = 0.0
+        else:
+            order, start = grid.order, grid.cell_start
+            self.shift, self.origin, self.cell, self.dims = grid.shift, grid.origin, grid.cell, grid.dims
+            sorted_p = np.take(p, order, axis=0)
+            rel = sorted_p - self.shift
+            keyed = np.take(p.astype(np.float32), order, axis=0).astype(np.float64) - self.shift  # what set the keys
+            self.slack = 2.0 * float(np.abs(rel - keyed).max())
+        pn = np.empty((len(p), 6))
+        pn[:, :3] = rel
+        pn[:, 3:] = np.take(nrm, order, axis=0)
+        self.reach = float(reach)
+        self._pn = host_array(pn, np.float64)
+        self._start = host_array(start, np.int32)
+        self._order = host_array(order, np.int32)
+
+    def nearest(self, q: np.ndarray, enough: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Each (M, 3) float64 query's nearest point: ((M,) float64 distance, (M,) int64
+        index; the lowest index on ties), exact in float64 (as a k-d tree's), by one launch
+        of ``nearest_point_f64`` (a query within reach needs one pass over its cells).
+        ``enough`` (<= reach): a query with a point nearer than it gets the first such point
+        met instead (its distance < enough, not necessarily the nearest): exact only where
+        the result is >= enough."""
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels.host_search import nearest_point_f64
+
+        m = len(q)
+        queries = host_array(q - self.shift, np.float64)
+        d2 = host_array(np.empty(m), np.float64)
+        idx = host_array(np.empty(m, np.int32), np.int32)
+        host_launch(nearest_point_f64, m, [
+            self._pn[0], self._start[0], self._order[0], *(float(v) for v in self.origin), float(self.cell),
+            *(int(v) for v in self.dims), self.slack, self.reach, float(enough) ** 2, queries[0], d2[0], idx[0]])
+        return np.sqrt(d2[1]), idx[1].astype(np.int64)
+
+    def project(self, q: np.ndarray, h: float, fixed: bool):
+        """:func:`_iterate`'s outputs for (M, 3) float64 queries: (f at the query (NaN:
+        no point within reach), last MLS normal, projection), float64, by one launch."""
+        from geosynth.host_steps import host_array, host_launch
+        from geosynth.kernels.host_search import mls_project_f64
+        from geosynth.pointsets import MLS_MAX_ITER, MLS_TOL
+
+        steps, tol = (FIXED_STEPS, FIXED_TOL * h) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
+        m = len(q)
+        queries = host_array(q - self.shift, np.float64)
+        f0 = host_array(np.empty(m), np.float64)
+        found = host_array(np.empty(m, np.int32), np.int32)
+        grad = host_array(np.empty((m, 3)), np.float64)
+        proj = host_array(np.empty((m, 3)), np.float64)
+        host_launch(mls_project_f64, m, [
+            self._pn[0], self._start[0], *(float(v) for v in self.origin), float(self.cell),
+            *(int(v) for v in self.dims), 1.0 / (h * h), self.reach, self.slack, float(tol), int(steps), queries[0],
+            f0[0], found[0], grad[0], proj[0]])
+        have = found[1] != 0
+        y = proj[1] + self.shift
+        y[~have] = q[~have]  # no support: the query itself, not its round trip through the shift
+        return np.where(have, f0[1], np.nan), grad[1], y
 
 
 def _gather(tree, y: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -131,13 +249,15 @@ def _gather(tree, y: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]
 
 def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     """The projection loop: (f at the query (NaN: no point within reach), last MLS normal,
-    projection), float64, for (M, 3) queries; ``fixed``: FIXED_STEPS steps, no early stop
-    at a tolerance (as :func:`kernel_mls`), only at an exact fixed point, where every later
-    step would repeat the last one bit for bit."""
+    projection), float64, for (M, 3) queries: at most MLS_MAX_ITER steps, stopping at
+    ``|f| <= MLS_TOL h``; ``fixed``: at most FIXED_STEPS, stopping at ``|f| <= FIXED_TOL h``
+    (as :func:`quantized_fields`'s kernel); either also stops at an exact fixed point, where
+    every later step would repeat the last one bit for bit. The NumPy oracle of
+    :class:`_HostCells`'s kernel."""
     from geosynth.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
 
     reach = MLS_REACH * h
-    steps, tol = (FIXED_STEPS, 0.0) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
+    steps, tol = (FIXED_STEPS, FIXED_TOL * h) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
     m = len(q)
     y = q.copy()
     grad = np.zeros((m, 3))
@@ -232,29 +352,37 @@ def _round_codes(v: np.ndarray) -> np.ndarray:
 
 
 def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, device, steps: int,
-               cells=None):
-    """The MLS projection by the ``PointsOps.mls_project`` kernel with exactly ``steps``
-    steps (tolerance 0: no early stop, so that every device stops at the same step; a
-    projection at a fixed point stops there, which changes nothing), in one launch.
+               cells=None, tol: float = 0.0, grid=None):
+    """The MLS projection by the ``PointsOps.mls_project`` kernel with at most ``steps``
+    steps, stopping at ``|f| <= tol`` (tol 0: exactly ``steps``; a projection at a fixed
+    point stops there, which changes nothing), in one launch.
+
+    With tol > 0 two devices can stop a step apart: their results then differ by about
+    tol (:func:`quantized_fields` takes FIXED_TOL h, far below a code's ARBITER_TOL).
 
     Args:
         points, normals: (N, 3) the point set; queries: (M, 3) float positions.
         h: the kernel width; device: a device string; steps: projection steps, >= 1.
         cells: the ``cells`` this function returned for the same points, h and device
             (the points' :class:`geosynth.pointsets.CellGrid`, already on the device).
+        tol: world units, >= 0.
+        grid: optional, the points' float32 :class:`geosynth.pointsets.CellGrid` for reach
+            MLS_REACH h, when already built (and ``cells`` is None).
 
     Returns:
         ((M,) float32 signed distance (reach where no point is within reach), (M, 3)
         float32 last MLS normal (0 there), (M, 3) float64 projection, (M,) float32
         residual f at the projection (how far one more step would move it; reach where
-        no point is within reach of the projection), cells).
+        no point is within reach of the projection; where the projection stopped at
+        ``|f| <= tol``, that last step's f), cells).
     """
     from geosynth import _checks
     from geosynth.pointsets import MLS_REACH, CellGrid
 
     reach = MLS_REACH * h
     if cells is None:
-        grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
+        if grid is None:
+            grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
         backend = _checks.resolve_backend(device)
         cells = (grid, backend, backend.to_device(grid.pn), backend.to_device(grid.cell_start))
     grid, backend, pn, start = cells
@@ -265,14 +393,14 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
     proj = backend.empty((m * 3,), np.float32)
     resid = backend.empty((m,), np.float32)
     backend.mls_project(pn, start, tuple(grid.origin), 1.0 / grid.cell, tuple(int(d) for d in grid.dims),
-                        1.0 / (h * h), reach, 0.0, int(steps), backend.to_device(rel), None, m, dist, grad, proj,
+                        1.0 / (h * h), reach, float(tol), int(steps), backend.to_device(rel), None, m, dist, grad, proj,
                         resid)
     return (dist.numpy(), grad.numpy().reshape(m, 3), proj.numpy().reshape(m, 3).astype(np.float64) + grid.shift,
             resid.numpy(), cells)
 
 
 def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, band: float,
-                     device: str | None, tree=None) -> tuple[np.ndarray, int]:
+                     device: str | None) -> tuple[np.ndarray, int]:
     """D(S) at the queries as uint8 codes, the same on every device.
 
     The kernel (:func:`kernel_mls`, FIXED_STEPS steps) gives distance and gradient; each
@@ -292,14 +420,11 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
         queries: (M, 3) where to sample, world units.
         h: MLS kernel width; band: the distance at which the code saturates (> 0).
         device: a device string (None: "auto").
-        tree: an optional cKDTree of ``points``.
 
     Returns:
         ((M, 4) uint8 codes (distance, gx, gy, gz), how many queries the host recomputed).
     """
-    from scipy.spatial import cKDTree
-
-    from geosynth.pointsets import MLS_REACH
+    from geosynth.pointsets import MLS_REACH, CellGrid
 
     q = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
     if len(q) == 0:
@@ -307,19 +432,29 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     p = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     reach = MLS_REACH * h
-    tree = cKDTree(p) if tree is None else tree
-    nearest_d, nearest = tree.query(q, k=1)
-    # the far queries' nearest points are projected in the same launch as the queries
-    far = np.flatnonzero(nearest_d >= reach)
+    # one cell layout for the device kernel (float32) and the host's float64 steps: the nearest
+    # points (exact in float64, as a k-d tree's) and the recomputation of the flagged samples
+    grid = CellGrid(p.astype(np.float32), nrm.astype(np.float32), reach)
+    host = _HostCells(p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), reach, grid)
+    # only whether a point lies within reach (and how near where that is a matter of rounding,
+    # or far) is needed: a query stops at the first point within (1 - 1e-5) reach
+    nearest_d, nearest = host.nearest(q, enough=(1 - 1e-5) * reach)
+    # near or far is decided on the host (float64, the same on every device); the kernel agrees
+    # but where the nearest point lies at the reach, to rounding: those go to the host. Only the
+    # near queries are projected (a far one's kernel values would be replaced), and in the same
+    # launch the far queries' nearest points.
+    is_near = nearest_d < reach
+    near, far = np.flatnonzero(is_near), np.flatnonzero(~is_near)
     used, inverse = np.unique(nearest[far], return_inverse=True)
-    d, g, proj, res, _ = kernel_mls(p, nrm, np.concatenate([q, p[used]]), h, device, FIXED_STEPS)
-    m = len(q)
-    gn, yp, rp = g[m:], proj[m:], res[m:]
-    d, g = d[:m].astype(np.float64), g[:m].astype(np.float64)
-    # near or far is decided by the tree (float64, the same on every device); the kernel agrees
-    # but where the nearest point lies at the reach, to rounding: those go to the host
+    dk, gk, proj, res, _ = kernel_mls(p, nrm, np.concatenate([q[near], p[used]]), h, device, FIXED_STEPS,
+                                      tol=FIXED_TOL * h, grid=grid)
+    m, k = len(q), len(near)
+    gn, yp, rp = gk[k:], proj[k:], res[k:]
+    d = np.empty(m)
+    g = np.empty((m, 3))
+    d[near], g[near] = dk[:k], gk[:k]
     flag = np.abs(nearest_d - reach) <= 1e-5 * reach
-    flag |= (nearest_d < reach) & (~g.any(axis=1) | (np.abs(res[:m]) > RESIDUAL_TOL * h))
+    flag[near] |= ~gk[:k].any(axis=1) | (np.abs(res[:k]) > RESIDUAL_TOL * h)
     if far.size:
         v = q[far] - yp[inverse]
         nv = gn[inverse].astype(np.float64)
@@ -333,7 +468,7 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     flag |= ((frac < ARBITER_TOL) & (np.abs(v) < CODE_SCALE + 0.5 + ARBITER_TOL)).any(axis=1)
     bad = np.flatnonzero(flag)
     if bad.size:
-        dh, gh = host_mls(p, nrm, q[bad], h, tree=tree, fixed=True)
+        dh, gh = host_mls(p, nrm, q[bad], h, fixed=True, nearest=(nearest_d[bad], nearest[bad]), cells=host)
         v[bad] = _codes(dh, gh, band)
     return _round_codes(v), int(bad.size)
 
@@ -392,11 +527,7 @@ class PatchSearch:
                 "exemplar box / resolution).")
         self.origin_xy = lo[:2].copy()
         pts = self.sample_points(np.zeros(3, np.int64), np.array(self.shape))
-        from scipy.spatial import cKDTree
-
-        self.tree = cKDTree(texture.points)
-        codes, self.arbitrated = quantized_fields(texture.points, texture.normals, pts, self.h, self.band, device,
-                                                  tree=self.tree)
+        codes, self.arbitrated = quantized_fields(texture.points, texture.normals, pts, self.h, self.band, device)
         self.codes = codes.reshape(nz, ny, nx, 4)
         oy, ox = np.meshgrid(np.arange(ny - span + 1), np.arange(nx - span + 1), indexing="ij")
         self.origins = np.stack([np.zeros(ox.size, np.int64), oy.ravel(), ox.ravel()], axis=1)
@@ -459,17 +590,18 @@ class PatchSearch:
     def choose(self, offsets: np.ndarray, values: np.ndarray, eps: float, rng: np.random.Generator) -> SearchChoice:
         """Steps 2 and 3 of Sec. 4: the candidates within (1 + eps) of the best score,
         one drawn with ``rng``. With no offsets (the seed patch) every candidate is in."""
-        from geosynth.selection import argmin, random_pick, within_tolerance
+        from geosynth.selection import random_pick, tolerance_threshold
 
         if len(offsets) == 0:
             i = random_pick(np.arange(len(self.origins)), rng)
             return SearchChoice(i, 0, 0, len(self.origins))
-        sc = self._scorer(offsets)(values, origins=self.origins, keep_on_device=True)
-        best = argmin(sc)
-        near = within_tolerance(sc, eps)
+        # the scores are exact integers (uint32): selected on the host, after the one read-back
+        # they need anyway, they are what selection.argmin / within_tolerance give on any device
+        sc = self._scorer(offsets)(values, origins=self.origins)
+        best = int(np.argmin(sc))  # the lowest index on ties
+        near = np.flatnonzero(sc <= tolerance_threshold(sc[best], eps, sc.dtype))
         i = random_pick(near, rng)
-        host = sc.numpy()
-        return SearchChoice(int(i), int(host[i]), int(host[best]), int(len(near)))
+        return SearchChoice(int(i), int(sc[i]), int(sc[best]), int(len(near)))
 
 
 def brute_force_scores(codes: np.ndarray, origins: np.ndarray, offsets: np.ndarray, values: np.ndarray) -> np.ndarray:

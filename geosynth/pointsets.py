@@ -462,31 +462,49 @@ class _CellGrid:
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, reach: float):
-        p64 = points.astype(np.float64)
-        lo, hi = p64.min(axis=0), p64.max(axis=0)
-        self.shift = (lo + hi) / 2
-        rel = p64 - self.shift
-        lo = lo - self.shift - 1e-6 * max(reach, float((hi - lo).max()))
-        cell = reach / 2  # a query's box spans 5 cells per axis: 25 contiguous rows
-        cap = max(_MAX_CELLS_PER_POINT * len(points), _MIN_CELL_CAP)
-        while True:
-            dims = np.floor((hi - self.shift - lo) / cell).astype(np.int64) + 1
-            if math.prod(int(v) for v in dims) <= cap:  # Python ints: no int64 overflow
-                break
-            cell *= 1.25
-        keys3 = np.minimum(np.floor((rel - lo) / cell).astype(np.int64), dims - 1)
-        keys = (keys3[:, 2] * dims[1] + keys3[:, 1]) * dims[0] + keys3[:, 0]
-        order = np.argsort(keys, kind="stable")
+        rel, order, start, self.shift, self.origin, self.cell, self.dims = cell_sort(points, reach)
+        self.order = order  # (n,) int64: sorted position -> input index
         pn = np.zeros((len(points), 8), np.float32)
         pn[:, 0:3] = rel[order]
         pn[:, 4:7] = normals[order]
         self.pn = pn.reshape(-1)
-        start = np.zeros(int(np.prod(dims)) + 1, np.int32)
-        np.cumsum(np.bincount(keys, minlength=len(start) - 1), out=start[1:])
         self.cell_start = start
-        self.origin = lo
-        self.cell = cell
-        self.dims = dims
+
+
+def cell_sort(points: np.ndarray, reach: float):
+    """The layout of :class:`CellGrid` (also the search's float64 host grid): cells of
+    reach / 2 (coarser where they would exceed max(8 n, 2^20)) over the points' box, in
+    coordinates relative to its centre.
+
+    Args:
+        points: (n, 3) float positions, n >= 1; reach: the MLS support radius (> 0).
+
+    Returns:
+        (rel, order, cell_start, shift, origin, cell, dims): (n, 3) float64 positions
+        relative to ``shift`` ((3,) float64, the box centre), (n,) int64 stable order by
+        linear cell index ``(cz * ny + cy) * nx + cx``, (nx*ny*nz + 1,) int32 first sorted
+        point of each cell, (3,) float64 grid origin (relative), the float cell size,
+        (3,) int64 dims (nx, ny, nz).
+    """
+    p64 = points.astype(np.float64)
+    columns = np.ascontiguousarray(p64.T)  # min / max along contiguous rows: ~15x faster than axis=0
+    lo, hi = columns.min(axis=1), columns.max(axis=1)
+    shift = (lo + hi) / 2
+    rel = p64 - shift
+    lo = lo - shift - 1e-6 * max(reach, float((hi - lo).max()))
+    cell = reach / 2  # a query's box spans 5 cells per axis: 25 contiguous rows
+    cap = max(_MAX_CELLS_PER_POINT * len(points), _MIN_CELL_CAP)
+    while True:
+        dims = np.floor((hi - shift - lo) / cell).astype(np.int64) + 1
+        if math.prod(int(v) for v in dims) <= cap:  # Python ints: no int64 overflow
+            break
+        cell *= 1.25
+    keys3 = np.minimum(np.floor((rel - lo) / cell).astype(np.int64), dims - 1)
+    keys = (keys3[:, 2] * dims[1] + keys3[:, 1]) * dims[0] + keys3[:, 0]
+    order = np.argsort(keys, kind="stable")
+    start = np.zeros(int(np.prod(dims)) + 1, np.int32)
+    np.cumsum(np.bincount(keys, minlength=len(start) - 1), out=start[1:])
+    return rel, order, start, shift, lo, cell, dims
 
 
 # Public for callers that launch PointsOps.mls_project themselves (geosynth.patch_search, M2's

@@ -7,8 +7,8 @@
 // point x and writes the signed distance sign(f(x)) |x - proj(x)| (clamped to +-reach),
 // the MLS normal at the projection (the gradient) and, when asked, the projection and the
 // residual f(proj) (how far one more step would move it; +reach where no point is within
-// reach of proj). A query with no point within reach gets distance +reach, gradient 0,
-// proj = x. A projection that reaches a fixed point (a step that leaves y's bits unchanged)
+// reach of proj; where it stopped at |f| <= tol, that last step's f). A query with no
+// point within reach gets distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step that leaves y's bits unchanged)
 // stops there: the later steps would repeat it exactly, so the result is the same as with
 // all max_iter steps, sooner.
 //
@@ -135,14 +135,16 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
     float px = xx, py = xy, pz = xz;           // the projection so far
     float nx_ = 0.0f, ny_ = 0.0f, nz_ = 0.0f;  // the MLS normal at the last iterate
     float f0 = 0.0f, f_last = 0.0f;
-    int found = 0, settled = 0;
+    int found = 0, settled = 0, lost = 0;
     for (int it = 0; it < max_iter; ++it) {
         float sx, sy, sz, mx, my, mz;
         const float ws = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach,
                                   yx, yy, yz, &sx, &sy, &sz, &mx, &my, &mz);
         const float mm = mx * mx + my * my + mz * mz;
-        if (!(ws > 0.0f) || !(mm > 0.0f))
-            break;  // no point within reach (or normals cancel): keep the last projection
+        if (!(ws > 0.0f) || !(mm > 0.0f)) {
+            lost = 1;  // no point within reach of y == p (or normals cancel): keep the last projection
+            break;
+        }
         const float inv = 1.0f / sqrt(mm);
         const float ux = mx * inv, uy = my * inv, uz = mz * inv;
         const float f = -(ux * sx + uy * sy + uz * sz) / ws;  // n . (y - a)
@@ -153,8 +155,10 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
         nx_ = ux; ny_ = uy; nz_ = uz;
         f_last = f;
         px = yx - f * ux; py = yy - f * uy; pz = yz - f * uz;
-        if ((f < 0.0f ? -f : f) <= tol)
+        if ((f < 0.0f ? -f : f) <= tol) {
+            settled = 1;  // converged: the last step's f stands for f at the projection
             break;
+        }
         if (px == yx && py == yy && pz == yz) {
             settled = 1;  // a fixed point: every later step would repeat this one bit for bit
             break;
@@ -179,11 +183,13 @@ __kernel void mls_project(__global const float8* pn, __global const int* cell_st
     }
     if (write_resid != 0) {
         // f at the projection (reach where no point is within reach of it): one more step's
-        // size; at a fixed point the last step's f, which is f there
+        // size; at a fixed point the last step's f, which is f there; at the tolerance the
+        // last step's f (|f| <= tol: the projection has converged). A projection that lost
+        // its support stopped at p, where the sums just came out empty: reach, not recomputed.
         float r = reach;
         if (settled) {
             r = f_last;
-        } else {
+        } else if (!lost) {
             float sx, sy, sz, mx, my, mz;
             const float ws = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach,
                                       px, py, pz, &sx, &sy, &sz, &mx, &my, &mz);

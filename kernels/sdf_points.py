@@ -10,8 +10,8 @@ The MLS surface of an oriented point set (Adamson and Alexa): with Gaussian weig
 quasi-orthogonal projection ``y <- y - f(y) n(y)`` from each query point x and writes
 the signed distance ``sign(f(x)) |x - proj(x)|`` (clamped to +-reach), the MLS normal at
 the projection (the gradient) and, when asked, the projection and the residual f(proj)
-(+reach where no point is within reach of proj). A query with no point within reach gets
-distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step
+(+reach where no point is within reach of proj; where it stopped at |f| <= tol, that last
+step's f). A query with no point within reach gets distance +reach, gradient 0, proj = x. A projection that reaches a fixed point (a step
 that leaves y's bits unchanged) stops there: the later steps would repeat it exactly.
 
 Neighbours come from the same host-built cell-sorted grid as in sdf_points.cl: points
@@ -153,11 +153,13 @@ def mls_project_kernel(
     f_last = float(0.0)
     found = int(0)
     settled = int(0)
+    lost = int(0)
     for it in range(max_iter):
         ws, s, msum = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach, y)
         mm = wp.dot(msum, msum)
         if not (ws > 0.0) or not (mm > 0.0):
-            break  # no point within reach (or normals cancel): keep the last projection
+            lost = 1  # no point within reach of y == p (or normals cancel): keep the last projection
+            break
         u = msum * (1.0 / wp.sqrt(mm))
         f = -wp.dot(u, s) / ws  # n . (y - a)
         if it == 0:
@@ -167,6 +169,7 @@ def mls_project_kernel(
         f_last = f
         p = y - f * u
         if wp.abs(f) <= tol:
+            settled = 1  # converged: the last step's f stands for f at the projection
             break
         if p[0] == y[0] and p[1] == y[1] and p[2] == y[2]:
             settled = 1  # a fixed point: every later step would repeat this one bit for bit
@@ -187,11 +190,13 @@ def mls_project_kernel(
         proj[3 * i + 2] = p[2]
     if write_resid != 0:
         # f at the projection (reach where no point is within reach of it): one more step's
-        # size; at a fixed point the last step's f, which is f there
+        # size; at a fixed point the last step's f, which is f there; at the tolerance the
+        # last step's f (|f| <= tol: the projection has converged). A projection that lost
+        # its support stopped at p, where the sums just came out empty: reach, not recomputed.
         r = reach
         if settled != 0:
             r = f_last
-        else:
+        elif lost == 0:
             ws2, s2, m2 = mls_sums(pn, cell_start, gx, gy, gz, inv_cell, nx, ny, nz, inv_h2, reach, p)
             mm2 = wp.dot(m2, m2)
             if ws2 > 0.0 and mm2 > 0.0:

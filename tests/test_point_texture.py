@@ -351,7 +351,7 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
     projections do not converge)."""
     from scipy.spatial import cKDTree
 
-    from geosynth.patch_search import FIXED_STEPS, _iterate
+    from geosynth.patch_search import FIXED_STEPS, FIXED_TOL, _iterate
     from geosynth.pointsets import MLS_MAX_ITER, MLS_TOL
 
     h = 2 * wavy.spacing
@@ -362,7 +362,7 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
     for gap in (0.8, 1.2):  # two sheets facing away, gap h apart: at 1.2 h no projection converges
         cases.append((np.concatenate([sheet, sheet + [0, 0, gap * h]]), away,
                       rng.uniform([0.1, 0.1, -h], [0.9, 0.9, 2 * h], (200, 3))))
-    steps, tol = (FIXED_STEPS, 0.0) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
+    steps, tol = (FIXED_STEPS, FIXED_TOL * h) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
     for p, n, q in cases:
         got = _iterate(p, n, cKDTree(p), q, h, fixed)
         want = _iterate_every_step(p, n, q, h, steps, tol)

@@ -123,7 +123,8 @@ class PointsOps(ABC):
             dist: (m,) float32 out; grad: (m * 3,) float32 out; proj: (m * 3,) float32
                 out, or None for no projection.
             residual: (m,) float32 out, f at the projection (the size of one more step;
-                +reach where no point is within reach of it), or None.
+                +reach where no point is within reach of it; where the projection stopped
+                at ``|f| <= tol`` or at a fixed point, that last step's f), or None.
 
         A projection stops early at a fixed point (a step that leaves its bits unchanged):
         the result is that of every max_iter step, bit for bit.
