@@ -232,6 +232,11 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     reach = 3.0 * h
     grid = PointGrid(cell=max(2 * reach, cell * 2), period=lay.period)
     inp, inn = texture.points, texture.normals
+    # F_k's points by x range first: the exemplar sorted by x once, each patch's box then a
+    # searchsorted slice (the same points as testing all of them, in the same order after
+    # the sort of their ids; chainmail: ~5 ms a patch of full-array comparisons saved)
+    by_x = np.argsort(inp[:, 0], kind="stable")
+    xs = inp[by_x, 0]
     zlo, zhi = search.z0, search.z0 + (search.shape[0] - 1) * cell
     margin = 4.0 * spacing  # the warp moves points by at most a few spacings (its pairs are <= 4 apart)
     seams = {"before": [], "after": [], "baseline": []}
@@ -270,7 +275,10 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
             # --- F_k = P_k + E_k, translated into place, extended by a margin
             src = search.window_world(search.origins[choice.index])
             shift = np.r_[lo - src, 0.0]
-            sel = ((inp[:, :2] >= src - margin) & (inp[:, :2] < src + (hi - lo) + margin)).all(axis=1)
+            f_lo, f_hi = src - margin, src + (hi - lo) + margin
+            ids = by_x[np.searchsorted(xs, f_lo[0], "left"):np.searchsorted(xs, f_hi[0], "left")]
+            y = inp[ids, 1]
+            sel = np.sort(ids[(y >= f_lo[1]) & (y < f_hi[1])])
             fp, fn = inp[sel] + shift, inn[sel]
             box_min, box_max = np.r_[lo, zlo], np.r_[hi, zhi]
             drop = restore = None
