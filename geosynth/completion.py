@@ -335,16 +335,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                                 stats["failed_matches"] += 1
                                 w_t[k] = max(1, w_t[k] - 1)
                         if accepted_t:
-                            at = np.asarray(accepted_t, dtype=np.int64)
-                            asmp = np.asarray(accepted_s, dtype=np.int64)
-                            d = index.transfer(asmp, np.asarray(accepted_r, dtype=np.int64), at, rotations)
-                            rs.displacement[at] = d
-                            picked[at] = asmp
-                            col = None
-                            if rs.colors is not None:
-                                rs.colors[at] = rs.colors[asmp]
-                                col = rs.colors[at].astype(np.float64) / 255.0
-                            index.update(at, d, col)
+                            at = _copy_matches(rs, index, accepted_t, accepted_s, accepted_r, rotations, picked)
                             textured[at] = True
                             progress_made = True
                             if bar is not None:
@@ -408,16 +399,25 @@ def _refine(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float
                     src.append(int(m.sample[j]))
                     rot.append(int(m.rotation[j]))
                 if at:
-                    at_a, src_a = np.asarray(at, dtype=np.int64), np.asarray(src, dtype=np.int64)
-                    d = index.transfer(src_a, np.asarray(rot, dtype=np.int64), at_a, rotations)
-                    rs.displacement[at_a] = d
-                    picked[at_a] = src_a
-                    col = None
-                    if rs.colors is not None:
-                        rs.colors[at_a] = rs.colors[src_a]
-                        col = rs.colors[at_a].astype(np.float64) / 255.0
-                    index.update(at_a, d, col)
+                    _copy_matches(rs, index, at, src, rot, rotations, picked)
     return changed
+
+
+def _copy_matches(rs: ReliefSurface, index, targets, samples, rots, rotations: int, picked: np.ndarray) -> np.ndarray:
+    """Give each of ``targets`` the displacement (moved from ``samples``' frames at rotation
+    ``rots``) and colour of its match, on the host (rs, picked) and in the index; returns
+    the targets as an (n,) int64 array."""
+    at = np.asarray(targets, dtype=np.int64)
+    src = np.asarray(samples, dtype=np.int64)
+    d = index.transfer(src, np.asarray(rots, dtype=np.int64), at, rotations)
+    rs.displacement[at] = d
+    picked[at] = src
+    col = None
+    if rs.colors is not None:
+        rs.colors[at] = rs.colors[src]
+        col = rs.colors[at].astype(np.float64) / 255.0
+    index.update(at, d, col)
+    return at
 
 class _Balance:
     """A histogram-aware pick among the matches (our extension, not the paper's).

@@ -29,18 +29,10 @@ Arrays are flat (``(m, 3)`` as ``3 m`` entries, row-major). Nothing here validat
 
 import warp as wp
 
+from geosynth.kernels.host_search import slab_gap  # the same cell-distance rule as the search's grid
+
 RAY = wp.constant(1)
 PROJECTION = wp.constant(2)
-
-
-@wp.func
-def _slab_distance(q: wp.float64, lo: wp.float64, cell: wp.float64) -> wp.float64:
-    """Distance from q to the interval [lo, lo + cell] (0 inside)."""
-    if q < lo:
-        return lo - q
-    if q > lo + cell:
-        return q - lo - cell
-    return wp.float64(0.0)
 
 
 @wp.func
@@ -192,9 +184,9 @@ def nearest(
         x0 = wp.max(cx - r, lx)
         x1 = wp.min(cx + r, hx)
         for iz in range(z0, z1 + 1):
-            dz = _slab_distance(q[2], g[2] + wp.float64(iz) * cell, cell)
+            dz = slab_gap(q[2], g[2] + wp.float64(iz) * cell, cell)
             for iy in range(y0, y1 + 1):
-                dy = _slab_distance(q[1], g[1] + wp.float64(iy) * cell, cell)
+                dy = slab_gap(q[1], g[1] + wp.float64(iy) * cell, cell)
                 rest = bound2 - dz * dz - dy * dy
                 row = (iz * ny + iy) * nx
                 # (most rows of a surface's grid are empty: two loads say so)
