@@ -480,18 +480,30 @@ def _counterparts_numpy(points, normals, neighbourhood_points, neighbourhood_nor
                          radius, max_ray, compiled=False)
 
 
-def _counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing, device, radius,
-                  max_ray, *, compiled: bool):
-    p = as_points3("points", points)
-    n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+def _checked_search(spacing, radius, max_ray, device):
+    """counterparts()'s scalar arguments checked: (spacing, h, max_ray), floats > 0."""
     spacing = check_positive("spacing", spacing)
     h = 2.0 * spacing if radius is None else check_positive("radius", radius)
     max_ray = check_positive("max_ray", max_ray)
     _check_device(device)
+    return spacing, h, max_ray
+
+
+def _checked_neighbourhood(neighbourhood_points, neighbourhood_normals):
+    """N_k checked: ((K, 3) float64 points, (K, 3) unit normals)."""
+    nb_p = as_points3("neighbourhood_points", neighbourhood_points)
+    nb_n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", neighbourhood_normals,
+                                                               len(nb_p))) if len(nb_p) else np.zeros((0, 3))
+    return nb_p, nb_n
+
+
+def _counterparts(points, normals, neighbourhood_points, neighbourhood_normals, spacing, device, radius,
+                  max_ray, *, compiled: bool):
+    p = as_points3("points", points)
+    n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
+    spacing, h, max_ray = _checked_search(spacing, radius, max_ray, device)
     if compiled:
-        nb_p = as_points3("neighbourhood_points", neighbourhood_points)
-        nb_n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", neighbourhood_normals,
-                                                                   len(nb_p))) if len(nb_p) else np.zeros((0, 3))
+        nb_p, nb_n = _checked_neighbourhood(neighbourhood_points, neighbourhood_normals)
         if len(p) == 0 or len(nb_p) == 0:
             return p.copy(), n.copy(), np.zeros(len(p), np.int8)
         return _counterparts_compiled(p, n, nb_p, nb_n, h, max_ray * spacing)
@@ -580,13 +592,8 @@ def _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norm
         check_positive("spacing", spacing)
         return out_p, out_n
     if compiled:  # counterparts() without checking p[sel] and n[sel] again
-        spacing = check_positive("spacing", spacing)
-        h = 2.0 * spacing if radius is None else check_positive("radius", radius)
-        max_ray = check_positive("max_ray", max_ray)
-        _check_device(device)
-        nb_p = as_points3("neighbourhood_points", neighbourhood_points)
-        nb_n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", neighbourhood_normals,
-                                                                   len(nb_p)))
+        spacing, h, max_ray = _checked_search(spacing, radius, max_ray, device)
+        nb_p, nb_n = _checked_neighbourhood(neighbourhood_points, neighbourhood_normals)
         ps, ns = p[sel], n[sel]
         c, nc, how = _counterparts_compiled(ps, ns, nb_p, nb_n, h, max_ray * spacing)
         out_p[sel], out_n[sel] = _blend_compiled(p, n, ps, ns, r[sel], c, nc, how, h, relative)
