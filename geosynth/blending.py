@@ -405,7 +405,7 @@ def _counterparts_compiled(p: np.ndarray, n: np.ndarray, nb_p: np.ndarray, nb_n:
     wp_how, how = host_array(np.empty(m, np.int8))
     host_launch(counterparts_kernel, min(m, _WORKERS),
                 [_gauss_table(), *grid.launch_args(), k, cap, h, reach, _TOL * h, tmax, _MIN_SLOPE, _MIN_FACING, _LINE_ITER,
-                 _PROJ_ITER, wp_x, wp_d, wp_nbr, wp_nd2, wp_op, wp_on, wp_how, m, min(m, _WORKERS)])
+                 _PROJ_ITER, wp_x, wp_d, wp_nbr, wp_nd2, wp_op, wp_on, wp_how, m, min(m, _WORKERS)], split=True, min_part=1)
     return out_p, out_n, how
 
 
@@ -434,7 +434,7 @@ def _blend_compiled(p: np.ndarray, n: np.ndarray, ps: np.ndarray, ns: np.ndarray
     wp_op, out_p = host_array(np.empty((s, 3), np.float64))
     wp_on, out_n = host_array(np.empty((s, 3), np.float64))
     host_launch(blend_kernel, min(s, _WORKERS), [_gauss_table(), *args, k, cap, h, reach, _MIN_SLOPE, int(bool(relative)), wp_x, wp_d, wp_r, wp_c,
-                                  wp_nc, wp_how, wp_nbr, wp_nd2, wp_op, wp_on, s, min(s, _WORKERS)])
+                                  wp_nc, wp_how, wp_nbr, wp_nd2, wp_op, wp_on, s, min(s, _WORKERS)], split=True, min_part=1)
     return out_p, out_n
 
 

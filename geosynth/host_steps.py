@@ -7,8 +7,12 @@ backend, or computed once in one place for all of them. These steps take the sec
 they are Warp kernels (``geosynth.kernels.host_*``, float64) launched on Warp's ``"cpu"``
 device for every run, whichever device the run's kernels use, so cpu, opencl and cuda
 runs share them bit for bit. They replace per-element NumPy passes (each a Python call
-and a pass over memory) with one compiled loop per query; Warp's CPU device runs them on
-one thread, like the NumPy they replace.
+and a pass over memory) with one compiled loop per query. Warp's CPU device runs a launch
+on one thread; a launch whose threads are independent (``split=True``) is cut into one
+part per core, the parts launched at once from a pool of Python threads (Warp lets go of
+the GIL while a CPU launch runs): each item is computed by the same code whichever part
+holds it, so the bits do not depend on the number of cores. :func:`run_parts` does the
+same for NumPy loops over independent chunks.
 
 Each such kernel has a plain NumPy twin (its oracle, beside the caller or in
 ``geosynth.reference``) and a test comparing them to a float64 tolerance; they are not
@@ -17,12 +21,18 @@ required to agree bit for bit with NumPy (its sums are pairwise, the kernels' se
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 _DTYPES: dict[np.dtype, Any] = {}
 _STATE: dict[str, Any] = {}  # Warp's module and its cpu device, once loaded
+_POOL: dict[int, ThreadPoolExecutor] = {}  # the helper threads, by their count
+_POOL_LOCK = threading.Lock()
+_LAUNCHED: set = set()  # kernels launched once (module loaded): later launches may run in parallel
 
 
 def _warp():
@@ -71,11 +81,90 @@ def host_array(array: np.ndarray, dtype=None):
     return view, a
 
 
-def host_launch(kernel, dim: int, inputs: Sequence[Any]) -> None:
+def host_threads() -> int:
+    """How many parts :func:`host_launch` (``split=True``) and :func:`run_parts` cut work
+    into: the cores this process may use (``GEOSYNTH_HOST_THREADS`` overrides; at most 16)."""
+    env = os.environ.get("GEOSYNTH_HOST_THREADS", "").strip()
+    if env:
+        try:
+            count = int(env)
+        except ValueError:
+            raise ValueError(f"GEOSYNTH_HOST_THREADS must be a whole number >= 1, got {env!r}.") from None
+        if count < 1:
+            raise ValueError(f"GEOSYNTH_HOST_THREADS must be a whole number >= 1, got {env!r}.")
+    else:
+        count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(16, count))
+
+
+def _pool(helpers: int) -> ThreadPoolExecutor:
+    with _POOL_LOCK:
+        pool = _POOL.get(helpers)
+        if pool is None:
+            pool = ThreadPoolExecutor(max_workers=helpers, thread_name_prefix="geosynth-host")
+            _POOL[helpers] = pool
+        return pool
+
+
+def part_bounds(count: int, parts: int, quantum: int = 1) -> list[tuple[int, int]]:
+    """``count`` items cut into at most ``parts`` contiguous ``(lo, hi)`` ranges of nearly
+    equal size, every boundary but the last a multiple of ``quantum`` (empty ranges left out)."""
+    blocks = -(-int(count) // int(quantum))
+    parts = max(1, min(int(parts), blocks))
+    cuts = [min(count, (blocks * j // parts) * quantum) for j in range(parts + 1)]
+    return [(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:]) if hi > lo]
+
+
+def run_parts(fn: Callable[[int, int], None], count: int, *, quantum: int = 1, min_part: int = 1) -> None:
+    """Call ``fn(lo, hi)`` over ``count`` items cut into :func:`host_threads` contiguous
+    ranges (boundaries multiples of ``quantum``; no part smaller than ``min_part`` items
+    unless there is only one), at once: the calling thread runs the first part, pool
+    threads the others. ``fn`` must touch only its own range's outputs and let go of the
+    GIL for its heavy work (NumPy's large ufuncs and products, Warp's CPU launches) for
+    this to gain anything. An exception in any part is raised here once all have ended."""
+    if count <= 0:
+        return
+    parts = max(1, min(host_threads(), int(count) // max(1, int(min_part))))
+    bounds = part_bounds(count, parts, quantum)
+    if len(bounds) == 1:
+        fn(*bounds[0])
+        return
+    futures = [_pool(len(bounds) - 1).submit(fn, lo, hi) for lo, hi in bounds[1:]]
+    try:
+        fn(*bounds[0])
+    finally:
+        errors = [f.exception() for f in futures]
+    for error in errors:
+        if error is not None:
+            raise error
+
+
+def host_launch(kernel, dim: int, inputs: Sequence[Any], *, split: bool = False, min_part: int = 64) -> None:
     """Launch a ``geosynth.kernels.host_*`` kernel over ``dim`` threads on Warp's CPU
     device (no-op for ``dim == 0``); ``inputs`` as :func:`warp.launch` takes them (Warp
-    arrays from :func:`host_array`, Python ints and floats for scalars)."""
+    arrays from :func:`host_array`, Python ints and floats for scalars).
+
+    split: the kernel's last parameter is ``part_start: int``, the index of its thread 0 (its
+        thread t computes item ``part_start + t`` and writes only that item's outputs or its
+        own scratch slot; this function appends ``part_start``): the launch is cut by
+        :func:`run_parts` into one part of at least ``min_part`` threads per core, run at
+        once, the same bits as one launch. The first launch of a kernel runs whole (it
+        loads the kernel's module, which must not happen twice at once)."""
     wp = _warp()
     if dim <= 0:
         return
-    wp.launch(kernel, dim=int(dim), inputs=list(inputs), device=_STATE["cpu"])
+    device = _STATE["cpu"]
+    if not split:
+        wp.launch(kernel, dim=int(dim), inputs=list(inputs), device=device)
+        return
+    args = list(inputs)
+
+    def part(lo: int, hi: int) -> None:
+        wp.launch(kernel, dim=hi - lo, inputs=args + [lo], device=device)
+
+    launched = (kernel.module.name, kernel.key)
+    if launched not in _LAUNCHED:
+        part(0, int(dim))
+        _LAUNCHED.add(launched)
+        return
+    run_parts(part, int(dim), min_part=min_part)

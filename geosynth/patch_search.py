@@ -211,7 +211,8 @@ class _HostCells:
         idx = host_array(np.empty(m, np.int32), np.int32)
         host_launch(nearest_point_f64, m, [
             self._pn[0], self._start[0], self._order[0], *(float(v) for v in self.origin), float(self.cell),
-            *(int(v) for v in self.dims), self.slack, self.reach, float(enough) ** 2, queries[0], d2[0], idx[0]])
+            *(int(v) for v in self.dims), self.slack, self.reach, float(enough) ** 2, queries[0], d2[0], idx[0]],
+            split=True)
         return np.sqrt(d2[1]), idx[1].astype(np.int64)
 
     def project(self, q: np.ndarray, h: float, fixed: bool):
@@ -231,7 +232,7 @@ class _HostCells:
         host_launch(mls_project_f64, m, [
             self._pn[0], self._start[0], *(float(v) for v in self.origin), float(self.cell),
             *(int(v) for v in self.dims), 1.0 / (h * h), self.reach, self.slack, float(tol), int(steps), queries[0],
-            f0[0], found[0], grad[0], proj[0]])
+            f0[0], found[0], grad[0], proj[0]], split=True, min_part=16)
         have = found[1] != 0
         y = proj[1] + self.shift
         y[~have] = q[~have]  # no support: the query itself, not its round trip through the shift

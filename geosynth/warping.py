@@ -59,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth._checks import as_points3, as_unit_vectors, check_positive
+from geosynth.host_steps import run_parts
 
 __all__ = [
     "WARP_PRESETS",
@@ -707,35 +708,41 @@ class ThinPlateSpline:
         c_aug[:3] = -2.0 * self.centres.T
         c_aug[3] = 1.0
         c_aug[4] = np.einsum("ij,ij->i", self.centres, self.centres)
-        # The (chunk, n) matrices are made once and reused by every chunk: a fresh array
-        # per step cost page faults beside the passes of arithmetic.
-        rows = min(self._CHUNK, len(u))
-        r2_64 = np.empty((rows, n))
-        r2_buf = r2_64 if dt is np.float64 else np.empty((rows, n), dt)
-        log_buf = np.empty((rows, n), dt)
-        near_buf = np.empty((rows, n), bool)
         # per point: sum_i phi_i w_i (3) and sum_i psi_i w_ik, sum_i psi_i w_ik c_ij (12),
         # assembled into displacements (and Jacobians) once after the loop
         sums3 = np.empty((len(u), 3), dt)
         sums12 = np.empty((len(u), 12), dt) if want_jacobian else None
-        for lo in range(0, len(u), self._CHUNK):
-            m = min(self._CHUNK, len(u) - lo)
-            r2, log_r2, near = r2_buf[:m], log_buf[:m], near_buf[:m]
-            np.matmul(u_aug[lo:lo + m], c_aug, out=r2_64[:m])
-            np.less_equal(r2_64[:m], self._AT_CENTRE, out=near)
-            at_centre = np.flatnonzero(near)  # a few entries: the points that are centres
-            if r2 is not r2_64[:m]:
-                np.copyto(r2, r2_64[:m], casting="same_kind")
-            # r^2 = 1 there gives log 0, so 2 phi = r^2 log r^2 = 0; psi is zeroed below
-            r2.flat[at_centre] = 1.0
-            np.log(r2, out=log_r2)  # log r^2
-            np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
-            np.matmul(r2, w, out=sums3[lo:lo + m])
-            if want_jacobian:
-                # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
-                log_r2 += dt(1.0)
-                log_r2.flat[at_centre] = 0.0  # psi
-                np.matmul(log_r2, w12, out=sums12[lo:lo + m])
+
+        def rows_of(first: int, last: int) -> None:
+            # The (chunk, n) matrices are made once per part and reused by its chunks: a
+            # fresh array per step cost page faults beside the passes of arithmetic.
+            rows = min(self._CHUNK, last - first)
+            r2_64 = np.empty((rows, n))
+            r2_buf = r2_64 if dt is np.float64 else np.empty((rows, n), dt)
+            log_buf = np.empty((rows, n), dt)
+            near_buf = np.empty((rows, n), bool)
+            for lo in range(first, last, self._CHUNK):
+                m = min(self._CHUNK, last - lo)
+                r2, log_r2, near = r2_buf[:m], log_buf[:m], near_buf[:m]
+                np.matmul(u_aug[lo:lo + m], c_aug, out=r2_64[:m])
+                np.less_equal(r2_64[:m], self._AT_CENTRE, out=near)
+                at_centre = np.flatnonzero(near)  # a few entries: the points that are centres
+                if r2 is not r2_64[:m]:
+                    np.copyto(r2, r2_64[:m], casting="same_kind")
+                # r^2 = 1 there gives log 0, so 2 phi = r^2 log r^2 = 0; psi is zeroed below
+                r2.flat[at_centre] = 1.0
+                np.log(r2, out=log_r2)  # log r^2
+                np.multiply(r2, log_r2, out=r2)  # r2 now holds 2 phi = r^2 log r^2 (0 at r = 0)
+                np.matmul(r2, w, out=sums3[lo:lo + m])
+                if want_jacobian:
+                    # d/dx phi(|x - c|) = (x - c)(2 log r + 1), 0 at r = 0.
+                    log_r2 += dt(1.0)
+                    log_r2.flat[at_centre] = 0.0  # psi
+                    np.matmul(log_r2, w12, out=sums12[lo:lo + m])
+
+        # Parts of whole chunks on every core (NumPy lets go of the GIL in these passes and
+        # products): each chunk's rows are computed as alone, so the bits do not depend on it.
+        run_parts(rows_of, len(u), quantum=self._CHUNK, min_part=4 * self._CHUNK)
         disp = dt(0.5) * sums3 + self.affine[0] + u @ self.affine[1:]
         return x + disp * self.scale, u, sums12
 

@@ -453,12 +453,13 @@ def counterparts_kernel(
     how: wp.array(dtype=wp.int8),
     m: int,  # the points
     workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
+    part_start: int,  # the worker of thread 0 (host_steps.host_launch's split)
 ):
     """:func:`geosynth.blending.counterparts` (``_counterpart_of``) for the points w, w +
     workers, ...; the arguments as ``_counterpart_of``'s. One scratch slot per worker,
     reused from point to point (hot in the cache; a slot per point was cold memory each
     time)."""
-    w = wp.tid()
+    w = part_start + wp.tid()
     for i in range(w, m, workers):
         _counterpart_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, tol, tmax, min_slope,
                         min_facing, line_iter, proj_iter, points, dirs, nbr, nd2, out_p, out_n, how, i, w)
@@ -565,11 +566,12 @@ def blend_kernel(
     out_n: wp.array(dtype=wp.float64),
     m: int,  # the points
     workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
+    part_start: int,  # the worker of thread 0 (host_steps.host_launch's split)
 ):
     """The blend of :func:`geosynth.blending.blend_patch` (``_blend_of``) for the points w,
     w + workers, ...; the arguments as ``_blend_of``'s, one scratch slot per worker (as
     counterparts_kernel)."""
-    w = wp.tid()
+    w = part_start + wp.tid()
     for i in range(w, m, workers):
         _blend_of(table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, h, reach, min_slope, relative, points, dirs,
                   ramp, cp, cn, how, nbr, nd2, out_p, out_n, i, w)

@@ -124,8 +124,9 @@ def mls_project_f64(
     found: wp.array(dtype=wp.int32),  # (m,) out: 1 where the query had support
     grad: wp.array(dtype=wp.float64),  # (m * 3,) out: the last MLS normal (0 where none)
     proj: wp.array(dtype=wp.float64),  # (m * 3,) out: the projection (relative; the query where none)
+    part_start: int,  # the query of thread 0 (host_steps.host_launch's split)
 ):
-    i = wp.tid()
+    i = part_start + wp.tid()
     y = wp.vec3d(queries[3 * i], queries[3 * i + 1], queries[3 * i + 2])
     g = wp.vec3d(gx, gy, gz)
     n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
@@ -173,6 +174,7 @@ def nearest_point_f64(
     queries: wp.array(dtype=wp.float64),  # (m * 3,) relative coordinates
     dist2: wp.array(dtype=wp.float64),  # (m,) out: squared distance to the nearest point
     nearest: wp.array(dtype=wp.int32),  # (m,) out: its input index (the lowest on ties)
+    part_start: int,  # the query of thread 0 (host_steps.host_launch's split)
 ):
     """The nearest point of each query: the cells within r of it are scanned, r = radius,
     doubled while no point was met, else the distance of the nearest met so far, until a
@@ -180,7 +182,7 @@ def nearest_point_f64(
     or the scan covered the whole grid. A query with a point at
     d^2 < enough2 stops at the first such point: its outputs are that point, not
     necessarily the nearest (the caller needs only to know that one lies that near)."""
-    i = wp.tid()
+    i = part_start + wp.tid()
     y = wp.vec3d(queries[3 * i], queries[3 * i + 1], queries[3 * i + 2])
     g = wp.vec3d(gx, gy, gz)
     inv_cell = wp.float64(1.0) / cell

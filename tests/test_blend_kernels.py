@@ -165,3 +165,16 @@ def test_pieces_equal_scipy_labels(rng):
         assert got[0] == 0 and set(np.unique(got)) == set(range(got.max() + 1))
     assert len(np.unique(B.pieces(p, 3.5 * SP)[lp >= 0])) == lp.max() + 1  # each blob a piece
     assert B.pieces(np.zeros((0, 3)), 1.0).shape == (0,)
+
+
+def test_counterparts_and_blend_are_the_same_bits_on_any_number_of_host_threads(rng, monkeypatch):
+    """The compiled steps' workers are shared among the cores (host_launch's split)."""
+    (p, n), (nbp, nbn) = scene(2.0, rng)
+    runs = []
+    for threads in ("1", "2", "4"):
+        monkeypatch.setenv("GEOSYNTH_HOST_THREADS", threads)
+        c, cn, how = B.counterparts(p, n, nbp, nbn, SP)
+        runs.append((c, cn, how))
+    for got in runs[1:]:
+        for a, b in zip(got, runs[0]):
+            np.testing.assert_array_equal(a, b)

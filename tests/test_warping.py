@@ -550,3 +550,22 @@ def test_float32_transform_kernel_equals_the_numpy_jacobian_normals(rng):
     p, wn = spline.transform(x, n)
     np.testing.assert_array_equal(p, spline(x))
     np.testing.assert_allclose(wn, _jacobian_normals_numpy(spline.jacobian(x), n), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_spline_evaluation_is_the_same_bits_on_any_number_of_host_threads(rng, monkeypatch, dtype):
+    """The evaluation's chunks are shared among the cores (host_steps.run_parts): 1, 2 or
+    3 parts give the same bits, positions and normals."""
+    c = rng.uniform(0, 1, (120, 3)) * [1, 1, 0.1]
+    y = c + rng.normal(scale=0.3 * SP, size=c.shape)
+    x = rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.1]  # 12 chunks of 256 rows: up to 3 parts
+    n = rng.normal(size=x.shape) + [0, 0, 3]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    spline = ThinPlateSpline(c, y, dtype=dtype)
+    got = []
+    for threads in ("1", "2", "3"):
+        monkeypatch.setenv("GEOSYNTH_HOST_THREADS", threads)
+        got.append(spline.transform(x, n))
+    for p, wn in got[1:]:
+        np.testing.assert_array_equal(p, got[0][0])
+        np.testing.assert_array_equal(wn, got[0][1])
