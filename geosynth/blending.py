@@ -383,6 +383,48 @@ class _CellGrid:
                 self.cell, *self.dims]
 
 
+def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bound: float | None = None):
+    """The k nearest points of each query, exact in float64, in pykdtree's form, by the
+    compiled host step ``host_blend.knn_kernel`` (its workers split over the cores; the
+    same bits on any number of them).
+
+    Args:
+        points: (N, 3) float64, N >= 1; queries: (M, 3) float64; k: 1 <= k <= N.
+        distance_upper_bound: only points strictly nearer count (world units; None: all).
+
+    Returns:
+        ``(distances, indices)``: (M, k) float64, nearest first (ties by lower index, as
+        pykdtree's), and (M, k) int64; where fewer than k lie within the bound, the rest
+        are inf and N.
+    """
+    from geosynth.host_steps import host_array, host_launch
+    from geosynth.kernels.host_blend import knn_kernel
+
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    q = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
+    n, m, k = len(p), len(q), int(k)
+    if m == 0:
+        return np.zeros((0, k)), np.zeros((0, k), np.int64)
+    extent = np.ptp(p, axis=0)
+    # cells about as wide as a query's k nearest on a surface (spacing sqrt(area / N)); the
+    # cell size sets the speed only
+    area = max(float(np.sort(extent)[1:].prod()), 1e-300)
+    cell = max(0.75 * math.sqrt(area * k / n), 1e-9 * max(float(extent.max()), 1e-300))
+    grid = _CellGrid(p, np.zeros_like(p), cell)
+    reach = math.inf if distance_upper_bound is None else float(distance_upper_bound)
+    if not math.isfinite(reach):  # every point: a reach beyond the grid's diagonal and every query
+        span = np.ptp(np.concatenate([p, q]), axis=0)
+        reach = 2.0 * float(np.linalg.norm(span)) + 1.0
+    cap = _list_room(k)
+    workers = min(m, _WORKERS)
+    wp_nbr, wp_nd2 = _scratch(workers * cap)
+    wp_d, d = host_array(np.empty((m, k), np.float64))
+    wp_i, idx = host_array(np.empty((m, k), np.int32))
+    host_launch(knn_kernel, workers, [*grid.launch_args(), k, cap, reach, n, host_array(q, np.float64)[0], wp_nbr, wp_nd2,
+                                      wp_d, wp_i, m, workers], split=True, min_part=1)
+    return d, idx.astype(np.int64)
+
+
 def _counterparts_compiled(p: np.ndarray, n: np.ndarray, nb_p: np.ndarray, nb_n: np.ndarray, h: float,
                            tmax: float):
     """:func:`counterparts`'s search, one ``host_blend.counterparts_kernel`` thread per point:

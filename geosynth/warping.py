@@ -142,24 +142,21 @@ class WarpResult:
 
 
 class _KDTree:
-    """k nearest neighbours by pykdtree (float64, exact), in cKDTree's form: ``query(x, k,
-    distance_upper_bound)`` -> (distances, int64 indices; index len(points) and distance inf
-    where fewer than k lie within the bound). On every built-in's warp queries it gave
-    cKDTree's indices in the same order and the same distances, in about 2/3 of the CPU
-    time (bench/RESULTS.md, M2); geometry_texture runs it with one OpenMP thread."""
+    """k nearest neighbours in cKDTree's form: ``query(x, k, distance_upper_bound)`` ->
+    ((m, k) float64 distances, (m, k) int64 indices; index len(points) and distance inf
+    where fewer than k lie within the bound), nearest first, ties by lower index. By the
+    compiled host step :func:`geosynth.blending.nearest_k` (exact in float64, split over
+    the cores); on the built-ins' warp queries it gave pykdtree's indices and distances
+    bit for bit (tests/test_warping.py compares them) in 0.6x its time on 2 cores."""
 
     def __init__(self, points: np.ndarray):
-        from geosynth.pointmodels import passive_openmp_threads
-
-        passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
-        from pykdtree.kdtree import KDTree
-
-        self.n = len(points)
-        self.tree = KDTree(np.ascontiguousarray(points, np.float64), leafsize=16)
+        self.points = np.ascontiguousarray(points, np.float64)
+        self.n = len(self.points)
 
     def query(self, x: np.ndarray, k: int = 1, distance_upper_bound: float | None = None):
-        d, i = self.tree.query(np.ascontiguousarray(x, np.float64), k=int(k), distance_upper_bound=distance_upper_bound)
-        return d, i.astype(np.int64)
+        from geosynth.blending import nearest_k
+
+        return nearest_k(self.points, x, int(k), distance_upper_bound)
 
 
 def _kdtree(points: np.ndarray) -> _KDTree:

@@ -701,3 +701,53 @@ def pieces_kernel(
             labels[r] = n
             n += 1
         labels[i] = labels[r]
+
+
+@wp.kernel
+def knn_kernel(
+    pn: wp.array(dtype=wp.float64),
+    ids: wp.array(dtype=wp.int32),
+    cell_start: wp.array(dtype=wp.int32),
+    g: wp.vec3d,
+    cell: wp.float64,
+    nx: int,
+    ny: int,
+    nz: int,
+    k: int,
+    cap: int,
+    reach: wp.float64,  # only points strictly nearer count
+    count_all: int,  # the grid's points: the index of "none"
+    queries: wp.array(dtype=wp.float64),  # (m * 3,)
+    nbr: wp.array(dtype=wp.int32),  # scratch (workers * cap,)
+    nd2: wp.array(dtype=wp.float64),  # scratch (workers * cap,)
+    out_d: wp.array(dtype=wp.float64),  # (m * k,) out: distances, nearest first; inf for none
+    out_i: wp.array(dtype=wp.int32),  # (m * k,) out: input indices (ties: the lower first); count_all for none
+    m: int,  # the queries
+    workers: int,  # launch dim: each worker does every workers-th query in one scratch slot
+    part_start: int,  # the worker of thread 0 (host_steps.host_launch's split)
+):
+    """The k nearest points of each query in pykdtree's form (``geosynth.blending.nearest_k``):
+    :func:`nearest`'s list, sorted nearer first, ties by lower input index (insertion sort:
+    k is small), padded with (inf, count_all)."""
+    w = part_start + wp.tid()
+    base = w * cap
+    for i in range(w, m, workers):
+        q = wp.vec3d(queries[3 * i], queries[3 * i + 1], queries[3 * i + 2])
+        count = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, q, k, reach, nbr, nd2, base, cap)
+        for a in range(base + 1, base + count):
+            d2 = nd2[a]
+            j = nbr[a]
+            b = a - 1
+            while b >= base and not _before(ids, nbr, nd2, b, d2, j):
+                nd2[b + 1] = nd2[b]
+                nbr[b + 1] = nbr[b]
+                b -= 1
+            nd2[b + 1] = d2
+            nbr[b + 1] = j
+        for a in range(k):
+            if a < count:
+                out_d[i * k + a] = wp.sqrt(nd2[base + a])
+                out_i[i * k + a] = ids[nbr[base + a]]
+            else:
+                out_d[i * k + a] = wp.float64(1.0e308) * wp.float64(10.0)
+                out_i[i * k + a] = count_all

@@ -569,3 +569,34 @@ def test_spline_evaluation_is_the_same_bits_on_any_number_of_host_threads(rng, m
     for p, wn in got[1:]:
         np.testing.assert_array_equal(p, got[0][0])
         np.testing.assert_array_equal(wn, got[0][1])
+
+
+def test_compiled_nearest_neighbours_are_pykdtrees(rng, monkeypatch):
+    """The warp's k nearest (warping._KDTree, by blending.nearest_k's compiled step): the
+    distances and indices of pykdtree, bit for bit, with and without an upper bound; on a
+    grid's exact ties the same distances, ties ordered by lower index."""
+    from pykdtree.kdtree import KDTree
+
+    from geosynth.warping import _kdtree
+
+    xy = rng.uniform(0, 1, (3000, 2))
+    p = np.c_[xy, 0.05 * np.sin(7 * xy[:, 0])]
+    q = np.concatenate([p[::5] + rng.normal(scale=0.003, size=(600, 3)), [[5.0, 5.0, 5.0]]])  # one far query
+    for threads in ("1", "2"):
+        monkeypatch.setenv("GEOSYNTH_HOST_THREADS", threads)
+        for k, bound in [(16, None), (12, 0.02), (1, None), (3000, None)]:
+            d, i = KDTree(p, leafsize=16).query(q, k=k, distance_upper_bound=bound)
+            got_d, got_i = _kdtree(p).query(q, k=k, distance_upper_bound=bound)
+            np.testing.assert_array_equal(got_d, d.reshape(len(q), k))
+            np.testing.assert_array_equal(got_i, i.reshape(len(q), k))
+        assert (got_i[-1] < 3000).all()  # every point for a far query without a bound
+    _, i = _kdtree(p).query(q, k=12, distance_upper_bound=0.02)
+    assert (i[-1] == 3000).all()  # none within the bound: index N, distance inf
+    g = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), indexing="ij"), -1).reshape(-1, 2)
+    grid = np.c_[g, np.zeros(len(g))][rng.permutation(len(g))]  # whole numbers: exact ties
+    d, _ = KDTree(grid, leafsize=16).query(grid[::7], k=9)
+    got_d, got_i = _kdtree(grid).query(grid[::7], k=9)
+    np.testing.assert_array_equal(got_d, d)
+    # within a row: by distance, then index (pykdtree orders exact ties otherwise)
+    assert all(np.array_equal(np.lexsort((got_i[r], got_d[r])), np.arange(9)) for r in range(len(got_d)))
+    assert (got_d[:, 1:] == got_d[:, :-1]).sum() > 50  # ties were there to order
