@@ -27,10 +27,10 @@ from __future__ import annotations
 import functools
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field as dc_field
 
 import numpy as np
-
 from threadpoolctl import threadpool_limits
 from geosynth.point_grid import PointGrid
 from geosynth.pointmodels import passive_openmp_threads
@@ -560,9 +560,14 @@ def synthesize_point_texture(
     spacing = texture.spacing
     h = 2.0 * spacing
     band = MLS_REACH * h
-    search = PatchSearch(texture, lay.cell, lay.patch, lay.extra, h, band, device)
-    variation = surface_variation(texture.points)
-    cut = has_pieces(texture.points, spacing)  # disconnected pieces (flowers): cut, not blended
+    # D(T_in) (the device's kernel, host steps) while a second thread finds the exemplar's
+    # surface variation and its pieces (compiled steps and SciPy, which let go of the GIL)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="geosynth-precompute") as pool:
+        variation_job = pool.submit(surface_variation, texture.points)
+        pieces_job = pool.submit(has_pieces, texture.points, spacing)
+        search = PatchSearch(texture, lay.cell, lay.patch, lay.extra, h, band, device)
+        variation = variation_job.result()
+        cut = pieces_job.result()  # disconnected pieces (flowers): cut, not blended
     timer.add("precompute", t_start)
     rng = np.random.default_rng(seed)
     grid, stats = _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer,
