@@ -53,3 +53,30 @@ def test_periodic_grid_wraps_inserts_and_boxes(rng):
 def test_bad_cell():
     with pytest.raises(ValueError, match="cell"):
         PointGrid(0.0)
+
+
+def test_many_inserts_and_removals_match_brute_force(rng):
+    """A growth's pattern (insert, box queries, removals; 45,000 points, negative cells
+    included): every box query is brute force's, in insertion order."""
+    g = PointGrid(0.05)
+    pos, nrm, alive = [], [], []
+    for step in range(30):
+        p, n = _cloud(rng, 1500, lo=-1.0, hi=1.0)
+        g.insert(p, n)
+        pos.append(p), nrm.append(n), alive.append(np.ones(len(p), bool))
+        lo = rng.uniform(-1.0, 0.6, 2)
+        hi = lo + rng.uniform(0.05, 0.5, 2)
+        P, N, A = np.concatenate(pos), np.concatenate(nrm), np.concatenate(alive)
+        want = A & ((P[:, :2] >= lo) & (P[:, :2] <= hi)).all(axis=1)
+        bp, bn = g.in_box(lo, hi)
+        np.testing.assert_array_equal(bp, P[want])
+        np.testing.assert_array_equal(bn, N[want])
+        if step % 3 == 0:
+            gone = A & ((P[:, :2] >= lo) & (P[:, :2] < hi)).all(axis=1)
+            assert g.remove_box(lo, hi) == int(gone.sum())
+            cut = np.cumsum([0] + [len(a) for a in alive])
+            for j in range(len(alive)):
+                alive[j] &= ~gone[cut[j]:cut[j + 1]]
+    assert len(g) == int(np.concatenate(alive).sum())
+    ap, _ = g.all_points()
+    np.testing.assert_array_equal(ap, np.concatenate(pos)[np.concatenate(alive)])
