@@ -221,7 +221,16 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     """Steps 1 to 7 of Sec. 4; returns (PointGrid, stats dict). ``seams_wanted``: measure the
     seam errors (quality numbers; their time goes to the timer's "quality", not to a stage).
     ``cut``: the exemplar has disconnected pieces (blending.has_pieces): those one side of
-    the overlap lacks are cut whole instead of blended (blending.cut_pieces)."""
+    the overlap lacks are cut whole instead of blended (blending.cut_pieces).
+
+    Each patch draws from its own generator (``rng.spawn``, in scan order), so a patch's
+    outcome depends on the seed and on what lies around it, not on when it runs. On two
+    or more cores (not tileable, not the baseline) two threads grow the rows, one the even
+    rows, one the odd: a patch starts once the row above has finished every patch whose
+    box or neighbourhood could meet its own (:func:`_row_lag`), so it sees what the scan
+    order would show it; the grid orders points by scan rank, so the output is the same
+    bits as one thread's. Stage times are then summed over both threads."""
+    from geosynth.host_steps import host_threads
     from geosynth.patch_search import quantized_fields
 
     if not baseline:
@@ -239,103 +248,196 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     xs = inp[by_x, 0]
     zlo, zhi = search.z0, search.z0 + (search.shape[0] - 1) * cell
     margin = 4.0 * spacing  # the warp moves points by at most a few spacings (its pairs are <= 4 apart)
-    seams = {"before": [], "after": [], "baseline": []}
-    cands = []
-    arbitrated = 0
     total = lay.cols * lay.rows
+    rngs = rng.spawn(total)
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=total, desc=label, unit="patch", leave=False, mininterval=0.5, file=sys.stderr)
-    t0 = time.perf_counter()
-    for j in range(lay.rows):
-        for i in range(lay.cols):
-            ox, oy = i * lay.step, j * lay.step
-            lo = lay.canvas_origin + cell * np.array([ox, oy], np.float64)
-            sides = _sides(i, j, lay, tileable)
-            ex_x = 0 if (tileable and i == lay.cols - 1) else lay.extra
-            ex_y = 0 if (tileable and j == lay.rows - 1) else lay.extra
-            hi = lo + cell * np.array([pc + ex_x, pc + ex_y], np.float64)
-            offsets = search.overlap_offsets(sides)
-            # --- search (steps 2 and 3)
-            nb_p = nb_n = None
-            if len(offsets):
-                q = np.column_stack([lo[0] + offsets[:, 2] * cell, lo[1] + offsets[:, 1] * cell,
-                                     search.z0 + offsets[:, 0] * cell])
-                nb_p, nb_n = grid.in_box(q[:, :2].min(0) - 2 * reach - margin, q[:, :2].max(0) + 2 * reach + margin)
-            if baseline or not len(offsets) or len(nb_p) == 0:
-                choice = search.choose(np.zeros((0, 3), np.int64), None, eps, rng)
-            else:
-                values, na = quantized_fields(nb_p, nb_n, q, h, search.band, device)
-                arbitrated += na
-                choice = search.choose(offsets, values, eps, rng)
-                cands.append(choice.candidates)
-            t0 = timer.add("search", t0) if not baseline else t0
-            # --- F_k = P_k + E_k, translated into place, extended by a margin
-            src = search.window_world(search.origins[choice.index])
-            shift = np.r_[lo - src, 0.0]
-            f_lo, f_hi = src - margin, src + (hi - lo) + margin
-            ids = by_x[np.searchsorted(xs, f_lo[0], "left"):np.searchsorted(xs, f_hi[0], "left")]
-            y = inp[ids, 1]
-            sel = np.sort(ids[(y >= f_lo[1]) & (y < f_hi[1])])
-            fp, fn = inp[sel] + shift, inn[sel]
-            box_min, box_max = np.r_[lo, zlo], np.r_[hi, zhi]
-            drop = restore = None
-            if not baseline and len(offsets) and len(nb_p):
-                # --- warp (step 4): targets are N_k's points in the overlap
-                ramp_nb = overlap_ramp(nb_p, box_min, box_max, lay.overlap * cell, lay.overlap * cell,
-                                       [s for s, _ in sides])
-                inside = ((nb_p[:, :2] >= lo) & (nb_p[:, :2] <= hi)).all(axis=1) & (ramp_nb > 0)
-                t0 = timer.add("other", t0)
-                wr = warp_patch(fp, fn, nb_p[inside], nb_n[inside], box_min, box_max, weights, spacing, rng,
-                                src_variation=variation[sel])
-                t0 = timer.add("warp", t0)
-                # --- blend (step 5); disconnected pieces that one side lacks are cut, not blended
-                names = [s for s, _ in sides]
-                ramp = overlap_ramp(wr.points, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
-                if cut:
-                    wide = 0.5 * pc * cell  # N_k's pieces are whole up to half a patch beyond the box
-                    if lay.period is not None:  # one image of each point: the window within a period
-                        wide = min(wide, max(0.0, 0.5 * float((lay.period - (hi - lo)).min()) - cell))
-                    cq, cqn = grid.in_box(lo - wide, hi + wide)
-                    ramp_q = overlap_ramp(cq, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
-                    drop, unblend, restore = cut_pieces(wr.points, ramp, cq, ramp_q, box_min, box_max, spacing,
-                                                        window=(lo - margin, hi + margin),
-                                                        neighbourhood_window=(lo - wide, hi + wide))
-                    if unblend.any():
-                        ramp = np.where(unblend, 0.0, ramp)
-                bp, bn = blend_patch(wr.points, wr.normals, ramp, nb_p, nb_n, spacing, device)
-                t0 = timer.add("blend", t0)
-                if seams_wanted:
-                    edge = _edge_samples(search, offsets, q, sides)
-                    seams["before"].append(seam_error(wr.points, wr.normals, nb_p, nb_n, edge, spacing))
-                    # after: what is pasted there, the patch's points kept and N_k's pieces restored
-                    ap, an = bp, bn
-                    if drop is not None and (drop.any() or restore.any()):
-                        ap, an = np.concatenate([bp[~drop], cq[restore]]), np.concatenate([bn[~drop], cqn[restore]])
-                    seams["after"].append(seam_error(ap, an, nb_p, nb_n, edge, spacing))
-                    t0 = timer.add("quality", t0)  # the seam numbers are quality, not synthesis
-                fp, fn = bp, bn
-            elif baseline and seams_wanted and len(offsets) and nb_p is not None and len(nb_p):
-                from geosynth.blending import seam_error as _seam
 
+    def one_patch(j: int, i: int, rng, timer) -> dict:
+        """Patch (i, j): search, warp, blend, paste; returns its statistics."""
+        out = {}
+        t0 = time.perf_counter()
+        ox, oy = i * lay.step, j * lay.step
+        lo = lay.canvas_origin + cell * np.array([ox, oy], np.float64)
+        sides = _sides(i, j, lay, tileable)
+        ex_x = 0 if (tileable and i == lay.cols - 1) else lay.extra
+        ex_y = 0 if (tileable and j == lay.rows - 1) else lay.extra
+        hi = lo + cell * np.array([pc + ex_x, pc + ex_y], np.float64)
+        offsets = search.overlap_offsets(sides)
+        # --- search (steps 2 and 3)
+        nb_p = nb_n = None
+        if len(offsets):
+            q = np.column_stack([lo[0] + offsets[:, 2] * cell, lo[1] + offsets[:, 1] * cell,
+                                 search.z0 + offsets[:, 0] * cell])
+            nb_p, nb_n = grid.in_box(q[:, :2].min(0) - 2 * reach - margin, q[:, :2].max(0) + 2 * reach + margin)
+        if baseline or not len(offsets) or len(nb_p) == 0:
+            choice = search.choose(np.zeros((0, 3), np.int64), None, eps, rng)
+        else:
+            values, na = quantized_fields(nb_p, nb_n, q, h, search.band, device)
+            out["arbitrated"] = na
+            choice = search.choose(offsets, values, eps, rng)
+            out["candidates"] = choice.candidates
+        t0 = timer.add("search", t0) if not baseline else t0
+        # --- F_k = P_k + E_k, translated into place, extended by a margin
+        src = search.window_world(search.origins[choice.index])
+        shift = np.r_[lo - src, 0.0]
+        f_lo, f_hi = src - margin, src + (hi - lo) + margin
+        ids = by_x[np.searchsorted(xs, f_lo[0], "left"):np.searchsorted(xs, f_hi[0], "left")]
+        y = inp[ids, 1]
+        sel = np.sort(ids[(y >= f_lo[1]) & (y < f_hi[1])])
+        fp, fn = inp[sel] + shift, inn[sel]
+        box_min, box_max = np.r_[lo, zlo], np.r_[hi, zhi]
+        drop = restore = None
+        if not baseline and len(offsets) and len(nb_p):
+            # --- warp (step 4): targets are N_k's points in the overlap
+            ramp_nb = overlap_ramp(nb_p, box_min, box_max, lay.overlap * cell, lay.overlap * cell,
+                                   [s for s, _ in sides])
+            inside = ((nb_p[:, :2] >= lo) & (nb_p[:, :2] <= hi)).all(axis=1) & (ramp_nb > 0)
+            t0 = timer.add("other", t0)
+            wr = warp_patch(fp, fn, nb_p[inside], nb_n[inside], box_min, box_max, weights, spacing, rng,
+                            src_variation=variation[sel])
+            t0 = timer.add("warp", t0)
+            # --- blend (step 5); disconnected pieces that one side lacks are cut, not blended
+            names = [s for s, _ in sides]
+            ramp = overlap_ramp(wr.points, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
+            if cut:
+                wide = 0.5 * pc * cell  # N_k's pieces are whole up to half a patch beyond the box
+                if lay.period is not None:  # one image of each point: the window within a period
+                    wide = min(wide, max(0.0, 0.5 * float((lay.period - (hi - lo)).min()) - cell))
+                cq, cqn = grid.in_box(lo - wide, hi + wide)
+                ramp_q = overlap_ramp(cq, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
+                drop, unblend, restore = cut_pieces(wr.points, ramp, cq, ramp_q, box_min, box_max, spacing,
+                                                    window=(lo - margin, hi + margin),
+                                                    neighbourhood_window=(lo - wide, hi + wide))
+                if unblend.any():
+                    ramp = np.where(unblend, 0.0, ramp)
+            bp, bn = blend_patch(wr.points, wr.normals, ramp, nb_p, nb_n, spacing, device)
+            t0 = timer.add("blend", t0)
+            if seams_wanted:
                 edge = _edge_samples(search, offsets, q, sides)
-                seams["baseline"].append(_seam(fp, fn, nb_p, nb_n, edge, spacing))
-            # --- paste (step 6)
-            keep = ((fp[:, :2] >= lo) & (fp[:, :2] < hi)).all(axis=1)
-            if drop is not None:
-                keep &= ~drop
-            grid.remove_box(lo, hi)
-            grid.insert(fp[keep], fn[keep])
-            if restore is not None and restore.any():  # N_k's pieces kept whole go back in
-                grid.insert(cq[restore], cqn[restore])
-            t0 = timer.add("other", t0) if not baseline else time.perf_counter()
-            if bar is not None:
-                bar.update(1)
+                out["before"] = seam_error(wr.points, wr.normals, nb_p, nb_n, edge, spacing)
+                # after: what is pasted there, the patch's points kept and N_k's pieces restored
+                ap, an = bp, bn
+                if drop is not None and (drop.any() or restore.any()):
+                    ap, an = np.concatenate([bp[~drop], cq[restore]]), np.concatenate([bn[~drop], cqn[restore]])
+                out["after"] = seam_error(ap, an, nb_p, nb_n, edge, spacing)
+                t0 = timer.add("quality", t0)  # the seam numbers are quality, not synthesis
+            fp, fn = bp, bn
+        elif baseline and seams_wanted and len(offsets) and nb_p is not None and len(nb_p):
+            from geosynth.blending import seam_error as _seam
+
+            edge = _edge_samples(search, offsets, q, sides)
+            out["baseline"] = _seam(fp, fn, nb_p, nb_n, edge, spacing)
+        # --- paste (step 6)
+        keep = ((fp[:, :2] >= lo) & (fp[:, :2] < hi)).all(axis=1)
+        if drop is not None:
+            keep &= ~drop
+        grid.remove_box(lo, hi)
+        grid.insert(fp[keep], fn[keep], rank=2 * (j * lay.cols + i))  # the scan order's, whichever thread
+        if restore is not None and restore.any():  # N_k's pieces kept whole go back in
+            grid.insert(cq[restore], cqn[restore], rank=2 * (j * lay.cols + i) + 1)
+        if not baseline:
+            timer.add("other", t0)
+        return out
+
+    results: dict = {}
+    lag = _row_lag(lay, reach, margin, cut)
+    threads = 1 if (baseline or tileable or lay.rows < 2 or lag >= lay.cols) else min(2, host_threads())
+    if threads == 1:
+        for j in range(lay.rows):
+            for i in range(lay.cols):
+                results[j, i] = one_patch(j, i, rngs[j * lay.cols + i], timer)
+                if bar is not None:
+                    bar.update(1)
+    else:
+        _grow_two_rows(lay, lag, one_patch, rngs, timer, results, bar)
     if bar is not None:
         bar.close()
+    seams = {"before": [], "after": [], "baseline": []}
+    cands = []
+    arbitrated = 0
+    for j in range(lay.rows):  # the statistics in scan order
+        for i in range(lay.cols):
+            r = results[j, i]
+            for key in seams:
+                if key in r:
+                    seams[key].append(r[key])
+            if "candidates" in r:
+                cands.append(r["candidates"])
+            arbitrated += r.get("arbitrated", 0)
     return grid, {"seams": seams, "candidates": cands, "arbitrated": arbitrated}
+
+
+def _row_lag(lay, reach: float, margin: float, cut: bool) -> int:
+    """How many patches of the row above must be finished beyond a patch's own column before
+    it may start: the smallest L with L patch steps >= a patch's box width (patch + extra
+    region) plus the farthest its reads reach beyond its box (N_k's window: 2 reaches and the
+    margin; the flowers' cut: half a patch), so that neither row writes where the other
+    still reads."""
+    cell = lay.cell
+    reads = 2.0 * reach + margin
+    if cut:
+        reads = max(reads, 0.5 * lay.patch * cell)
+    width = (lay.patch + lay.extra) * cell + reads
+    return int(np.ceil(width / (lay.step * cell) - 1e-9))
+
+
+def _grow_two_rows(lay, lag: int, one_patch, rngs, timer, results: dict, bar) -> None:
+    """Run ``one_patch(j, i, rng, timer)`` for every patch on two threads, one the even
+    rows and one the odd, patch (i, j) starting once row j - 1 has finished its first
+    min(cols, i + lag + 1) patches; each thread times into its own timer, added to
+    ``timer`` at the end. An error in either thread stops both and is raised here."""
+    import threading
+
+    from geosynth.host_steps import sharing
+
+    done = [0] * lay.rows
+    state = {"error": None}
+    ready = threading.Condition()
+    timers = [_Timer(), _Timer()]
+
+    def rows_of(first: int) -> None:
+        try:
+            with sharing(2):  # two patches at once: each its share of the cores
+                _rows(first)
+        except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
+            with ready:
+                state["error"] = error
+                ready.notify_all()
+
+    def _rows(first: int) -> None:
+        for j in range(first, lay.rows, 2):
+            for i in range(lay.cols):
+                if state["error"] is not None:
+                    return
+                if j > 0:
+                    need = min(lay.cols, i + lag + 1)
+                    with ready:
+                        while done[j - 1] < need and state["error"] is None:
+                            ready.wait()
+                        if state["error"] is not None:
+                            return
+                results[j, i] = one_patch(j, i, rngs[j * lay.cols + i], timers[first])
+                with ready:
+                    done[j] = i + 1
+                    ready.notify_all()
+                if bar is not None:
+                    bar.update(1)
+
+    second = threading.Thread(target=rows_of, args=(1,), name="geosynth-rows", daemon=True)
+    second.start()
+    try:
+        rows_of(0)
+    finally:
+        second.join()
+    if state["error"] is not None:
+        raise state["error"]
+    for t in timers:
+        for key, v in t.t.items():
+            timer.t[key] += v
 
 
 def _edge_samples(search, offsets, q, sides):

@@ -21,6 +21,7 @@ required to agree bit for bit with NumPy (its sums are pairwise, the kernels' se
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -32,6 +33,7 @@ _DTYPES: dict[np.dtype, Any] = {}
 _STATE: dict[str, Any] = {}  # Warp's module and its cpu device, once loaded
 _POOL: dict[int, ThreadPoolExecutor] = {}  # the helper threads, by their count
 _POOL_LOCK = threading.Lock()
+_LOAD_LOCK = threading.RLock()  # Warp's module loading, one thread at a time
 _LAUNCHED: set = set()  # kernels launched once (module loaded): later launches may run in parallel
 
 
@@ -39,7 +41,18 @@ def _warp():
     wp = _STATE.get("wp")
     if wp is not None:
         return wp
+    with _LOAD_LOCK:
+        if "wp" not in _STATE:
+            _load()
+    return _STATE["wp"]
+
+
+def _load() -> None:
+    """Warp, its cpu device and every host kernel module, loaded once: loading a module
+    (hashing it and the modules it uses) is not safe from two threads at once, and the
+    steps run from several (run_parts, and M2's growth of two rows)."""
     from geosynth.backend import warp_module
+    from geosynth.kernels import host_blend, host_search, host_warp
 
     wp = warp_module()
     _DTYPES.update({np.dtype(np.float64): wp.float64, np.dtype(np.float32): wp.float32,
@@ -47,8 +60,9 @@ def _warp():
                     np.dtype(np.uint8): wp.uint8, np.dtype(np.int8): wp.int8,
                     np.dtype(np.uint32): wp.uint32})
     _STATE["cpu"] = wp.get_device("cpu")
+    for module in (host_search, host_warp, host_blend):
+        wp.load_module(module, device=_STATE["cpu"])
     _STATE["wp"] = wp
-    return wp
 
 
 def host_array(array: np.ndarray, dtype=None):
@@ -81,9 +95,27 @@ def host_array(array: np.ndarray, dtype=None):
     return view, a
 
 
+_SHARE = threading.local()  # per thread: how many threads share the cores (see sharing())
+
+
+@contextlib.contextmanager
+def sharing(threads: int):
+    """Within this block, this thread counts on 1 / ``threads`` of the cores: for work that
+    runs on ``threads`` threads at once (M2's growth of two rows), so that their parts do
+    not oversubscribe the cores (measured, chainmail on 2 cores: two rows with whole
+    launches 3.8-4.0 s, with launches split in two as well 4.3-4.5 s)."""
+    before = getattr(_SHARE, "threads", 1)
+    _SHARE.threads = max(1, int(threads))
+    try:
+        yield
+    finally:
+        _SHARE.threads = before
+
+
 def host_threads() -> int:
     """How many parts :func:`host_launch` (``split=True``) and :func:`run_parts` cut work
-    into: the cores this process may use (``GEOSYNTH_HOST_THREADS`` overrides; at most 16)."""
+    into: the cores this process may use (``GEOSYNTH_HOST_THREADS`` overrides; at most 16),
+    divided among the threads of an enclosing :func:`sharing` block."""
     env = os.environ.get("GEOSYNTH_HOST_THREADS", "").strip()
     if env:
         try:
@@ -94,7 +126,7 @@ def host_threads() -> int:
             raise ValueError(f"GEOSYNTH_HOST_THREADS must be a whole number >= 1, got {env!r}.")
     else:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(16, count))
+    return max(1, min(16, count) // getattr(_SHARE, "threads", 1))
 
 
 def _pool(helpers: int) -> ThreadPoolExecutor:
@@ -148,23 +180,26 @@ def host_launch(kernel, dim: int, inputs: Sequence[Any], *, split: bool = False,
         thread t computes item ``part_start + t`` and writes only that item's outputs or its
         own scratch slot; this function appends ``part_start``): the launch is cut by
         :func:`run_parts` into one part of at least ``min_part`` threads per core, run at
-        once, the same bits as one launch. The first launch of a kernel runs whole (it
-        loads the kernel's module, which must not happen twice at once)."""
+        once, the same bits as one launch. The first launch of a kernel runs whole, one
+        thread at a time (it may load the kernel's module; the host_* modules are loaded
+        with Warp, before any launch)."""
     wp = _warp()
     if dim <= 0:
         return
     device = _STATE["cpu"]
-    if not split:
-        wp.launch(kernel, dim=int(dim), inputs=list(inputs), device=device)
+    args = list(inputs) + ([0] if split else [])
+    launched = (kernel.module.name, kernel.key)
+    if launched not in _LAUNCHED:  # its module may load now: one thread at a time, whole
+        with _LOAD_LOCK:
+            wp.launch(kernel, dim=int(dim), inputs=args, device=device)
+            _LAUNCHED.add(launched)
         return
-    args = list(inputs)
+    if not split:
+        wp.launch(kernel, dim=int(dim), inputs=args, device=device)
+        return
+    args.pop()
 
     def part(lo: int, hi: int) -> None:
         wp.launch(kernel, dim=hi - lo, inputs=args + [lo], device=device)
 
-    launched = (kernel.module.name, kernel.key)
-    if launched not in _LAUNCHED:
-        part(0, int(dim))
-        _LAUNCHED.add(launched)
-        return
     run_parts(part, int(dim), min_part=min_part)

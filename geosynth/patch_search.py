@@ -33,6 +33,7 @@ of the band for the distance, where converged float32 projections are good to ~1
 from __future__ import annotations
 
 import itertools
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,9 @@ __all__ = [
     "quantized_fields",
 ]
 
+# One thread at a time on the run's device (kernel arguments and queues are shared): M2's
+# growth may run two patches at once (geometry_texture._grow), their host steps in parallel.
+_DEVICE_LOCK = threading.Lock()
 CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 127
 ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
 FIXED_STEPS = 12  # projection steps of the coded fields at most
@@ -381,9 +385,16 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
     from geosynth.pointsets import MLS_REACH, CellGrid
 
     reach = MLS_REACH * h
+    if grid is None and cells is None:
+        grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
+    with _DEVICE_LOCK:
+        return _kernel_mls_locked(points, normals, queries, h, device, steps, cells, tol, grid, reach)
+
+
+def _kernel_mls_locked(points, normals, queries, h, device, steps, cells, tol, grid, reach):
+    from geosynth import _checks
+
     if cells is None:
-        if grid is None:
-            grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
         backend = _checks.resolve_backend(device)
         cells = (grid, backend, backend.to_device(grid.pn), backend.to_device(grid.cell_start))
     grid, backend, pn, start = cells
@@ -598,7 +609,8 @@ class PatchSearch:
             return SearchChoice(i, 0, 0, len(self.origins))
         # the scores are exact integers (uint32): selected on the host, after the one read-back
         # they need anyway, they are what selection.argmin / within_tolerance give on any device
-        sc = self._scorer(offsets)(values, origins=self.origins)
+        with _DEVICE_LOCK:
+            sc = self._scorer(offsets)(values, origins=self.origins)
         best = int(np.argmin(sc))  # the lowest index on ties
         near = np.flatnonzero(sc <= tolerance_threshold(sc[best], eps, sc.dtype))
         i = random_pick(near, rng)

@@ -6,7 +6,10 @@ within a radius, all points.
 Points live in growing arrays (positions, normals, an alive flag); a bucket is the list of
 point ids whose cell (an xy cell of side ``cell``: patches and their boxes span the full
 height, so the grid is 2D over the reference plane) is its key, in a dict. Everything is
-NumPy; the order of points is the insertion order, so a run is reproducible.
+NumPy; points come out in the order of their rank (an insert's, default: the order of the
+inserts), then of insertion, so a run is reproducible even when its inserts come from two
+threads in an order of their own. One operation runs at a time (a lock): threads may share
+a grid.
 
 With ``period`` (a tileable output), positions are stored wrapped into [0, period) in x
 and y, and the box queries see the periodic images (the points are returned translated
@@ -14,6 +17,8 @@ into the frame of the box asked for).
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 
@@ -36,11 +41,15 @@ class PointGrid:
         self._pos = np.zeros((0, 3))
         self._nrm = np.zeros((0, 3))
         self._alive = np.zeros(0, bool)
+        self._rank = np.zeros(0, np.int64)
+        self._next_rank = 0
+        self._lock = threading.RLock()
         self._count = 0
         self._buckets: dict[int, np.ndarray] = {}
 
     def __len__(self) -> int:
-        return int(self._alive[: self._count].sum())
+        with self._lock:
+            return int(self._alive[: self._count].sum())
 
     # ------------------------------------------------------------------ keys
 
@@ -65,15 +74,29 @@ class PointGrid:
         alive = np.zeros(cap, bool)
         alive[: self._count] = self._alive[: self._count]
         self._alive = alive
+        rank = np.zeros(cap, np.int64)
+        rank[: self._count] = self._rank[: self._count]
+        self._rank = rank
 
     # ------------------------------------------------------------------ operations
 
-    def insert(self, points: np.ndarray, normals: np.ndarray) -> None:
-        """Add (M, 3) points with their (M, 3) normals (wrapped into the period when periodic)."""
+    def insert(self, points: np.ndarray, normals: np.ndarray, rank: int | None = None) -> None:
+        """Add (M, 3) points with their (M, 3) normals (wrapped into the period when periodic).
+        ``rank`` (an integer in [0, 2^31)): where they come in the grid's order (default: after
+        every rank given so far)."""
+        with self._lock:
+            self._insert(points, normals, rank)
+
+    def _insert(self, points, normals, rank) -> None:
         p = np.asarray(points, np.float64).reshape(-1, 3).copy()
         n = np.asarray(normals, np.float64).reshape(-1, 3)
         if len(p) != len(n):
             raise ValueError(f"got {len(p)} points and {len(n)} normals.")
+        if rank is None:
+            rank = self._next_rank
+        if not (isinstance(rank, (int, np.integer)) and 0 <= rank < 2**31):
+            raise ValueError(f"rank must be an integer in [0, 2^31), got {rank!r}.")
+        self._next_rank = max(self._next_rank, int(rank) + 1)
         if len(p) == 0:
             return
         if self.period is not None:
@@ -81,7 +104,7 @@ class PointGrid:
             p[:, :2] = np.where(p[:, :2] >= self.period, 0.0, p[:, :2])  # mod of -tiny rounds up to the period
         self._grow(len(p))
         ids = np.arange(self._count, self._count + len(p))
-        self._pos[ids], self._nrm[ids], self._alive[ids] = p, n, True
+        self._pos[ids], self._nrm[ids], self._alive[ids], self._rank[ids] = p, n, True, int(rank)
         self._count += len(p)
         c = self._cells(p[:, :2])
         keys = self._key(c[:, 0], c[:, 1])
@@ -111,7 +134,7 @@ class PointGrid:
         return out
 
     def _ids_in(self, lo: np.ndarray, hi: np.ndarray, closed_hi: bool = True) -> np.ndarray:
-        """Ids of alive stored points with lo <= xy <= hi (or < hi), ascending."""
+        """Ids of alive stored points with lo <= xy <= hi (or < hi), in the grid's order."""
         c0, c1 = self._cells(lo), self._cells(hi)
         parts = []
         for ix in range(int(c0[0]), int(c1[0]) + 1):
@@ -125,13 +148,21 @@ class PointGrid:
         ids = ids[self._alive[ids]]
         xy = self._pos[ids, :2]
         ok = (xy >= lo).all(axis=1) & ((xy <= hi) if closed_hi else (xy < hi)).all(axis=1)
-        return np.sort(ids[ok])
+        return self._ordered(ids[ok])
+
+    def _ordered(self, ids: np.ndarray) -> np.ndarray:
+        """``ids`` sorted by (rank, id): one sort of rank * 2^32 + id."""
+        return np.sort((self._rank[ids] << 32) | ids) & 0xFFFFFFFF
 
     def in_box(self, lo, hi) -> tuple[np.ndarray, np.ndarray]:
         """Points (and normals) whose x and y lie in the box [lo, hi] ((2,) xy corners; a
         point's height is not tested), in insertion order, (K, 3) float64 each; periodic
         images are translated into the box's frame."""
         lo, hi = np.asarray(lo, np.float64)[:2], np.asarray(hi, np.float64)[:2]
+        with self._lock:
+            return self._in_box(lo, hi)
+
+    def _in_box(self, lo, hi):
         ps, ns = [], []
         for shift, a, b in self._images(lo, hi):
             ids = self._ids_in(a, b)
@@ -147,12 +178,16 @@ class PointGrid:
         """Remove every point whose x and y lie in [lo, hi) (half-open, so that boxes that
         tile the plane remove each point once); returns how many were removed."""
         lo, hi = np.asarray(lo, np.float64)[:2], np.asarray(hi, np.float64)[:2]
+        with self._lock:
+            return self._remove_box(lo, hi)
+
+    def _remove_box(self, lo, hi) -> int:
         removed = 0
         for _, a, b in self._images(lo, hi):
             ids = self._ids_in(a, b, closed_hi=False)
             self._alive[ids] = False
             removed += len(ids)
-        if removed > max(4096, len(self)):  # prune dead ids from the buckets now and then
+        if removed > max(4096, int(self._alive[: self._count].sum())):  # prune dead ids from the buckets now and then
             self._compact_buckets()
         return removed
 
@@ -167,7 +202,7 @@ class PointGrid:
 
     def neighbours(self, queries, radius: float) -> tuple[np.ndarray, np.ndarray]:
         """Points within ``radius`` (3D distance) of any of the (Q, 3) queries: their
-        positions and normals, (K, 3) each, in insertion order (periodic images translated
+        positions and normals, (K, 3) each, in the grid's order (periodic images translated
         into the queries' frame)."""
         q = np.asarray(queries, np.float64).reshape(-1, 3)
         if len(q) == 0:
@@ -182,6 +217,7 @@ class PointGrid:
         return p[keep], n[keep]
 
     def all_points(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every alive point and its normal, (N, 3) float64 each, in insertion order."""
-        alive = np.flatnonzero(self._alive[: self._count])
+        """Every alive point and its normal, (N, 3) float64 each, in the grid's order."""
+        with self._lock:
+            alive = self._ordered(np.flatnonzero(self._alive[: self._count]))
         return self._pos[alive].copy(), self._nrm[alive].copy()

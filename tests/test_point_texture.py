@@ -368,3 +368,38 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
         want = _iterate_every_step(p, n, q, h, steps, tol)
         for a, b in zip(got, want):
             np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["heightfield", "flowers"])
+def test_two_rows_at_once_give_one_threads_bits(one_device, monkeypatch, name):
+    """The growth's two threads (even and odd rows, the lower row a few patches behind)
+    give the points one thread gives, bit for bit; the two-row path is really taken."""
+    import geosynth.geometry_texture as gt
+
+    tex = point_texture_example(name, count=6000)
+    opts = dict(scale=2.0, resolution=24, quality=False)
+    calls = []
+    real = gt._grow_two_rows
+    monkeypatch.setattr(gt, "_grow_two_rows", lambda *a, **k: (calls.append(1), real(*a, **k))[1])
+    monkeypatch.setenv("GEOSYNTH_HOST_THREADS", "2")
+    two, _, t2 = synthesize_point_texture(tex, device=one_device, seed=3, **opts)
+    assert calls == [1]
+    monkeypatch.setenv("GEOSYNTH_HOST_THREADS", "1")
+    one, _, _ = synthesize_point_texture(tex, device=one_device, seed=3, **opts)
+    assert calls == [1]  # one thread: the scan order on the caller's thread
+    np.testing.assert_array_equal(two.positions, one.positions)
+    np.testing.assert_array_equal(two.normals, one.normals)
+
+
+def test_row_lag_keeps_the_rows_reads_and_writes_apart():
+    """The lag: L patch steps cover a box (patch + extra) and the reads beyond it."""
+    from types import SimpleNamespace
+
+    from geosynth.geometry_texture import _row_lag
+
+    lay = SimpleNamespace(cell=1.0, patch=19, extra=4, step=14)
+    assert _row_lag(lay, reach=3.0, margin=2.0, cut=False) == 3  # (23 + 8) / 14 -> 3
+    assert _row_lag(lay, reach=0.5, margin=0.0, cut=False) == 2  # (23 + 1) / 14 -> 2
+    assert _row_lag(lay, reach=0.5, margin=0.0, cut=True) == 3  # half a patch read: (23 + 9.5) / 14
+    lag = _row_lag(lay, reach=3.0, margin=2.0, cut=False)
+    assert lag * lay.step >= lay.patch + lay.extra + 2 * 3.0 + 2.0 > (lag - 1) * lay.step
