@@ -106,7 +106,7 @@ def main(argv=None) -> int:
         ex = completion_example(name)
         c0 = time.process_time()
         surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window, rotations=ex.rotations,
-                                            frames=ex.frames, mu=ex.mu, refine=ex.refine,
+                                            frames=ex.frames, mu=ex.mu, refine=ex.refine, spacing=ex.spacing,
                                             device=dev, seed=seed)
         cpu = time.process_time() - c0
         q = rep.quality

@@ -766,23 +766,26 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         rotations = args.rotations or ex.rotations
         frames = args.frames or ex.frames
         refine = ex.refine if args.refine is None else args.refine
+        spacing = args.spacing or ex.spacing
     else:
         from geosynth.pointsets import read_geometry
 
         capture, label, fit, window = read_geometry(args.input), args.input, args.fit, args.window or 3
         rotations, frames = args.rotations or DEFAULT_ROTATIONS, args.frames or "paper"
         refine = args.refine or 0
+        spacing = args.spacing or "minimum"
     if frames == "fit" and fit == "sphere":  # known before any fit or preparation: refused now
         raise ValueError("--frames fit needs a plane or cylinder fit (a sphere has no tangent field without a "
                          "singular point); use --frames paper or another --fit.")
     mu = args.mu if args.mu is not None else 0.5
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
         f"captured points, fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
-        f"refine {refine}, seed {args.seed}, device {args.device or 'auto'}")
+        f"refine {refine}, spacing {spacing}, seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
                                                 rotations=rotations, mu=mu, max_error=args.max_error,
                                                 device=args.device, seed=args.seed, progress=not args.quiet,
-                                                balance=not args.no_balance, frames=frames, refine=refine)
+                                                balance=not args.no_balance, frames=frames, refine=refine,
+                                                spacing=spacing)
     for line in report.lines():
         say(line)
     say("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items() if k != "targets_per_s")
@@ -946,6 +949,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", type=_int_type(0, 8), default=None,
                    help="refinement passes after the growth, 0 to 8: every completed target matched again with "
                         "its whole window (our extension; default 0, the paper's one pass; built-ins: their own)")
+    p.add_argument("--spacing", choices=["minimum", "median"], default=None,
+                   help="the targets' spacing: the capture's minimum edge length (the paper) or the median of its edges on "
+                        "the fit (our option: targets as dense as the capture) (default minimum; built-ins: their own)")
     p.add_argument("--no-balance", action="store_true",
                    help="the paper's uniform pick among the matches within 1.1x the best (default: the "
                         "histogram-aware pick, our extension; see geosynth.completion._Balance)")

@@ -131,7 +131,8 @@ class CompletionReport:
     Attributes:
         fit: the fit's one-line description.
         samples, targets, textured, unreached: counts (``samples`` after oversampling).
-        spacing: the target spacing (world units).
+        spacing: the target spacing (world units); ``spacing_rule`` how it was chosen
+            ("minimum" or "median" edge of the capture, :func:`complete_surface`).
         window, rotations, mu, max_error: the parameters; ``final_max_error`` the
             MaxErrThreshold at the end.
         lists, passes_without_progress, failed_matches: growth statistics.
@@ -177,13 +178,14 @@ class CompletionReport:
     frames: str = "paper"
     refine: int = 0
     refined: int = 0
+    spacing_rule: str = "minimum"
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
         q = self.quality
         out = [f"fit: {self.fit}",
                f"samples {self.samples:,} (captured part oversampled once), targets {self.targets:,} at spacing "
-               f"{self.spacing:.4g}; window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
+               f"{self.spacing:.4g} (the capture's {self.spacing_rule} edge); window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
                f"{self.device}",
                f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
                f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
@@ -717,7 +719,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                      device: str | None = None, seed: int = 0, progress: bool = False,
                      max_targets: int | None = 200_000, oversample: str = "butterfly",
                      candidates: str = "capture", balance: bool | float = True, frames: str = "paper",
-                     refine: int = 0):
+                     refine: int = 0, spacing: str = "minimum"):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -755,6 +757,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         refine: refinement passes after the growth (our extension; 0, the default, is
             the paper's single pass): every completed target matched again against its
             whole window, textured on every side by then (:func:`_refine`). 0 to 8.
+        spacing: the target lattice's spacing: "minimum" (default, Sec. 4: the capture's
+            minimum edge length) or "median" (our option: the median length of its edges on
+            the fit, targets as dense as the capture, so that features one sample thick keep
+            their share of the vertices; see :func:`geosynth.relief_prep.prepare_relief`).
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -792,7 +798,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     if frames == "fit" and sf.kind == "sphere":
         fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
     t1 = time.perf_counter()
-    rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample)
+    rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample, spacing=spacing)
     t2 = time.perf_counter()
     if isinstance(balance, (bool, np.bool_)):
         balance = bool(balance)
@@ -839,6 +845,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         final_max_error=stats["final_max_error"], lists=stats["lists"],
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
+        spacing_rule=spacing,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,
