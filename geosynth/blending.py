@@ -348,6 +348,9 @@ class _CellGrid:
         points: (K, 3) float64, K >= 1; normals: (K, 3) float64 unit normals.
         cell: the cell side (world units, > 0); made larger when the points' box would
             need more than ``4 K + 64`` cells (scattered points: fewer, fuller cells).
+        auto_k: > 0: instead of ``cell``, cells about as wide as a point's ``auto_k``
+            nearest on a surface (0.5 sqrt(area auto_k / K), area the product of the
+            box's two longest sides).
 
     Attributes (host arrays, kept alive with their Warp views): ``pn`` (K * 6,) float64
     points and normals sorted by linear cell index ``(cz * ny + cy) * nx + cx`` (stably:
@@ -356,7 +359,7 @@ class _CellGrid:
     ``cell``, ``dims`` (nx, ny, nz).
     """
 
-    def __init__(self, points: np.ndarray, normals: np.ndarray, cell: float):
+    def __init__(self, points: np.ndarray, normals: np.ndarray, cell: float, auto_k: int = 0):
         from geosynth.host_steps import host_array, host_launch
         from geosynth.kernels.host_blend import build_grid_kernel
 
@@ -370,7 +373,7 @@ class _CellGrid:
         wp_cursor, self._cursor = host_array(np.empty(max_cells, np.int32))
         wp_cell_of, self._cell_of = host_array(np.empty(count, np.int32))
         wp_info, info = host_array(np.empty(7, np.float64))
-        host_launch(build_grid_kernel, 1, [wp_p, wp_n, count, float(cell), max_cells, self.wp_pn, self.wp_ids,
+        host_launch(build_grid_kernel, 1, [wp_p, wp_n, count, float(cell), int(auto_k), max_cells, self.wp_pn, self.wp_ids,
                                           self.wp_start, wp_cursor, wp_cell_of, wp_info])
         self.origin, self.cell = info[:3].copy(), float(info[3])
         self.dims = tuple(int(v) for v in info[4:7])
@@ -405,16 +408,12 @@ def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bo
     n, m, k = len(p), len(q), int(k)
     if m == 0:
         return np.zeros((0, k)), np.zeros((0, k), np.int64)
-    extent = np.ptp(p, axis=0)
-    # cells about as wide as a query's k nearest on a surface (spacing sqrt(area / N)); the
-    # cell size sets the speed only
-    area = max(float(np.sort(extent)[1:].prod()), 1e-300)
-    cell = max(0.75 * math.sqrt(area * k / n), 1e-9 * max(float(extent.max()), 1e-300))
-    grid = _CellGrid(p, np.zeros_like(p), cell)
+    # cells about as wide as a query's k nearest on a surface (the cell size sets the speed
+    # only); the normals' slots unused (the points themselves fill them)
+    grid = _CellGrid(p, p, 0.0, auto_k=k)
     reach = math.inf if distance_upper_bound is None else float(distance_upper_bound)
-    if not math.isfinite(reach):  # every point: a reach beyond the grid's diagonal and every query
-        span = np.ptp(np.concatenate([p, q]), axis=0)
-        reach = 2.0 * float(np.linalg.norm(span)) + 1.0
+    if not reach < 1e150:  # every point: a reach whose square is still finite
+        reach = 1e150
     cap = _list_room(k)
     workers = min(m, _WORKERS)
     wp_nbr, wp_nd2 = _scratch(workers * cap)

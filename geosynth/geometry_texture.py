@@ -392,8 +392,9 @@ def _grow_two_rows(lay, lag: int, one_patch, rngs, timer, results: dict, bar) ->
     ``timer`` at the end. An error in either thread stops both and is raised here."""
     import threading
 
-    from geosynth.host_steps import sharing
+    from geosynth.host_steps import CoreShare
 
+    cores = CoreShare()
     done = [0] * lay.rows
     state = {"error": None}
     ready = threading.Condition()
@@ -401,8 +402,7 @@ def _grow_two_rows(lay, lag: int, one_patch, rngs, timer, results: dict, bar) ->
 
     def rows_of(first: int) -> None:
         try:
-            with sharing(2):  # two patches at once: each its share of the cores
-                _rows(first)
+            _rows(first)
         except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
             with ready:
                 state["error"] = error
@@ -420,7 +420,8 @@ def _grow_two_rows(lay, lag: int, one_patch, rngs, timer, results: dict, bar) ->
                             ready.wait()
                         if state["error"] is not None:
                             return
-                results[j, i] = one_patch(j, i, rngs[j * lay.cols + i], timers[first])
+                with cores.busy():  # two patches at once: each its share of the cores
+                    results[j, i] = one_patch(j, i, rngs[j * lay.cols + i], timers[first])
                 with ready:
                     done[j] = i + 1
                     ready.notify_all()

@@ -95,27 +95,38 @@ def host_array(array: np.ndarray, dtype=None):
     return view, a
 
 
-_SHARE = threading.local()  # per thread: how many threads share the cores (see sharing())
+_SHARE = threading.local()  # per thread: the CoreShare it counts in, if any
 
 
-@contextlib.contextmanager
-def sharing(threads: int):
-    """Within this block, this thread counts on 1 / ``threads`` of the cores: for work that
-    runs on ``threads`` threads at once (M2's growth of two rows), so that their parts do
-    not oversubscribe the cores (measured, chainmail on 2 cores: two rows with whole
-    launches 3.8-4.0 s, with launches split in two as well 4.3-4.5 s)."""
-    before = getattr(_SHARE, "threads", 1)
-    _SHARE.threads = max(1, int(threads))
-    try:
-        yield
-    finally:
-        _SHARE.threads = before
+class CoreShare:
+    """The threads that now run work of a group (M2's growth of two rows at once): within
+    :meth:`busy`, a thread counts on 1 / (threads busy) of the cores, so that their parts
+    do not oversubscribe them, and a thread left alone (the other waiting, or done) gets
+    all of them back (measured, chainmail on 2 cores: two rows with whole launches
+    3.8-4.0 s, with launches split in two as well 4.3-4.5 s)."""
+
+    def __init__(self):
+        self.threads = 0
+        self._lock = threading.Lock()
+
+    @contextlib.contextmanager
+    def busy(self):
+        before = getattr(_SHARE, "group", None)
+        with self._lock:
+            self.threads += 1
+        _SHARE.group = self
+        try:
+            yield
+        finally:
+            with self._lock:
+                self.threads -= 1
+            _SHARE.group = before
 
 
 def host_threads() -> int:
     """How many parts :func:`host_launch` (``split=True``) and :func:`run_parts` cut work
     into: the cores this process may use (``GEOSYNTH_HOST_THREADS`` overrides; at most 16),
-    divided among the threads of an enclosing :func:`sharing` block."""
+    divided among the busy threads of the calling thread's :class:`CoreShare`."""
     env = os.environ.get("GEOSYNTH_HOST_THREADS", "").strip()
     if env:
         try:
@@ -126,7 +137,8 @@ def host_threads() -> int:
             raise ValueError(f"GEOSYNTH_HOST_THREADS must be a whole number >= 1, got {env!r}.")
     else:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(16, count) // getattr(_SHARE, "threads", 1))
+    group = getattr(_SHARE, "group", None)
+    return max(1, min(16, count) // max(1, group.threads if group is not None else 1))
 
 
 def _pool(helpers: int) -> ThreadPoolExecutor:

@@ -147,7 +147,9 @@ class _KDTree:
     where fewer than k lie within the bound), nearest first, ties by lower index. By the
     compiled host step :func:`geosynth.blending.nearest_k` (exact in float64, split over
     the cores); on the built-ins' warp queries it gave pykdtree's indices and distances
-    bit for bit (tests/test_warping.py compares them) in 0.6x its time on 2 cores."""
+    bit for bit (tests/test_warping.py compares them), about as fast on one thread (10,000
+    points, 3,000 queries of 16: 5.3 ms against 6.0 ms with its tree), but it lets go of the
+    GIL and splits over the cores."""
 
     def __init__(self, points: np.ndarray):
         self.points = np.ascontiguousarray(points, np.float64)

@@ -582,7 +582,8 @@ def build_grid_kernel(
     points: wp.array(dtype=wp.float64),  # (K * 3,) K >= 1
     normals: wp.array(dtype=wp.float64),  # (K * 3,) unit normals
     count: int,  # K
-    cell0: wp.float64,  # the wanted cell side
+    cell0: wp.float64,  # the wanted cell side (auto_k > 0: unused)
+    auto_k: int,  # > 0: cells about as wide as the k = auto_k nearest on a surface
     max_cells: int,  # the most cells: a larger box gets larger cells
     pn: wp.array(dtype=wp.float64),  # out (K * 6,) points and normals sorted by cell
     ids: wp.array(dtype=wp.int32),  # out (K,) input index of each sorted point
@@ -592,7 +593,7 @@ def build_grid_kernel(
     info: wp.array(dtype=wp.float64),  # out (7,) origin x, y, z, cell, nx, ny, nz
 ):
     """The cell grid of ``nearest`` (one thread, a stable counting sort): the points' box
-    from its minimum corner, cells of side cell0 (grown while the box would need more
+    from its minimum corner, cells of side cell0 or by auto_k (grown while the box would need more
     than max_cells), each point's cell ``floor((p - origin) / cell)`` (the arithmetic of
     ``nearest``'s queries) clamped into the grid."""
     lo = wp.vec3d(points[0], points[1], points[2])
@@ -603,6 +604,15 @@ def build_grid_kernel(
         hi = wp.max(hi, p)
     extent = hi - lo
     cell = cell0
+    if auto_k > 0:
+        # a surface's spacing sqrt(area / K), area the product of the box's two longest sides
+        small = wp.min(extent[0], wp.min(extent[1], extent[2]))
+        area = extent[0] * extent[1] * extent[2] / wp.max(small, wp.float64(1.0e-300))
+        if small <= wp.float64(0.0):
+            area = wp.max(extent[0] * extent[1], wp.max(extent[0] * extent[2], extent[1] * extent[2]))
+        longest = wp.max(extent[0], wp.max(extent[1], extent[2]))
+        cell = wp.max(wp.float64(0.5) * wp.sqrt(area * wp.float64(auto_k) / wp.float64(count)),
+                      wp.max(wp.float64(1.0e-9) * longest, wp.float64(1.0e-300)))
     nx = int(wp.min(wp.floor(extent[0] / cell), wp.float64(1.0e9))) + 1
     ny = int(wp.min(wp.floor(extent[1] / cell), wp.float64(1.0e9))) + 1
     nz = int(wp.min(wp.floor(extent[2] / cell), wp.float64(1.0e9))) + 1
