@@ -425,8 +425,8 @@ def _grow_two_rows(lay, lag: int, one_patch, rngs, timer, results: dict, bar) ->
                 with ready:
                     done[j] = i + 1
                     ready.notify_all()
-                if bar is not None:
-                    bar.update(1)
+                    if bar is not None:  # one thread at a time
+                        bar.update(1)
 
     second = threading.Thread(target=rows_of, args=(1,), name="geosynth-rows", daemon=True)
     second.start()
