@@ -640,6 +640,7 @@ def synthesize_point_texture(
     from geosynth import _checks
     from geosynth.blending import has_pieces
     from geosynth.patch_search import PatchSearch
+    from geosynth.host_steps import host_threads
     from geosynth.pointsets import MLS_REACH, PointSet
     from geosynth.warping import WarpWeights, surface_variation
 
@@ -650,6 +651,7 @@ def synthesize_point_texture(
     if not (isinstance(eps, (int, float, np.integer, np.floating)) and np.isfinite(eps) and eps >= 0):
         raise ValueError(f"eps must be a finite number >= 0, got {eps!r}.")
     tileable = _checks.check_bool("tileable", tileable)
+    host_threads()  # a bad GEOSYNTH_HOST_THREADS is refused here, before any work
     if weights is None:
         weights = _default_weights(texture)
     elif not isinstance(weights, WarpWeights):

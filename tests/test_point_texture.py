@@ -403,3 +403,12 @@ def test_row_lag_keeps_the_rows_reads_and_writes_apart():
     assert _row_lag(lay, reach=0.5, margin=0.0, cut=True) == 3  # half a patch read: (23 + 9.5) / 14
     lag = _row_lag(lay, reach=3.0, margin=2.0, cut=False)
     assert lag * lay.step >= lay.patch + lay.extra + 2 * 3.0 + 2.0 > (lag - 1) * lay.step
+
+
+def test_a_bad_host_thread_count_is_refused_before_any_work(monkeypatch, small_weave):
+    import geosynth.patch_search as ps
+
+    monkeypatch.setattr(ps, "PatchSearch", lambda *a, **k: pytest.fail("work started"))
+    monkeypatch.setenv("GEOSYNTH_HOST_THREADS", "0")
+    with pytest.raises(ValueError, match="GEOSYNTH_HOST_THREADS must be a whole number >= 1"):
+        synthesize_point_texture(small_weave, seed=0, **SMALL)
