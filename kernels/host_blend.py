@@ -300,6 +300,84 @@ def mls_at(
 
 
 @wp.func
+def _settle(
+    mode: int,  # RAY: the line search along d; PROJECTION: the MLS projection
+    iters: int,  # steps a gathering at most
+    table: wp.array(dtype=wp.float64),
+    pn: wp.array(dtype=wp.float64),
+    ids: wp.array(dtype=wp.int32),
+    cell_start: wp.array(dtype=wp.int32),
+    g: wp.vec3d,
+    cell: wp.float64,
+    nx: int,
+    ny: int,
+    nz: int,
+    k: int,
+    cap: int,
+    reach: wp.float64,
+    inv_h2: wp.float64,
+    reach2: wp.float64,
+    tol: wp.float64,
+    tmax: wp.float64,
+    min_slope: wp.float64,
+    h: wp.float64,
+    x: wp.vec3d,  # the query p'
+    d: wp.vec3d,  # its unit normal n'
+    nbr: wp.array(dtype=wp.int32),
+    nd2: wp.array(dtype=wp.float64),
+    at_x: int,  # the list gathered at x (count_x entries)
+    again: int,  # the slot of a re-gathering
+    count_x: int,
+):
+    """One search of ``_counterpart_of`` from x with MLSSurface._iterate's re-gathering (a
+    search that converged more than h from where its neighbours were gathered is gathered
+    again there, at most 3 gatherings). RAY: t <- t - f(y) / (n(y) . d), y = x + t d, from
+    t = 0, stopped where the line grazes the surface or |t| > tmax (t reset to 0); PROJECTION:
+    y <- y - f(y) n(y), stopped beyond tmax from x. Returns (converged, y, t, last normal)."""
+    zero = wp.float64(0.0)
+    t = zero
+    y = x
+    start = x
+    normal = wp.vec3d(zero, zero, zero)
+    base = at_x
+    count = count_x
+    ok = bool(False)
+    for rnd in range(3):
+        converged = bool(False)
+        for it in range(iters):
+            f, nn, sup = mls_at(table, pn, nbr, base, count, y, inv_h2, reach2)
+            normal = nn
+            if not sup:
+                break
+            if wp.abs(f) <= tol:
+                converged = True
+                break
+            if mode == RAY:
+                slope = wp.dot(nn, d)
+                if wp.abs(slope) < min_slope:
+                    break  # the line grazes the surface
+                t = t - f / slope
+                if wp.abs(t) > tmax:
+                    t = zero
+                    y = x + t * d
+                    break
+                y = x + t * d
+            else:
+                y = y - f * nn
+                if wp.dot(y - x, y - x) > tmax * tmax:
+                    break
+        if not converged:
+            break
+        if rnd == 2 or not (wp.length(y - start) > h):
+            ok = True
+            break
+        start = y  # converged more than h from where its neighbours were gathered: again
+        count = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, start, k, reach, nbr, nd2, again, cap)
+        base = again
+    return ok, y, t, normal
+
+
+@wp.func
 def _counterpart_of(
     table: wp.array(dtype=wp.float64),  # (9 GAUSS_STEPS + 2,) gauss()'s exp(-j / GAUSS_STEPS)
     pn: wp.array(dtype=wp.float64),  # (K * 6,) N_k sorted by cell, with unit normals
@@ -333,8 +411,7 @@ def _counterpart_of(
     """:func:`geosynth.blending.counterparts` for one query: the ray-plane iteration along
     +-n' (MLSSurface.intersect_line), else the projection (MLSSurface.project), each with
     MLSSurface._iterate's re-gathering (a query that converged more than h from where its
-    neighbours were gathered is gathered again there, at most 3 gatherings)."""
-    zero = wp.float64(0.0)
+    neighbours were gathered is gathered again there, at most 3 gatherings: ``_settle``)."""
     inv_h2 = wp.float64(1.0) / (h * h)
     reach2 = reach * reach
     x = wp.vec3d(points[3 * i], points[3 * i + 1], points[3 * i + 2])
@@ -347,73 +424,17 @@ def _counterpart_of(
     cn = d
 
     # --- the line x + t d: t <- t - f(y) / (n(y) . d), y = x + t d, from t = 0
-    t = zero
-    y = x
-    start = x
-    normal = wp.vec3d(zero, zero, zero)
-    base = at_x
-    count = count_x
-    ok = bool(False)
-    for rnd in range(3):
-        converged = bool(False)
-        for it in range(line_iter):
-            f, nn, sup = mls_at(table, pn, nbr, base, count, y, inv_h2, reach2)
-            normal = nn
-            if not sup:
-                break
-            if wp.abs(f) <= tol:
-                converged = True
-                break
-            slope = wp.dot(nn, d)
-            if wp.abs(slope) < min_slope:
-                break  # the line grazes the surface
-            t = t - f / slope
-            if wp.abs(t) > tmax:
-                t = zero
-                y = x + t * d
-                break
-            y = x + t * d
-        if not converged:
-            break
-        if rnd == 2 or not (wp.length(y - start) > h):
-            ok = True
-            break
-        start = y  # converged more than h from where its neighbours were gathered: again
-        count = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, start, k, reach, nbr, nd2, again, cap)
-        base = again
+    ok, y, t, normal = _settle(RAY, line_iter, table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap, reach,
+                               inv_h2, reach2, tol, tmax, min_slope, h, x, d, nbr, nd2, at_x, again, count_x)
     if ok and wp.dot(normal, d) >= min_facing:
         result = RAY
         cp = x + t * d
         cn = normal
     else:
         # --- the projection y <- y - f(y) n(y), given up beyond tmax from x
-        y = x
-        start = x
-        normal = wp.vec3d(zero, zero, zero)
-        base = at_x
-        count = count_x
-        ok = bool(False)
-        for rnd in range(3):
-            converged = bool(False)
-            for it in range(proj_iter):
-                f, nn, sup = mls_at(table, pn, nbr, base, count, y, inv_h2, reach2)
-                normal = nn
-                if not sup:
-                    break
-                if wp.abs(f) <= tol:
-                    converged = True
-                    break
-                y = y - f * nn
-                if wp.dot(y - x, y - x) > tmax * tmax:
-                    break
-            if not converged:
-                break
-            if rnd == 2 or not (wp.length(y - start) > h):
-                ok = True
-                break
-            start = y
-            count = nearest(pn, ids, cell_start, g, cell, nx, ny, nz, start, k, reach, nbr, nd2, again, cap)
-            base = again
+        ok, y, t, normal = _settle(PROJECTION, proj_iter, table, pn, ids, cell_start, g, cell, nx, ny, nz, k, cap,
+                                   reach, inv_h2, reach2, tol, tmax, min_slope, h, x, d, nbr, nd2, at_x, again,
+                                   count_x)
         if ok and wp.dot(normal, d) >= min_facing and wp.length(y - x) <= tmax:
             result = PROJECTION
             cp = y
