@@ -121,6 +121,44 @@ def _sym3_extremes(a00: wp.float64, a11: wp.float64, a22: wp.float64,
     return q + wp.float64(2.0) * pp * wp.cos(phi + third), q + wp.float64(2.0) * pp * wp.cos(phi)
 
 
+@wp.func
+def _moments(p: wp.array(dtype=wp.float64), index: wp.array(dtype=wp.int32), first: int, last: int):
+    """The mean (x, y, z) and the scatter matrix (a00, a11, a22, a01, a02, a12: sums of
+    products of the offsets from the mean) of the points ``p[index[first:last]]`` (last >
+    first), summed in index order: two passes, as the NumPy twins."""
+    zero = wp.float64(0.0)
+    sx = zero
+    sy = zero
+    sz = zero
+    for e in range(first, last):
+        q = index[e]
+        sx += p[3 * q]
+        sy += p[3 * q + 1]
+        sz += p[3 * q + 2]
+    fm = wp.float64(last - first)
+    mx = sx / fm
+    my = sy / fm
+    mz = sz / fm
+    a00 = zero
+    a11 = zero
+    a22 = zero
+    a01 = zero
+    a02 = zero
+    a12 = zero
+    for e in range(first, last):
+        q = index[e]
+        dx = p[3 * q] - mx
+        dy = p[3 * q + 1] - my
+        dz = p[3 * q + 2] - mz
+        a00 += dx * dx
+        a11 += dy * dy
+        a22 += dz * dz
+        a01 += dx * dy
+        a02 += dx * dz
+        a12 += dy * dz
+    return mx, my, mz, a00, a11, a22, a01, a02, a12
+
+
 @wp.kernel
 def adaptive_clusters_kernel(
     p: wp.array(dtype=wp.float64),  # (n * 3,) points
@@ -152,35 +190,7 @@ def adaptive_clusters_kernel(
         lo = stack[2 * top]
         hi = stack[2 * top + 1]
         m = hi - lo
-        sx = zero
-        sy = zero
-        sz = zero
-        for k in range(lo, hi):
-            j = perm[k]
-            sx += p[3 * j]
-            sy += p[3 * j + 1]
-            sz += p[3 * j + 2]
-        fm = wp.float64(m)
-        mx = sx / fm
-        my = sy / fm
-        mz = sz / fm
-        a00 = zero
-        a11 = zero
-        a22 = zero
-        a01 = zero
-        a02 = zero
-        a12 = zero
-        for k in range(lo, hi):
-            j = perm[k]
-            dx = p[3 * j] - mx
-            dy = p[3 * j + 1] - my
-            dz = p[3 * j + 2] - mz
-            a00 += dx * dx
-            a11 += dy * dy
-            a22 += dz * dz
-            a01 += dx * dy
-            a02 += dx * dz
-            a12 += dy * dz
+        mx, my, mz, a00, a11, a22, a01, a02, a12 = _moments(p, perm, lo, hi)
         total = a00 + a11 + a22
         small, large = _sym3_extremes(a00, a11, a22, a01, a02, a12)
         var = zero
@@ -524,35 +534,7 @@ def variation_kernel(
     trace is 0), by the closed form of Smith (1961)."""
     r = wp.tid()
     zero = wp.float64(0.0)
-    sx = zero
-    sy = zero
-    sz = zero
-    for j in range(k):
-        q = idx[r * k + j]
-        sx += p[3 * q]
-        sy += p[3 * q + 1]
-        sz += p[3 * q + 2]
-    fk = wp.float64(k)
-    mx = sx / fk
-    my = sy / fk
-    mz = sz / fk
-    a00 = zero
-    a11 = zero
-    a22 = zero
-    a01 = zero
-    a02 = zero
-    a12 = zero
-    for j in range(k):
-        q = idx[r * k + j]
-        dx = p[3 * q] - mx
-        dy = p[3 * q + 1] - my
-        dz = p[3 * q + 2] - mz
-        a00 += dx * dx
-        a11 += dy * dy
-        a22 += dz * dz
-        a01 += dx * dy
-        a02 += dx * dz
-        a12 += dy * dz
+    mx, my, mz, a00, a11, a22, a01, a02, a12 = _moments(p, idx, r * k, r * k + k)
     trace = a00 + a11 + a22
     v = zero
     if trace > zero:
