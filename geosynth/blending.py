@@ -386,7 +386,8 @@ class _CellGrid:
                 self.cell, *self.dims]
 
 
-def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bound: float | None = None):
+def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bound: float | None = None, *,
+              grid: _CellGrid | None = None):
     """The k nearest points of each query, exact in float64, in pykdtree's form, by the
     compiled host step ``host_blend.knn_kernel`` (its workers split over the cores; the
     same bits on any number of them).
@@ -394,6 +395,8 @@ def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bo
     Args:
         points: (N, 3) float64, N >= 1; queries: (M, 3) float64; k: 1 <= k <= N.
         distance_upper_bound: only points strictly nearer count (world units; None: all).
+        grid: the points' cell grid from :func:`knn_grid` (the same points; any k: the
+            cell size sets the speed only), when a caller queries them more than once.
 
     Returns:
         ``(distances, indices)``: (M, k) float64, nearest first (ties by lower index, as
@@ -408,9 +411,8 @@ def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bo
     n, m, k = len(p), len(q), int(k)
     if m == 0:
         return np.zeros((0, k)), np.zeros((0, k), np.int64)
-    # cells about as wide as a query's k nearest on a surface (the cell size sets the speed
-    # only); the normals' slots unused (the points themselves fill them)
-    grid = _CellGrid(p, p, 0.0, auto_k=k)
+    if grid is None:
+        grid = knn_grid(p, k)
     reach = math.inf if distance_upper_bound is None else float(distance_upper_bound)
     if not reach < 1e150:  # every point: a reach whose square is still finite
         reach = 1e150
@@ -422,6 +424,14 @@ def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bo
     host_launch(knn_kernel, workers, [*grid.launch_args(), k, cap, reach, n, host_array(q, np.float64)[0], wp_nbr, wp_nd2,
                                       wp_d, wp_i, m, workers], split=True, min_part=1)
     return d, idx.astype(np.int64)
+
+
+def knn_grid(points: np.ndarray, k: int) -> _CellGrid:
+    """The cell grid :func:`nearest_k` searches for (N >= 1, 3) float64 ``points``: cells
+    about as wide as a query's k nearest on a surface (the cell size sets the speed only);
+    the normals' slots unused (the points themselves fill them)."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    return _CellGrid(p, p, 0.0, auto_k=int(k))
 
 
 def _counterparts_compiled(p: np.ndarray, n: np.ndarray, nb_p: np.ndarray, nb_n: np.ndarray, h: float,

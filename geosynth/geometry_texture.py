@@ -558,9 +558,9 @@ def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
 # products, split over OpenBLAS's threads, left the idle ones spinning (a 9,736-point
 # chainmail patch: 226 ms of CPU with 2 threads, 35 ms with one; the spinning also took
 # the cores from PoCL's workers), and a threaded product's sums depend on the thread count.
-# One OpenMP thread too: the blend's many small pykdtree queries (a few thousand points each)
-# took more CPU with a second OpenMP thread than they saved (height field, blend stage:
-# 3.2 CPU s with 2 threads, 2.7 s with one, 3.1 s with SciPy's cKDTree).
+# One OpenMP thread too: pykdtree's many small queries (a few thousand points each; the
+# blend's then, the seam errors' MLS surfaces now) took more CPU with a second OpenMP thread
+# than they saved (height field, blend stage: 3.2 CPU s with 2 threads, 2.7 s with one).
 def _one_thread(fn):
     """Run ``fn`` with one BLAS and one OpenMP thread. pykdtree is loaded first: threadpoolctl
     limits only the libraries loaded when the limit starts, and pykdtree brings its own libgomp."""

@@ -381,7 +381,6 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
         no point is within reach of the projection; where the projection stopped at
         ``|f| <= tol``, that last step's f), cells).
     """
-    from geosynth import _checks
     from geosynth.pointsets import MLS_REACH, CellGrid
 
     reach = MLS_REACH * h

@@ -153,12 +153,14 @@ class _KDTree:
 
     def __init__(self, points: np.ndarray):
         self.points = np.ascontiguousarray(points, np.float64)
-        self.n = len(self.points)
+        self._grid = None  # the points' cell grid, built at the first query, kept for the next
 
     def query(self, x: np.ndarray, k: int = 1, distance_upper_bound: float | None = None):
-        from geosynth.blending import nearest_k
+        from geosynth.blending import knn_grid, nearest_k
 
-        return nearest_k(self.points, x, int(k), distance_upper_bound)
+        if self._grid is None and len(x):
+            self._grid = knn_grid(self.points, int(k))
+        return nearest_k(self.points, x, int(k), distance_upper_bound, grid=self._grid)
 
 
 def _kdtree(points: np.ndarray) -> _KDTree:
