@@ -45,6 +45,15 @@ def cell_last(c: wp.float64, g: wp.float64, reach: wp.float64, inv_cell: wp.floa
 
 
 @wp.func
+def cell_box(y: wp.vec3d, g: wp.vec3d, wide: wp.float64, inv_cell: wp.float64, nx: int, ny: int, nz: int):
+    """The first and last cell along x, y and z (cell_first, cell_last) of the cells within
+    ``wide`` of y: (x0, x1, y0, y1, z0, z1)."""
+    return (cell_first(y[0], g[0], wide, inv_cell, nx), cell_last(y[0], g[0], wide, inv_cell, nx),
+            cell_first(y[1], g[1], wide, inv_cell, ny), cell_last(y[1], g[1], wide, inv_cell, ny),
+            cell_first(y[2], g[2], wide, inv_cell, nz), cell_last(y[2], g[2], wide, inv_cell, nz))
+
+
+@wp.func
 def slab_gap(y: wp.float64, lo: wp.float64, cell: wp.float64) -> wp.float64:
     """Distance from y to the interval [lo, lo + cell] (0 inside)."""
     if y < lo:
@@ -76,12 +85,7 @@ def mls_sums_f64(
     wide = reach * wp.float64(1.000000001) + slack
     wide2 = wide * wide
     inv_cell = wp.float64(1.0) / cell
-    x0 = cell_first(y[0], g[0], wide, inv_cell, nx)
-    x1 = cell_last(y[0], g[0], wide, inv_cell, nx)
-    y0 = cell_first(y[1], g[1], wide, inv_cell, ny)
-    y1 = cell_last(y[1], g[1], wide, inv_cell, ny)
-    z0 = cell_first(y[2], g[2], wide, inv_cell, nz)
-    z1 = cell_last(y[2], g[2], wide, inv_cell, nz)
+    x0, x1, y0, y1, z0, z1 = cell_box(y, g, wide, inv_cell, nx, ny, nz)
     ws = wp.float64(0.0)
     s = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     m = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
@@ -194,12 +198,7 @@ def nearest_point_f64(
     while done == 0:
         wide = r * wp.float64(1.000000001) + slack
         wide2 = wide * wide
-        x0 = cell_first(y[0], g[0], wide, inv_cell, nx)
-        x1 = cell_last(y[0], g[0], wide, inv_cell, nx)
-        y0 = cell_first(y[1], g[1], wide, inv_cell, ny)
-        y1 = cell_last(y[1], g[1], wide, inv_cell, ny)
-        z0 = cell_first(y[2], g[2], wide, inv_cell, nz)
-        z1 = cell_last(y[2], g[2], wide, inv_cell, nz)
+        x0, x1, y0, y1, z0, z1 = cell_box(y, g, wide, inv_cell, nx, ny, nz)
         close = int(0)  # a point at d^2 < enough2 was met
         if x0 <= x1:
             for cz in range(z0, z1 + 1):

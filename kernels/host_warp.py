@@ -10,6 +10,21 @@ Nothing here validates.
 import warp as wp
 
 
+@wp.func
+def _store_normal(out: wp.array(dtype=wp.float64), i: int, ju: wp.vec3d, jv: wp.vec3d, n: wp.vec3d):
+    """out[3 i : 3 i + 3] = (J u x J v) / |J u x J v|, or n where that length is below 1e-12
+    (the Jacobian collapses the tangents)."""
+    c = wp.cross(ju, jv)
+    length = wp.sqrt(wp.dot(c, c))
+    if length < wp.float64(1.0e-12):
+        c = n
+    else:
+        c = c / length
+    out[3 * i] = c[0]
+    out[3 * i + 1] = c[1]
+    out[3 * i + 2] = c[2]
+
+
 @wp.kernel
 def jacobian_normals_kernel(
     jac: wp.array(dtype=wp.float64),  # (m * 9,) J[k, j] = dW_k/dx_j, row-major per point
@@ -37,15 +52,7 @@ def jacobian_normals_kernel(
     jv = wp.vec3d(jac[o] * v[0] + jac[o + 1] * v[1] + jac[o + 2] * v[2],
                   jac[o + 3] * v[0] + jac[o + 4] * v[1] + jac[o + 5] * v[2],
                   jac[o + 6] * v[0] + jac[o + 7] * v[1] + jac[o + 8] * v[2])
-    c = wp.cross(ju, jv)
-    length = wp.sqrt(wp.dot(c, c))
-    if length < wp.float64(1.0e-12):
-        c = n
-    else:
-        c = c / length
-    out[3 * i] = c[0]
-    out[3 * i + 1] = c[1]
-    out[3 * i + 2] = c[2]
+    _store_normal(out, i, ju, jv, n)
 
 
 # ------------------------------------------------------------------------ adaptive clustering
@@ -588,12 +595,4 @@ def spline_normals_kernel(
                   j20 * a[0] + j21 * a[1] + j22 * a[2])
     jb = wp.vec3d(j00 * b[0] + j01 * b[1] + j02 * b[2], j10 * b[0] + j11 * b[1] + j12 * b[2],
                   j20 * b[0] + j21 * b[1] + j22 * b[2])
-    c = wp.cross(ja, jb)
-    length = wp.sqrt(wp.dot(c, c))
-    if length < wp.float64(1.0e-12):
-        c = n
-    else:
-        c = c / length
-    out[3 * i] = c[0]
-    out[3 * i + 1] = c[1]
-    out[3 * i + 2] = c[2]
+    _store_normal(out, i, ja, jb, n)
