@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.relief_prep import ReliefSurface, as_capture, prepare_relief, ring_neighbourhoods
+from geosynth.relief_prep import ReliefSurface, as_capture, check_spacing_rule, prepare_relief, ring_neighbourhoods
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
 
 __all__ = ["CompletedSurface", "CompletionReport", "complete_surface", "completion_picture", "write_completion"]
@@ -783,6 +783,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         raise ValueError(f"frames must be 'paper' or 'fit', got {frames!r}.")
     if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or not 0 <= refine <= 8:
         raise ValueError(f"refine must be an integer from 0 to 8 (refinement passes), got {refine!r}.")
+    check_spacing_rule(spacing)  # before the fit's work
     cap = as_capture(capture)
     need = 3 * window * (window + 1) + 1  # vertices of one W-ring neighbourhood of a regular triangulation
     if len(cap) < need:

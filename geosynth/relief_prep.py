@@ -30,7 +30,8 @@ import numpy as np
 
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
-__all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "prepare_relief", "ring_neighbourhoods"]
+__all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "check_spacing_rule", "prepare_relief",
+           "ring_neighbourhoods"]
 
 TARGET_SPACINGS = ("minimum", "median")  # prepare_relief(spacing=): the paper's minimum edge, or the median on the fit
 
@@ -370,6 +371,13 @@ def _edge_points(points: np.ndarray, faces: np.ndarray, edges: np.ndarray, fit: 
     return out
 
 
+def check_spacing_rule(spacing) -> str:
+    """``spacing`` if it is one of TARGET_SPACINGS, else a one-line ValueError."""
+    if not isinstance(spacing, str) or spacing not in TARGET_SPACINGS:
+        raise ValueError(f"spacing must be one of {', '.join(map(repr, TARGET_SPACINGS))}, got {spacing!r}.")
+    return spacing
+
+
 def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: int | None = None,
                    oversample: str = "butterfly", spacing: str = "minimum") -> ReliefSurface:
     """Samples, targets and their triangulation for a capture over its fit (Sec. 3, 4, 6).
@@ -414,8 +422,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
 
     if oversample not in ("butterfly", "midpoint"):
         raise ValueError(f"oversample must be 'butterfly' or 'midpoint', got {oversample!r}.")
-    if not isinstance(spacing, str) or spacing not in TARGET_SPACINGS:
-        raise ValueError(f"spacing must be one of {', '.join(map(repr, TARGET_SPACINGS))}, got {spacing!r}.")
+    check_spacing_rule(spacing)
     base0 = fit.project(capture.positions)
     param0 = fit.to_param(capture.positions)
     faces0 = _capture_faces(capture, fit, base0, param0)

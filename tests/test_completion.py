@@ -427,3 +427,9 @@ def test_median_spacing_same_bits_on_every_device(device_pair):
     assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
     s0, r0, _ = complete_surface(cap, fit="cylinder", window=2, rotations=1, frames="fit", device=a, seed=2)
     assert r0.spacing_rule == "minimum" and r0.spacing < ra.spacing  # the minimum edge lies in a groove
+
+
+def test_a_bad_spacing_rule_is_refused_before_any_work():
+    # the capture is not even read: the option is checked with the other parameters
+    with pytest.raises(ValueError, match="spacing must be one of 'minimum', 'median', got 'mean'"):
+        complete_surface(None, spacing="mean")
