@@ -439,9 +439,25 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     return 0
 
 
+# The options that only a tiled run reads, with the value that means "not given".
+_TILED_ONLY = (("--workers", "workers", None), ("--scheduler", "scheduler", None), ("--store", "store", None),
+               ("--tile-meshes", "tile_meshes", None), ("--resume", "resume", False))
+
+
 def _cmd_volume_any(args: argparse.Namespace) -> int:
     """``geosynth volume``: untiled, or with --tiles the tiled synthesis on Dask."""
-    return _cmd_volume_tiled(args) if args.tiles else _cmd_volume(args)
+    if args.tiles:
+        return _cmd_volume_tiled(args)
+    given = [flag for flag, name, unset in _TILED_ONLY if getattr(args, name) is not unset]
+    if given:
+        raise ValueError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to tiled runs only; add "
+                         "--tiles NXxNY (e.g. --tiles 2x2) or drop " + ("it" if len(given) == 1 else "them") + ".")
+    return _cmd_volume(args)
+
+
+def _checkpoint_path(out: Path) -> Path:
+    """Where a tiled run writing ``out`` keeps its finished tasks until it succeeds."""
+    return out.parent / f".{out.name}.geosynth-resume"
 
 
 def _cmd_volume_tiled(args: argparse.Namespace) -> int:
@@ -469,9 +485,22 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     size, block = _volume_shape(args)
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
-    if args.store is not None and os.path.realpath(args.store) in (os.path.realpath(out), os.path.realpath(png)):
-        raise ValueError(f"--store {args.store!r} is another output's path; give it its own name.")
+    outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
+    if args.tile_meshes is not None:  # every tile's file passes the guard, not only the first
+        from geosynth.tiled import tile_mesh_paths
+
+        if os.path.exists(args.tile_meshes) and not os.path.isdir(args.tile_meshes):
+            raise ValueError(f"--tile-meshes {args.tile_meshes!r} is a file; give a folder (it is created).")
+        outputs += [(p, (".ply",), f"--tile-meshes' file") for p in tile_mesh_paths(args.tile_meshes, tiles)]
+    _check_outputs(outputs, inputs)
+    checkpoint = _checkpoint_path(out)
+    if args.store is not None:
+        store = os.path.realpath(args.store)
+        for path, _, what in outputs + [(checkpoint, None, "the checkpoint (beside -o/--output)")]:
+            real = os.path.realpath(path)
+            if real == store or real.startswith(store + os.sep) or store.startswith(real + os.sep):
+                raise ValueError(f"--store {args.store!r} and {what} {str(path)!r} are the same path or one lies "
+                                 "inside the other (a store is replaced whole); give each its own place.")
     _check_device(args.device)
 
     from geosynth.examples import resolve_exemplar_mesh
@@ -488,20 +517,37 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
 
     def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
-        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab)
+        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
+                  search=args.search)
 
     source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
                                          args.device, check=check_tiling)
     shape = target_size(size, source.shape, args.levels)
-    engine = args.scheduler or f"a LocalCluster of {args.workers} workers"
+    workers = 2 if args.workers is None else args.workers
+    engine = args.scheduler or f"a LocalCluster of {workers} workers"
     say(f"geosynth volume: {label} -> {shape[2]} x {shape[1]} x {shape[0]} samples in {tiles[0]}x{tiles[1]} tiles on "
         f"{engine}, {args.levels} levels, block {block}, seed {args.seed}, device {args.device or 'auto'}")
+    if tiles == (1, 1):
+        say("1x1 tiles: the whole target is one tile, run as one Dask task: the untiled synthesis's result "
+            "(--store and --tile-meshes write it in one chunk and one file)")
+    elif args.scheduler is None and workers > tiles[0] * tiles[1]:
+        say(f"--workers {workers}: at most {tiles[0] * tiles[1]} tiles run at once; the other workers wait")
+
+    def interrupt_note() -> str:
+        saved = len([n for n in os.listdir(checkpoint) if n.endswith(".npz")]) if checkpoint.is_dir() else 0
+        return (f"; the finished tile tasks are kept in {str(checkpoint)!r}: rerun the same command with --resume "
+                "to continue from them" if saved else "")
+
+    args.interrupt_note = interrupt_note
     gather = bool(args.quality_samples) and 2 * int(np.prod(shape)) < available_memory() // 4
     result = synthesize_volume_tiled(
         source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
-        search=args.search, spacing=spacing, workers=args.workers, scheduler=args.scheduler, store=args.store,
+        search=args.search, spacing=spacing, workers=workers, scheduler=args.scheduler, store=args.store,
         gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs, slab=slab,
-        progress=not args.quiet)
+        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume)
+    if args.resume:
+        say(f"--resume: {result.resumed} finished task(s) of the interrupted run loaded from {str(checkpoint)!r}"
+            if result.resumed else "--resume: no checkpoint of an interrupted run with these settings; ran from the start")
     if result.grid.slab:
         say(f"slab exemplar: blocks span its full thickness along z, grown across only"
             + (" (chosen automatically)" if slab is None else ""))
@@ -858,13 +904,17 @@ def build_parser() -> argparse.ArgumentParser:
     # tiled synthesis on Dask (geosynth.tiled)
     p.add_argument("--tiles", default=None, metavar="NXxNY",
                    help="synthesize in NX x NY tiles on Dask (two-phase schedule, same result with any workers)")
-    p.add_argument("--workers", type=_int_type(1, 1024), default=2,
-                   help="workers of the local Dask cluster started for --tiles (default 2)")
+    p.add_argument("--workers", type=_int_type(1, 1024), default=None,
+                   help="workers of the local Dask cluster started for --tiles, 1 to 1024 (default 2)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="a running Dask scheduler for --tiles (tcp://host:port; workers must share the file "
                         "system), or 'threads'")
     p.add_argument("--store", default=None, metavar="OUT.zarr", help="with --tiles: the field as a zarr store")
     p.add_argument("--tile-meshes", default=None, metavar="DIR", help="with --tiles: one PLY per tile in DIR")
+    p.add_argument("--resume", action="store_true",
+                   help="with --tiles: continue an interrupted run of the same command from the tile tasks it "
+                        "finished (kept beside OUTPUT in .OUTPUT.geosynth-resume until a run succeeds); the "
+                        "result is the uninterrupted run's, bit for bit")
     p.set_defaults(func=_cmd_volume_any)
 
     p = sub.add_parser("texture", parents=[common],
@@ -1033,11 +1083,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except _Terminated:
+        note = _interrupt_note(args)
+        if note:
+            print(f"{name}: terminated{note}", file=sys.stderr)
         return 143
     except KeyboardInterrupt:
         if debug:
             raise
-        code, line = 130, f"{name}: interrupted"
+        code, line = 130, f"{name}: interrupted{_interrupt_note(args)}"
     except Exception as exc:
         if debug:
             raise
@@ -1053,6 +1106,15 @@ def main(argv: list[str] | None = None) -> int:
     sys.stdout.flush()
     print(line, file=sys.stderr)
     return code
+
+
+def _interrupt_note(args: argparse.Namespace) -> str:
+    """What an interrupted command left that a rerun can use (a tiled run's checkpoint), or ""."""
+    note = getattr(args, "interrupt_note", None)
+    try:
+        return note() if note is not None else ""
+    except OSError:
+        return ""
 
 
 def _close_progress_bars(interrupted: bool = False) -> None:

@@ -14,21 +14,29 @@ written as their extension says.
   folder, the wrong extension).
 - :func:`atomic_write`: fill a temporary file beside the target, then rename it into
   place; on an exception, Ctrl-C or SIGTERM the temporary file is removed.
+- :func:`temporary_path`: the name of such a temporary (file or folder):
+  ``.NAME.geosynth-PID-RANDOM.tmp[SUFFIX]``. A process killed outright (SIGKILL, a lost
+  machine) cannot remove its temporaries; the next write of the same output removes
+  those whose writer is gone (:func:`remove_stale_temporaries`).
 - :func:`write_image`: an 8-bit grey or RGB picture as PNG or JPEG (Pillow), by suffix.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import signal
-import tempfile
 import threading
+import uuid
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_input", "check_output", "note_input", "write_image"]
+__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_input", "check_output", "note_input", "noted_inputs",
+           "remove_stale_temporaries",
+           "temporary_path", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
@@ -44,6 +52,11 @@ def _resolved(path: str | os.PathLike) -> str:
 def note_input(path: str | os.PathLike) -> None:
     """Record ``path`` as an input of this process: no writer here will replace it."""
     _INPUTS.add(_resolved(path))
+
+
+def noted_inputs() -> list[str]:
+    """The resolved paths readers of this process noted (:func:`note_input`), sorted."""
+    return sorted(_INPUTS)
 
 
 def check_input(path: str | os.PathLike, what: str) -> Path:
@@ -129,6 +142,87 @@ def check_output(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike 
     return out
 
 
+# ------------------------------------------------------------------ temporaries
+
+_TMP_TAG = ".geosynth-"
+
+
+def temporary_path(target: str | os.PathLike, suffix: str = "") -> Path:
+    """A fresh temporary name beside ``target``: ``.NAME.geosynth-PID-RANDOM.tmp`` + ``suffix``.
+
+    The writer's process id in the name lets a later run tell its own stale temporaries
+    (their writer is gone) from those of a run still going (:func:`remove_stale_temporaries`).
+    Nothing is created.
+    """
+    out = Path(target)
+    return out.parent / f".{out.name}{_TMP_TAG}{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{suffix}"
+
+
+def _process_started(pid: int) -> float | None:
+    """When process ``pid`` started (seconds since the epoch), None when it is gone.
+
+    Linux: field 22 of /proc/PID/stat (clock ticks after boot) plus the boot time of
+    /proc/stat; elsewhere only whether it exists (then 0: it counts as started before).
+    """
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()  # after the command name, which may hold spaces
+        with open("/proc/stat", "rb") as f:
+            boot = next(int(line.split()[1]) for line in f if line.startswith(b"btime "))
+        return boot + int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except FileNotFoundError:
+        if os.path.isdir("/proc/self"):
+            return None
+    except (OSError, ValueError, IndexError, StopIteration):
+        pass
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return None
+    except OSError:  # it exists, owned by someone else
+        pass
+    return 0.0
+
+
+def remove_stale_temporaries(target: str | os.PathLike) -> list[str]:
+    """Remove the temporaries of ``target`` (:func:`temporary_path`) left by writers that are
+    gone: a process that no longer exists, or a process id reused by a process that started
+    after the temporary was last written. Temporaries of a live writer are kept.
+
+    Returns:
+        The paths removed.
+    """
+    out = Path(target)
+    folder = out.parent if str(out.parent) else Path(".")
+    pattern = re.compile(rf"^\.{re.escape(out.name)}{re.escape(_TMP_TAG)}(\d+)-[0-9a-f]+\.tmp")
+    removed = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    for name in names:
+        m = pattern.match(name)
+        if m is None:
+            continue
+        path = folder / name
+        try:
+            written = os.lstat(path).st_mtime
+        except OSError:
+            continue
+        started = _process_started(int(m.group(1)))
+        if started is not None and started <= written + 1.0:  # its writer may still be at work
+            continue
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+            removed.append(str(path))
+        except OSError:
+            pass
+    return removed
+
+
 class _Terminated(BaseException):
     """SIGTERM arrived during an atomic write (raised by the temporary handler)."""
 
@@ -143,7 +237,8 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], None], *,
 
     A failure, Ctrl-C or SIGTERM while writing removes the temporary file and leaves
     any existing ``path`` as it was. SIGTERM is then passed on as it would have
-    ended the process (the previous handler, or termination).
+    ended the process (the previous handler, or termination). Temporaries of ``path``
+    left by a killed earlier run are removed first (:func:`remove_stale_temporaries`).
 
     Args:
         path: the output file; its folder is created.
@@ -166,12 +261,13 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], None], *,
         signal.signal(signal.SIGTERM, _on_sigterm)
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=f".tmp{out.suffix}")
-        os.close(fd)
+        remove_stale_temporaries(out)
+        tmp = str(temporary_path(out, out.suffix))
+        os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
         write(tmp)
         umask = os.umask(0)
         os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get the usual mode
+        os.chmod(tmp, 0o666 & ~umask)  # created 0600; outputs get the usual mode
         os.replace(tmp, out)
         tmp = None
     except _Terminated:

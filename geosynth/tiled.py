@@ -31,14 +31,20 @@ neighbours' results.
   every vote and cut runs in a fixed order, so the result depends only on the seed and
   the tiling: not on the number of workers, the engine, nor the order tasks finish in.
   One tile is exactly :func:`geosynth.volume.synthesize_volume`'s result.
+- Interruption: with ``checkpoint``, every tile and corner task's result is saved there
+  as it finishes (atomically, by the worker); a run stopped by Ctrl-C, SIGTERM or a lost
+  machine is continued with ``resume=True``, which loads the saved results instead of
+  computing them again and gives the uninterrupted run's bits (the results depend only on
+  the seed and the tiling). Outputs (store, tile meshes) are written to temporaries and
+  moved into place only when the whole run has succeeded.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shutil
-import tempfile
 import threading
 import time
 import uuid
@@ -195,6 +201,89 @@ def _corner_part(result, free: Region, part: Region):
     return part, np.ascontiguousarray(result[0][free.local(part)])
 
 
+# ------------------------------------------------------------------ checkpoints (resume)
+
+_MANIFEST = "manifest.json"
+
+
+def _resumable(folder: str | None, name: str, task, *args):
+    """``task(*args)``, its (samples, info) result saved in ``folder`` as ``name``.npz; or,
+    when the folder already holds that result (an interrupted run's), the saved one
+    (info["resumed"] set). A file that cannot be read is computed again."""
+    if folder is None:
+        return task(*args)
+    path = os.path.join(folder, f"{name}.npz")
+    if os.path.exists(path):
+        try:
+            with np.load(path, allow_pickle=False) as saved:
+                info = dict(json.loads(str(saved["info"])), resumed=True)
+                return np.ascontiguousarray(saved["samples"]), info
+        except (OSError, ValueError, KeyError):
+            pass  # a damaged file: the task runs again and replaces it
+    samples, info = task(*args)
+    from geosynth.files import atomic_write
+
+    atomic_write(path, lambda tmp: np.savez(open(tmp, "wb"), samples=samples, info=json.dumps(info)))
+    return samples, info
+
+
+def _open_checkpoint(folder, key: str, resume: bool, inputs) -> tuple[str, int, int]:
+    """Prepare the checkpoint folder of a run whose settings digest to ``key``: created
+    when absent; an earlier run's results kept with ``resume`` (the same settings only),
+    else discarded.
+
+    Returns:
+        (the folder's real path, saved results kept, saved results discarded).
+
+    Raises:
+        ValueError: the folder is an input or holds one, holds files that are not a
+            checkpoint's, or (``resume``) holds the checkpoint of other settings.
+    """
+    from geosynth.files import check_output
+
+    real = os.path.realpath(os.fspath(folder))
+    manifest = os.path.join(real, _MANIFEST)
+    if not os.path.isdir(real):
+        check_output(real, inputs=inputs, what="checkpoint")
+    else:
+        from geosynth.files import noted_inputs
+
+        for item in list(inputs or ()) + noted_inputs():
+            if item is not None and os.path.realpath(os.fspath(item)).startswith(real + os.sep):
+                raise ValueError(f"checkpoint {str(folder)!r} holds an input ({os.fspath(item)!r}); choose "
+                                 "another output name.")
+        if not os.path.exists(manifest) and os.listdir(real):
+            raise ValueError(f"checkpoint {str(folder)!r} is a folder that holds no checkpoint; refusing to "
+                             "replace it: move it away or choose another output name.")
+    saved = 0
+    if os.path.exists(manifest):
+        try:
+            with open(manifest) as f:
+                same = json.load(f).get("key") == key
+        except (OSError, ValueError, AttributeError):
+            same = False
+        saved = len([n for n in os.listdir(real) if n.endswith(".npz") and not n.startswith(".")])
+        if resume and not same:
+            raise ValueError(f"--resume: the checkpoint in {str(folder)!r} was made with other settings "
+                             "(exemplar, size, tiles, levels, block, iterations, seed or search); give the "
+                             "interrupted run's settings, or run without --resume to start again.")
+        if resume:
+            return real, saved, 0
+    if os.path.isdir(real):
+        shutil.rmtree(real)
+    os.makedirs(real)
+    from geosynth.files import atomic_write
+
+    atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps({"key": key})))
+    return real, 0, saved
+
+
+def _drop_if_empty(folder: str | None) -> None:
+    """Remove a checkpoint folder that holds no task's result (a run refused or stopped early)."""
+    if folder is not None and os.path.isdir(folder) and not any(n.endswith(".npz") for n in os.listdir(folder)):
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _write_tile(store: str, result, core: Region) -> int:
     """Write a finest-level tile core into its chunk of the zarr array at ``store``."""
     import zarr
@@ -204,11 +293,14 @@ def _write_tile(store: str, result, core: Region) -> int:
     return int(result[0].nbytes)
 
 
-def _tile_mesh(result, core: Region, extra: list, shape, spacing: float, band: float, path: str | None):
+def _tile_mesh(result, core: Region, extra: list, shape, spacing: float, band: float, path: str | None,
+               keep: bool = True):
     """Marching cubes of a tile's core plus one sample of its +y / +x neighbours (the
     cells between the two tiles belong to this one), capped where the tile meets the
-    target's faces; vertices in world units. Returns (vertices (V, 3) float64, faces
-    (F, 3) int64) or, with ``path``, writes a PLY there and returns its face count."""
+    target's faces; vertices in world units. With ``path``, writes a PLY there (when the
+    tile has a surface). Returns (vertices (V, 3) float64, faces (F, 3) int64) with
+    ``keep`` (the merged mesh is made from these, never from the files' rounded
+    vertices), else the face count."""
     from skimage import measure
 
     from geosynth.surface import UINT8_LEVEL
@@ -230,15 +322,13 @@ def _tile_mesh(result, core: Region, extra: list, shape, spacing: float, band: f
         offset = np.array([-1, box.y0 - pads[1][0], box.x0 - pads[2][0]], np.float64)
         verts = (v.astype(np.float64) + offset)[:, ::-1] * float(spacing)  # (z, y, x) -> (x, y, z), world units
         faces = f.astype(np.int64)
-    if path is None:
-        return verts, faces
-    if len(faces):
+    if path is not None and len(faces):
         import trimesh
 
         from geosynth.surface import save_mesh
 
         save_mesh(trimesh.Trimesh(vertices=verts, faces=faces, process=False), path)
-    return int(len(faces))
+    return (verts, faces) if keep else int(len(faces))
 
 
 # ------------------------------------------------------------------ engines
@@ -418,6 +508,8 @@ class TiledResult:
             tile task; memory_limit: the per-worker limit it was checked against.
         timings: seconds per stage.
         engine: "threads" or "distributed"; workers: how many.
+        resumed: tile and corner tasks whose results were loaded from the checkpoint of
+            an interrupted run instead of computed (0 without ``resume``).
     """
 
     quantized: np.ndarray | None
@@ -437,6 +529,7 @@ class TiledResult:
     timings: dict = dc_field(default_factory=dict)
     engine: str = "distributed"
     workers: int = 0
+    resumed: int = 0
 
     def lines(self) -> list[str]:
         """The per-level timings and the run's figures, one line each."""
@@ -446,6 +539,8 @@ class TiledResult:
         for i, lv in enumerate(self.levels):
             out.append(f"level {i + 1}: {'whole, 1 task' if lv['whole'] else str(lv['tasks']) + ' tiles'}, "
                        f"{lv['matches']:,} matches, {lv['seconds']:.2f} s wall ({lv['task_seconds']:.2f} s in tasks)")
+        if self.resumed:
+            out.append(f"resumed: {self.resumed} finished task(s) of the interrupted run loaded from its checkpoint")
         out.append(f"{self.tasks} tile tasks on {self.workers} {self.engine} workers, {format_bytes(self.bytes_moved)} "
                    f"moved between workers, one tile task needs about {format_bytes(self.tile_estimate)} "
                    f"(limit {format_bytes(self.memory_limit)} per worker)")
@@ -551,23 +646,28 @@ def _faces_per_sample(source: np.ndarray) -> float:
 
 
 def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int | None = None,
-              coarse_whole: bool = True, slab: bool | None = None) -> TileGrid:
+              coarse_whole: bool = True, slab: bool | None = None, search: str = "cascade") -> TileGrid:
     """The tiling of a synthesis from a source of ``source_shape`` to ``target_shape``
     (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the blocks per level
     (:func:`geosynth.volume.plan_blocks`; with ``slab``, or when None and
     :func:`geosynth.volume.is_slab`, blocks through each level's full thickness, as
     :func:`geosynth.volume.synthesize_volume` makes them) and :meth:`TileGrid.make`.
     Needs the shapes only, so a tiling whose cores are smaller than a block plus the
-    margin is refused before any field is computed.
+    margin, or a search the tiles would refuse (``search="tree"`` with a slab's blocks), is
+    refused before any field is computed or any worker starts.
 
     Raises:
-        ValueError / TypeError: bad tiles, blocks that do not fit, cores too small.
+        ValueError / TypeError: bad tiles, blocks that do not fit, cores too small, the
+            tree search with a slab.
     """
     from geosynth.volume import is_slab, level_blocks, plan_blocks
 
     source_shape = tuple(int(v) for v in source_shape)
     target_shape = tuple(int(v) for v in target_shape)
     slab = is_slab(source_shape, target_shape) if slab is None else bool(slab)
+    if slab and search == "tree":  # each tile's Matcher would refuse it, on a worker, after the cluster started
+        raise ValueError("search='tree' takes cubic blocks only; this slab exemplar's blocks span its full thickness: "
+                         "use search='cascade' or 'linear' (or slab=False).")
     blocks = plan_blocks(source_shape, target_shape, levels, block, level_blocks(levels, block, slab), slab)
     return TileGrid.make(target_shape, parse_tiles(tiles), blocks, margin, coarse_whole, slab)
 
@@ -588,14 +688,42 @@ def parse_tiles(tiles) -> tuple[int, int]:
     return int(tiles[0]), int(tiles[1])
 
 
+def tile_mesh_paths(folder: str | os.PathLike, tiles) -> list[Path]:
+    """Every per-tile mesh a run with ``tiles`` ((nx, ny), "NXxNY" or a TileGrid) may write
+    in ``folder``: tile_x{ix}_y{iy}.ply, x fastest."""
+    nx, ny = tiles.tiles if isinstance(tiles, TileGrid) else parse_tiles(tiles)
+    return [Path(folder) / f"tile_x{ix}_y{iy}.ply" for iy in range(ny) for ix in range(nx)]
+
+
+def check_tile_mesh_path(path: str | os.PathLike, inputs) -> Path:
+    """The output guard (:func:`geosynth.files.check_output`) for one tile mesh."""
+    from geosynth.files import check_output
+
+    return check_output(path, inputs=inputs, suffixes=(".ply",), what="tile mesh")
+
+
+def _check_nesting(store: str | None, mesh_dir, checkpoint) -> None:
+    """Refuse folders of one run that lie in one another: a store is replaced whole (what
+    lies inside it would be lost), tile meshes or a checkpoint inside it would be too."""
+    folders = [(what, os.path.realpath(os.fspath(p))) for what, p in
+               (("store", store), ("tile_meshes", mesh_dir), ("checkpoint", checkpoint)) if p is not None]
+    for i, (what_a, a) in enumerate(folders):
+        for what_b, b in folders[i + 1:]:
+            if a == b or b.startswith(a + os.sep) or a.startswith(b + os.sep):
+                raise ValueError(f"{what_a} {a!r} and {what_b} {b!r} are the same folder or one lies inside the "
+                                 "other; give each its own folder.")
+
+
 def _check_store(store, inputs) -> str:
     """A zarr store path that is no input (nor holds one), and either absent or an older zarr store."""
     from geosynth.files import check_output
 
+    from geosynth.files import noted_inputs
+
     real = os.path.realpath(os.fspath(store))
     p = Path(real)
     if p.exists() and p.is_dir():
-        for item in inputs or ():
+        for item in list(inputs or ()) + noted_inputs():
             if item is not None and os.path.realpath(os.fspath(item)).startswith(real + os.sep):
                 raise ValueError(f"store {str(store)!r} holds an input ({os.fspath(item)!r}); choose another path "
                                  "(inputs are never overwritten).")
@@ -611,9 +739,11 @@ def _check_store(store, inputs) -> str:
 
 def _publish(tmp: str, final: str) -> None:
     """Move a finished store from its temporary folder into place (replacing an older store)."""
+    from geosynth.files import temporary_path
+
     old = None
     if os.path.exists(final):
-        old = f"{final}.old-{uuid.uuid4().hex[:8]}"
+        old = str(temporary_path(final))  # a kill before the rmtree below leaves it to the next run
         os.replace(final, old)
     os.replace(tmp, final)
     if old is not None:
@@ -649,6 +779,8 @@ def synthesize_volume_tiled(
     phases: int = 3,
     slab: bool | None = None,
     progress: bool = True,
+    checkpoint: str | os.PathLike | None = None,
+    resume: bool = False,
 ) -> TiledResult:
     """Tiled M1 synthesis (texture optimization) of a field larger than one process
     should hold, on Dask; the same bits whatever the engine and number of workers.
@@ -674,8 +806,10 @@ def synthesize_volume_tiled(
             up front when it does not fit.
         mesh: merge the tiles' meshes into one (refused up front, with the estimate,
             when it does not fit in memory); ``smooth`` Taubin iterations on it.
-        tile_meshes: a folder for one PLY per tile (tile_x{ix}_y{iy}.ply, world units).
-        inputs: files the run read (the store and meshes never replace them).
+        tile_meshes: a folder for one PLY per tile (tile_x{ix}_y{iy}.ply, world units),
+            written to a temporary folder beside it and moved in when the run succeeds.
+            Every tile's file name is checked against ``inputs`` before any work.
+        inputs: files the run read (the store, meshes and checkpoint never replace them).
         margin: samples of margin at every level (default: the largest block).
         coarse_whole: run the coarse levels that fit in one tile as one task (False:
             tile every level; for tests of the tiled path).
@@ -687,6 +821,14 @@ def synthesize_volume_tiled(
             as :func:`geosynth.volume.synthesize_volume` (None: when the exemplar is a
             slab, :func:`geosynth.volume.is_slab`; chainmail, rings, domes).
         progress: a progress bar over the tile tasks.
+        checkpoint: a folder where each finished tile and corner task's result is saved
+            (None: none). Removed when the run succeeds; after an interruption it holds
+            the finished tasks. Without ``resume`` an earlier run's checkpoint there is
+            discarded.
+        resume: load the results saved in ``checkpoint`` by an interrupted run with the
+            same settings (refused for other settings) instead of computing them; the
+            result is the uninterrupted run's, bit for bit. No saved checkpoint: the run
+            starts from the beginning (``TiledResult.resumed`` is 0).
 
     Returns:
         TiledResult.
@@ -725,7 +867,7 @@ def synthesize_volume_tiled(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
     nx, ny = parse_tiles(tiles)
     band, _, target_shape = check_source_and_size(src, size, levels, band, level_blocks(levels, block))
-    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab)
+    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab, search)
     blocks = list(grid.blocks)
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
@@ -734,15 +876,18 @@ def synthesize_volume_tiled(
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
     if gather is None:
         gather = store is None
+    _checks.check_bool("resume", resume)
+    if resume and checkpoint is None:
+        raise ValueError("resume needs the checkpoint folder of the interrupted run (checkpoint=...).")
     store_real = _check_store(store, inputs) if store is not None else None
     mesh_dir = None
     if tile_meshes is not None:
         mesh_dir = Path(tile_meshes)
         if mesh_dir.exists() and not mesh_dir.is_dir():
             raise ValueError(f"tile_meshes {str(tile_meshes)!r} is a file; give a folder.")
-        from geosynth.files import check_output
-
-        check_output(mesh_dir / "tile_x0_y0.ply", inputs=inputs, what="tile_meshes")
+        for path in tile_mesh_paths(mesh_dir, grid):  # every tile's file, not only the first
+            check_tile_mesh_path(path, inputs)
+    _check_nesting(store_real, mesh_dir, checkpoint)
 
     if src.dtype != np.uint8:
         src = quantize_field(src, band)
@@ -760,16 +905,25 @@ def synthesize_volume_tiled(
                      "(write a store and tile meshes instead)")
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**63))
-    digest = hashlib.sha1(b"".join(s.tobytes() for s in sources)
-                          + repr((blocks, grid.slab, caps, device, search, int(seed))).encode()).hexdigest()
+    exemplar_bytes = b"".join(s.tobytes() for s in sources)
+    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed))).encode()).hexdigest()
+    ckpt, resumed_found = None, 0
+    if checkpoint is not None:  # the device is not part of the key: every device gives the same bits
+        key = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, search, int(seed), tuple(target_shape),
+                                                  (nx, ny), margin, coarse_whole, phases)).encode()).hexdigest()
+        ckpt, resumed_found, _ = _open_checkpoint(checkpoint, key, resume, inputs)
     ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device, search, int(seed), digest)
     estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
                           phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}
 
     t0 = time.perf_counter()
-    engine = _engine(scheduler, workers)  # a silent scheduler is refused here, before anything is written
-    tmp_store = None
+    try:
+        engine = _engine(scheduler, workers)  # a silent scheduler is refused here, before anything is written
+    except BaseException:
+        _drop_if_empty(ckpt)
+        raise
+    tmp_store = tmp_meshes = None
     try:
         limit = engine.memory_limit()
         n_workers = engine.worker_count()
@@ -800,7 +954,7 @@ def synthesize_volume_tiled(
         run = uuid.uuid4().hex[:10]
         moved0 = engine.transfers()
         ex_ref = engine.scatter(ex)
-        result = _run(engine, ex_ref, grid, run, progress, phases)
+        result = _run(engine, ex_ref, grid, run, progress, phases, ckpt)
         levels_info, finest, held = result
         timings.update({f"level {i + 1}": lv["seconds"] for i, lv in enumerate(levels_info)})
 
@@ -812,12 +966,15 @@ def synthesize_volume_tiled(
         last = grid.levels - 1
         cores = grid.cores(last)
         graphs, kinds = [], []
+        from geosynth.files import remove_stale_temporaries, temporary_path
+
         if store_real is not None:
             import zarr
 
-            parent = os.path.dirname(store_real)
-            os.makedirs(parent, exist_ok=True)
-            tmp_store = tempfile.mkdtemp(dir=parent, prefix=f".{os.path.basename(store_real)}.", suffix=".tmp")
+            os.makedirs(os.path.dirname(store_real), exist_ok=True)
+            remove_stale_temporaries(store_real)
+            tmp_store = str(temporary_path(store_real))
+            os.mkdir(tmp_store)
             chunks = (Z, min(Y, grid.core[0]), min(X, grid.core[1]))
             arr = zarr.open_array(tmp_store, mode="w", shape=target_shape, chunks=chunks, dtype="uint8",
                                   fill_value=0)
@@ -830,27 +987,31 @@ def synthesize_volume_tiled(
                 kinds.append(("write", t))
         want_mesh = mesh or mesh_dir is not None
         if want_mesh:
-            if mesh_dir is not None:
+            if mesh_dir is not None:  # filled by the tasks, moved into mesh_dir at the end
                 mesh_dir.mkdir(parents=True, exist_ok=True)
+                remove_stale_temporaries(mesh_dir / "tiles")
+                tmp_meshes = temporary_path(mesh_dir / "tiles")
+                tmp_meshes.mkdir()
             for t, c in cores.items():
                 box = Region(c.y0, min(Y, c.y1 + 1), c.x0, min(X, c.x1 + 1))
                 extra = [delayed(_crop, pure=False)(finest[u], grid.core_region(last, u), part,
                                                     dask_key_name=f"meshcrop-{run}-{t}-{u}")
                          for u, part in grid.overlapping(last, box) if u != t]
                 ix, iy = grid.position(t)
-                path = None if mesh_dir is None else str(mesh_dir / f"tile_x{ix}_y{iy}.ply")
+                path = None if tmp_meshes is None else str(tmp_meshes / f"tile_x{ix}_y{iy}.ply")
                 graphs.append(delayed(_tile_mesh, pure=False)(finest[t], c, extra, target_shape, spacing, band, path,
-                                                              dask_key_name=f"mesh-{run}-{t}"))
+                                                              mesh, dask_key_name=f"mesh-{run}-{t}"))
                 kinds.append(("mesh", t))
         outputs = engine.gather(engine.compute(graphs)) if graphs else []
         tile_paths, pieces = [], []
         for (kind, t), value in zip(kinds, outputs):
-            if kind == "mesh" and mesh_dir is not None:
-                ix, iy = grid.position(t)
-                if value:
-                    tile_paths.append(str(mesh_dir / f"tile_x{ix}_y{iy}.ply"))
-            elif kind == "mesh":
+            if kind != "mesh":
+                continue
+            if mesh:
                 pieces.append(value)
+            if mesh_dir is not None and (len(value[1]) if mesh else value):
+                ix, iy = grid.position(t)
+                tile_paths.append(str(mesh_dir / f"tile_x{ix}_y{iy}.ply"))
         quantized = None
         if gather:
             quantized = np.empty(target_shape, np.uint8)
@@ -859,32 +1020,36 @@ def synthesize_volume_tiled(
                 quantized[:, c.y0:c.y1, c.x0:c.x1] = value[0]
         merged = None
         if mesh:
-            if mesh_dir is not None:  # the meshes went to files: read them back
-                import trimesh
-
-                pieces = []
-                for p in tile_paths:
-                    m = trimesh.load(p, process=False)
-                    pieces.append((np.asarray(m.vertices), np.asarray(m.faces)))
             merged = _merge(pieces, smooth)
         timings["outputs"] = time.perf_counter() - t0
         bytes_moved = engine.transfers() - moved0
         peak = engine.peak_rss()
+        # every output is complete: moved into place together
         if tmp_store is not None:
             _publish(tmp_store, store_real)
             tmp_store = None
+        if tmp_meshes is not None:
+            for name in sorted(os.listdir(tmp_meshes)):
+                os.replace(tmp_meshes / name, mesh_dir / name)
+            shutil.rmtree(tmp_meshes, ignore_errors=True)
+            tmp_meshes = None
+        if ckpt is not None:
+            shutil.rmtree(ckpt, ignore_errors=True)
     finally:
-        if tmp_store is not None:
-            shutil.rmtree(tmp_store, ignore_errors=True)
+        for tmp in (tmp_store, tmp_meshes):
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
+        _drop_if_empty(ckpt)
         engine.close()
     timings["total"] = time.perf_counter() - t_start
     return TiledResult(quantized, store_real, merged, tile_paths, sources[-1], grid, float(band), float(spacing),
                        levels_info, sum(lv["tasks"] for lv in levels_info), bytes_moved, peak, estimate, limit,
                        timings, engine.name, int(workers) if scheduler in (None, "threads") else
-                       len(engine.client.scheduler_info(n_workers=-1)["workers"]))
+                       len(engine.client.scheduler_info(n_workers=-1)["workers"]),
+                       sum(bool(i.get("resumed")) for lv in levels_info for i in lv["tiles"] + lv["corners"]))
 
 
-def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
+def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int, checkpoint: str | None = None):
     """Every level's tile tasks, level after level; returns (per-level info, the finest
     level's results by tile: futures or values, every level's results). A level's
     results are kept (on the workers) until the outputs are written: should a worker die,
@@ -924,7 +1089,8 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                         fixed = [delayed(_crop, pure=False)(tasks[u], grid.core_region(level, u), part,
                                                             dask_key_name=f"fix-{run}-{level}-{t}-{u}")
                                  for u, part in grid.fixed_parts(level, t)]
-                    tasks[t] = delayed(_tile_task, pure=False)(ex_ref, grid, level, t, init, fixed,
+                    tasks[t] = delayed(_resumable, pure=False)(checkpoint, f"L{level}-t{t}", _tile_task, ex_ref, grid,
+                                                               level, t, init, fixed,
                                                                dask_key_name=f"tile-{run}-{level}-{t}")
                     graph_tasks += 1 + len(init) + len(fixed)
             corner_infos = []
@@ -936,8 +1102,8 @@ def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int):
                     pieces = [delayed(_crop, pure=False)(tasks[u], cores[u], part,
                                                          dask_key_name=f"cwin-{run}-{level}-{k}-{u}")
                               for u, part in grid.overlapping(level, window)]
-                    corner = delayed(_corner_task, pure=False)(ex_ref, grid, level, k, pieces,
-                                                               dask_key_name=f"tile-{run}-{level}-c{k}")
+                    corner = delayed(_resumable, pure=False)(checkpoint, f"L{level}-c{k}", _corner_task, ex_ref, grid,
+                                                             level, k, pieces, dask_key_name=f"tile-{run}-{level}-c{k}")
                     corner_infos.append(delayed(_info, pure=False)(corner, dask_key_name=f"cinfo-{run}-{level}-{k}"))
                     graph_tasks += 2 + len(pieces)
                     for u, part in grid.overlapping(level, free):

@@ -643,3 +643,34 @@ def test_write_image_by_suffix(tmp_path):
         with pytest.raises(ValueError, match="must end in .png, .jpg, .jpeg"):
             write_image(tmp_path / name, img)
     assert sorted(os.listdir(tmp_path)) == ["a.JPEG", "a.jpg", "a.png"]
+
+
+def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
+    # issue 31: after a SIGKILL during a write the hidden temporary stayed, and the next run kept it
+    out = tmp_path / "out.ply"
+    script = textwrap.dedent(f"""
+        import time
+        from geosynth.files import atomic_write
+        def slow(tmp):
+            open(tmp, "wb").write(b"partial")
+            print("writing", flush=True)
+            time.sleep(60)
+        atomic_write({str(out)!r}, slow)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing"
+        proc.kill()  # SIGKILL: no cleanup can run
+        proc.wait(timeout=30)
+    finally:
+        proc.kill()
+    left = [p.name for p in tmp_path.iterdir()]
+    assert len(left) == 1 and left[0].startswith(f".out.ply.geosynth-{proc.pid}-"), left
+    # a live writer's temporary (this process, just written) must survive another run's cleanup
+    from geosynth.files import temporary_path
+
+    live = temporary_path(tmp_path / "out.ply", ".ply")
+    live.write_bytes(b"still being written")
+    atomic_write(out, lambda tmp: Path(tmp).write_bytes(b"done"))
+    assert out.read_bytes() == b"done"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["out.ply", live.name])

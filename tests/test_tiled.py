@@ -308,3 +308,157 @@ def test_corner_windows_resynthesize_only_the_b_b_corners(terrain):
         outside[f.y0:f.y1, f.x0:f.x1] = False
         assert not np.array_equal(two.quantized[:, f.y0:f.y1, f.x0:f.x1], three.quantized[:, f.y0:f.y1, f.x0:f.x1])
     assert np.array_equal(two.quantized[:, outside], three.quantized[:, outside])
+
+
+# ------------------------------------------------------------------ interruption and resume
+
+
+def test_resume_after_a_lost_run_gives_the_uninterrupted_bits(terrain, tmp_path, monkeypatch):
+    import geosynth.tiled as tiled
+
+    shape = _shape(terrain, 3, 2)
+    kw = dict(FAST, scheduler="threads", workers=1, mesh=True, gather=True)
+    ref = synthesize_volume_tiled(terrain, shape, (3, 2), **kw)
+    ckpt = tmp_path / "ckpt"
+    calls = {"n": 0}
+    real_task = tiled._tile_task
+
+    def dies_after_four(*args):
+        calls["n"] += 1
+        if calls["n"] > 4:
+            raise RuntimeError("the machine was lost")
+        return real_task(*args)
+
+    monkeypatch.setattr(tiled, "_tile_task", dies_after_four)
+    with pytest.raises(RuntimeError, match="the machine was lost"):
+        synthesize_volume_tiled(terrain, shape, (3, 2), checkpoint=ckpt, store=tmp_path / "s.zarr",
+                                tile_meshes=tmp_path / "tiles", **kw)
+    saved = sorted(p.name for p in ckpt.iterdir() if p.suffix == ".npz")
+    assert len(saved) == 4 and (ckpt / "manifest.json").exists()
+    assert not (tmp_path / "s.zarr").exists() and not (tmp_path / "tiles").exists()  # nothing half-written published
+
+    calls["n"] = -10_000  # the resumed run may compute every task that is left
+    with pytest.raises(ValueError, match="--resume: the checkpoint .* other settings"):
+        synthesize_volume_tiled(terrain, shape, (3, 2), checkpoint=ckpt, resume=True, **dict(kw, seed=4))
+    assert sorted(p.name for p in ckpt.iterdir() if p.suffix == ".npz") == saved  # a refusal keeps the checkpoint
+    calls["n"] = 0
+    got = synthesize_volume_tiled(terrain, shape, (3, 2), checkpoint=ckpt, resume=True, store=tmp_path / "s.zarr",
+                                  tile_meshes=tmp_path / "tiles", **kw)
+    assert got.resumed == 4 and calls["n"] == ref.tasks - 4  # the 4 saved tile tasks were not computed again
+    assert np.array_equal(got.quantized, ref.quantized)
+    # (issue 37 too: the merged mesh is the same with tile meshes written as without)
+    assert np.array_equal(got.mesh.vertices, ref.mesh.vertices) and np.array_equal(got.mesh.faces, ref.mesh.faces)
+    assert not ckpt.exists()  # removed once the run succeeded
+    assert len(list((tmp_path / "tiles").iterdir())) == 6 and not [p for p in tmp_path.iterdir() if ".geosynth-" in p.name]
+
+
+def test_every_tile_mesh_name_is_guarded(terrain, tmp_path):
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    exemplar = folder / "tile_x1_y0.ply"  # the exemplar sits where the second tile's mesh would go
+    exemplar.write_bytes(b"ply\n")
+    with pytest.raises(ValueError, match="tile_x1_y0.ply' is an input file"):
+        synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), (2, 2), scheduler="threads", tile_meshes=folder,
+                                inputs=[exemplar], **KW)
+    with pytest.raises(ValueError, match="same folder or one lies inside the other"):
+        synthesize_volume_tiled(terrain, _shape(terrain, 2, 2), (2, 2), scheduler="threads", store=tmp_path / "s",
+                                tile_meshes=tmp_path / "s" / "tiles", **KW)
+    assert exemplar.read_bytes() == b"ply\n" and sorted(p.name for p in tmp_path.iterdir()) == ["tiles"]
+
+
+TINY_TILED = ["--size", "32", "--levels", "2", "--block", "4", "--source-resolution", "16", "--quality-samples", "0",
+              "--quiet", "--device", ONE_DEVICE]
+
+
+def test_cli_tile_meshes_never_replace_the_input(tmp_path, capsys):
+    # issue 31: the guard checked only the first tile's name; the second tile's mesh replaced the input
+    from geosynth.cli import main
+
+    tm = tmp_path / "tm"
+    tm.mkdir()
+    exemplar = tm / "tile_x1_y0.ply"
+    import trimesh
+
+    trimesh.creation.box((4, 4, 1)).export(exemplar)
+    before = exemplar.read_bytes()
+    rc = main(["volume", str(exemplar), "-o", str(tmp_path / "out" / "t2.ply"), *TINY_TILED, "--tiles", "2x2",
+               "--tile-meshes", str(tm)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--tile-meshes' file" in err and "tile_x1_y0.ply' is an input file" in err, err
+    assert exemplar.read_bytes() == before and sorted(p.name for p in tm.iterdir()) == ["tile_x1_y0.ply"]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--workers", "4"], "--workers applies to tiled runs only"),
+    (["--store", "s.zarr"], "--store applies to tiled runs only"),
+    (["--tile-meshes", "tm", "--resume"], "--tile-meshes, --resume apply to tiled runs only"),
+    (["--scheduler", "threads"], "--scheduler applies to tiled runs only"),
+    (["--tiles", "2x2", "--store", "s.zarr", "--tile-meshes", "s.zarr/tm"], "same path or one lies inside the other"),
+    (["--tiles", "2x2", "--store", "s.zarr", "-o", "s.zarr/t.ply"], "same path or one lies inside the other"),
+])
+def test_cli_tiled_options_refused_where_they_do_nothing(extra, says, tmp_path, capsys, monkeypatch):
+    from geosynth.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["volume", "--example", "terrain", "-o", "t.ply", *TINY_TILED] + extra
+    rc = main(argv)
+    err = capsys.readouterr().err
+    assert rc == 2 and says in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_interrupted_tiled_run_resumes_to_the_same_bytes(tmp_path):
+    # issue 31: Ctrl-C after some tiles keeps every old output and the finished tasks; --resume
+    # continues from them and writes the uninterrupted run's bytes.
+    import subprocess
+    import sys
+
+    def command(out: str) -> list[str]:
+        return [sys.executable, "-m", "geosynth.cli", "volume", "--example", "terrain", "-o", out, *TINY_TILED,
+                "--tiles", "2x2", "--scheduler", "threads"]
+
+    (tmp_path / "k.ply").write_bytes(b"old mesh")
+    (tmp_path / "k.png").write_bytes(b"old picture")
+    ckpt = tmp_path / ".k.ply.geosynth-resume"
+    proc = subprocess.Popen(command("k.ply"), cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        while proc.poll() is None and time.monotonic() < deadline:
+            if ckpt.is_dir() and len([p for p in ckpt.iterdir() if p.suffix == ".npz"]) >= 2:
+                proc.send_signal(signal.SIGINT)  # the coarse level and one finest tile are done
+                break
+            time.sleep(0.01)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "interrupted; the finished tile tasks are kept in" in err and "--resume" in err
+    assert (tmp_path / "k.ply").read_bytes() == b"old mesh" and (tmp_path / "k.png").read_bytes() == b"old picture"
+    saved = {p.name for p in ckpt.iterdir() if p.suffix == ".npz"}
+    assert len(saved) >= 2
+
+    resumed = subprocess.run(command("k.ply")[:-2] + ["--scheduler", "threads", "--resume"], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=180)
+    assert resumed.returncode == 0, resumed.stderr
+    fresh = subprocess.run(command("fresh.ply"), cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert fresh.returncode == 0, fresh.stderr
+    assert (tmp_path / "k.ply").read_bytes() == (tmp_path / "fresh.ply").read_bytes()
+    assert not ckpt.exists() and not [p for p in tmp_path.iterdir() if ".geosynth-" in p.name]
+
+
+def test_cli_tree_search_with_a_slab_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
+    # issue 37: each tile refused it on a worker, whose traceback reached the user
+    import geosynth.meshes
+    from geosynth.cli import main
+
+    def computed(*args, **kwargs):
+        raise AssertionError("the exemplar's distance field was computed before the search was checked")
+
+    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    rc = main(["volume", "--example", "domes", "-o", str(tmp_path / "d.ply"), "--size", "64", "--levels", "2",
+               "--block", "8", "--tiles", "2x2", "--search", "tree", "--quiet", "--device", ONE_DEVICE])
+    err = capsys.readouterr().err
+    assert rc == 2 and "search='tree' takes cubic blocks only" in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
