@@ -1,10 +1,11 @@
-"""How is geosynth run as ``python -m geosynth``? Through the command line.
+"""How is geosynth run as ``python -m geosynth``? Through the command line, with
+interrupts caught from the first instant (:mod:`geosynth._launch`).
 
 Implements no paper section.
 """
 
 import sys
 
-from geosynth.cli import main
+from geosynth._launch import main
 
 sys.exit(main())

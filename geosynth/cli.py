@@ -9,7 +9,10 @@ with :func:`geosynth.files.check_output` (never an input, a folder, a path under
 file, an unwritable folder or the wrong extension; two outputs of one run never the
 same file). An expected failure is one line on stderr, ``geosynth <command>:
 <message>``, exit code 2 (``--debug``: the traceback instead); Ctrl-C exits 130 and
-SIGTERM 143, quietly. ``--verbose`` lets the libraries' warnings through (it sets
+SIGTERM 143, quietly. One commit step per command (:func:`geosynth.files.staged_outputs`):
+every output (mesh, picture, point set, store, tile meshes) waits in a temporary until
+the command has finished, and all are moved in together; an interrupt at any moment,
+even one that a library swallowed, leaves every old output as it was (exit 130/143). ``--verbose`` lets the libraries' warnings through (it sets
 ``GEOSYNTH_VERBOSE=1`` before any backend loads).
 """
 
@@ -1037,8 +1040,20 @@ class _Terminated(BaseException):
     """SIGTERM arrived (raised by main's handler, so that cleanups run)."""
 
 
+# The signals main's handlers saw during this run: asked before the outputs are committed,
+# so that an interrupt some library caught (an optional import's `except BaseException`)
+# still stops the run.
+_SIGNALS: list[int] = []
+
+
 def _on_sigterm(signum, frame):  # pragma: no cover - exercised through a subprocess
+    _SIGNALS.append(signal.SIGTERM)
     raise _Terminated()
+
+
+def _on_sigint(signum, frame):  # pragma: no cover - exercised through a subprocess
+    _SIGNALS.append(signal.SIGINT)
+    raise KeyboardInterrupt
 
 
 def _expected() -> tuple[type[BaseException], ...]:
@@ -1069,25 +1084,45 @@ def _message(exc: BaseException, command: str) -> str:
     return " ".join(text.split())  # one line
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
     """Run the command line; returns the exit code (0 done, 1 a failed demo check or an
-    unexpected internal error, 2 bad input, 130 Ctrl-C, 143 SIGTERM)."""
+    unexpected internal error, 2 bad input, 130 Ctrl-C, 143 SIGTERM).
+
+    ``early``: signals recorded before this module was loaded (:mod:`geosynth._launch`):
+    the run ends at once, writing nothing."""
+    from geosynth.files import staged_outputs
+
+    in_main = threading.current_thread() is threading.main_thread()
+    _SIGNALS.clear()
+    previous = ({sig: signal.signal(sig, handler) for sig, handler in
+                 ((signal.SIGINT, _on_sigint), (signal.SIGTERM, _on_sigterm))} if in_main else {})
+    try:
+        return _main(argv, list(early), staged_outputs)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def _main(argv, early: list[int], staged_outputs) -> int:
+    if early:  # interrupted while loading: nothing has been done
+        return 143 if signal.SIGTERM in early else 130
     args = build_parser().parse_args(argv)
     debug = args.debug or args.global_debug
     if args.verbose or args.global_verbose:
         os.environ["GEOSYNTH_VERBOSE"] = "1"  # read when the backends load
     name = f"geosynth {args.command}"
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
     line = None
     try:
-        return args.func(args)
+        with staged_outputs(interrupted=lambda: bool(_SIGNALS)):
+            return args.func(args)
     except _Terminated:
         note = _interrupt_note(args)
         if note:
             print(f"{name}: terminated{note}", file=sys.stderr)
         return 143
     except KeyboardInterrupt:
+        if signal.SIGTERM in _SIGNALS:  # a SIGTERM that a library caught, seen before the commit
+            return 143
         if debug:
             raise
         code, line = 130, f"{name}: interrupted{_interrupt_note(args)}"
@@ -1099,9 +1134,6 @@ def main(argv: list[str] | None = None) -> int:
         else:
             code, line = 1, (f"{name}: unexpected {type(exc).__name__}: {_message(exc, args.command)} "
                              "(rerun with --debug for the traceback, and please report it)")
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
     _close_progress_bars(interrupted=code == 130)
     sys.stdout.flush()
     print(line, file=sys.stderr)

@@ -14,6 +14,11 @@ written as their extension says.
   folder, the wrong extension).
 - :func:`atomic_write`: fill a temporary file beside the target, then rename it into
   place; on an exception, Ctrl-C or SIGTERM the temporary file is removed.
+- :func:`staged_outputs`: one commit step for a whole command: inside it, what this
+  thread's atomic writes (and :func:`defer`'d publications, e.g. a tiled run's store)
+  would move into place waits, in temporaries, until the block ends, and is then moved
+  in together with SIGINT and SIGTERM held back; an exception, Ctrl-C or SIGTERM before
+  that removes every temporary and leaves every old output as it was.
 - :func:`temporary_path`: the name of such a temporary (file or folder):
   ``.NAME.geosynth-PID-RANDOM.tmp[SUFFIX]``. A process killed outright (SIGKILL, a lost
   machine) cannot remove its temporaries; the next write of the same output removes
@@ -29,13 +34,14 @@ import shutil
 import signal
 import threading
 import uuid
+from contextlib import contextmanager
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_input", "check_output", "note_input", "noted_inputs",
-           "remove_stale_temporaries",
+__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_input", "check_output", "defer", "note_input", "noted_inputs",
+           "remove_stale_temporaries", "staged_outputs",
            "temporary_path", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -223,6 +229,75 @@ def remove_stale_temporaries(target: str | os.PathLike) -> list[str]:
     return removed
 
 
+# ------------------------------------------------------------------ one commit step per command
+
+
+class _Stage:
+    """The publications a command's outputs wait for: (commit, abort) pairs, in order."""
+
+    def __init__(self, thread: int, interrupted: Callable[[], bool]):
+        self.thread = thread
+        self.interrupted = interrupted
+        self.pending: list[tuple[Callable[[], None], Callable[[], None]]] = []
+
+
+_STAGE: _Stage | None = None
+
+
+def defer(commit: Callable[[], None], abort: Callable[[], None]) -> bool:
+    """Inside :func:`staged_outputs` (on the thread that opened it): keep ``commit`` (what
+    puts a finished output in place) for the end of the block, and ``abort`` (what removes
+    its temporaries) for a failure; returns True. Elsewhere returns False: the caller
+    commits now."""
+    stage = _STAGE
+    if stage is None or threading.get_ident() != stage.thread:
+        return False
+    stage.pending.append((commit, abort))
+    return True
+
+
+@contextmanager
+def staged_outputs(interrupted: Callable[[], bool] = lambda: False):
+    """Every output written inside the block is put in place together when it ends.
+
+    Args:
+        interrupted: asked before the outputs are put in place; True (an interrupt was
+            seen, even one that some library swallowed) aborts them as an exception
+            would, raising KeyboardInterrupt.
+
+    While the outputs are moved in, SIGINT and SIGTERM are held back (main thread); one
+    that arrived meanwhile is delivered afterwards, with every new output in place.
+    """
+    global _STAGE
+    if _STAGE is not None:  # nested: the outer block commits
+        yield
+        return
+    stage = _Stage(threading.get_ident(), interrupted)
+    _STAGE = stage
+    try:
+        yield
+        if stage.interrupted():
+            raise KeyboardInterrupt
+    except BaseException:
+        _STAGE = None
+        for _, abort in reversed(stage.pending):
+            try:
+                abort()
+            except OSError:
+                pass
+        raise
+    _STAGE = None
+    main = threading.current_thread() is threading.main_thread()
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if main else None
+    try:
+        for commit, _ in stage.pending:
+            commit()
+    finally:
+        if main:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 class _Terminated(BaseException):
     """SIGTERM arrived during an atomic write (raised by the temporary handler)."""
 
@@ -232,19 +307,23 @@ def _on_sigterm(signum, frame):  # pragma: no cover - exercised through a subpro
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[str], None], *,
-                 inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
+                 inputs: Sequence[str | os.PathLike | None] = (), stage: bool = True) -> Path:
     """Call ``write(tmp_path)`` to fill a temporary file, then move it to ``path``.
 
     A failure, Ctrl-C or SIGTERM while writing removes the temporary file and leaves
     any existing ``path`` as it was. SIGTERM is then passed on as it would have
     ended the process (the previous handler, or termination). Temporaries of ``path``
     left by a killed earlier run are removed first (:func:`remove_stale_temporaries`).
+    Inside :func:`staged_outputs` (same thread) the filled temporary is moved in at the
+    end of that block, with the command's other outputs.
 
     Args:
         path: the output file; its folder is created.
         write: writes the whole content to the path it is given (the temporary file
             keeps ``path``'s suffix, for writers that pick the format from it).
         inputs: files this output must never replace, besides those readers noted.
+        stage: False: move it in now even inside :func:`staged_outputs` (files a run
+            must see at once, such as a checkpoint).
 
     Returns:
         The output path.
@@ -268,7 +347,9 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], None], *,
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # created 0600; outputs get the usual mode
-        os.replace(tmp, out)
+        done = tmp
+        if not (stage and defer(lambda: os.replace(done, out), lambda: _remove(done))):
+            os.replace(tmp, out)
         tmp = None
     except _Terminated:
         _remove(tmp)

@@ -223,7 +223,11 @@ def _resumable(folder: str | None, name: str, task, *args):
     samples, info = task(*args)
     from geosynth.files import atomic_write
 
-    atomic_write(path, lambda tmp: np.savez(open(tmp, "wb"), samples=samples, info=json.dumps(info)))
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, samples=samples, info=json.dumps(info))
+
+    atomic_write(path, write, stage=False)  # saved at once: an interrupted run's later resume reads it
     return samples, info
 
 
@@ -274,7 +278,7 @@ def _open_checkpoint(folder, key: str, resume: bool, inputs) -> tuple[str, int, 
     os.makedirs(real)
     from geosynth.files import atomic_write
 
-    atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps({"key": key})))
+    atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps({"key": key})), stage=False)
     return real, 0, saved
 
 
@@ -966,7 +970,7 @@ def synthesize_volume_tiled(
         last = grid.levels - 1
         cores = grid.cores(last)
         graphs, kinds = [], []
-        from geosynth.files import remove_stale_temporaries, temporary_path
+        from geosynth.files import defer, remove_stale_temporaries, temporary_path
 
         if store_real is not None:
             import zarr
@@ -1024,17 +1028,28 @@ def synthesize_volume_tiled(
         timings["outputs"] = time.perf_counter() - t0
         bytes_moved = engine.transfers() - moved0
         peak = engine.peak_rss()
-        # every output is complete: moved into place together
-        if tmp_store is not None:
-            _publish(tmp_store, store_real)
-            tmp_store = None
-        if tmp_meshes is not None:
-            for name in sorted(os.listdir(tmp_meshes)):
-                os.replace(tmp_meshes / name, mesh_dir / name)
-            shutil.rmtree(tmp_meshes, ignore_errors=True)
-            tmp_meshes = None
-        if ckpt is not None:
-            shutil.rmtree(ckpt, ignore_errors=True)
+        # every output is complete: moved into place together (with the command's other
+        # outputs, inside geosynth.files.staged_outputs)
+        ready_store, ready_meshes = tmp_store, tmp_meshes
+
+        def publish() -> None:
+            if ready_store is not None:
+                _publish(ready_store, store_real)
+            if ready_meshes is not None:
+                for name in sorted(os.listdir(ready_meshes)):
+                    os.replace(ready_meshes / name, mesh_dir / name)
+                shutil.rmtree(ready_meshes, ignore_errors=True)
+            if ckpt is not None:
+                shutil.rmtree(ckpt, ignore_errors=True)
+
+        def abort() -> None:
+            for tmp in (ready_store, ready_meshes):
+                if tmp is not None:
+                    shutil.rmtree(tmp, ignore_errors=True)
+
+        if not defer(publish, abort):
+            publish()
+        tmp_store = tmp_meshes = None
     finally:
         for tmp in (tmp_store, tmp_meshes):
             if tmp is not None:
