@@ -785,22 +785,29 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
                    help="output extent in x and y, world units (instead of --scale)")
     p.add_argument("--patch", type=_float_type(0, inclusive=False), default=None,
                    help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default 0.4; "
-                        "flowers 0.3)")
+                        "flowers 0.3); the patch plus its extra region must fit in the exemplar box, else refused")
     p.add_argument("--extra", type=_float_type(0, inclusive=False), default=0.2,
-                   help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2)")
+                   help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2): cut with the patch "
+                        "and overwritten by the next one; --patch plus --extra must fit in the exemplar box")
     p.add_argument("--overlap", type=_float_type(0, inclusive=False), default=0.25,
-                   help="overlap width, a fraction of the patch, in (0, 0.5] (default 0.25)")
+                   help="overlap width, a fraction of the patch, below 0.5 (default 0.25): a patch is blended across "
+                        "its overlap and overwritten from patch - overlap on, so the overlaps on its two sides must "
+                        "leave it an interior (2 x overlap < patch, in cells); refused otherwise")
     p.add_argument("--resolution", type=_int_type(8), default=48,
-                   help="D(T_in) samples along the exemplar box's longer side, >= 8 (default 48)")
+                   help="D(T_in) samples along the exemplar box's longer side, >= 8 (default 48); refused beyond "
+                        "the memory and beyond the patch search's exact sums (about 100 to 130 for the built-ins, "
+                        "less with the quality numbers), naming the largest that works")
     p.add_argument("--eps", type=_float_type(0, inclusive=True), default=0.1,
                    help="candidates within (1 + eps) of the best are drawn from, >= 0 (default 0.1)")
     p.add_argument("--count", type=_int_type(1000), default=None,
-                   help="points of a built-in exemplar (default: the paper's Table 1 size) or sampled from a mesh")
+                   help="points of a built-in exemplar (default: the paper's Table 1 size) or sampled from a mesh "
+                        "(default 40000); not for a PLY point set; refused beyond the memory")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
     p.add_argument("--relax", action="store_true", help="relax the final point set")
     p.add_argument("--mesh", default=None, help="also write a watertight mesh of the result (.ply, .obj, .stl)")
     p.add_argument("--mesh-resolution", type=_int_type(8), default=160,
-                   help="grid samples along the longest axis for --mesh, >= 8 (default 160)")
+                   help="grid samples along the longest axis for --mesh, >= 8 (default 160); refused beyond the "
+                        "memory before any work")
     p.add_argument("--no-quality", action="store_true", help="skip the quality numbers and the random-pasting baseline")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)

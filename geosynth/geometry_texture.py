@@ -734,7 +734,7 @@ def check_synthesis(box_min, box_max, points_in: int, points_inside: int, *, siz
     try:
         lay = _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution, tileable, quality)
     except _TooFine as exc:
-        best = largest_resolution(avail)  # within the memory too
+        best = largest_resolution(avail) or largest_resolution(None)  # within the memory too, where one is
         raise ValueError(f"{exc}; use a resolution of at most {best:,} (or a smaller patch or overlap)."
                          if best else f"{exc}; use a smaller patch or overlap.") from None
     parts = synthesis_bytes(box_min, box_max, points_in, points_inside, lay, quality)
@@ -843,7 +843,8 @@ def synthesize_point_texture(
             built-in's own (0.3 for flowers), else 0.4.
         extra: width w_E of the extra region E_k as a fraction of the patch (the paper
             used 1/8 to 1/4), in (0, 0.5].
-        overlap: overlap width as a fraction of the patch, in (0, 0.5].
+        overlap: overlap width as a fraction of the patch, in (0, 0.5), leaving the patch an
+            interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
         resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
             51 to 84).
         weights: a :class:`geosynth.warping.WarpWeights`; default the paper's preset for

@@ -204,7 +204,7 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
                              f"point texture needs at least {MIN_POINTS}.")
     centred = p - p.mean(axis=0)
     spread = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred), 0.0))  # ascending
-    if spread[1] <= 1e-9 * spread[2]:
+    if spread[1] <= 1e-5 * spread[2]:  # float32 files: a line to rounding
         raise ValueError(f"the {len(p):,} distinct points lie on one line: a point texture is a surface over the xy "
                          "plane (heights along z); give points spread in x and y.")
     if box is None:
