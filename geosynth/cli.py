@@ -672,6 +672,79 @@ def _cmd_texture(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------ M2: pointtexture
 
+# The library's words for the pointtexture options, in the command line's terms.
+_POINTTEXTURE_FLAGS = [
+    (r"^resolution ", "--resolution "), (r"\ba resolution of at most\b", "--resolution at most"),
+    (r"^overlap ", "--overlap "), (r"\ban overlap of at most\b", "--overlap at most"), (r"^patch ", "--patch "),
+    (r"\blarger patch or resolution\b", "larger --patch or --resolution"), (r"\ba larger patch\b", "a larger --patch"),
+    (r"\bsmaller patch or overlap\b", "smaller --patch or --overlap"), (r"\ba smaller patch\b", "a smaller --patch"),
+    (r"\ba smaller extra region\b", "a smaller --extra"), (r"\bskip the quality numbers\b", "give --no-quality"),
+]
+
+
+def _pointtexture_check(args: argparse.Namespace, box_min, box_max, points_in: int, points_inside: int, *,
+                        count: bool, z_span: float, spacing: float, patch: float) -> None:
+    """Every memory-scaling option of ``geosynth pointtexture`` (--count, --resolution, --scale or
+    --size, --mesh-resolution) and every combination of --patch, --extra and --overlap checked
+    before the work (:func:`geosynth.geometry_texture.check_synthesis`), with the flags named."""
+    from geosynth.geometry_texture import check_synthesis
+
+    try:
+        check_synthesis(box_min, box_max, int(points_in), int(points_inside), size=args.size,
+                        scale=2.0 if args.scale is None else args.scale, patch=patch, extra=args.extra,
+                        overlap=args.overlap, resolution=args.resolution, tileable=args.tileable,
+                        quality=not args.no_quality, count=count,
+                        mesh_resolution=args.mesh_resolution if args.mesh else None, z_span=z_span, spacing=spacing)
+    except MemoryError:
+        raise
+    except ValueError as exc:
+        text = str(exc)
+        for pattern, flag in _POINTTEXTURE_FLAGS:
+            text = re.sub(pattern, flag, text)
+        raise ValueError(text) from None
+
+
+def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, example: str | None, say):
+    """The exemplar, with the options checked against it before it is made (a built-in: from
+    a 1,000-point sample of it; a mesh: from its box before sampling --count points) and
+    again once it is there (its own numbers)."""
+    from geosynth.point_examples import POINT_EXAMPLES, point_texture_example
+    from geosynth.point_textures import read_point_texture
+
+    patch = args.patch or (POINT_EXAMPLES[example].patch if example else 0.4)
+    if example:
+        count = args.count or POINT_EXAMPLES[example].count
+        probe = point_texture_example(example, 1000, seed=args.seed)  # B and the share inside it: count's own
+        share = probe.inside_mask(probe.points, probe.box_min, probe.box_max).mean()
+        _pointtexture_check(args, probe.box_min, probe.box_max, count, round(count * share), count=True,
+                            z_span=float(np.ptp(probe.points[:, 2])),
+                            spacing=probe.spacing * math.sqrt(len(probe) / count), patch=patch)
+        texture = point_texture_example(example, count, seed=args.seed)
+        sampled = True
+    else:
+        count = args.count or 40_000
+        sampled = False
+
+        def before_sampling(lo, hi):  # a mesh: count points spread by area, (1 - 2 x 0.2)^2 of them inside B
+            nonlocal sampled
+            sampled = True
+            area = float(np.prod((hi - lo)[:2])) / 0.36
+            _pointtexture_check(args, lo, hi, count, round(0.36 * count), count=True, z_span=float(hi[2] - lo[2]),
+                                spacing=math.sqrt(area / count), patch=patch)
+
+        texture = read_point_texture(exemplar, count=count, seed=args.seed, before_sampling=before_sampling)
+        if args.count is not None and not sampled:
+            raise ValueError(f"--count {args.count}: EXEMPLAR {exemplar!r} is a point set, whose {len(texture):,} "
+                             "points are used as they are; --count is for --example and meshes (drop it).")
+    if texture.merged:
+        say(f"EXEMPLAR {texture.name}: {texture.merged:,} coincident point(s) merged (same position as an earlier "
+            f"point; the first one's normal kept), {len(texture):,} left")
+    inside = int(texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum())
+    _pointtexture_check(args, texture.box_min, texture.box_max, len(texture), inside, count=sampled,
+                        z_span=float(np.ptp(texture.points[:, 2])), spacing=texture.spacing, patch=patch)
+    return texture
+
+
 def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.point_examples import POINT_EXAMPLES
 
@@ -697,16 +770,12 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
 
     from geosynth.files import write_image
     from geosynth.geometry_texture import output_mesh, synthesize_point_texture
-    from geosynth.point_examples import point_texture_example
-    from geosynth.point_textures import read_point_texture
+    from geosynth.memory import MemoryBudgetError
     from geosynth.pointsets import write_point_set
     from geosynth.render import render_points, side_by_side
 
     say = (lambda *a, **k: None) if args.quiet else print
-    if example:
-        texture = point_texture_example(example, args.count, seed=args.seed)
-    else:
-        texture = read_point_texture(exemplar, count=args.count or 40_000, seed=args.seed)
+    texture = _pointtexture_exemplar(args, exemplar, example, say)
     scale = 2.0 if args.scale is None else args.scale
     say(f"geosynth pointtexture: {texture.name} ({len(texture):,} points) -> "
         + (f"{args.size[0]:g} x {args.size[1]:g}" if args.size else f"{scale:g} x the exemplar's box")
@@ -717,6 +786,14 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
         resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
         quality=not args.no_quality, device=args.device, seed=args.seed, progress=not args.quiet,
     )
+    mesh = None
+    if args.mesh:  # made before any output is written: a refusal leaves no output behind
+        try:
+            mesh = output_mesh(points.positions, points.normals, report.spacing, args.mesh_resolution,
+                               device=args.device)
+        except MemoryBudgetError as exc:  # output_mesh's resolution is --mesh-resolution
+            raise MemoryBudgetError(str(exc).replace("resolution", "--mesh-resolution"), option="mesh_resolution",
+                                    largest=exc.largest, estimate=exc.estimate, available=exc.available) from None
     write_point_set(out, points)
     for line in report.lines():
         say(line)
@@ -724,10 +801,9 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
                                     ("precompute", "search", "warp", "blend", "other", "total", "quality")
                                     if k in timings))
     say(f"written {out}: {len(points):,} points with normals")
-    if args.mesh:
+    if mesh is not None:
         from geosynth.surface import save_mesh
 
-        mesh = output_mesh(points.positions, points.normals, report.spacing, args.mesh_resolution, device=args.device)
         save_mesh(mesh, args.mesh, inputs=inputs)
         say(f"mesh: {args.mesh}: {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces "
             f"(watertight: {bool(mesh.is_watertight)})")
@@ -758,22 +834,29 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
                    help="output extent in x and y, world units (instead of --scale)")
     p.add_argument("--patch", type=_float_type(0, inclusive=False), default=None,
                    help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default 0.4; "
-                        "flowers 0.3)")
+                        "flowers 0.3); the patch plus its extra region must fit in the exemplar box, else refused")
     p.add_argument("--extra", type=_float_type(0, inclusive=False), default=0.2,
-                   help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2)")
+                   help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2): cut with the patch "
+                        "and overwritten by the next one; --patch plus --extra must fit in the exemplar box")
     p.add_argument("--overlap", type=_float_type(0, inclusive=False), default=0.25,
-                   help="overlap width, a fraction of the patch, in (0, 0.5] (default 0.25)")
+                   help="overlap width, a fraction of the patch, below 0.5 (default 0.25): a patch is blended across "
+                        "its overlap and overwritten from patch - overlap on, so the overlaps on its two sides must "
+                        "leave it an interior (2 x overlap < patch, in cells); refused otherwise")
     p.add_argument("--resolution", type=_int_type(8), default=48,
-                   help="D(T_in) samples along the exemplar box's longer side, >= 8 (default 48)")
+                   help="D(T_in) samples along the exemplar box's longer side, >= 8 (default 48); refused beyond "
+                        "the memory and beyond the patch search's exact sums (about 100 to 130 for the built-ins, "
+                        "less with the quality numbers), naming the largest that works")
     p.add_argument("--eps", type=_float_type(0, inclusive=True), default=0.1,
                    help="candidates within (1 + eps) of the best are drawn from, >= 0 (default 0.1)")
     p.add_argument("--count", type=_int_type(1000), default=None,
-                   help="points of a built-in exemplar (default: the paper's Table 1 size) or sampled from a mesh")
+                   help="points of a built-in exemplar (default: the paper's Table 1 size) or sampled from a mesh "
+                        "(default 40000); not for a PLY point set; refused beyond the memory")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
     p.add_argument("--relax", action="store_true", help="relax the final point set")
     p.add_argument("--mesh", default=None, help="also write a watertight mesh of the result (.ply, .obj, .stl)")
     p.add_argument("--mesh-resolution", type=_int_type(8), default=160,
-                   help="grid samples along the longest axis for --mesh, >= 8 (default 160)")
+                   help="grid samples along the longest axis for --mesh, >= 8 (default 160); refused beyond the "
+                        "memory before any work")
     p.add_argument("--no-quality", action="store_true", help="skip the quality numbers and the random-pasting baseline")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)

@@ -32,11 +32,13 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
+from geosynth._checks import UINT32_MAX
 from geosynth.point_grid import PointGrid
 from geosynth.pointmodels import passive_openmp_threads
 from geosynth.point_textures import PointTexture
 
-__all__ = ["PointTextureReport", "synthesize_point_texture", "output_mesh"]
+__all__ = ["PointTextureReport", "check_synthesis", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
+           "synthesize_point_texture"]
 
 
 @dataclass
@@ -129,8 +131,37 @@ class _Layout:
     period: np.ndarray | None  # tileable: (2,) period
 
 
-def _layout(texture: PointTexture, size, scale, patch, extra, overlap, resolution, tileable) -> _Layout:
-    ext = texture.extent[:2]
+# The patch search sums uint8 codes in uint32 (geosynth.scoring.GatherScorer): at most this many
+# overlap samples (4 codes each, 255^2 per code at worst) in one patch's query.
+_MAX_OVERLAP_SAMPLES = UINT32_MAX // (4 * 255 * 255)
+
+
+def _grid_layers(box_min, box_max, cell: float) -> int:
+    """nz of D(T_in) (:class:`geosynth.patch_search.PatchSearch`'s rule: B's height plus
+    a cell above and below)."""
+    return int(np.ceil((float(box_max[2]) - float(box_min[2])) / cell - 1e-9)) + 3
+
+
+def _grid_columns(box_min, box_max, cell: float) -> tuple[int, int]:
+    """(nx, ny) of D(T_in), as :class:`geosynth.patch_search.PatchSearch` counts them."""
+    return tuple(int(np.floor((float(box_max[a]) - float(box_min[a])) / cell + 1e-9)) + 1 for a in range(2))
+
+
+def _overlap_samples(lay: "_Layout", layers: int, tileable: bool) -> int:
+    """The most overlap samples of one patch's query: the last patch's (it has every side
+    any patch has: -x, -y, and when tileable +x, +y), times the grid's layers."""
+    pc, oc = lay.patch, lay.overlap  # 2 oc < pc: the bands of opposite sides do not meet
+    wx = 0 if lay.cols == 1 else oc * (2 if tileable else 1)
+    wy = 0 if lay.rows == 1 else oc * (2 if tileable else 1)
+    return (pc * pc - (pc - wx) * (pc - wy)) * layers
+
+
+def _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution, tileable,
+                quality: bool = False) -> _Layout:
+    """The patch layout for an exemplar box B (box_min, box_max), with every combination
+    the growth cannot use refused in one line (see :func:`check_synthesis`)."""
+    box_min, box_max = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
+    ext = (box_max - box_min)[:2]
     if not isinstance(resolution, (int, np.integer)) or isinstance(resolution, bool) or resolution < 8:
         raise ValueError(f"resolution must be an integer >= 8 (field samples along the exemplar box's longer side), "
                          f"got {resolution!r}.")
@@ -141,8 +172,20 @@ def _layout(texture: PointTexture, size, scale, patch, extra, overlap, resolutio
         raise ValueError(f"patch {patch!r} is only {pc} field cells wide; use a larger patch or resolution.")
     ec = max(1, int(round(_fraction("extra", extra, 0.0, 0.5) * pc)))
     oc = max(1, int(round(_fraction("overlap", overlap, 0.0, 0.5) * pc)))
-    if oc >= pc:
-        raise ValueError(f"overlap ({oc} cells) must be smaller than the patch ({pc} cells).")
+    if 2 * oc >= pc:
+        # a patch is blended across its overlap with the patch before it and overwritten from
+        # pc - oc on by the next one: two overlaps that meet leave it no cell of its own
+        most = (pc - 1) // 2
+        raise ValueError(
+            f"overlap {overlap!r} is {oc} cells of a {pc}-cell patch: the overlaps on a patch's two sides "
+            f"({2 * oc} cells) leave it no interior of its own; use an overlap of at most "
+            f"{np.floor(100 * most / pc) / 100:.2f} ({most} cells) (or a larger patch).")
+    nx, ny = _grid_columns(box_min, box_max, cell)
+    span = pc + ec + 1
+    if span > min(nx, ny):
+        raise ValueError(
+            f"the patch ({pc} cells) plus its extra region ({ec}) spans {span} samples but the exemplar's box is only "
+            f"{nx} x {ny} samples of the search grid; use a smaller patch (or a smaller extra region).")
     step = pc - oc
     if size is not None:
         s = np.asarray(size, np.float64).reshape(-1)
@@ -154,11 +197,25 @@ def _layout(texture: PointTexture, size, scale, patch, extra, overlap, resolutio
     if tileable:
         counts = np.maximum(1, np.round(s / (step * cell))).astype(np.int64)
         period = counts * step * cell
-        return _Layout(cell, pc, ec, oc, step, int(counts[0]), int(counts[1]), texture.box_min[:2].copy(), period,
-                       period)
-    canvas = s + 2 * ec * cell
-    counts = np.maximum(1, np.ceil((canvas / cell - pc) / step).astype(np.int64) + 1)
-    return _Layout(cell, pc, ec, oc, step, int(counts[0]), int(counts[1]), texture.box_min[:2] - ec * cell, s, None)
+        lay = _Layout(cell, pc, ec, oc, step, int(counts[0]), int(counts[1]), box_min[:2].copy(), period, period)
+    else:
+        canvas = s + 2 * ec * cell
+        counts = np.maximum(1, np.ceil((canvas / cell - pc) / step).astype(np.int64) + 1)
+        lay = _Layout(cell, pc, ec, oc, step, int(counts[0]), int(counts[1]), box_min[:2] - ec * cell, s, None)
+    layers = _grid_layers(box_min, box_max, cell)
+    samples = _overlap_samples(lay, layers, tileable)
+    if samples > _MAX_OVERLAP_SAMPLES:
+        raise _TooFine(f"resolution {int(resolution):,} gives a patch overlap of {samples:,} field samples, more than "
+                       f"the {_MAX_OVERLAP_SAMPLES:,} the patch search can sum exactly (uint8 codes in uint32)")
+    if quality and layers * pc * pc > _MAX_OVERLAP_SAMPLES:  # the patch-field distance compares whole patches
+        raise _TooFine(f"resolution {int(resolution):,} gives patches of {layers * pc * pc:,} field samples, more than "
+                       f"the {_MAX_OVERLAP_SAMPLES:,} the quality numbers' patch-field distance can sum exactly "
+                       "(uint8 codes in uint32; or skip the quality numbers)")
+    return lay
+
+
+class _TooFine(ValueError):
+    """A resolution whose overlap queries exceed the search's exact sums (see _layout_box)."""
 
 
 def _sides(i, j, lay: _Layout, tileable: bool):
@@ -534,23 +591,204 @@ def _stray_share(points, normals, spacing, h, device) -> float:
 # ------------------------------------------------------------------ the public function
 
 _BYTES_PER_OUTPUT_POINT = 400  # grid arrays (48 B) at up to 2x capacity, the cut copy, float32 output,
-# the stray-point query and, with quality, the baseline's copy of all of them
+# the stray-point query and, with quality, the baseline's copy of all of them (measured: about 160 B
+# a point on the weave, 400k exemplar points, 190k to 760k output points, no quality)
+_BYTES_PER_EXEMPLAR_POINT = 600  # making a built-in (the weave: 330-360 B a point, transient), the
+# texture (48 B), its k-d trees, surface variation, pieces' pairs and MLS cell grids (measured: about
+# 340 B a point of the weave beside the texture, 100k to 400k points)
+_BYTES_PER_FIELD_SAMPLE = 320  # D(T_in) on the host: query positions, nearest points, kernel results,
+# float64 codes before rounding (measured: 265-290 B a sample, PatchSearch on 0.2M-1.6M samples);
+# with quality, the output's D on the same spacing, one at a time
+_MESH_BYTES_PER_SAMPLE = 24  # beyond pointsets.grid_mls_bytes: marching cubes' padded float32 copy
+# and its per-cell work (geosynth.surface.field_to_mesh)
 
 
-def _require_memory(texture: PointTexture, lay: _Layout, quality: bool) -> None:
-    """Refuse an output that cannot fit before growing it (its points from the exemplar's
-    density inside B times the canvas area)."""
-    from geosynth.memory import require
-
-    inside = texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum()
-    density = inside / float(np.prod(texture.extent[:2]))
+def synthesis_bytes(box_min, box_max, points_in: int, points_inside: int, lay: _Layout, quality: bool) -> dict:
+    """Estimated peak bytes of a synthesis, by what drives them: ``"exemplar"`` (its points:
+    making, precomputing), ``"field"`` (the D(T_in) grid's samples and, with quality, the
+    output's D) and ``"output"`` (the grown points: the exemplar's density inside B times
+    the canvas; doubled with quality for the baseline)."""
+    area = float(np.prod((np.asarray(box_max, np.float64) - np.asarray(box_min, np.float64))[:2]))
+    density = points_inside / area
     canvas = (lay.cols * lay.step + lay.patch + lay.extra) * (lay.rows * lay.step + lay.patch + lay.extra) * lay.cell ** 2
+    nz = _grid_layers(box_min, box_max, lay.cell)
+    nx, ny = _grid_columns(box_min, box_max, lay.cell)
+    samples = nz * ny * nx
+    if quality:
+        out_x, out_y = (int(np.floor(lay.size[a] / lay.cell + 1e-9)) + 1 for a in range(2))
+        samples = max(samples, nz * out_x * out_y)
+    return {"exemplar": int(points_in) * _BYTES_PER_EXEMPLAR_POINT,
+            "field": samples * _BYTES_PER_FIELD_SAMPLE,
+            "output": int(density * canvas * _BYTES_PER_OUTPUT_POINT * (2 if quality else 1))}
 
-    def estimate(factor: float = 1.0) -> int:
-        return int(density * canvas * factor * _BYTES_PER_OUTPUT_POINT * (2 if quality else 1))
 
-    require(estimate(), option="size", value=tuple(float(v) for v in lay.size),
-            what=f"an output of {lay.size[0]:.4g} x {lay.size[1]:.4g} (about {int(density * canvas):,} points)")
+def output_mesh_bytes(size_xy, z_span: float, points: int, spacing: float, resolution: int) -> int:
+    """Estimated peak bytes of :func:`output_mesh` for an output of ``size_xy`` (x, y extent)
+    and ``z_span`` (its points' height range, before the mesh's margin), ``points`` points
+    of mean spacing ``spacing``, at ``resolution``: :func:`geosynth.pointsets.grid_mls_bytes`'s
+    count plus marching cubes' (``_MESH_BYTES_PER_SAMPLE`` a sample)."""
+    from geosynth.field import cubic_grid_geometry
+    from geosynth.pointsets import MLS_REACH, grid_mls_bytes
+
+    z = float(z_span) + 6.0 * spacing
+    box = np.array([[0.0, 0.0, 0.0], [float(size_xy[0]), float(size_xy[1]), z]])
+    nz, ny, nx = cubic_grid_geometry(box, int(resolution), 0.0)[2]
+    n = nz * ny * nx
+    probe = np.array([[0.0, 0.0, 0.0], [float(size_xy[0]), float(size_xy[1]), z]])  # the points' extent only
+    extra = (int(points) - len(probe)) * 200  # grid_mls_bytes counts 200 B per input point
+    return grid_mls_bytes(n, probe, 2.0 * spacing) + extra + n * _MESH_BYTES_PER_SAMPLE
+
+
+def _largest_float(fits, value: float, digits: int = 3) -> float | None:
+    """The largest v in (0, value) (``digits`` significant digits) with ``fits(v)``, by
+    bisection (fits nondecreasing in badness); None when not even value * 1e-6 fits."""
+    lo, hi = value * 1e-6, value
+    if not fits(lo):
+        return None
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if fits(mid):
+            lo = mid
+        else:
+            hi = mid
+    v = float(f"{lo:.{digits}g}")
+    while v > lo:  # rounding to the digits went up
+        v = float(f"{v - 10 ** (np.floor(np.log10(v)) - digits + 1):.{digits}g}")
+    return v
+
+
+def check_synthesis(box_min, box_max, points_in: int, points_inside: int, *, size=None, scale: float = 2.0,
+                    patch: float = 0.4, extra: float = 0.2, overlap: float = 0.25, resolution: int = 48,
+                    tileable: bool = False, quality: bool = True, count: bool = False,
+                    mesh_resolution: int | None = None, z_span: float = 0.0, spacing: float | None = None,
+                    available: int | None = None) -> _Layout:
+    """Refuse, before any work, a synthesis whose options do not go together or cannot fit.
+
+    The options' rules (the growth of Sec. 4: a patch of ``patch`` cells is blended with
+    the output across its overlap and overwritten from ``patch - overlap`` on by the next
+    one; F_k is the patch plus its extra region, cut from the exemplar box):
+
+    - the overlaps on a patch's two sides must leave it an interior: 2 x overlap cells
+      < patch cells (an overlap fraction below about 0.5);
+    - the patch plus its extra region (plus one sample) must fit in the exemplar box's
+      D(T_in) samples, so that there is a candidate to cut;
+    - a patch of at least 4 cells; a patch's overlap query at most
+      ``_MAX_OVERLAP_SAMPLES`` field samples (the search's exact uint32 sums), which
+      bounds ``resolution``;
+    - the memory: :func:`synthesis_bytes` (and :func:`output_mesh_bytes` with
+      ``mesh_resolution``) within :func:`geosynth.memory.available_memory`.
+
+    Args:
+        box_min, box_max: the exemplar box B; points_in, points_inside: the exemplar's
+            points, all and inside B (for a built-in or a mesh not yet sampled: the
+            expected numbers).
+        size, scale, patch, extra, overlap, resolution, tileable, quality: as
+            :func:`synthesize_point_texture`.
+        count: the exemplar's point count is an option (``count``, built-ins and sampled
+            meshes): it may be named as the one to lower.
+        mesh_resolution: also check :func:`output_mesh` at this resolution, with the
+            output's height ``z_span`` and the exemplar's ``spacing``.
+        available: bytes available (default :func:`geosynth.memory.available_memory`).
+
+    Returns:
+        The layout.
+
+    Raises:
+        ValueError: the combinations above, and a ``resolution`` too fine for the search
+            (naming the largest that works).
+        MemoryBudgetError: the estimate exceeds what is available; its ``option`` is the
+            one whose part of the estimate is largest among those that can be lowered
+            (``count``, ``resolution``, ``scale`` or ``size``; ``mesh_resolution`` for the
+            mesh), with the largest value that fits.
+    """
+    from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, largest_fitting
+
+    share = points_inside / max(1, points_in)
+    args = dict(size=size, scale=scale, patch=patch, extra=extra, overlap=overlap, resolution=resolution,
+                tileable=tileable)
+
+    def total(n_in=points_in, **over) -> int:
+        a = dict(args, **over)
+        lay = _layout_box(box_min, box_max, a["size"], a["scale"], a["patch"], a["extra"], a["overlap"],
+                          a["resolution"], a["tileable"], quality)
+        return sum(synthesis_bytes(box_min, box_max, n_in, int(round(n_in * share)), lay, quality).values())
+
+    def resolution_works(r: int, avail: int | None) -> bool:
+        try:
+            need = total(resolution=r)
+        except ValueError:
+            return False
+        return avail is None or need <= avail
+
+    def largest_resolution(avail: int | None) -> int | None:
+        lo = next((r for r in range(8, min(int(resolution), 4096)) if resolution_works(r, None)), None)
+        if lo is None or not resolution_works(lo, avail):
+            return None
+        hi = int(resolution) - 1
+        while lo < hi:  # bisection; the rules grow with r but for the cells' rounding
+            mid = (lo + hi + 1) // 2
+            lo, hi = (mid, hi) if resolution_works(mid, avail) else (lo, mid - 1)
+        return lo
+
+    avail = available_memory() if available is None else int(available)
+    try:
+        lay = _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution, tileable, quality)
+    except _TooFine as exc:
+        best = largest_resolution(avail) or largest_resolution(None)  # within the memory too, where one is
+        raise ValueError(f"{exc}; use a resolution of at most {best:,} (or a smaller patch or overlap)."
+                         if best else f"{exc}; use a smaller patch or overlap.") from None
+    parts = synthesis_bytes(box_min, box_max, points_in, points_inside, lay, quality)
+    need = sum(parts.values())
+    if need > avail:
+        out_option = "size" if size is not None else "scale"
+        order = sorted(parts, key=parts.get, reverse=True)
+        options = {"exemplar": "count" if count else None, "field": "resolution", "output": out_option}
+        tried = [options[k] for k in order if options[k] is not None]
+        largest, option = None, tried[0]
+        for opt in tried:
+            if opt == "count":
+                largest = largest_fitting(lambda n: total(n_in=n), avail, 1000, points_in)
+            elif opt == "resolution":
+                largest = largest_resolution(avail)
+            elif opt == "scale":
+                largest = _largest_float(lambda v: _fits(lambda: total(scale=v), avail), float(scale))
+            else:
+                f = _largest_float(lambda v: _fits(lambda: total(size=tuple(v * np.asarray(size, float))), avail), 1.0)
+                largest = None if f is None else " ".join(f"{v:.4g}" for v in f * np.asarray(size, float))
+            if largest is not None:
+                option = opt
+                break
+        flag = {"count": "count", "resolution": "resolution", "scale": "scale", "size": "size"}[option]
+        fix = (f"lower {flag} to at most {largest:,}" if isinstance(largest, int) else
+               f"lower {flag} to at most {largest}" if largest is not None else
+               f"even the smallest {flag} does not fit")
+        what = (f"a synthesis from {points_in:,} exemplar points ({points_inside:,} inside B), D(T_in) of "
+                f"{_grid_layers(box_min, box_max, lay.cell) * np.prod(_grid_columns(box_min, box_max, lay.cell)):,} "
+                f"samples and an output of {lay.size[0]:.4g} x {lay.size[1]:.4g} "
+                f"(about {parts['output'] // (_BYTES_PER_OUTPUT_POINT * (2 if quality else 1)):,} points)")
+        raise MemoryBudgetError(f"{what} needs about {format_bytes(need)}, more than the {format_bytes(avail)} "
+                                f"available; {fix} (or free memory).", option=option, largest=largest,
+                                estimate=need, available=avail)
+    if mesh_resolution is not None:
+        from geosynth.memory import require
+
+        sp = float(spacing) if spacing else float(lay.cell)
+        n_out = parts["output"] // (_BYTES_PER_OUTPUT_POINT * (2 if quality else 1))
+
+        def mesh(r: int) -> int:
+            return need + output_mesh_bytes(lay.size, z_span, n_out, sp, r)
+
+        require(mesh(int(mesh_resolution)), option="mesh_resolution", value=int(mesh_resolution), largest_fn=mesh,
+                smallest=8, available=avail,
+                what=f"the output's mesh at resolution {int(mesh_resolution):,} (beside the synthesis)")
+    return lay
+
+
+def _fits(fn, avail: int) -> bool:
+    try:
+        return fn() <= avail
+    except ValueError:
+        return False
 
 
 
@@ -605,7 +843,8 @@ def synthesize_point_texture(
             built-in's own (0.3 for flowers), else 0.4.
         extra: width w_E of the extra region E_k as a fraction of the patch (the paper
             used 1/8 to 1/4), in (0, 0.5].
-        overlap: overlap width as a fraction of the patch, in (0, 0.5].
+        overlap: overlap width as a fraction of the patch, in (0, 0.5), leaving the patch an
+            interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
         resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
             51 to 84).
         weights: a :class:`geosynth.warping.WarpWeights`; default the paper's preset for
@@ -663,10 +902,15 @@ def synthesize_point_texture(
 
         ex = POINT_EXAMPLES.get(texture.name)
         patch = ex.patch if ex is not None else 0.4
-    lay = _layout(texture, size, scale, patch, extra, overlap, resolution, tileable)
-    _require_memory(texture, lay, quality)
+    inside = int(texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum())
+    lay = check_synthesis(texture.box_min, texture.box_max, len(texture), inside, size=size, scale=scale, patch=patch,
+                          extra=extra, overlap=overlap, resolution=resolution, tileable=tileable, quality=quality)
     timer = _Timer()
     spacing = texture.spacing
+    smallest = float(np.max(texture.points.max(axis=0) - texture.points.min(axis=0))) * 2.0 ** -16
+    if not spacing > smallest:  # float32 kernels cannot resolve the MLS width (pointsets.smallest_radius)
+        raise ValueError(f"the exemplar's mean point spacing {spacing:.3g} is below its extent's float32 resolution "
+                         f"({smallest:.3g}): its points nearly coincide in pairs; thin or merge them.")
     h = 2.0 * spacing
     band = MLS_REACH * h
     # D(T_in) (the device's kernel, host steps) while a second thread finds the exemplar's

@@ -43,6 +43,9 @@ class PointTexture:
             texture, its z extent the height. Points may (and should) lie outside B in
             x and y: that is the padding.
         name: a label for reports.
+        merged: how many coincident points were merged: points at exactly the same
+            position as an earlier one are dropped (the first one and its normal kept),
+            since a point set's spacing, and so its MLS width, must not be 0.
     """
 
     points: np.ndarray
@@ -50,6 +53,7 @@ class PointTexture:
     box_min: np.ndarray
     box_max: np.ndarray
     name: str = "texture"
+    merged: int = 0
 
     def __post_init__(self):
         p = np.asarray(self.points, np.float64)
@@ -58,14 +62,18 @@ class PointTexture:
         hi = np.asarray(self.box_max, np.float64).reshape(-1)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must have shape (N, 3), got {p.shape}.")
-        if len(p) < MIN_POINTS:
-            raise ValueError(f"points holds {len(p)} points; a point texture needs at least {MIN_POINTS}.")
         if n.shape != p.shape:
             raise ValueError(f"normals must have shape {p.shape} to match points, got {n.shape}.")
         bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
         if bad.size:
             raise ValueError(f"points has {bad.size} position(s) with NaN or inf, the first at index {int(bad[0])}; "
                              "drop or fix them.")
+        keep = _first_of_each_position(p)
+        if keep is not None:  # coincident points: the spacing (and the MLS width) would be 0
+            object.__setattr__(self, "merged", int(self.merged) + len(p) - len(keep))
+            p, n = p[keep], n[keep]
+        if len(p) < MIN_POINTS:
+            raise ValueError(f"points holds {len(p)} distinct points; a point texture needs at least {MIN_POINTS}.")
         bad = np.flatnonzero(~np.isfinite(n).all(axis=1))
         if bad.size:
             raise ValueError(f"normals has {bad.size} normal(s) with NaN or inf, the first at index {int(bad[0])}; "
@@ -115,6 +123,15 @@ class PointTexture:
         """(2,) how far (x, y) the geometry extends beyond B on its narrower side, >= 0."""
         lo, hi = self.points[:, :2].min(axis=0), self.points[:, :2].max(axis=0)
         return np.maximum(0.0, np.minimum(self.box_min[:2] - lo, hi - self.box_max[:2]))
+
+
+def _first_of_each_position(points: np.ndarray) -> np.ndarray | None:
+    """Indices (ascending) of the first point at each distinct position, or None when
+    every position is distinct (positions compared exactly, as their float64 values)."""
+    if len(points) < 2:
+        return None
+    _, first = np.unique(points, axis=0, return_index=True)
+    return None if len(first) == len(points) else np.sort(first)
 
 
 def _box(points: np.ndarray, box, padding: float):
@@ -172,13 +189,37 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
     if bad.size:
         raise ValueError(f"points has {bad.size} position(s) with NaN or inf, the first at index {int(bad[0])}; "
                          "drop or fix them.")
+    merged = 0
+    keep = _first_of_each_position(p)
+    if keep is not None:  # coincident points have no normal of their own, and no spacing
+        merged = len(p) - len(keep)
+        p = p[keep]
+        if normals is not None:
+            normals = np.asarray(normals)
+            if normals.shape != (merged + len(p), 3):
+                raise ValueError(f"normals must have shape ({merged + len(p)}, 3) to match points, got {normals.shape}.")
+            normals = normals[keep]
+        if len(p) < MIN_POINTS:
+            raise ValueError(f"points holds {len(p)} distinct position(s) ({merged} coincident point(s) merged); a "
+                             f"point texture needs at least {MIN_POINTS}.")
+    centred = p - p.mean(axis=0)
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred), 0.0))  # ascending
+    if spread[1] <= 1e-5 * spread[2]:  # float32 files: a line to rounding
+        raise ValueError(f"the {len(p):,} distinct points lie on one line: a point texture is a surface over the xy "
+                         "plane (heights along z); give points spread in x and y.")
+    if box is None:
+        flat = np.ptp(p[:, :2], axis=0) <= 1e-12 * max(1.0, float(np.abs(p).max()))
+        if flat.any():
+            raise ValueError(f"the points span no extent in {' and '.join('xy'[a] for a in np.flatnonzero(flat))}: "
+                             "a point texture is a surface over the xy plane (heights along z), so its points must "
+                             "spread in both x and y (they lie on a line, or in a plane upright to xy).")
     if normals is None:
         try:
             normals = estimate_normals(p, k=k)
         except ValueError as exc:
             raise ValueError(f"the points have no normals and they cannot be estimated: {exc}") from None
     lo, hi = _box(p, box, padding)
-    return PointTexture(p, np.asarray(normals, np.float64), lo, hi, name=name)
+    return PointTexture(p, np.asarray(normals, np.float64), lo, hi, name=name, merged=merged)
 
 
 def _sample_mesh(mesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -223,7 +264,7 @@ def texture_from_mesh(mesh, count: int = 40_000, *, box=None, padding: float = 0
 
 
 def read_point_texture(path: str | os.PathLike, *, box=None, padding: float = 0.2, count: int = 40_000,
-                       seed: int = 0) -> PointTexture:
+                       seed: int = 0, before_sampling=None) -> PointTexture:
     """A point texture from a file: a PLY point set (normals estimated when absent) or a mesh
     (any format :func:`geosynth.pointsets.read_geometry` reads), sampled uniformly.
 
@@ -232,6 +273,9 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float = 0.
         box, padding: as :func:`texture_from_points`.
         count: points sampled from a mesh.
         seed: seed of the mesh sampling.
+        before_sampling: called as ``before_sampling(box_min, box_max)`` (B as the
+            sampled points will give it, from the mesh's vertices) before a mesh is
+            sampled, e.g. to refuse a ``count`` that cannot fit; it may raise.
 
     Raises:
         FileNotFoundError, ValueError: as :func:`geosynth.pointsets.read_geometry`, and as
@@ -241,6 +285,12 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float = 0.
 
     g = read_geometry(path)
     name = os.path.basename(str(path))
+    if before_sampling is not None and not isinstance(g, PointSet):
+        try:
+            lo, hi = _box(np.asarray(g.vertices, np.float64), box, padding)
+        except ValueError as exc:
+            raise ValueError(f"{str(path)!r}: {exc}") from None
+        before_sampling(lo, hi)  # its refusals are about the options, not the file
     try:
         if isinstance(g, PointSet):
             return texture_from_points(g.positions, g.normals, box=box, padding=padding, name=name)

@@ -241,9 +241,18 @@ def test_tileable_output_continues_across_its_borders(one_device, wavy):
 
 
 def test_no_normals_and_too_few_neighbours():
-    p = np.c_[np.linspace(0, 1, 40), np.zeros(40), np.zeros(40)]  # collinear: no plane to fit
+    t = np.linspace(0, 1, 40)
+    p = np.c_[np.r_[t, t], np.r_[np.zeros(40), np.full(40, 10.0)], np.zeros(80)]  # two far lines: no plane near
     with pytest.raises(ValueError, match="no normals and they cannot be estimated"):
         texture_from_points(p)
+
+
+def test_collinear_points_are_refused_as_such():
+    t = np.linspace(0, 1, 40)
+    with pytest.raises(ValueError, match="lie on one line"):
+        texture_from_points(np.c_[t, t, 0.5 * t])  # with or without normals: no surface over xy
+    with pytest.raises(ValueError, match="span no extent in y"):
+        texture_from_points(np.c_[t, np.zeros(40), np.sin(9 * t)], np.tile([0, 0, 1.0], (40, 1)))
 
 
 def test_empty_box(wavy):
@@ -274,7 +283,7 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path):
                        capture_output=True, text=True, timeout=120,
                        env={k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"})  # set by --verbose tests
     assert r.returncode == 2
-    assert r.stderr.count("\n") == 1 and "smaller patch" in r.stderr
+    assert r.stderr.count("\n") == 1 and "smaller --patch" in r.stderr
 
 
 def test_mesh_of_the_output_is_watertight(one_device, wavy):
