@@ -1181,6 +1181,13 @@ def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
                  ((signal.SIGINT, _on_sigint), (signal.SIGTERM, _on_sigterm))} if in_main else {})
     try:
         return _main(argv, list(early), staged_outputs)
+    except _Terminated:  # outside the command's own handling (parsing, loading a command's modules)
+        return 143
+    except KeyboardInterrupt:
+        if argv is not None and ("--debug" in argv):
+            raise
+        print("geosynth: interrupted", file=sys.stderr)
+        return 130
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
@@ -1188,7 +1195,10 @@ def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
 
 def _main(argv, early: list[int], staged_outputs) -> int:
     if early:  # interrupted while loading: nothing has been done
-        return 143 if signal.SIGTERM in early else 130
+        if signal.SIGTERM in early:
+            return 143
+        print("geosynth: interrupted (while starting; nothing was written)", file=sys.stderr)
+        return 130
     args = build_parser().parse_args(argv)
     debug = args.debug or args.global_debug
     if args.verbose or args.global_verbose:

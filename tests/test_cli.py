@@ -401,3 +401,40 @@ def test_sigterm_while_writing_leaves_nothing(tmp_path, capsys, monkeypatch):
     assert rc == 143 and _error_lines(err) == []
     assert list(tmp_path.iterdir()) == []  # neither the output nor the temporary file
     assert signal.getsignal(signal.SIGTERM) == before  # main put the previous handler back
+
+
+def test_sigint_at_any_moment_leaves_every_old_output_or_every_new_one(tmp_path, one_device):
+    # issue 37: an interrupt during the imports was swallowed (exit 0, outputs replaced), and one
+    # after the mesh was written left a new mesh beside the old picture. SIGINT from a parent
+    # process at moments spread over a whole run, the first during the imports.
+    argv = [sys.executable, "-m", "geosynth", "volume", "--example", "terrain", "-o", "k.ply", "--png", "k.png",
+            "--size", "32", "--levels", "2", "--block", "4", "--source-resolution", "16", "--quality-samples", "0",
+            "--smooth", "0", "--quiet", "--device", one_device]
+    t0 = time.monotonic()
+    subprocess.run(argv, cwd=tmp_path, check=True, capture_output=True, timeout=120)
+    full = time.monotonic() - t0
+    new = {name: (tmp_path / name).read_bytes() for name in ("k.ply", "k.png")}
+    seen = []
+    for moment in [0.05, 0.15, 0.3] + [full * f for f in (0.4, 0.6, 0.75, 0.85, 0.95)]:
+        for name in new:
+            (tmp_path / name).write_bytes(b"old")
+        proc = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        try:
+            time.sleep(moment)
+            sent = proc.poll() is None
+            if sent:
+                proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=120)
+        finally:
+            proc.kill()
+        got = {name: (tmp_path / name).read_bytes() for name in new}
+        state = "old" if all(v == b"old" for v in got.values()) else "new" if got == new else "mixed"
+        seen.append((round(moment, 2), sent, proc.returncode, state))
+        assert state != "mixed", seen
+        if state == "old":
+            assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (seen, err)
+        elif sent:  # the signal came after the commit: the run had finished, its outputs are whole
+            assert proc.returncode in (0, 130, -signal.SIGINT), seen
+        assert not [p.name for p in tmp_path.iterdir() if ".geosynth-" in p.name], seen
+    assert sum(state == "old" for _, _, _, state in seen) >= 4, seen  # most moments fell inside the run
