@@ -43,6 +43,8 @@ _PARAMETER_FLAGS = {
     "volume": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
     "field": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
     "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels")],
+    "complete": [(r"(?<![\w-])window (?=\d)", "--window "), (r"\ba window\b", "a --window"),
+                 (r"\bsmaller window\b", "smaller --window")],
 }
 
 
@@ -737,6 +739,20 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
 # ------------------------------------------------------------------ complete (M4)
 
 
+def _max_error_type(text: str) -> float:
+    """An argparse ``type=`` for --max-error: geosynth.completion.check_max_error's range."""
+    from geosynth.completion import check_max_error
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = text
+    try:
+        return check_max_error(value, name=None)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).rstrip(".")) from None
+
+
 def _cmd_complete(args: argparse.Namespace) -> int:
     from geosynth.completion_examples import COMPLETION_EXAMPLES
 
@@ -933,7 +949,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit", choices=["plane", "sphere", "cylinder"], default=None,
                    help="the underlying surface (default: chosen by residual; built-ins: their own)")
     p.add_argument("--window", type=_int_type(1, 12), default=None,
-                   help="neighbourhood window W in edge rings, 1 to 12 (default 3; built-ins: their own)")
+                   help="neighbourhood window W in edge rings, 1 to 12 and no wider than the capture (some captured "
+                        "vertex W target spacings from its border; the run says how many) (default 3; built-ins: "
+                        "their own)")
     p.add_argument("--rotations", type=_int_type(1, 64), default=None,
                    help="orientations tried about the normal, 1 to 64 (default 4; built-ins: their own)")
     p.add_argument("--frames", choices=["paper", "fit"], default=None,
@@ -942,8 +960,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default paper; built-ins: their own)")
     p.add_argument("--mu", type=_float_type(0, inclusive=True), default=None,
                    help="weight of shape against colour, 0 to 1 (1: relief only; default 0.5)")
-    p.add_argument("--max-error", type=_float_type(0, inclusive=False), default=0.1,
-                   help="initial MaxErrThreshold on the normalized ssd, > 0 (default 0.1)")
+    p.add_argument("--max-error", type=_max_error_type, default=0.1,
+                   help="initial MaxErrThreshold on the normalized ssd, 6e-08 to 128 (the match scores' range); "
+                        "raised 10%% after each boundary list without progress (default 0.1)")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)
     p.add_argument("--refine", type=_int_type(0, 8), default=None,

@@ -30,8 +30,8 @@ import numpy as np
 
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
-__all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "check_spacing_rule", "prepare_relief",
-           "ring_neighbourhoods"]
+__all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",
+           "prepare_relief", "ring_neighbourhoods"]
 
 TARGET_SPACINGS = ("minimum", "median")  # prepare_relief(spacing=): the paper's minimum edge, or the median on the fit
 
@@ -265,6 +265,23 @@ def ring_neighbourhoods(adjacency: tuple[np.ndarray, np.ndarray], rows: np.ndarr
     counts[np.diff(count.indptr) == 0] = 0
     out_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return out_ptr, count.indices[keep].astype(np.int64), ring[keep]
+
+
+def capture_depth(rs: "ReliefSurface") -> np.ndarray:
+    """(n_original,) float64: how far (world units, between base positions on the fit) each
+    of the capture's own vertices lies from the captured part's border: the distance to the
+    nearest target or vertex of a border edge (an edge of one triangle). A target's W-ring
+    neighbourhood reaches about W target spacings, so a candidate whose depth is below
+    ``W * rs.spacing`` is matched partly against the border's samples, not against captured
+    relief (:func:`geosynth.completion.complete_surface` counts and checks them)."""
+    from scipy.spatial import cKDTree
+
+    f = np.sort(rs.faces.astype(np.int64), axis=1)
+    edges, count = np.unique(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [0, 2]]]), axis=0, return_counts=True)
+    sources = np.union1d(np.arange(rs.n_samples, rs.n_vertices), edges[count == 1].ravel())
+    if len(sources) == 0:
+        return np.full(rs.n_original, np.inf)
+    return cKDTree(rs.base[sources]).query(rs.base[: rs.n_original])[0]
 
 
 # ---------------------------------------------------------------------- targets
