@@ -42,7 +42,10 @@ DEMO_MAX_SIZE = 256  # the demo's spheres field costs size^6 / 6500 operations
 _PARAMETER_FLAGS = {
     "volume": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
     "field": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
-    "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels")],
+    "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels"),
+                (r"(?<![\w-])m = ", "--m "), (r"\bor m \(", "or --m ("), (r", m and levels\b", ", --m and --levels"),
+                (r"\btexture_size\b", "--texture-size"), (r"\bunit_scale\b", "--unit-scale"),
+                (r"\bpattern_size\b", "--pattern-size")],
     "complete": [(r"(?<![\w-])window (?=\d)", "--window "), (r"\ba window\b", "a --window"),
                  (r"\bsmaller window\b", "smaller --window")],
 }
@@ -544,6 +547,12 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
     if model_is_sampled and args.k >= args.count:
         raise ValueError(f"-k {args.k} needs more than {args.k} points but --count is {args.count}; "
                          "use a smaller -k or a larger --count.")
+    if args.pattern_size is not None and args.method != "hybrid":
+        raise ValueError(f"--pattern-size sets the hybrid's gap widening; --method {args.method} has none: drop "
+                         "--pattern-size or use --method hybrid.")
+    if name is not None and args.pattern_size is not None and args.pattern_size > size:
+        raise ValueError(f"--pattern-size {args.pattern_size:g} is larger than the texture (--texture-size {size}): "
+                         f"a pattern is at most the texture; use --pattern-size {size} or less.")
     if name is not None and args.method != "param":
         side = math.ceil(math.sqrt(args.k + 1))  # the texels a k-neighbourhood spans, as texture_points checks
         coarsest = size >> (args.levels - 1)
@@ -552,6 +561,12 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
                              f"{side} texels)" + (f" on the coarsest of --levels {args.levels} ({coarsest} texels)"
                                                   if args.levels > 1 else "")
                              + "; use a larger --texture-size, a smaller -k or fewer --levels.")
+    if name is not None:  # the texel search's memory, known now for a built-in texture (the model's points: later)
+        from geosynth.texturing import require_texture_memory
+
+        levels = 1 if args.method == "param" else args.levels
+        require_texture_memory(args.count if model_is_sampled else args.k + 1, size, size, args.method, args.k,
+                               levels, args.m, not args.no_quality and args.quality_samples > 0)
 
 
 def _cmd_texture(args: argparse.Namespace) -> int:

@@ -433,3 +433,69 @@ def test_a_bad_spacing_rule_is_refused_before_any_work():
     # the capture is not even read: the option is checked with the other parameters
     with pytest.raises(ValueError, match="spacing must be one of 'minimum', 'median', got 'mean'"):
         complete_surface(None, spacing="mean")
+
+
+# ---------------------------------------------------------------- issue 31: options refused before the work
+
+
+def test_max_error_outside_the_scores_range_is_refused_before_any_work():
+    from geosynth.completion import MAX_MAX_ERROR, MIN_MAX_ERROR, check_max_error
+
+    cap = _wave_capture()
+    for bad in (1e-30, 0.0, -1.0, float("nan"), float("inf"), 1e9, True, "0.1"):
+        with pytest.raises(ValueError, match=r"^max_error must be a number from 6e-08 to 128 .* got ") as info:
+            complete_surface(cap, max_error=bad)
+        assert "\n" not in str(info.value)
+    assert check_max_error(MIN_MAX_ERROR) == 2.0 ** -24 and check_max_error(MAX_MAX_ERROR) == 128.0
+
+
+def test_a_window_wider_than_the_capture_is_refused_with_the_range_that_works():
+    from geosynth.completion_examples import completion_example
+
+    ex = completion_example("flat")  # its deepest vertex lies 6 target spacings from the border
+    with pytest.raises(ValueError, match=r"^window 8 is larger than the capture: .* use a window from 1 to 6,"):
+        complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=8, device="cpu")
+
+
+def test_the_report_says_how_many_vertices_hold_a_whole_window(one_device):
+    from geosynth.completion_examples import completion_example
+
+    ex = completion_example("flat")
+    _, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=6, device=one_device)
+    assert 0 < report.whole_windows < report.n_original
+    assert f"{report.whole_windows:,} of the capture's {report.n_original:,} vertices" in report.lines()[1]
+
+
+def _cli(argv, cwd, timeout=60):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    return subprocess.run([sys.executable, "-m", "geosynth", *argv], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+@pytest.mark.parametrize("options, says", [
+    (["--max-error", "1e-30"], "argument --max-error: must be a number from 6e-08 to 128"),
+    (["--max-error", "1e9"], "argument --max-error: must be a number from 6e-08 to 128"),
+    (["--window", "8", "--rotations", "1"], "--window 8 is larger than the capture"),
+])
+def test_cli_refuses_meaningless_complete_options_in_one_line(tmp_path, options, says):
+    """issue 31: `complete cap.ply --max-error 1e-30` ran past 150 s; `--window 12 --rotations 1`
+    on a small capture ran with no word. Now: one line, exit 2, in seconds, nothing written."""
+    import time
+
+    from geosynth.pointsets import PointSet, write_point_set
+
+    q = _hex(1.5, 1.5, 0.05)
+    q = q[(q[:, 0] < 0.2) | (q[:, 1] < 0.2)]  # an L, 4 rows wide: many points, none deep inside
+    pts = np.column_stack([q, 0.01 * np.sin(9 * q[:, 0]) * np.cos(7 * q[:, 1])])
+    write_point_set(tmp_path / "cap.ply", PointSet(pts))
+    t0 = time.perf_counter()
+    res = _cli(["complete", "cap.ply", "-o", "o.ply", "--device", "cpu", "--quiet", *options], tmp_path)
+    lines = [line for line in res.stderr.splitlines() if line.strip()]
+    assert res.returncode == 2, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("geosynth complete") and says in lines[0], res.stderr
+    assert time.perf_counter() - t0 < 30
+    assert not (tmp_path / "o.ply").exists()
