@@ -60,8 +60,8 @@ def as_capture(capture) -> Capture:
     has them), a :class:`geosynth.pointsets.PointSet`, or an (N, 3) array; checked.
 
     Raises:
-        ValueError: NaN/inf positions (how many, the first index), colours or normals of
-            the wrong shape, face indices out of range.
+        ValueError: NaN/inf positions (how many, the first index), duplicated positions (how
+            many, the first), colours or normals of the wrong shape, face indices out of range.
     """
     if isinstance(capture, Capture):
         pos, col, faces, nrm = capture.positions, capture.colors, capture.faces, capture.normals
@@ -83,6 +83,11 @@ def as_capture(capture) -> Capture:
         raise ValueError(f"the capture has {int(bad.sum())} position(s) with NaN or inf coordinates (the first: "
                          f"index {int(np.argmax(bad))}); remove those points.")
     n = len(pos)
+    _, first, inverse = np.unique(pos, axis=0, return_index=True, return_inverse=True)
+    if len(first) < n:  # coincident points: one position, two samples (their triangulation has no room for both)
+        copies = np.flatnonzero(first[inverse.ravel()] != np.arange(n))
+        raise ValueError(f"the capture has {len(copies)} duplicated point(s) (the first: index {int(copies[0])}, at "
+                         f"the position of index {int(first[inverse.ravel()[copies[0]]])}); remove the duplicates.")
     if col is not None:
         c = np.asarray(col)
         if c.shape != (n, 3):

@@ -499,3 +499,74 @@ def test_cli_refuses_meaningless_complete_options_in_one_line(tmp_path, options,
     assert len(lines) == 1 and lines[0].startswith("geosynth complete") and says in lines[0], res.stderr
     assert time.perf_counter() - t0 < 30
     assert not (tmp_path / "o.ply").exists()
+
+
+# ---------------------------------------------------------------- fuzz: the complete reader's point sets
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+def _ply_points(path, pts, normals=None, colors=None):
+    """A binary PLY point set with float normals and float colours (NaN allowed)."""
+    from plyfile import PlyData, PlyElement
+
+    layout = [(c, "<f4") for c in "xyz"] + ([(c, "<f4") for c in ("nx", "ny", "nz")] if normals is not None else []) \
+        + ([(c, "<f4") for c in ("red", "green", "blue")] if colors is not None else [])
+    v = np.empty(len(pts), dtype=layout)
+    for i, c in enumerate("xyz"):
+        v[c] = pts[:, i]
+    for arr, names in ((normals, ("nx", "ny", "nz")), (colors, ("red", "green", "blue"))):
+        if arr is not None:
+            for i, c in enumerate(names):
+                v[c] = arr[:, i]
+    PlyData([PlyElement.describe(v, "vertex")], text=False).write(str(path))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(shape=st.sampled_from(["grid", "duplicates", "collinear", "coplanar", "few"]),
+       nan_normals=st.booleans(), nan_colours=st.booleans(), seed=st.integers(0, 2**16))
+def test_fuzz_complete_reader_point_sets(tmp_path, shape, nan_normals, nan_colours, seed):
+    """Degenerate captures read by `complete` (geosynth.pointsets.read_geometry), fitted and
+    prepared: each is handled or refused in one ValueError line naming the problem; never a
+    NumPy warning, IndexError, LinAlgError or negative-dimension error."""
+    import warnings
+
+    from geosynth.pointsets import read_geometry
+    from geosynth.relief_prep import as_capture, capture_depth, prepare_relief
+    from geosynth.surface_fit import fit_surface
+
+    rng = np.random.default_rng(seed)
+    q = _hex(0.6, 0.5, 0.05)
+    if shape == "collinear":
+        pts = np.column_stack([np.linspace(0, 1, 60), np.zeros(60), np.zeros(60)])
+    elif shape == "few":
+        pts = rng.normal(size=(int(rng.integers(1, 6)), 3))
+    else:
+        pts = np.column_stack([q, np.zeros(len(q)) if shape == "coplanar" else 0.01 * rng.standard_normal(len(q))])
+        if shape == "duplicates":
+            pts = np.concatenate([pts, pts[rng.integers(0, len(pts), len(pts) // 3)]])
+    n = len(pts)
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    if nan_normals:
+        normals[rng.integers(0, n)] = np.nan
+    colours = rng.integers(0, 256, (n, 3)).astype(np.float64)
+    if nan_colours:
+        colours[rng.integers(0, n)] = np.nan
+    path = tmp_path / f"cap_{seed}.ply"
+    _ply_points(path, pts, normals, colours)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a NumPy RuntimeWarning fails the test
+        try:
+            cap = as_capture(read_geometry(path))
+            fit = fit_surface(cap.positions, None, normals=cap.normals)
+            rs = prepare_relief(cap, fit)
+            depth = capture_depth(rs)
+        except ValueError as exc:
+            text = str(exc)
+            assert text and "\n" not in text and "negative dimensions" not in text, text
+            if shape == "duplicates" and not (nan_normals or nan_colours):
+                assert "duplicated point" in text, text
+            return
+    assert np.isfinite(rs.base).all() and len(depth) == rs.n_original
+    assert not (nan_normals or nan_colours), "NaN normals or colours were read without a word"
