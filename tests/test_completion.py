@@ -471,7 +471,7 @@ def _cli(argv, cwd, timeout=60):
     import subprocess
     import sys
 
-    env = dict(os.environ)
+    env = {k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"}  # an in-process --verbose run leaks it
     return subprocess.run([sys.executable, "-m", "geosynth", *argv], cwd=cwd, capture_output=True, text=True,
                           timeout=timeout, env=env)
 

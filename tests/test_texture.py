@@ -589,6 +589,7 @@ def test_the_texture_memory_refusal_names_every_option_that_makes_the_size():
     (["--unit-scale", "1e9", "--count", "2000"], ("--unit-scale 1e+09 maps the model", "range that works here")),
 ])
 def test_cli_refuses_texture_sizes_in_one_line(tmp_path, options, says):
+    import os
     import subprocess
     import sys
     import time
@@ -596,7 +597,8 @@ def test_cli_refuses_texture_sizes_in_one_line(tmp_path, options, says):
     t0 = time.perf_counter()
     res = subprocess.run([sys.executable, "-m", "geosynth", "texture", "--example", "sphere", "--texture-example",
                           "noise", "-o", "t.ply", "--device", "cpu", "--quiet", *options], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=60,
+                         env={k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"})  # leaked by --verbose
     lines = [line for line in res.stderr.splitlines() if line.strip()]
     assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("geosynth texture: "), res.stderr
     assert all(s in lines[0] for s in says), lines[0]
