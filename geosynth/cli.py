@@ -45,7 +45,12 @@ DEMO_MAX_SIZE = 256  # the demo's spheres field costs size^6 / 6500 operations
 _PARAMETER_FLAGS = {
     "volume": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
     "field": [(r"\bdrop_degenerate(?:=True)?\b", "--drop-degenerate")],
-    "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels")],
+    "texture": [(r"(?<![\w-])k = ", "-k "), (r"\bsmaller k\b", "smaller -k"), (r"\bfewer levels\b", "fewer --levels"),
+                (r"(?<![\w-])m = ", "--m "), (r"\bor m \(", "or --m ("), (r", m and levels\b", ", --m and --levels"),
+                (r"\btexture_size\b", "--texture-size"), (r"\bunit_scale\b", "--unit-scale"),
+                (r"\bpattern_size\b", "--pattern-size")],
+    "complete": [(r"(?<![\w-])window (?=\d)", "--window "), (r"\ba window\b", "a --window"),
+                 (r"\bsmaller window\b", "smaller --window")],
 }
 
 
@@ -591,6 +596,12 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
     if model_is_sampled and args.k >= args.count:
         raise ValueError(f"-k {args.k} needs more than {args.k} points but --count is {args.count}; "
                          "use a smaller -k or a larger --count.")
+    if args.pattern_size is not None and args.method != "hybrid":
+        raise ValueError(f"--pattern-size sets the hybrid's gap widening; --method {args.method} has none: drop "
+                         "--pattern-size or use --method hybrid.")
+    if name is not None and args.pattern_size is not None and args.pattern_size > size:
+        raise ValueError(f"--pattern-size {args.pattern_size:g} is larger than the texture (--texture-size {size}): "
+                         f"a pattern is at most the texture; use --pattern-size {size} or less.")
     if name is not None and args.method != "param":
         side = math.ceil(math.sqrt(args.k + 1))  # the texels a k-neighbourhood spans, as texture_points checks
         coarsest = size >> (args.levels - 1)
@@ -599,6 +610,12 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
                              f"{side} texels)" + (f" on the coarsest of --levels {args.levels} ({coarsest} texels)"
                                                   if args.levels > 1 else "")
                              + "; use a larger --texture-size, a smaller -k or fewer --levels.")
+    if name is not None:  # the texel search's memory, known now for a built-in texture (the model's points: later)
+        from geosynth.texturing import require_texture_memory
+
+        levels = 1 if args.method == "param" else args.levels
+        require_texture_memory(args.count if model_is_sampled else args.k + 1, size, size, args.method, args.k,
+                               levels, args.m, not args.no_quality and args.quality_samples > 0)
 
 
 def _cmd_texture(args: argparse.Namespace) -> int:
@@ -869,6 +886,20 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
 # ------------------------------------------------------------------ complete (M4)
 
 
+def _max_error_type(text: str) -> float:
+    """An argparse ``type=`` for --max-error: geosynth.completion.check_max_error's range."""
+    from geosynth.completion import check_max_error
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = text
+    try:
+        return check_max_error(value, name=None)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).rstrip(".")) from None
+
+
 def _cmd_complete(args: argparse.Namespace) -> int:
     from geosynth.completion_examples import COMPLETION_EXAMPLES
 
@@ -1069,7 +1100,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit", choices=["plane", "sphere", "cylinder"], default=None,
                    help="the underlying surface (default: chosen by residual; built-ins: their own)")
     p.add_argument("--window", type=_int_type(1, 12), default=None,
-                   help="neighbourhood window W in edge rings, 1 to 12 (default 3; built-ins: their own)")
+                   help="neighbourhood window W in edge rings, 1 to 12 and no wider than the capture (some captured "
+                        "vertex W target spacings from its border; the run says how many) (default 3; built-ins: "
+                        "their own)")
     p.add_argument("--rotations", type=_int_type(1, 64), default=None,
                    help="orientations tried about the normal, 1 to 64 (default 4; built-ins: their own)")
     p.add_argument("--frames", choices=["paper", "fit"], default=None,
@@ -1078,8 +1111,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default paper; built-ins: their own)")
     p.add_argument("--mu", type=_float_type(0, inclusive=True), default=None,
                    help="weight of shape against colour, 0 to 1 (1: relief only; default 0.5)")
-    p.add_argument("--max-error", type=_float_type(0, inclusive=False), default=0.1,
-                   help="initial MaxErrThreshold on the normalized ssd, > 0 (default 0.1)")
+    p.add_argument("--max-error", type=_max_error_type, default=0.1,
+                   help="initial MaxErrThreshold on the normalized ssd, 6e-08 to 128 (the match scores' range); "
+                        "raised 10%% after each boundary list without progress (default 0.1)")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)
     p.add_argument("--refine", type=_int_type(0, 8), default=None,

@@ -15,7 +15,12 @@ the samples once (:class:`geosynth.relief_match.ReliefIndex`) and grows:
   (the paper: uniformly; by default our histogram-aware pick, :class:`_Balance`); if
   its score is below MaxErrThreshold, t gets the match's displacement (and colour) and is
   textured; otherwise t is skipped and its window W_t shrinks by one ring (not below 1);
-- a whole list without progress raises MaxErrThreshold by 10%.
+- a whole list without progress raises MaxErrThreshold by 10%. Bound: ``max_error`` lies
+  in [2^-24, 128] (:func:`check_max_error`; the scores' resolution and clamp); once the
+  threshold is over 128 every valid match is accepted, so a list without progress there
+  and with final windows (no window shrank) would repeat for ever: the growth stops and
+  the rest is reported unreached. Hence at most (targets) lists with progress and
+  log(140.8 / max_error) / log(1.1) + W without.
 
 Batches. Ties in the count are broken by a greedy colouring in id order: targets of one
 count level are split into classes none of whose members lies within another's window
@@ -66,10 +71,12 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.relief_prep import ReliefSurface, as_capture, check_spacing_rule, prepare_relief, ring_neighbourhoods
+from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
+                                  ring_neighbourhoods)
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
 
-__all__ = ["CompletedSurface", "CompletionReport", "complete_surface", "completion_picture", "write_completion"]
+__all__ = ["CompletedSurface", "CompletionReport", "check_max_error", "complete_surface", "completion_picture",
+           "write_completion"]
 
 DEFAULT_WINDOW = 3
 DEFAULT_ROTATIONS = 4
@@ -77,6 +84,11 @@ DEFAULT_MU = 0.5
 DEFAULT_MAX_ERROR = 0.1  # MaxErrThreshold on the [0, 1] normalized ssd (Efros and Leung's 0.1)
 TOLERANCE = 1.1  # matches within 1.1x the best (Appendix A)
 RELAX = 1.1  # MaxErrThreshold x 1.1 after a list without progress
+# The range of max_error that means something: the scores are integer codes, SCORE_ONE (2^24) for
+# an ssd of 1, clamped at CODE_CAP (2^31, an ssd of 128). Below one code step every threshold
+# accepts only exact copies (the same as 2^-24); above 128 it no longer tells matches apart.
+MIN_MAX_ERROR = 2.0 ** -24
+MAX_MAX_ERROR = 128.0
 HIST_BINS = 16
 _MAX_BATCH = 64
 _BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
@@ -152,6 +164,9 @@ class CompletionReport:
             parameter, against each other: how much two real parts of the surface differ;
             ``hist_self`` None without colour).
         device: the device string the matching ran on.
+        whole_windows: how many of the capture's own vertices lie at least ``window``
+            target spacings from the captured part's border (their W-ring neighbourhood is
+            all captured relief; :func:`geosynth.relief_prep.capture_depth`).
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
             many of the samples are the capture's own vertices.
@@ -179,6 +194,7 @@ class CompletionReport:
     refine: int = 0
     refined: int = 0
     spacing_rule: str = "minimum"
+    whole_windows: int = -1
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
@@ -186,7 +202,10 @@ class CompletionReport:
         out = [f"fit: {self.fit}",
                f"samples {self.samples:,} (captured part oversampled once), targets {self.targets:,} at spacing "
                f"{self.spacing:.4g} (the capture's {self.spacing_rule} edge); window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
-               f"{self.device}",
+               f"{self.device}"
+               + ("" if self.whole_windows < 0 else
+                  f"; {self.whole_windows:,} of the capture's {self.n_original:,} vertices "
+                  f"({self.n_original and self.whole_windows / self.n_original:.0%}) hold a whole window"),
                f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
                f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
                f"{self.final_max_error:.4g}), {self.unreached} targets unreached; "
@@ -223,6 +242,25 @@ class CompletionReport:
 # ---------------------------------------------------------------------- checks
 
 
+def check_max_error(max_error, name: str | None = "max_error") -> float:
+    """``max_error`` as a float if it lies in [MIN_MAX_ERROR, MAX_MAX_ERROR], else a one-line
+    ValueError naming ``name`` (None: the message starts "must be", for argparse) and the range.
+
+    The MaxErrThreshold is compared with integer scores (SCORE_ONE = an ssd of 1, clamped at
+    an ssd of 128): a smaller value accepts no more than 2^-24 does (exact copies only) and
+    only adds lists without progress (the threshold grows 10% a list: from 1e-30, about 600
+    before the first copy); a larger one accepts every valid match, as 128 nearly does.
+    Within the range, :func:`_grow` makes at most (targets) lists with progress and
+    log(128 x 1.1 / max_error) / log(1.1) + W lists without (at most 237 + W from 2^-24)."""
+    ok = isinstance(max_error, (int, float, np.integer, np.floating)) and not isinstance(max_error, (bool, np.bool_))
+    if not ok or not MIN_MAX_ERROR <= float(max_error) <= MAX_MAX_ERROR:
+        raise ValueError(f"{name + ' ' if name else ''}must be a number from {MIN_MAX_ERROR:.2g} to {MAX_MAX_ERROR:g} (the match scores' "
+                         f"range: {MIN_MAX_ERROR:.2g} is one step of the integer scores, {MAX_MAX_ERROR:g} the "
+                         f"largest score; the paper's normalized ssd lies in [0, 1], default {DEFAULT_MAX_ERROR:g}), "
+                         f"got {max_error!r}.")
+    return float(max_error)
+
+
 def _check_params(window, rotations, mu, max_error, seed) -> None:
     if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
         raise ValueError(f"window must be an integer >= 1 (edge rings), got {window!r}.")
@@ -230,8 +268,7 @@ def _check_params(window, rotations, mu, max_error, seed) -> None:
         raise ValueError(f"rotations must be an integer from 1 to 64, got {rotations!r}.")
     if not isinstance(mu, (int, float, np.floating)) or not 0 <= float(mu) <= 1:
         raise ValueError(f"mu must be a number in [0, 1] (1: relief only), got {mu!r}.")
-    if not isinstance(max_error, (int, float, np.floating)) or not (0 < float(max_error) < math.inf):
-        raise ValueError(f"max_error must be a finite number > 0, got {max_error!r}.")
+    check_max_error(max_error)
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
 
@@ -311,6 +348,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                 sel = ring_d[lo:hi] <= w_t[k]
                 counts[i] = int(textured[ring_idx[lo:hi][sel]].sum())
             progress_made = False
+            shrunk = False  # a window shrank in this list
             for level in np.unique(counts)[::-1]:
                 members = boundary[counts == level]
                 for cls in _classes(members, w_t, ring_ptr, ring_idx, ring_d, slot_of):
@@ -323,6 +361,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                         for t, m in zip(chunk, got):  # picks in list order (one draw per non-empty match set)
                             k = slot_of[t]
                             if len(m.sample) == 0:
+                                shrunk |= bool(w_t[k] > 1)
                                 stats["failed_matches"] += 1
                                 w_t[k] = max(1, w_t[k] - 1)
                                 continue
@@ -334,6 +373,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                                 accepted_s.append(int(m.sample[j]))
                                 accepted_r.append(int(m.rotation[j]))
                             else:
+                                shrunk |= bool(w_t[k] > 1)
                                 stats["failed_matches"] += 1
                                 w_t[k] = max(1, w_t[k] - 1)
                         if accepted_t:
@@ -345,13 +385,14 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
             if not progress_made:
                 stats["passes_without_progress"] += 1
                 err *= RELAX
+                if err > MAX_MAX_ERROR * RELAX and not shrunk:
+                    break  # every valid match is accepted now and the windows are final: the rest is unreached
     finally:
         if bar is not None:
             bar.close()
     stats["final_max_error"] = err
     stats["picked"] = picked
     return textured, stats
-
 
 
 def _refine(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, rng: np.random.Generator,
@@ -734,7 +775,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         window: W, the neighbourhood radius in edge rings (>= 1).
         rotations: R, orientations tried about the normal (1..64).
         mu: weight of shape against colour in [0, 1] (1: relief only).
-        max_error: the initial MaxErrThreshold on the [0, 1] normalized ssd.
+        max_error: the initial MaxErrThreshold on the [0, 1] normalized ssd, from 2^-24 (about
+            6e-8, one step of the integer scores) to 128 (the largest score); each list
+            without progress raises it 10%, so the lists are bounded (module docstring).
         device: the matching device ("cpu", "opencl", "cuda", "auto"/None).
         seed: seed of the random picks (an int >= 0).
         progress: show a progress bar over the targets.
@@ -771,7 +814,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
 
     Raises:
         ValueError: bad parameters; a capture with NaN positions, colours of the wrong
-            length or fewer points than one neighbourhood; a fit that does not converge or
+            length or fewer points than one neighbourhood; a window larger than the capture
+            (no captured vertex ``window`` target spacings from its border); a fit that does not converge or
             a named fit far from the data (with its residual); an empty region.
     """
     from geosynth import relief_match as rm
@@ -800,6 +844,15 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample, spacing=spacing)
+    depth = capture_depth(rs) / rs.spacing  # in target spacings: a W-ring reaches about W of them
+    whole = int((depth >= window).sum())
+    if whole == 0:
+        deepest = float(depth.max()) if len(depth) else 0.0
+        raise ValueError(f"window {window} is larger than the capture: its deepest vertex lies {deepest:.1f} target "
+                         f"spacings from its border and a window of W edge rings reaches about W, so no candidate's "
+                         f"neighbourhood is all captured relief; "
+                         + (f"use a window from 1 to {int(deepest)}, or a larger capture." if deepest >= 1 else
+                            "give a larger capture (the capture is thinner than one target spacing)."))
     t2 = time.perf_counter()
     if isinstance(balance, (bool, np.bool_)):
         balance = bool(balance)
@@ -846,7 +899,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         final_max_error=stats["final_max_error"], lists=stats["lists"],
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
-        spacing_rule=spacing,
+        spacing_rule=spacing, whole_windows=whole,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

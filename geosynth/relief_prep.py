@@ -30,8 +30,8 @@ import numpy as np
 
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
-__all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "check_spacing_rule", "prepare_relief",
-           "ring_neighbourhoods"]
+__all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",
+           "prepare_relief", "ring_neighbourhoods"]
 
 TARGET_SPACINGS = ("minimum", "median")  # prepare_relief(spacing=): the paper's minimum edge, or the median on the fit
 
@@ -60,8 +60,8 @@ def as_capture(capture) -> Capture:
     has them), a :class:`geosynth.pointsets.PointSet`, or an (N, 3) array; checked.
 
     Raises:
-        ValueError: NaN/inf positions (how many, the first index), colours or normals of
-            the wrong shape, face indices out of range.
+        ValueError: NaN/inf positions (how many, the first index), duplicated positions (how
+            many, the first), colours or normals of the wrong shape, face indices out of range.
     """
     if isinstance(capture, Capture):
         pos, col, faces, nrm = capture.positions, capture.colors, capture.faces, capture.normals
@@ -83,6 +83,11 @@ def as_capture(capture) -> Capture:
         raise ValueError(f"the capture has {int(bad.sum())} position(s) with NaN or inf coordinates (the first: "
                          f"index {int(np.argmax(bad))}); remove those points.")
     n = len(pos)
+    _, first, inverse = np.unique(pos, axis=0, return_index=True, return_inverse=True)
+    if len(first) < n:  # coincident points: one position, two samples (their triangulation has no room for both)
+        copies = np.flatnonzero(first[inverse.ravel()] != np.arange(n))
+        raise ValueError(f"the capture has {len(copies)} duplicated point(s) (the first: index {int(copies[0])}, at "
+                         f"the position of index {int(first[inverse.ravel()[copies[0]]])}); remove the duplicates.")
     if col is not None:
         c = np.asarray(col)
         if c.shape != (n, 3):
@@ -265,6 +270,23 @@ def ring_neighbourhoods(adjacency: tuple[np.ndarray, np.ndarray], rows: np.ndarr
     counts[np.diff(count.indptr) == 0] = 0
     out_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return out_ptr, count.indices[keep].astype(np.int64), ring[keep]
+
+
+def capture_depth(rs: "ReliefSurface") -> np.ndarray:
+    """(n_original,) float64: how far (world units, between base positions on the fit) each
+    of the capture's own vertices lies from the captured part's border: the distance to the
+    nearest target or vertex of a border edge (an edge of one triangle). A target's W-ring
+    neighbourhood reaches about W target spacings, so a candidate whose depth is below
+    ``W * rs.spacing`` is matched partly against the border's samples, not against captured
+    relief (:func:`geosynth.completion.complete_surface` counts and checks them)."""
+    from scipy.spatial import cKDTree
+
+    f = np.sort(rs.faces.astype(np.int64), axis=1)
+    edges, count = np.unique(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [0, 2]]]), axis=0, return_counts=True)
+    sources = np.union1d(np.arange(rs.n_samples, rs.n_vertices), edges[count == 1].ravel())
+    if len(sources) == 0:
+        return np.full(rs.n_original, np.inf)
+    return cKDTree(rs.base[sources]).query(rs.base[: rs.n_original])[0]
 
 
 # ---------------------------------------------------------------------- targets

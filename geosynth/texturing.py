@@ -131,7 +131,7 @@ def _require_texture(n_pts: int, h: int, w: int, method: str, k: int, levels: in
     (:func:`texture_bytes`) exceeds the memory available: option ``"texture_size"`` (the
     texture's side; largest: a square that fits) when the texture search alone does not
     fit, else ``"count"`` (the point count; largest by bisection)."""
-    from geosynth.memory import available_memory, largest_fitting, require
+    from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, largest_fitting, require
 
     def est(n, hh, ww):
         return texture_bytes(n, hh, ww, method=method, k=k, levels=levels, m=m, quality=quality)
@@ -145,9 +145,64 @@ def _require_texture(n_pts: int, h: int, w: int, method: str, k: int, levels: in
         side = max(h, w)
         smallest = max(2, math.ceil(math.sqrt(k + 1))) << (levels - 1)
         best = largest_fitting(lambda s_: est(n_pts, s_, s_), avail, smallest, side)
-        require(need, option="texture_size", value=side, largest=best, available=avail, what=what)
+        best_m = largest_fitting(lambda m_: texture_bytes(n_pts, h, w, method=method, k=k, levels=levels, m=m_,
+                                                          quality=quality), avail, 1, m)
+        searching = method != "param" or quality
+        z = " x 2 (two pyramid levels at once)" if levels > 1 and method != "param" else ""
+        made = (f"the texel search holds the texture supersampled m x m times: ({m} x {w:,}) x ({m} x {h:,}) = "
+                f"{m * m * w * h:,} pixels of about 99 B{z}, so texture_size, m and levels make its size together"
+                + ("" if method != "param" else " (for the quality numbers)") if searching else "")
+        fixes = [f"lower texture_size to at most {best:,} at m = {m}" if best else
+                 f"even the smallest texture_size does not fit at m = {m}"]
+        if best_m:
+            fixes.append(f"or m (1 to 32) to at most {best_m} at this texture size")
+        if levels > 1 and method != "param":
+            fixes.append("or use fewer levels")
+        raise MemoryBudgetError(f"{what} needs about {format_bytes(need)}, more than the {format_bytes(avail)} "
+                                f"available: {made}; {', '.join(fixes)} (or free memory).",
+                                option="texture_size", largest=best, estimate=need, available=avail)
     best = largest_fitting(lambda n: est(n, h, w), avail, k + 1, n_pts)
     require(need, option="count", value=n_pts, largest=best, available=avail, what=what)
+
+
+require_texture_memory = _require_texture  # the CLI's check at parse time, for a built-in texture
+
+
+def _check_scales(p: np.ndarray, unit: float, unit_scale: float, pattern_size, k: int, h: int, w: int,
+                  method: str) -> None:
+    """Refuse a ``unit_scale`` or ``pattern_size`` that maps the model or the texture to
+    nothing a user would want, in one line naming the option and the range that works for
+    this model and texture.
+
+    - ``unit_scale``: one texel is ``unit_scale`` x the mean point spacing. The model's
+      larger bounding-box side must span at least one neighbourhood (sqrt(k + 1) texels,
+      as the texture must hold one), or every neighbourhood and patch falls into fewer
+      texels than a neighbourhood spans (``texture --unit-scale 1e9``: the whole model in
+      one texel); and a neighbourhood (sqrt(k + 1) spacings) must not span more texels
+      than the texture's smaller side, or neighbouring points take unrelated texels.
+    - ``pattern_size`` (texels, the hybrid's gap widening): at most the texture's larger
+      side; a pattern cannot be larger than the texture (the widening also stops as soon
+      as the gaps stop growing, so no value runs for ever).
+    """
+    side = math.sqrt(k + 1)
+    extent = float((p.max(0) - p.min(0)).max()) if len(p) else 0.0
+    spacing = unit / unit_scale
+    high = extent / (side * spacing) if spacing > 0 else math.inf  # the model spans `side` texels
+    low = side / min(h, w)  # a neighbourhood spans the texture's smaller side
+    if not low <= unit_scale <= high:
+        works = (f"from {low:.3g} to {high:.3g}" if low <= high else
+                 "none: the model spans fewer point spacings than a neighbourhood texels; use a smaller k")
+        raise ValueError(f"unit_scale {unit_scale:g} maps the model ({extent / spacing:,.0f} point spacings across) "
+                         f"to {extent / unit:,.3g} texels and a neighbourhood (k = {k}) to {side / unit_scale:,.3g} "
+                         f"texels of a {w} x {h} texture; the model must span at least a neighbourhood "
+                         f"({side:.3g} texels) and a neighbourhood at most the texture: the range that works here is "
+                         f"{works}.")
+    if pattern_size is not None and not (isinstance(pattern_size, (int, float, np.integer, np.floating))
+                                         and math.isfinite(pattern_size) and pattern_size >= 0):
+        raise ValueError(f"pattern_size must be a number of texels >= 0 (or None), got {pattern_size!r}.")
+    if pattern_size is not None and method == "hybrid" and float(pattern_size) > max(h, w):
+        raise ValueError(f"pattern_size {float(pattern_size):g} is larger than the texture ({w} x {h} texels): a "
+                         f"pattern is at most the texture; use a pattern_size from 0 to {max(h, w)}.")
 
 
 def _check_options(method, k, levels, m, n_pts, texture, coherent):
@@ -292,6 +347,7 @@ def texture_points(
     # neighbour reads); the colours go back to the given order at the end
     in_order, p, nrm, dist, nb = _neighbours_in_spatial_order(p, nrm, k, report)
     unit = mean_spacing(dist) * float(unit_scale)
+    _check_scales(p, unit, float(unit_scale), pattern_size, k, h, w, method)
     report.unit = unit
     run_param = functools.partial(
         _parameterize, CheckedModel(p, nrm), tex, k, unit_scale=unit_scale, up=up, weights=weights,
@@ -422,6 +478,8 @@ def _keep_patches_outside_gaps(param, param_colours: np.ndarray, patch_offsets: 
     for _ in range(rounds):
         grow = np.zeros(n_pts, bool)
         grow[nb[gap].reshape(-1)] = True
+        if not (grow & ~gap).any():
+            break  # the gaps cover their components: further rounds change nothing
         gap |= grow
     report.matched_fraction = float(gap.mean())
     keep = ~gap

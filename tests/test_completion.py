@@ -433,3 +433,140 @@ def test_a_bad_spacing_rule_is_refused_before_any_work():
     # the capture is not even read: the option is checked with the other parameters
     with pytest.raises(ValueError, match="spacing must be one of 'minimum', 'median', got 'mean'"):
         complete_surface(None, spacing="mean")
+
+
+# ---------------------------------------------------------------- issue 31: options refused before the work
+
+
+def test_max_error_outside_the_scores_range_is_refused_before_any_work():
+    from geosynth.completion import MAX_MAX_ERROR, MIN_MAX_ERROR, check_max_error
+
+    cap = _wave_capture()
+    for bad in (1e-30, 0.0, -1.0, float("nan"), float("inf"), 1e9, True, "0.1"):
+        with pytest.raises(ValueError, match=r"^max_error must be a number from 6e-08 to 128 .* got ") as info:
+            complete_surface(cap, max_error=bad)
+        assert "\n" not in str(info.value)
+    assert check_max_error(MIN_MAX_ERROR) == 2.0 ** -24 and check_max_error(MAX_MAX_ERROR) == 128.0
+
+
+def test_a_window_wider_than_the_capture_is_refused_with_the_range_that_works():
+    from geosynth.completion_examples import completion_example
+
+    ex = completion_example("flat")  # its deepest vertex lies 6 target spacings from the border
+    with pytest.raises(ValueError, match=r"^window 8 is larger than the capture: .* use a window from 1 to 6,"):
+        complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=8, device="cpu")
+
+
+def test_the_report_says_how_many_vertices_hold_a_whole_window(one_device):
+    from geosynth.completion_examples import completion_example
+
+    ex = completion_example("flat")
+    _, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=6, device=one_device)
+    assert 0 < report.whole_windows < report.n_original
+    assert f"{report.whole_windows:,} of the capture's {report.n_original:,} vertices" in report.lines()[1]
+
+
+def _cli(argv, cwd, timeout=60):
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"}  # an in-process --verbose run leaks it
+    return subprocess.run([sys.executable, "-m", "geosynth", *argv], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+@pytest.mark.parametrize("options, says", [
+    (["--max-error", "1e-30"], "argument --max-error: must be a number from 6e-08 to 128"),
+    (["--max-error", "1e9"], "argument --max-error: must be a number from 6e-08 to 128"),
+    (["--window", "8", "--rotations", "1"], "--window 8 is larger than the capture"),
+])
+def test_cli_refuses_meaningless_complete_options_in_one_line(tmp_path, options, says):
+    """issue 31: `complete cap.ply --max-error 1e-30` ran past 150 s; `--window 12 --rotations 1`
+    on a small capture ran with no word. Now: one line, exit 2, in seconds, nothing written."""
+    import time
+
+    from geosynth.pointsets import PointSet, write_point_set
+
+    q = _hex(1.5, 1.5, 0.05)
+    q = q[(q[:, 0] < 0.2) | (q[:, 1] < 0.2)]  # an L, 4 rows wide: many points, none deep inside
+    pts = np.column_stack([q, 0.01 * np.sin(9 * q[:, 0]) * np.cos(7 * q[:, 1])])
+    write_point_set(tmp_path / "cap.ply", PointSet(pts))
+    t0 = time.perf_counter()
+    res = _cli(["complete", "cap.ply", "-o", "o.ply", "--device", "cpu", "--quiet", *options], tmp_path)
+    lines = [line for line in res.stderr.splitlines() if line.strip()]
+    assert res.returncode == 2, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("geosynth complete") and says in lines[0], res.stderr
+    assert time.perf_counter() - t0 < 30
+    assert not (tmp_path / "o.ply").exists()
+
+
+# ---------------------------------------------------------------- fuzz: the complete reader's point sets
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+def _ply_points(path, pts, normals=None, colors=None):
+    """A binary PLY point set with float normals and float colours (NaN allowed)."""
+    from plyfile import PlyData, PlyElement
+
+    layout = [(c, "<f4") for c in "xyz"] + ([(c, "<f4") for c in ("nx", "ny", "nz")] if normals is not None else []) \
+        + ([(c, "<f4") for c in ("red", "green", "blue")] if colors is not None else [])
+    v = np.empty(len(pts), dtype=layout)
+    for i, c in enumerate("xyz"):
+        v[c] = pts[:, i]
+    for arr, names in ((normals, ("nx", "ny", "nz")), (colors, ("red", "green", "blue"))):
+        if arr is not None:
+            for i, c in enumerate(names):
+                v[c] = arr[:, i]
+    PlyData([PlyElement.describe(v, "vertex")], text=False).write(str(path))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(shape=st.sampled_from(["grid", "duplicates", "collinear", "coplanar", "few"]),
+       nan_normals=st.booleans(), nan_colours=st.booleans(), seed=st.integers(0, 2**16))
+def test_fuzz_complete_reader_point_sets(tmp_path, shape, nan_normals, nan_colours, seed):
+    """Degenerate captures read by `complete` (geosynth.pointsets.read_geometry), fitted and
+    prepared: each is handled or refused in one ValueError line naming the problem; never a
+    NumPy warning, IndexError, LinAlgError or negative-dimension error."""
+    import warnings
+
+    from geosynth.pointsets import read_geometry
+    from geosynth.relief_prep import as_capture, capture_depth, prepare_relief
+    from geosynth.surface_fit import fit_surface
+
+    rng = np.random.default_rng(seed)
+    q = _hex(0.6, 0.5, 0.05)
+    if shape == "collinear":
+        pts = np.column_stack([np.linspace(0, 1, 60), np.zeros(60), np.zeros(60)])
+    elif shape == "few":
+        pts = rng.normal(size=(int(rng.integers(1, 6)), 3))
+    else:
+        pts = np.column_stack([q, np.zeros(len(q)) if shape == "coplanar" else 0.01 * rng.standard_normal(len(q))])
+        if shape == "duplicates":
+            pts = np.concatenate([pts, pts[rng.integers(0, len(pts), len(pts) // 3)]])
+    n = len(pts)
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    if nan_normals:
+        normals[rng.integers(0, n)] = np.nan
+    colours = rng.integers(0, 256, (n, 3)).astype(np.float64)
+    if nan_colours:
+        colours[rng.integers(0, n)] = np.nan
+    path = tmp_path / f"cap_{seed}.ply"
+    _ply_points(path, pts, normals, colours)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a NumPy RuntimeWarning fails the test
+        try:
+            cap = as_capture(read_geometry(path))
+            fit = fit_surface(cap.positions, None, normals=cap.normals)
+            rs = prepare_relief(cap, fit)
+            depth = capture_depth(rs)
+        except ValueError as exc:
+            text = str(exc)
+            assert text and "\n" not in text and "negative dimensions" not in text, text
+            if shape == "duplicates" and not (nan_normals or nan_colours):
+                assert "duplicated point" in text, text
+            return
+    assert np.isfinite(rs.base).all() and len(depth) == rs.n_original
+    assert not (nan_normals or nan_colours), "NaN normals or colours were read without a word"

@@ -539,3 +539,67 @@ def test_texel_kernel_generic_layout(device, rng):
                          for t in range(n)])
         np.testing.assert_array_equal(got[b], want)
         assert backend.to_host(idx)[b] == np.argmin(want) and backend.to_host(best)[b] == want.min()
+
+
+# ---------------------------------------------------------------- issues 31 and 37: scales and sizes refused
+
+
+def test_unit_scale_and_pattern_size_beyond_the_model_or_texture_are_refused(one_device):
+    ps = point_model("sphere", 300)
+    tex = texture_example("noise", 16)
+    with pytest.raises(ValueError, match=r"^unit_scale 1e\+09 maps the model .* the range that works here is from "):
+        texture_points(ps, tex, k=8, unit_scale=1e9, quality=False, device=one_device)
+    with pytest.raises(ValueError, match=r"^unit_scale 1e-06 .* range that works here is from "):
+        texture_points(ps, tex, k=8, unit_scale=1e-6, quality=False, device=one_device)
+    with pytest.raises(ValueError, match=r"^pattern_size 1e\+09 is larger than the texture .* from 0 to 16\.$"):
+        texture_points(ps, tex, k=8, pattern_size=1e9, quality=False, device=one_device)
+    with pytest.raises(ValueError, match=r"^pattern_size must be a number of texels >= 0"):
+        texture_points(ps, tex, k=8, pattern_size=float("nan"), quality=False, device=one_device)
+
+
+def test_gap_widening_stops_when_the_gaps_stop_growing(one_device):
+    """The largest pattern size (the texture's side) widens the gaps over the whole model in a
+    few rounds; the rest are skipped, with the same colours as the rounds run one by one."""
+    ps = point_model("sphere", 400)
+    tex = texture_example("noise", 32)
+    out, rep = texture_points(ps, tex, k=8, pattern_size=32, quality=False, device=one_device, seed=1)
+    assert rep.matched_fraction == 1.0  # every point is a gap: all matched
+    same, _ = texture_points(ps, tex, k=8, pattern_size=31, quality=False, device=one_device, seed=1)
+    assert np.array_equal(out.colors, same.colors)
+
+
+def test_the_texture_memory_refusal_names_every_option_that_makes_the_size():
+    from geosynth.memory import MemoryBudgetError
+    from geosynth.texturing import require_texture_memory
+
+    with pytest.raises(MemoryBudgetError) as info:
+        require_texture_memory(20_000, 8192, 8192, "match", 25, 2, 32, True)
+    text = str(info.value)
+    assert info.value.option == "texture_size" and "\n" not in text
+    for part in ("(m = 32)", "texture_size, m and levels make its size together", "lower texture_size to at most",
+                 "at m = 32", "or m (1 to 32) to at most", "or use fewer levels", "x 2 (two pyramid levels"):
+        assert part in text, text
+
+
+@pytest.mark.parametrize("options, says", [
+    (["--m", "32", "--texture-size", "8192", "--method", "match"],
+     ("--texture-size, --m and --levels make its size together", "at --m 32", "or --m (1 to 32) to at most")),
+    (["--pattern-size", "1e9"], ("--pattern-size 1e+09 is larger than the texture", "--pattern-size 64 or less")),
+    (["--pattern-size", "8", "--method", "match"], ("--pattern-size sets the hybrid's gap widening",)),
+    (["--unit-scale", "1e9", "--count", "2000"], ("--unit-scale 1e+09 maps the model", "range that works here")),
+])
+def test_cli_refuses_texture_sizes_in_one_line(tmp_path, options, says):
+    import os
+    import subprocess
+    import sys
+    import time
+
+    t0 = time.perf_counter()
+    res = subprocess.run([sys.executable, "-m", "geosynth", "texture", "--example", "sphere", "--texture-example",
+                          "noise", "-o", "t.ply", "--device", "cpu", "--quiet", *options], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=60,
+                         env={k: v for k, v in os.environ.items() if k != "GEOSYNTH_VERBOSE"})  # leaked by --verbose
+    lines = [line for line in res.stderr.splitlines() if line.strip()]
+    assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("geosynth texture: "), res.stderr
+    assert all(s in lines[0] for s in says), lines[0]
+    assert time.perf_counter() - t0 < 30 and not (tmp_path / "t.ply").exists()
