@@ -67,6 +67,7 @@ __all__ = [
     "pieces",
     "relax_points",
     "seam_error",
+    "seam_errors",
 ]
 
 MLS_NEIGHBOURS = 24  # nearest points within reach that enter a host MLS evaluation
@@ -758,6 +759,45 @@ def relax_points(points, normals, spacing: float, iterations: int = 2, *, device
         ok = s0 & s1 & (np.einsum("mj,mj->m", n1, nx) > 0.5)
         x[ok] = moved[ok] - (f1[ok] - f0[ok])[:, None] * n1[ok]
     return x, nx
+
+
+def seam_errors(candidates, points_b, normals_b, samples, spacing: float) -> list[float]:
+    """:func:`seam_error` of each of several point sets against one neighbourhood, in one
+    pass: N_k's MLS is evaluated once, and each set enters only with its points within
+    reach of a sample (the others cannot be among a sample's MLS neighbours).
+
+    Args:
+        candidates: sequence of ((., 3) points, (., 3) normals), e.g. a patch as warped and
+            as blended.
+        points_b, normals_b, samples, spacing: as :func:`seam_error`.
+
+    Returns:
+        One RMS difference in spacings per candidate (NaN where no sample has support in both).
+    """
+    from pykdtree.kdtree import KDTree
+
+    spacing = check_positive("spacing", spacing)
+    x = as_points3("samples", samples)
+    h = 2.0 * spacing
+    if len(x) == 0:
+        return [float("nan")] * len(candidates)
+    near = KDTree(x, leafsize=16)
+
+    def within_reach(points, normals):
+        p = as_points3("points", points)
+        if len(p) == 0:
+            return p, np.asarray(normals, np.float64).reshape(-1, 3)
+        d, _ = near.query(p, k=1, distance_upper_bound=_REACH * h * (1 + 1e-9))
+        keep = np.isfinite(d)
+        return p[keep], np.asarray(normals)[keep]
+
+    fb, _, sb = MLSSurface(*within_reach(points_b, normals_b), h).evaluate(x)
+    out = []
+    for points_a, normals_a in candidates:
+        fa, _, sa = MLSSurface(*within_reach(points_a, normals_a), h).evaluate(x)
+        both = sa & sb
+        out.append(float(np.sqrt(np.mean((fa[both] - fb[both]) ** 2)) / spacing) if both.any() else float("nan"))
+    return out
 
 
 def seam_error(points_a, normals_a, points_b, normals_b, samples, spacing: float) -> float:

@@ -53,6 +53,8 @@ class PointTextureReport:
         patches: patches pasted; candidates: mean candidates within (1 + eps) of the best.
         spacing, radius: the exemplar's mean point spacing and the MLS width h.
         arbitrated: field samples the host recomputed for identical codes on every device.
+        kept_warp: patches pasted as warped, without the blend and the cut, because blending
+            would have raised their seam error against N_k (our extension of Sec. 4 step 5).
         quality: name -> value (see :meth:`lines`).
         device: the device used.
         baseline: the random-pasting output as a PointSet (with ``quality``), else None.
@@ -74,6 +76,7 @@ class PointTextureReport:
     radius: float
     arbitrated: int
     device: str
+    kept_warp: int = 0
     quality: dict = dc_field(default_factory=dict)
     baseline: object = None  # the random-pasting output (a PointSet) when quality was asked
 
@@ -87,6 +90,8 @@ class PointTextureReport:
             f"output: {self.size[0]:.4g} x {self.size[1]:.4g}{' (tileable)' if self.tileable else ''}, "
             f"{self.points_out:,} points from {self.patches} patches; {self.candidates:.1f} candidates within "
             f"(1+eps) of the best on average; device {self.device}",
+            f"blend: kept on {self.patches - self.kept_warp} of {self.patches} patches; {self.kept_warp} pasted as "
+            "warped, where blending would have raised the seam error against the neighbourhood",
         ]
         q = self.quality
         if q:
@@ -293,7 +298,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
 
     if not baseline:
         from geosynth.warping import warp_patch
-        from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
+        from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_errors
 
     cell, pc = lay.cell, lay.patch
     reach = 3.0 * h
@@ -373,16 +378,20 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
                 if unblend.any():
                     ramp = np.where(unblend, 0.0, ramp)
             bp, bn = blend_patch(wr.points, wr.normals, ramp, nb_p, nb_n, spacing, device)
-            t0 = timer.add("blend", t0)
+            # --- keep the blend (and the cut) only where it lowers the seam error against N_k
+            # (our extension: blending made the seam worse on a third of the flowers' seeds)
+            edge = _edge_samples(search, offsets, q, sides)
+            ap, an = bp, bn  # what is pasted there: the patch's points kept and N_k's pieces restored
+            if drop is not None and (drop.any() or restore.any()):
+                ap, an = np.concatenate([bp[~drop], cq[restore]]), np.concatenate([bn[~drop], cqn[restore]])
+            before, after = seam_errors([(wr.points, wr.normals), (ap, an)], nb_p, nb_n, edge, spacing)
+            if _worse(after, before):
+                bp, bn, after = wr.points, wr.normals, before
+                drop = restore = None
+                out["kept_warp"] = 1
             if seams_wanted:
-                edge = _edge_samples(search, offsets, q, sides)
-                out["before"] = seam_error(wr.points, wr.normals, nb_p, nb_n, edge, spacing)
-                # after: what is pasted there, the patch's points kept and N_k's pieces restored
-                ap, an = bp, bn
-                if drop is not None and (drop.any() or restore.any()):
-                    ap, an = np.concatenate([bp[~drop], cq[restore]]), np.concatenate([bn[~drop], cqn[restore]])
-                out["after"] = seam_error(ap, an, nb_p, nb_n, edge, spacing)
-                t0 = timer.add("quality", t0)  # the seam numbers are quality, not synthesis
+                out["before"], out["after"] = before, after
+            t0 = timer.add("blend", t0)
             fp, fn = bp, bn
         elif baseline and seams_wanted and len(offsets) and nb_p is not None and len(nb_p):
             from geosynth.blending import seam_error as _seam
@@ -416,7 +425,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
         bar.close()
     seams = {"before": [], "after": [], "baseline": []}
     cands = []
-    arbitrated = 0
+    arbitrated = kept_warp = 0
     for j in range(lay.rows):  # the statistics in scan order
         for i in range(lay.cols):
             r = results[j, i]
@@ -426,7 +435,22 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
             if "candidates" in r:
                 cands.append(r["candidates"])
             arbitrated += r.get("arbitrated", 0)
-    return grid, {"seams": seams, "candidates": cands, "arbitrated": arbitrated, "threads": threads}
+            kept_warp += r.get("kept_warp", 0)
+    return grid, {"seams": seams, "candidates": cands, "arbitrated": arbitrated, "threads": threads,
+                  "kept_warp": kept_warp}
+
+
+# Seam errors (spacings) are compared after rounding to this step: a decision must not
+# depend on the last bits of a float sum, which differ between CPUs' SIMD paths.
+_SEAM_STEP = 1e-6
+
+
+def _worse(after: float, before: float) -> bool:
+    """Whether the blended patch's seam error is larger than the warped one's (NaN: no
+    sample with support on both sides, nothing to compare: the blend is kept)."""
+    if not (np.isfinite(after) and np.isfinite(before)):
+        return False
+    return round(after / _SEAM_STEP) > round(before / _SEAM_STEP)
 
 
 def _row_lag(lay, reach: float, margin: float, cut: bool) -> int:
@@ -942,6 +966,7 @@ def synthesize_point_texture(
         tileable=tileable, grid=search.shape, cell=lay.cell, patch=lay.patch, extra=lay.extra, overlap=lay.overlap,
         patches=lay.cols * lay.rows, candidates=float(np.mean(stats["candidates"])) if stats["candidates"] else 0.0,
         spacing=spacing, radius=h, arbitrated=search.arbitrated + stats["arbitrated"], device=device,
+        kept_warp=int(stats["kept_warp"]),
     )
     if quality:
         tq = time.perf_counter()

@@ -210,15 +210,23 @@ def test_only_the_flowers_have_disconnected_pieces(name, expected):
     assert has_pieces(tex.points, tex.spacing) is expected
 
 
-def test_blending_lowers_the_seam_error_on_flowers(one_device):
+def test_blending_lowers_the_seam_error_on_flowers_over_seeds(one_device):
     """Flowers (small disconnected pieces on a plane): blending alone hardly lowered the
     seam error (a flower one side lacks cannot be blended away); with the pieces N_k or
-    the patch lacks cut whole (blending.cut_pieces) it does."""
+    the patch lacks cut whole (blending.cut_pieces) it does on average, and a patch whose
+    blend would raise its seam error is pasted as warped (issue 40: the blend made the
+    seam worse on a third of the seeds). A claim over seeds, on the mean and the worst:
+    measured over 20 seeds (0-19), after/before mean 0.916 / worst 0.942 as AVX2 and
+    native here, 0.918 / 0.971 as SSE4 (bench/RESULTS.md); here 6 seeds."""
     tex = point_texture_example("flowers", count=10_000)
-    _, report, _ = synthesize_point_texture(tex, device=one_device, seed=0,
-                                            **{**SMALL, "patch": 0.4, "quality": True, "quality_samples": 4})
-    q = report.quality
-    assert q["seam_after"] < 0.97 * q["seam_before"], (q["seam_before"], q["seam_after"])
+    ratios = []
+    for seed in range(6):
+        _, report, _ = synthesize_point_texture(tex, device=one_device, seed=seed,
+                                                **{**SMALL, "patch": 0.4, "quality": True, "quality_samples": 4})
+        q = report.quality
+        ratios.append(q["seam_after"] / q["seam_before"])
+        assert report.kept_warp < report.patches
+    assert max(ratios) <= 1.0 and np.mean(ratios) <= 0.95, ratios
 
 
 def test_tileable_output_continues_across_its_borders(one_device, wavy):
