@@ -462,3 +462,15 @@ def test_cli_tree_search_with_a_slab_refused_before_the_exemplar_field(tmp_path,
     err = capsys.readouterr().err
     assert rc == 2 and "search='tree' takes cubic blocks only" in err and len(err.strip().splitlines()) == 1, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_one_tile_says_what_it_does(tmp_path, capsys):
+    # issue 31: --tiles 1x1 was accepted with no word; it runs the untiled synthesis as one task
+    from geosynth.cli import main
+
+    argv = ["volume", "--example", "terrain", "-o", str(tmp_path / "one.ply"), *TINY_TILED, "--tiles", "1x1",
+            "--scheduler", "threads"]
+    assert main([a for a in argv if a != "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "1x1 tiles: the whole target is one tile, run as one Dask task" in out
+    assert (tmp_path / "one.ply").read_bytes().startswith(b"ply")
