@@ -603,6 +603,48 @@ def test_ply_headers_that_disagree_with_their_data_are_read_whole_or_refused(ply
                 _same(result, want)
 
 
+# ------------------------------------------------------------------ writers refuse NaN and inf (issue 37)
+
+
+def test_every_writer_refuses_non_finite_values_before_creating_a_file(tmp_path):
+    from geosynth.completion import CompletedSurface, write_completion
+    from geosynth.surface import save_mesh
+
+    p, n, c = _cloud(300)
+    p[7, 1], p[9] = np.nan, np.inf
+    box = trimesh.creation.box()
+    bad_box = trimesh.Trimesh(np.r_[box.vertices[:-1], [[np.nan, 0, 0]]], box.faces, process=False)
+    grid = np.pad(np.full((2, 2, 2), np.nan, np.float32), 1)
+    m = 5
+    surface = CompletedSurface(np.zeros((m, 3), np.float32), np.full((m, 3), np.inf, np.float32), None,
+                               np.array([[0, 1, 2]], np.int32), np.ones(m, bool), np.ones(m, bool), np.ones(m, bool),
+                               None)
+    cases = [
+        (lambda: write_point_set(tmp_path / "p.ply", PointSet(p, n, c)),
+         "p.ply': 4 of its 900 position coordinates are NaN or inf, in 2 points (the first: point 7, counting from "
+         "0); nothing was written: remove those points or correct them first."),
+        (lambda: write_point_set(tmp_path / "n.ply", PointSet(p[10:], np.where(n[10:] > 2, 0, np.nan))),
+         "n.ply': 870 of its 870 normal coordinates are NaN or inf, in 290 points (the first: point 0"),
+        (lambda: save_mesh(bad_box, tmp_path / "m.stl"),
+         "m.stl': 1 of its 24 vertex coordinates is NaN or inf, in 1 vertex (the first: vertex 7, counting from 0); "
+         "nothing was written: remove that vertex or correct it first."),
+        (lambda: save_mesh(bad_box, tmp_path / "m.ply"), "m.ply': 1 of its 24 vertex coordinates is NaN or inf"),
+        (lambda: Field(grid, [0, 0, 0], [1, 1, 1]).save(tmp_path / "f.npz"),
+         "f.npz': 8 of its 64 field values are NaN or inf (the first: sample (z, y, x) = (1, 1, 1)); nothing was "
+         "written: correct those values first."),
+        (lambda: write_completion(tmp_path / "c.ply", surface),
+         "c.ply': 15 of its 15 normal coordinates are NaN or inf, in 5 points (the first: point 0"),
+    ]
+    for write, message in cases:
+        with pytest.raises(ValueError, match=r"^refusing to write '[^']*" + re.escape(message)):
+            write()
+    assert list(tmp_path.iterdir()) == []  # not even a temporary
+    # finite data are written as before
+    assert read_point_set(write_point_set(tmp_path / "ok.ply", PointSet(p[10:], n[10:]))).positions.shape == (290, 3)
+    assert Field.load(Field(np.zeros((2, 2, 2), np.float32), [0, 0, 0], [1, 1, 1]).save(tmp_path / "ok.npz")).shape \
+        == (2, 2, 2)
+
+
 # ------------------------------------------------------------------ property test: mangled files
 
 
