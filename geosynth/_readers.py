@@ -408,6 +408,12 @@ def read_with_trimesh(p: Path) -> Geometry:
         raise ValueError(f"{_name(p)} has the extension {suffix or '(none)'}, not one of the geometry formats read "
                          f"here ({', '.join(MESH_SUFFIXES)}); convert it or rename it if it is one of them.")
     kind = suffix[1:].upper()
+    if suffix == ".stl":
+        try:
+            raw = p.read_bytes()
+        except OSError as exc:
+            raise _stl_error(p, reason(exc)) from exc
+        _check_stl(p, raw)
     try:
         with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge values are refused later
             geom = _trimesh_load(trimesh, p, suffix)
@@ -434,6 +440,8 @@ def read_with_trimesh(p: Path) -> Geometry:
 
 
 def _trimesh_load(trimesh, p: Path, suffix: str):
+    if suffix == ".stl":  # checked first (read_with_trimesh): read as it is
+        return trimesh.load(io.BytesIO(p.read_bytes()), file_type="stl", process=False)
     if suffix not in _TEXT_FORMATS:
         return trimesh.load(str(p), process=False)
     raw = p.read_bytes()
@@ -443,6 +451,86 @@ def _trimesh_load(trimesh, p: Path, suffix: str):
         text = raw.decode("latin-1")  # never fails; the parser judges the content
     return trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
                         resolver=trimesh.resolvers.FilePathResolver(str(p)))
+
+
+_STL_WORDS = "solid, facet normal, outer loop, vertex, endloop, endfacet, endsolid"
+
+
+def _stl_error(p: Path, what: str) -> ValueError:
+    return ValueError(f"{_name(p)} is not a readable STL file: {what}; give a complete binary or ASCII STL file.")
+
+
+def _check_stl(p: Path, raw: bytes) -> None:
+    """Refuse an STL file that is neither a binary STL whose size matches its triangle
+    count nor well-formed ASCII STL, saying what is wrong and where (trimesh's ASCII
+    reader stops quietly at the first number it cannot read, and words undecodable
+    bytes as a missing module)."""
+    if len(raw) >= 84:
+        count = int.from_bytes(raw[80:84], "little")
+        if 84 + 50 * count == len(raw):
+            return  # binary STL (even when its header begins with "solid")
+        binary = (f"nor a binary STL (its header declares {count:,} triangles, {84 + 50 * count:,} bytes, but the "
+                  f"file holds {len(raw):,})")
+    else:
+        binary = f"nor a binary STL (it holds {len(raw)} bytes, fewer than the 84 of a binary STL's header)"
+    if not raw.lstrip()[:5].lower() == b"solid":
+        raise _stl_error(p, f"it is neither an ASCII STL (it does not begin with 'solid') {binary}")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise _stl_error(p, f"not valid ASCII STL: line {line} holds a byte that is not text (0x{raw[exc.start]:02x} "
+                            f"at column {column}), {binary}") from None
+
+    def bad(n: int, what: str) -> ValueError:
+        return _stl_error(p, f"not valid ASCII STL: line {n}: {what}")
+
+    def numbers(n: int, words: list[str], start: int, line: str) -> None:
+        try:
+            [float(w) for w in words[start:]]
+        except ValueError:
+            raise bad(n, f"{' '.join(words[:start])!r} needs 3 numbers, found {line!r}") from None
+        if len(words) - start != 3:
+            raise bad(n, f"{' '.join(words[:start])!r} needs 3 numbers, found {len(words) - start} in {line!r}")
+
+    lines = text.splitlines()
+    cut = not text.endswith(("\n", "\r"))  # the last line has no line break
+    state, corners, last = "out", 0, 0
+    for n, line in enumerate(lines, 1):
+        words = line.split()
+        if not words:
+            continue
+        last = n
+        key = words[0].lower()
+        shown = line.strip() if len(line.strip()) <= 60 else line.strip()[:57] + "..."
+        expected = {"out": "solid", "solid": "facet normal or endsolid", "facet": "outer loop",
+                    "loop": "vertex or endloop", "endloop": "endfacet"}[state]
+        if key == "solid" and state == "out":
+            state = "solid"
+        elif key == "endsolid" and state == "solid":
+            state = "out"
+        elif key == "facet" and state == "solid" and len(words) >= 2 and words[1].lower() == "normal":
+            numbers(n, words, 2, shown)
+            state = "facet"
+        elif key == "outer" and state == "facet" and len(words) == 2 and words[1].lower() == "loop":
+            state, corners = "loop", 0
+        elif key == "vertex" and state == "loop":
+            numbers(n, words, 1, shown)
+            corners += 1
+        elif key == "endloop" and state == "loop":
+            if corners != 3:
+                raise bad(n, f"a facet with {corners} vertices (an STL facet has 3)")
+            state = "endloop"
+        elif key == "endfacet" and state == "endloop":
+            state = "solid"
+        elif n == len(lines) and cut:
+            raise bad(n, f"the file ends inside this line ({shown!r}), where {expected} was due (cut short?)")
+        else:
+            raise bad(n, f"expected {expected}, found {shown!r} (an ASCII STL holds only {_STL_WORDS} lines)")
+    if state != "out":
+        raise bad(last, f"the file ends inside a {'solid' if state == 'solid' else 'facet'}, without 'endsolid' "
+                        "(cut short?)")
 
 
 # ------------------------------------------------------------------ checks

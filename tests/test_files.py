@@ -603,6 +603,45 @@ def test_ply_headers_that_disagree_with_their_data_are_read_whole_or_refused(ply
                 _same(result, want)
 
 
+# ------------------------------------------------------------------ STL files that are not (issue 37)
+
+
+def test_a_corrupt_stl_is_refused_saying_what_is_wrong_with_it(tmp_path):
+    # the reported file: ASCII STL with binary junk in a vertex line (was: "No module named 'charset_normalizer'")
+    corrupt = tmp_path / "corrupt.stl"
+    corrupt.write_bytes(b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 \x89\xfe\x00\xc3junk\x01\n")
+    with pytest.raises(ValueError, match=r"^'[^']*corrupt.stl' is not a readable STL file: not valid ASCII STL: line 4 "
+                                         r"holds a byte that is not text \(0x89 at column 12\), nor a binary STL "
+                                         r"\(it holds 59 bytes, fewer than the 84 of a binary STL's header\); give a "
+                                         r"complete binary or ASCII STL file.$"):
+        load_mesh(corrupt)
+    box = trimesh.creation.box()
+    text, binary = box.export(file_type="stl_ascii").encode(), box.export(file_type="stl")
+    cases = {
+        "word.stl": (text.replace(b"endloop", b"endlop", 1), "not valid ASCII STL: line 7: expected vertex or "
+                     "endloop, found 'endlop' (an ASCII STL holds only solid, facet normal, outer loop, vertex, "
+                     "endloop, endfacet, endsolid lines)"),
+        "number.stl": (text.replace(b"vertex", b"vertex x", 1), "not valid ASCII STL: line 4: 'vertex' needs 3 "
+                       "numbers, found 'vertex x -0.5 -0.5 0.5'"),
+        "four.stl": (text.replace(b"endloop", b"vertex 0 0 0\nendloop", 1), "not valid ASCII STL: line 8: a facet "
+                     "with 4 vertices (an STL facet has 3)"),
+        "cut_text.stl": (text[:text.index(b"endfacet", len(text) // 2) + 1], "the file ends inside this line ('e'), "
+                         "where endfacet was due (cut short?)"),
+        "no_end.stl": (text[:text.rindex(b"endsolid")], "the file ends inside a solid, without 'endsolid'"),
+        "cut_binary.stl": (binary[:-7], "it is neither an ASCII STL (it does not begin with 'solid') nor a binary "
+                           "STL (its header declares 12 triangles, 684 bytes, but the file holds 677)"),
+    }
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        for reader in (load_mesh, read_geometry):
+            with pytest.raises(ValueError, match=f"^'[^']*{name}' is not a readable STL file: .*{re.escape(message)}"):
+                reader(tmp_path / name)
+    for name, content in (("text.stl", text), ("binary.stl", binary), ("solid.stl", b"solid" + binary[5:])):
+        (tmp_path / name).write_bytes(content)  # a binary STL whose header begins with "solid" is binary
+        assert np.array_equal(load_mesh(tmp_path / name).vertices[load_mesh(tmp_path / name).faces],
+                              box.vertices[box.faces])
+
+
 # ------------------------------------------------------------------ writers refuse NaN and inf (issue 37)
 
 
@@ -676,6 +715,8 @@ def _sources(folder):
                         ".ply"),
         "ascii mesh": (_write_ply(folder / "q.ply", p, faces=quads, encoding="ascii").read_bytes(), ".ply"),
         "obj": (src.export(file_type="obj").encode(), ".obj"),
+        "ascii stl": (src.export(file_type="stl_ascii").encode(), ".stl"),
+        "binary stl": (src.export(file_type="stl"), ".stl"),
     }
 
 
@@ -706,7 +747,8 @@ def _mangle(data: bytes, mutation) -> bytes:
     return bytes(out)
 
 
-@pytest.mark.parametrize("source", ["ascii point set", "binary point set", "binary mesh", "ascii mesh", "obj"])
+@pytest.mark.parametrize("source", ["ascii point set", "binary point set", "binary mesh", "ascii mesh", "obj",
+                                    "ascii stl", "binary stl"])
 # GEOSYNTH_MANGLE_EXAMPLES=2000 for a longer hunt; 70 per source keeps the suite fast (~1 s in all)
 @settings(max_examples=int(os.environ.get("GEOSYNTH_MANGLE_EXAMPLES", 70)), deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
