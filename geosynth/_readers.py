@@ -18,7 +18,7 @@ from __future__ import annotations
 import io
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field as dc_field
 from pathlib import Path
 
 import numpy as np
@@ -66,12 +66,46 @@ def read_any(p: Path, faces: bool = True) -> Geometry:
 # ------------------------------------------------------------------ PLY
 
 
-def _ply_header(p: Path):
-    """(format, [(element, count, binary bytes, list property names, scalar count)], header
-    bytes) from a PLY header, or None when it is not one this check understands (plyfile
-    then words the error)."""
+@dataclass
+class _PlyElementHead:
+    """One element of a PLY header: its name, declared count, the bytes of its scalar
+    properties per record (binary), its list properties as (name, length bytes, item
+    bytes), and its number of properties."""
+
+    name: str
+    count: int
+    fixed: int = 0
+    lists: list = dc_field(default_factory=list)
+    props: int = 0
+
+
+@dataclass
+class _PlyHead:
+    """A PLY header as far as the size checks need it: the format, the elements, and
+    the byte offset at which the data begin."""
+
+    fmt: str | None
+    elements: list
+    start: int
+
+    def declared(self) -> str:
+        return (", ".join(f"{e.count:,} {e.name}" for e in self.elements) + " records") if self.elements \
+            else "no elements"
+
+
+_HEADER_LIMIT = 1 << 24  # a header longer than 16 MiB is not one (plyfile then words the error)
+
+
+def _ply_header(p: Path) -> _PlyHead | None:
+    """The header of a PLY file, or None when it is not one this check understands
+    (plyfile then words the error)."""
     with open(p, "rb") as fh:
         head = fh.read(1 << 16)
+        while b"end_header" not in head and len(head) < _HEADER_LIMIT:
+            more = fh.read(1 << 16)
+            if not more:
+                break
+            head += more
     end = head.find(b"end_header")
     nl = head.find(b"\n", end) if end >= 0 else -1
     if not head.startswith(b"ply") or nl < 0:
@@ -86,35 +120,116 @@ def _ply_header(p: Path):
         elif w[0] == "element" and len(w) == 3:
             if not w[2].isdigit():
                 return None
-            elements.append([w[1], int(w[2]), 0, [], 0])
+            elements.append(_PlyElementHead(w[1], int(w[2])))
         elif w[0] == "property" and elements:
+            e = elements[-1]
             if len(w) == 5 and w[1] == "list":
-                size = _PLY_SIZES.get(w[2])  # the length only: lists may be empty
-                elements[-1][3].append(w[4])
+                size, item = _PLY_SIZES.get(w[2]), _PLY_SIZES.get(w[3])
+                if size is None or item is None:
+                    return None
+                e.lists.append((w[4], size, item))
             elif len(w) == 3:
                 size = _PLY_SIZES.get(w[1])
+                if size is None:
+                    return None
+                e.fixed += size
             else:
                 return None
-            if size is None:
-                return None
-            elements[-1][2] += size
-            elements[-1][4] += 1
-    return fmt, elements, nl + 1
+            e.props += 1
+    return _PlyHead(fmt, elements, nl + 1)
 
 
-def _check_ply_size(p: Path, header) -> None:
-    """Refuse a header that promises more data than the file holds, before any memory is
-    allocated for it (a corrupt count could ask for gigabytes)."""
-    fmt, elements, start = header
-    body = os.path.getsize(p) - start
-    if fmt == "ascii":  # a value and a separator per property at least
-        need = sum(count * 2 * props for _, count, _, _, props in elements) - 1
-    else:
-        need = sum(count * size for _, count, size, _, _ in elements)
-    if need > body:
-        counts = ", ".join(f"{count:,} {name}" for name, count, *_ in elements)
-        raise ValueError(f"{_name(p)} is not a readable PLY file: its header announces {counts} (at least {need:,} "
-                         f"bytes) but only {body:,} bytes follow it; the file is truncated or its header is wrong.")
+def _mismatch(p: Path, head: _PlyHead, declared: str, holds: str) -> ValueError:
+    return ValueError(f"{_name(p)} is not a readable PLY file: its header declares {head.declared()} "
+                      f"({declared}) but the file holds {holds}; correct the element counts in the header or "
+                      "export the file again.")
+
+
+def _ascii_data_lines(p: Path, start: int) -> tuple[int, bool]:
+    """(lines, ended) of an ASCII PLY body: its lines up to its last non-blank character
+    (trailing blank lines are not records), and whether that last line ends with a line
+    break; read in chunks."""
+    lines = count = 0
+    ended = False
+    with open(p, "rb") as fh:
+        fh.seek(start)
+        while chunk := fh.read(1 << 24):
+            text = chunk.rstrip()
+            if text:
+                lines = count + text.count(b"\n") + 1
+                ended = b"\n" in chunk[len(text):]
+            else:
+                ended = ended or b"\n" in chunk
+            count += chunk.count(b"\n")
+    return lines, ended
+
+
+def _check_ply_size(p: Path, head: _PlyHead) -> None:
+    """Refuse a file whose data do not match its header, before anything is parsed:
+    ASCII files with more or fewer data lines than the declared records; binary files
+    with fewer bytes than the header declares (before any memory is allocated for them:
+    a corrupt count could ask for gigabytes), or, when every element has a fixed record
+    size, any other size than the declared one. Binary files with list properties
+    (faces) are checked exactly once parsed (:func:`_check_ply_lists`)."""
+    body = os.path.getsize(p) - head.start
+    if head.fmt == "ascii":
+        need = sum(e.count for e in head.elements)
+        lines, ended = _ascii_data_lines(p, head.start)
+        if lines != need:
+            raise _mismatch(p, head, f"{need:,} data line{'s' * (need != 1)}, one per record",
+                            f"{lines:,} data line{'s' * (lines != 1)}, {_more_or_less(lines, need)}")
+        if lines and not ended:  # a number cut short would read as another number
+            raise _ply_error(p, f"its last data line (line {lines:,} after the header) has no line break at its end, "
+                                "as if the file were cut inside its last record",
+                             "if the file is complete, end it with a line break; else export it again")
+        return
+    # a list property holds its length at least
+    need = sum(e.count * (e.fixed + sum(size for _, size, _ in e.lists)) for e in head.elements)
+    exact = not any(e.lists for e in head.elements if e.count)
+    if need > body or (exact and need != body):
+        holds = f"{body:,} bytes after the header"
+        records = [e for e in head.elements if e.count]
+        if exact and len(records) == 1 and records[0].fixed and body % records[0].fixed == 0:
+            e = records[0]
+            holds += f", {body // e.fixed:,} {e.name} records"
+        what = "truncated or its header is wrong" if need > body else "more data than the header declares"
+        raise _mismatch(p, head, f"{'exactly' if exact else 'at least'} {need:,} bytes of binary data",
+                        f"{holds} ({what})")
+
+
+def _truncated(p: Path, head: _PlyHead, exc: BaseException) -> ValueError:
+    """A binary file with list properties that ends before its declared records do."""
+    need = sum(e.count * (e.fixed + sum(size for _, size, _ in e.lists)) for e in head.elements)
+    body = os.path.getsize(p) - head.start
+    return _mismatch(p, head, f"at least {need:,} bytes of binary data",
+                     f"{body:,} bytes after the header, which end too early ({reason(exc)}: truncated, or its "
+                     "header is wrong)")
+
+
+def _more_or_less(have: int, need: int) -> str:
+    return "fewer than declared: the file is truncated or its header is wrong" if have < need else \
+        "more than declared: data after the declared records would be lost"
+
+
+def _check_ply_lists(p: Path, head: _PlyHead, ply) -> None:
+    """Binary files with list properties: refuse one whose parsed data do not end
+    exactly at the end of the file (extra records or bytes beyond the declared ones)."""
+    if head.fmt == "ascii" or not any(e.lists and e.count for e in head.elements):
+        return
+    used = 0
+    for e in head.elements:
+        used += e.count * e.fixed
+        if not e.lists or not e.count:
+            continue
+        data = ply[e.name].data
+        for name, size, item in e.lists:
+            col = data[name]
+            items = col.size if col.dtype != object else sum(len(a) for a in col)
+            used += e.count * size + int(items) * item
+    body = os.path.getsize(p) - head.start
+    if used != body:
+        raise _mismatch(p, head, f"{used:,} bytes of binary data, as its records' lists are long",
+                        f"{body:,} bytes after the header ({_more_or_less(body, used).split(':')[0]})")
 
 
 def _ply_error(p: Path, what: str, fix: str = f"give {_PLY_HINT}") -> ValueError:
@@ -137,10 +252,13 @@ def read_ply(p: Path, faces: bool = True) -> Geometry:
         raise _ply_error(p, reason(exc)) from exc
     known = {}
     if header is not None:
-        _check_ply_size(p, header)
+        try:
+            _check_ply_size(p, header)
+        except OSError as exc:
+            raise _ply_error(p, reason(exc)) from exc
         # fixed-length triangle lists let plyfile map the faces instead of parsing them one by one
-        known = {name: {lst: 3 for lst in lists if lst in _FACE_LISTS} for name, _, _, lists, _ in header[1]
-                 if name == "face" and lists}
+        known = {e.name: {lst: 3 for lst, _, _ in e.lists if lst in _FACE_LISTS} for e in header.elements
+                 if e.name == "face" and e.lists}
     try:
         with warnings.catch_warnings():
             # an empty list in an ASCII file (a face with no corners) warns through NumPy; refused below
@@ -152,7 +270,11 @@ def read_ply(p: Path, faces: bool = True) -> Geometry:
                     raise
                 ply = PlyData.read(str(p))  # not all triangles: the slow path (and its error, if any)
     except Exception as exc:  # plyfile raises PlyParseError, ValueError, UnicodeDecodeError, MemoryError, ...
+        if header is not None and header.fmt != "ascii" and "early end-of-file" in str(exc):
+            raise _truncated(p, header, exc) from exc
         raise _ply_error(p, reason(exc)) from exc
+    if header is not None:
+        _check_ply_lists(p, header, ply)
     with np.errstate(invalid="ignore", over="ignore"):  # signalling NaNs, huge doubles: refused later
         return _ply_content(p, ply, faces)
 
@@ -183,7 +305,38 @@ def _ply_content(p: Path, ply, faces: bool) -> Geometry:
         out.colors = _colors(p, columns(group, "colours"))
     if faces and "face" in names and ply["face"].count > 0:
         out.faces = _ply_faces(p, ply["face"].data)
+    elif "face" in names and ply["face"].count > 0:
+        _face_range(p, ply["face"].data, len(vertex), not ply.text)
     return out
+
+
+def _face_range(p: Path, face, n: int, binary: bool) -> None:
+    """A point set read from a mesh file: its faces are not used, but faces that name
+    vertices the file lacks mean the file is corrupt (or its counts wrong), and its
+    vertices are not to be trusted either. So do faces of fewer than 3 corners in a
+    binary file: records read out of step with the data (a wrong vertex count) show
+    as such lists (an ASCII file's empty face is a slip of its writer, and ignored)."""
+    name = next((c for c in _FACE_LISTS if c in (face.dtype.names or ())), None)
+    if name is None:
+        return
+    col = face[name]
+    if col.dtype == object:
+        parts = [np.asarray(a).reshape(-1) for a in col]
+        lengths = np.fromiter((len(a) for a in parts), np.int64, len(parts))
+        short = np.flatnonzero(lengths < 3)
+        if binary and len(short):
+            raise _ply_error(p, f"{len(short)} face(s) have fewer than 3 corners (the first: face {short[0]}, with "
+                                f"{lengths[short[0]]}), as when its records are read out of step with its data",
+                             "the header's counts or the faces are wrong: fix the file")
+        flat = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+    else:
+        flat = np.asarray(col).reshape(-1)
+    if flat.size == 0 or flat.dtype.kind not in "iu":
+        return
+    lo, hi = int(flat.min()), int(flat.max())
+    if lo < 0 or hi >= n:
+        raise _ply_error(p, f"its faces refer to vertex {lo if lo < 0 else hi} but it has {n:,} vertices (indices "
+                            f"0 to {n - 1:,})", "the header's counts or the faces are wrong: fix the file")
 
 
 def _colors(p: Path, c: np.ndarray) -> np.ndarray:
@@ -255,6 +408,12 @@ def read_with_trimesh(p: Path) -> Geometry:
         raise ValueError(f"{_name(p)} has the extension {suffix or '(none)'}, not one of the geometry formats read "
                          f"here ({', '.join(MESH_SUFFIXES)}); convert it or rename it if it is one of them.")
     kind = suffix[1:].upper()
+    if suffix == ".stl":
+        try:
+            raw = p.read_bytes()
+        except OSError as exc:
+            raise _stl_error(p, reason(exc)) from exc
+        _check_stl(p, raw)
     try:
         with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge values are refused later
             geom = _trimesh_load(trimesh, p, suffix)
@@ -281,6 +440,8 @@ def read_with_trimesh(p: Path) -> Geometry:
 
 
 def _trimesh_load(trimesh, p: Path, suffix: str):
+    if suffix == ".stl":  # checked first (read_with_trimesh): read as it is
+        return trimesh.load(io.BytesIO(p.read_bytes()), file_type="stl", process=False)
     if suffix not in _TEXT_FORMATS:
         return trimesh.load(str(p), process=False)
     raw = p.read_bytes()
@@ -290,6 +451,86 @@ def _trimesh_load(trimesh, p: Path, suffix: str):
         text = raw.decode("latin-1")  # never fails; the parser judges the content
     return trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
                         resolver=trimesh.resolvers.FilePathResolver(str(p)))
+
+
+_STL_WORDS = "solid, facet normal, outer loop, vertex, endloop, endfacet, endsolid"
+
+
+def _stl_error(p: Path, what: str) -> ValueError:
+    return ValueError(f"{_name(p)} is not a readable STL file: {what}; give a complete binary or ASCII STL file.")
+
+
+def _check_stl(p: Path, raw: bytes) -> None:
+    """Refuse an STL file that is neither a binary STL whose size matches its triangle
+    count nor well-formed ASCII STL, saying what is wrong and where (trimesh's ASCII
+    reader stops quietly at the first number it cannot read, and words undecodable
+    bytes as a missing module)."""
+    if len(raw) >= 84:
+        count = int.from_bytes(raw[80:84], "little")
+        if 84 + 50 * count == len(raw):
+            return  # binary STL (even when its header begins with "solid")
+        binary = (f"nor a binary STL (its header declares {count:,} triangles, {84 + 50 * count:,} bytes, but the "
+                  f"file holds {len(raw):,})")
+    else:
+        binary = f"nor a binary STL (it holds {len(raw)} bytes, fewer than the 84 of a binary STL's header)"
+    if not raw.lstrip()[:5].lower() == b"solid":
+        raise _stl_error(p, f"it is neither an ASCII STL (it does not begin with 'solid') {binary}")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise _stl_error(p, f"not valid ASCII STL: line {line} holds a byte that is not text (0x{raw[exc.start]:02x} "
+                            f"at column {column}), {binary}") from None
+
+    def bad(n: int, what: str) -> ValueError:
+        return _stl_error(p, f"not valid ASCII STL: line {n}: {what}")
+
+    def numbers(n: int, words: list[str], start: int, line: str) -> None:
+        try:
+            [float(w) for w in words[start:]]
+        except ValueError:
+            raise bad(n, f"{' '.join(words[:start])!r} needs 3 numbers, found {line!r}") from None
+        if len(words) - start != 3:
+            raise bad(n, f"{' '.join(words[:start])!r} needs 3 numbers, found {len(words) - start} in {line!r}")
+
+    lines = text.splitlines()
+    cut = not text.endswith(("\n", "\r"))  # the last line has no line break
+    state, corners, last = "out", 0, 0
+    for n, line in enumerate(lines, 1):
+        words = line.split()
+        if not words:
+            continue
+        last = n
+        key = words[0].lower()
+        shown = line.strip() if len(line.strip()) <= 60 else line.strip()[:57] + "..."
+        expected = {"out": "solid", "solid": "facet normal or endsolid", "facet": "outer loop",
+                    "loop": "vertex or endloop", "endloop": "endfacet"}[state]
+        if key == "solid" and state == "out":
+            state = "solid"
+        elif key == "endsolid" and state == "solid":
+            state = "out"
+        elif key == "facet" and state == "solid" and len(words) >= 2 and words[1].lower() == "normal":
+            numbers(n, words, 2, shown)
+            state = "facet"
+        elif key == "outer" and state == "facet" and len(words) == 2 and words[1].lower() == "loop":
+            state, corners = "loop", 0
+        elif key == "vertex" and state == "loop":
+            numbers(n, words, 1, shown)
+            corners += 1
+        elif key == "endloop" and state == "loop":
+            if corners != 3:
+                raise bad(n, f"a facet with {corners} vertices (an STL facet has 3)")
+            state = "endloop"
+        elif key == "endfacet" and state == "endloop":
+            state = "solid"
+        elif n == len(lines) and cut:
+            raise bad(n, f"the file ends inside this line ({shown!r}), where {expected} was due (cut short?)")
+        else:
+            raise bad(n, f"expected {expected}, found {shown!r} (an ASCII STL holds only {_STL_WORDS} lines)")
+    if state != "out":
+        raise bad(last, f"the file ends inside a {'solid' if state == 'solid' else 'facet'}, without 'endsolid' "
+                        "(cut short?)")
 
 
 # ------------------------------------------------------------------ checks

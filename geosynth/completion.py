@@ -924,11 +924,16 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
 
     Returns:
         The path written.
+
+    Raises:
+        ValueError: the output is refused (:func:`geosynth.files.check_output`), or a
+            position or normal is NaN or inf (before any file is created).
     """
     from plyfile import PlyData, PlyElement
 
-    from geosynth.files import atomic_write, check_output
+    from geosynth.files import atomic_write, check_finite_output, check_output
 
+    check_finite_output(path, "point", position=surface.positions, normal=surface.normals)
     out = check_output(path, inputs=inputs, suffixes=(".ply",), what="completion output")
     layout = [(c, "<f4") for c in ("x", "y", "z", "nx", "ny", "nz")]
     if surface.colors is not None:

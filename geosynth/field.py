@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.files import atomic_write, check_input
+from geosynth.files import atomic_write, check_finite_output, check_input
 
 __all__ = ["Field", "cubic_grid", "cubic_grid_geometry", "grid_points", "grid_resolution"]
 
@@ -101,10 +101,16 @@ class Field:
         return grid_points(self.origin, self.spacing, self.shape)
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the field as .npz (values, origin, spacing), atomically; returns the path."""
+        """Write the field as .npz (values, origin, spacing), atomically; returns the path.
+
+        Raises:
+            ValueError: not a .npz path, or a value is NaN or inf (before any file is
+                created; the message counts them and gives the first (z, y, x) sample).
+        """
         out = Path(path)
         if out.suffix != ".npz":
             raise ValueError(f"Field files are .npz; got {str(out)!r} (add the .npz suffix).")
+        check_finite_output(out, "sample (z, y, x)", field=self.values)
         return atomic_write(
             out, lambda tmp: np.savez_compressed(tmp, values=self.values, origin=self.origin, spacing=self.spacing)
         )

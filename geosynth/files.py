@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_input", "check_output", "defer", "note_input", "noted_inputs",
+__all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_finite_output", "check_input", "check_output", "defer", "note_input", "noted_inputs",
            "remove_stale_temporaries", "staged_outputs",
            "temporary_path", "write_image"]
 
@@ -151,6 +151,46 @@ def check_output(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike 
 # ------------------------------------------------------------------ temporaries
 
 _TMP_TAG = ".geosynth-"
+
+
+def check_finite_output(path: str | os.PathLike, what: str, **arrays) -> None:
+    """Refuse to write ``path`` when one of ``arrays`` holds NaN or inf: such a file
+    would pass for a valid one. Called before any file is created.
+
+    Args:
+        path: the output file, named in the message.
+        what: one record of the arrays' first axis ("point", "vertex"), or of their
+            first three for grids ("sample (z, y, x)").
+        arrays: by what their values are in the file (``position=``, ``normal=``):
+            (N, 3) arrays, or (Z, Y, X[, C]) grids; None and non-float ones are skipped.
+
+    Raises:
+        ValueError: one line: the file, how many values are not finite, of which array,
+            and the first record that holds one.
+    """
+    for label, a in arrays.items():
+        if a is None:
+            continue
+        a = np.asarray(a)
+        if a.dtype.kind != "f" or a.size == 0:
+            continue
+        bad = ~np.isfinite(a)
+        count = int(np.count_nonzero(bad))
+        if not count:
+            continue
+        first = np.unravel_index(int(np.argmax(bad.reshape(-1))), a.shape)
+        are = "is" if count == 1 else "are"
+        if a.ndim <= 2:
+            rows = int(np.count_nonzero(bad.reshape(len(a), -1).any(axis=1)))
+            many = "vertices" if what == "vertex" else what + "s"
+            found = (f"{count:,} of its {a.size:,} {label} coordinates {are} NaN or inf, in {rows:,} "
+                     f"{what if rows == 1 else many} (the first: {what} {first[0]:,}, counting from 0)")
+            fix = f"remove {'that ' + what if rows == 1 else 'those ' + many} or correct {'it' if rows == 1 else 'them'} first"
+        else:
+            found = (f"{count:,} of its {a.size:,} {label} values {are} NaN or inf (the first: {what} = "
+                     f"({', '.join(f'{i:,}' for i in first[:3])}))")
+            fix = "correct those values first"
+        raise ValueError(f"refusing to write {str(path)!r}: {found}; nothing was written: {fix}.")
 
 
 def temporary_path(target: str | os.PathLike, suffix: str = "") -> Path:

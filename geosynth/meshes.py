@@ -12,6 +12,7 @@ is :func:`mesh_distance` (re-exported by :mod:`geosynth.distance`).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 from collections import OrderedDict
 from dataclasses import dataclass, field as dc_field
@@ -41,6 +42,14 @@ _DEGENERATE_REL = 1e-12
 # box and triangle distances, so no node that holds the minimum is ever pruned and the
 # result is the same minimum on every device, whatever the visiting order.
 BOX_SLACK = 2.0**-12
+# mesh_distance works in units where the mesh's bounding-box diagonal lies in [1/2, 1):
+# every coordinate is scaled by a power of two (exact in floating point), so that only
+# the ratio of sizes matters: the same float32 bits, scaled back, at any scale, where
+# tiny or huge meshes underflowed or overflowed float32 (a plate of 4e-6 had the
+# squared plane distances of its small faces flush to 0, which erased their sign).
+# Queries farther than FAR_LIMIT diagonals from the mesh are refused: their squared
+# distance leaves float32.
+FAR_LIMIT = 2.0**60
 
 
 # ------------------------------------------------------------------ input
@@ -98,6 +107,12 @@ def check_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False) -> tu
         ValueError: no faces, NaN/inf vertices, face indices out of range, or
             degenerate (zero-area) faces when ``drop_degenerate`` is False.
     """
+    v, f = _checked_arrays(mesh, name, drop_degenerate)
+    return v.astype(np.float32), f
+
+
+def _checked_arrays(mesh, name: str, drop_degenerate: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`check_mesh`'s checks; (V, 3) float64 vertices and (F, 3) int32 faces."""
     m = _as_trimesh(mesh, name)
     v = np.asarray(m.vertices, dtype=np.float64)
     f = np.asarray(m.faces)
@@ -129,7 +144,7 @@ def check_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False) -> tu
         f = f[~degenerate]
         if f.shape[0] == 0:
             raise ValueError(f"{name} is empty: every one of its faces is degenerate (zero area).")
-    return v.astype(np.float32), np.ascontiguousarray(f, dtype=np.int32)
+    return v, np.ascontiguousarray(f, dtype=np.int32)
 
 
 # ------------------------------------------------------------------ orientation
@@ -281,6 +296,9 @@ class MeshBVH:
             bc, n x ab, n x bc, 1/|ab|^2, 1/|ac|^2, 1/|bc|^2, ac x n, 1/|n|^2, the
             inside threshold (0, or +inf where the normal is too small), 0 padding.
         depth: the deepest node's depth (the root is depth 1).
+        scale: the power of two the mesh's coordinates were multiplied by before the
+            build (1.0 unless built with ``normalize``): the BVH's units are world
+            units times ``scale``.
     """
 
     vertices: np.ndarray
@@ -292,6 +310,7 @@ class MeshBVH:
     depth: int
     tri_lanes: np.ndarray
     sbox: np.ndarray
+    scale: float = 1.0
     device_cache: dict = dc_field(default_factory=dict, repr=False)
 
     @property
@@ -489,21 +508,50 @@ _BVH_CACHE: OrderedDict[tuple, MeshBVH] = OrderedDict()
 _BVH_CACHE_SIZE = 8
 
 
-def prepare_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False) -> MeshBVH:
-    """Check, orient and build the BVH of a mesh, cached by content (8 most recent meshes)."""
-    vertices, faces = check_mesh(mesh, name, drop_degenerate=drop_degenerate)
+def mesh_scale(vertices: np.ndarray) -> float:
+    """The power of two that brings the bounding-box diagonal of (V, 3) float64
+    ``vertices`` into [1/2, 1) (1.0 for a single point)."""
+    diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    if not diag > 0:
+        return 1.0
+    return math.ldexp(1.0, -math.frexp(diag)[1])
+
+
+def prepare_mesh(mesh, name: str = "mesh", *, drop_degenerate: bool = False, normalize: bool = False) -> MeshBVH:
+    """Check, orient and build the BVH of a mesh, cached by content (8 most recent meshes).
+
+    With ``normalize``, the coordinates are first multiplied by :func:`mesh_scale` (a
+    power of two, exact), recorded as the BVH's ``scale``: what :func:`mesh_distance`
+    traverses, whatever the mesh's units. In float64 before float32 is taken, so that
+    meshes beyond float32's range of exponents are read whole."""
+    v64, faces = _checked_arrays(mesh, name, drop_degenerate)
+    scale = mesh_scale(v64) if normalize else 1.0
+    vertices = (v64 * scale).astype(np.float32)
     h = hashlib.blake2b(vertices.tobytes(), digest_size=16)
     h.update(faces.tobytes())
-    key = (h.hexdigest(), vertices.shape, faces.shape)
+    key = (h.hexdigest(), vertices.shape, faces.shape, scale)
     bvh = _BVH_CACHE.get(key)
     if bvh is None:
         bvh = build_bvh(vertices, orient_faces(vertices, faces))
+        bvh.scale = scale
         _BVH_CACHE[key] = bvh
         while len(_BVH_CACHE) > _BVH_CACHE_SIZE:
             _BVH_CACHE.popitem(last=False)
     else:
         _BVH_CACHE.move_to_end(key)
     return bvh
+
+
+def _check_reach(bvh: MeshBVH, lo: np.ndarray, hi: np.ndarray, what: str) -> None:
+    """Refuse queries (their box lo..hi, in the BVH's units) farther from the mesh than
+    FAR_LIMIT times its size: their squared distances would leave float32."""
+    box = bvh.bbox[1].reshape(2, 4)[:, :3].astype(np.float64)
+    reach = float(np.max(np.maximum(box[0] - lo, hi - box[1])))
+    if not reach <= FAR_LIMIT:  # NaN (an overflow) included
+        diag = float(np.linalg.norm(box[1] - box[0])) / bvh.scale
+        raise ValueError(f"{what} lie up to {reach / bvh.scale:.3g} beyond the mesh's bounding box, more than 2^60 "
+                         f"({FAR_LIMIT:.3g}) times its size (diagonal {diag:.3g}): their squared distances would "
+                         "leave float32; query points nearer the mesh.")
 
 
 # bit b of a 10-bit integer moved to bit 3 b (the Morton interleave, by table)
@@ -580,6 +628,13 @@ def mesh_distance(
     with a mask of the lanes still descending: per sample the same terms in the same
     order).
 
+    Units do not matter: the mesh, the queries and ``band`` are multiplied by the power
+    of two that brings the mesh's bounding-box diagonal into [1/2, 1) (exact in
+    floating point; :func:`mesh_scale`) and the distances divided by it, so a mesh and
+    its queries scaled by any factor give the same signs, and a power of two the same
+    bits scaled (meshes from about 1e-30 to 1e30 wide; tested at 1e-6, 1 and 1e6).
+    Queries more than 2^60 times the mesh's size beyond its box are refused.
+
     Degenerate (zero-area) faces are refused, or removed with ``drop_degenerate``:
     they carry no area and no normal.
 
@@ -608,7 +663,8 @@ def mesh_distance(
             or ``drop_degenerate`` not a bool; ``band`` not a number.
         ValueError: an empty mesh, NaN/inf vertices, out-of-range or degenerate
             faces, points not (M, 3) or not finite, resolution < 2, bounds of zero
-            extent, a band that is not > 0, or points together with a grid.
+            extent, a band that is not > 0, points together with a grid, or queries
+            more than 2^60 times the mesh's size beyond its bounding box.
         RuntimeError: the device is not present.
         MemoryBudgetError: the grid's estimate (:func:`grid_distance_bytes`) exceeds the
             memory available, before allocating (option ``"resolution"``, or ``"field"``).
@@ -618,12 +674,13 @@ def mesh_distance(
     numeric = isinstance(band, (int, float, np.integer, np.floating)) and not isinstance(band, (bool, np.bool_))
     if band is not None and not numeric:
         raise TypeError(f"band must be a number (the distance to clamp at) or None, got {band!r}.")
-    bvh = prepare_mesh(mesh, "mesh", drop_degenerate=drop_degenerate)
+    bvh = prepare_mesh(mesh, "mesh", drop_degenerate=drop_degenerate, normalize=True)
+    scale = bvh.scale  # a power of two: world units -> the BVH's (exact both ways)
     if band is not None:
         band = float(band)
         if not (np.isfinite(band) and band > 0):
             raise ValueError(f"band must be a finite number > 0 (or None), got {band!r}.")
-    band_arg = -1.0 if band is None else band
+    band_arg = -1.0 if band is None else band * scale
 
     if points is not None:
         if field is not None or bounds is not None or resolution is not None:
@@ -639,12 +696,17 @@ def mesh_distance(
         m = pts.shape[0]
         if m == 0:
             return np.zeros(0, np.float32)
+        with np.errstate(over="ignore"):
+            pts = pts * np.float32(scale)  # a new array: the caller's is left alone
+        _check_reach(bvh, pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64), "points")
         order = _query_order(pts)  # tiles of nearby points; each result is order-free
         out = backend.empty((m,), np.float32)
         backend.mesh_distance_points(backend.mesh_handle(bvh), backend.to_device(pts[order]), m, bool(signed),
                                      band_arg, out)
         result = np.empty(m, np.float32)
         result[order] = backend.to_host(out)  # sync: the distances are the answer
+        if scale != 1.0:
+            result *= np.float32(1.0 / scale)
         return result
 
     if field is not None:
@@ -659,7 +721,7 @@ def mesh_distance(
     else:
         if resolution is None:
             raise ValueError("resolution is required for a grid (or pass field= or points).")
-        b = bvh.bounds if bounds is None else bounds
+        b = bvh.bounds / scale if bounds is None else bounds
         _, _, shape = cubic_grid_geometry(b, resolution, padding)
         require(grid_distance_bytes(shape), option="resolution", value=resolution,
                 largest_fn=lambda r: grid_distance_bytes(cubic_grid_geometry(b, r, padding)[2]), smallest=2,
@@ -668,10 +730,14 @@ def mesh_distance(
         spacing = np.full(3, spacing, np.float64)
     backend = _checks.resolve_backend(device)
     nz, ny, nx = shape
+    o32 = (np.asarray(origin, np.float64) * scale).astype(np.float32)
+    s32 = (np.asarray(spacing, np.float64) * scale).astype(np.float32)
+    last = o32.astype(np.float64) + s32.astype(np.float64) * (np.array([nx, ny, nz], np.float64) - 1)
+    _check_reach(bvh, np.minimum(o32, last), np.maximum(o32, last), "the grid's samples")
     out = backend.empty((nz * ny * nx,), np.float32)
-    backend.mesh_distance_grid(
-        backend.mesh_handle(bvh), np.asarray(origin).astype(np.float32), spacing.astype(np.float32),
-        (nx, ny, nz), bool(signed), band_arg, out,
-    )
+    backend.mesh_distance_grid(backend.mesh_handle(bvh), o32, s32, (nx, ny, nz), bool(signed), band_arg, out)
     # sync: the field comes back; the Field is made around it (no zeroed grid first)
-    return Field(backend.to_host(out).reshape(nz, ny, nx), origin, spacing)
+    values = backend.to_host(out).reshape(nz, ny, nx)
+    if scale != 1.0:
+        values *= np.float32(1.0 / scale)
+    return Field(values, origin, spacing)

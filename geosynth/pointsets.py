@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from geosynth import _checks, _readers
-from geosynth.files import atomic_write, check_input
+from geosynth.files import atomic_write, check_finite_output, check_input
 from geosynth.field import Field, cubic_grid, cubic_grid_geometry
 from geosynth.memory import require
 
@@ -217,7 +217,10 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
 
     Raises:
         ValueError: ``path`` is not .ply, or is the file ``ps`` was read from or another
-            input of this process (inputs are never overwritten).
+            input of this process (inputs are never overwritten), or a position or normal
+            is NaN or inf (``"refusing to write 'X': 4 of its 900 position coordinates are
+            NaN or inf, in 2 points (the first: point 7, counting from 0); ..."``, before any file is
+            created).
     """
     from plyfile import PlyData, PlyElement
 
@@ -226,6 +229,7 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
         raise ValueError(f"point sets are written as .ply; got {str(out)!r}.")
     if not isinstance(ps, PointSet):
         ps = PointSet(ps.positions, getattr(ps, "normals", None), getattr(ps, "colors", None))
+    check_finite_output(out, "point", position=ps.positions, normal=ps.normals)
     src = ps.source
     if src is not None and out.exists() and Path(src).exists() and os.path.samefile(out, src):
         raise ValueError(f"refusing to overwrite the input {str(src)!r}; write the point set to another path.")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.files import atomic_write
+from geosynth.files import atomic_write, check_finite_output
 from geosynth.field import Field
 
 __all__ = ["MESH_SUFFIXES", "field_to_mesh", "save_mesh", "smooth_mesh"]
@@ -171,7 +171,8 @@ def save_mesh(mesh, path: str | os.PathLike, inputs=None) -> Path:
 
     Raises:
         TypeError: ``mesh`` is not a trimesh.Trimesh.
-        ValueError: an unknown suffix, an empty mesh, or ``path`` is one of ``inputs``.
+        ValueError: an unknown suffix, an empty mesh, a vertex with NaN or inf
+            coordinates (before any file is created), or ``path`` is one of ``inputs``.
 
     Example:
         >>> import tempfile, trimesh
@@ -190,6 +191,7 @@ def save_mesh(mesh, path: str | os.PathLike, inputs=None) -> Path:
                          f"use one of {', '.join(MESH_SUFFIXES)}.")
     if len(mesh.faces) == 0:
         raise ValueError("refusing to write an empty mesh (no faces).")
+    check_finite_output(out, "vertex", vertex=np.asarray(mesh.vertices))
     data = mesh.export(file_type=file_type)
     if isinstance(data, str):
         data = data.encode("utf-8")

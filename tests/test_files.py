@@ -6,6 +6,7 @@ pictures by suffix (geosynth.files)."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -314,8 +315,9 @@ def test_ply_errors_name_the_file(tmp_path):
     data = good.read_bytes()
     cut = tmp_path / "cut.ply"
     cut.write_bytes(data[: len(data) - 100])
-    with pytest.raises(ValueError, match=r"cut.ply' is not a readable PLY file: its header announces 100 vertex "
-                                         r".* the file is truncated or its header is wrong"):
+    with pytest.raises(ValueError, match=r"cut.ply' is not a readable PLY file: its header declares 100 vertex "
+                                         r"records \(exactly 2,400 bytes of binary data\) but the file holds 2,300 "
+                                         r"bytes after the header \(truncated or its header is wrong\)"):
         read_point_set(cut)
     noxyz = tmp_path / "noxyz.ply"
     noxyz.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nend_header\n1\n")
@@ -431,6 +433,257 @@ def test_field_load_errors(tmp_path):
     assert np.array_equal(back.values, np.arange(27, dtype=np.float32).reshape(3, 3, 3))
 
 
+# ------------------------------------------------------------------ PLY data that disagree with the header (issue 37)
+
+
+def _recount(data: bytes, element: str, count: int) -> bytes:
+    """The file with its header's count of ``element`` replaced by ``count``."""
+    head, sep, body = data.partition(b"end_header")
+    head = re.sub(rb"element " + element.encode() + rb" \d+", b"element %s %d" % (element.encode(), count), head)
+    return head + sep + body
+
+
+@pytest.mark.parametrize("encoding", ["binary_little_endian", "binary_big_endian"])
+def test_binary_ply_with_more_records_than_its_header_is_refused(tmp_path, encoding):
+    # the reported case: the header declares 500 vertices, the file holds 1,000 records
+    p, _, _ = _cloud(1000)
+    data = _write_ply(tmp_path / "full.ply", p, encoding=encoding).read_bytes()
+    half = tmp_path / "half.ply"
+    half.write_bytes(_recount(data, "vertex", 500))
+    want = (r"^'[^']*half.ply' is not a readable PLY file: its header declares 500 vertex records \(exactly 6,000 "
+            r"bytes of binary data\) but the file holds 12,000 bytes after the header, 1,000 vertex records \(more "
+            r"data than the header declares\); correct the element counts in the header or export the file again.$")
+    for reader in (read_point_set, read_geometry, load_mesh):
+        with pytest.raises(ValueError, match=want):
+            reader(half)
+    extra = tmp_path / "extra.ply"
+    extra.write_bytes(data + b"\0\0\0")  # bytes that are not a whole record
+    with pytest.raises(ValueError, match=r"extra.ply' is not a readable PLY file: its header declares 1,000 vertex "
+                                         r"records \(exactly 12,000 bytes of binary data\) but the file holds 12,003 "
+                                         r"bytes after the header \(more data"):
+        read_point_set(extra)
+    more = tmp_path / "more.ply"
+    more.write_bytes(_recount(data, "vertex", 1001))
+    with pytest.raises(ValueError, match=r"more.ply' is not a readable PLY file: its header declares 1,001 vertex "
+                                         r"records .* but the file holds 12,000 bytes after the header, 1,000 vertex "
+                                         r"records \(truncated or its header is wrong\)"):
+        read_point_set(more)
+    assert np.array_equal(read_point_set(tmp_path / "full.ply").positions, p)  # the file itself reads whole
+
+
+def test_ascii_ply_with_more_or_fewer_lines_than_its_header_is_refused(tmp_path):
+    p, n, c = _cloud(40)
+    data = _write_ply(tmp_path / "a.ply", p, n, c, encoding="ascii").read_bytes()
+    cases = {"fewer.ply": (_recount(data, "vertex", 20), "declares 20 vertex records (20 data lines, one per "
+                                                         "record) but the file holds 40 data lines, more than "
+                                                         "declared: data after the declared records would be lost"),
+             "more.ply": (_recount(data, "vertex", 41), "declares 41 vertex records (41 data lines, one per record) "
+                                                        "but the file holds 40 data lines, fewer than declared: the "
+                                                        "file is truncated or its header is wrong"),
+             "cut.ply": (data[:data.rindex(b"\n", 0, len(data) - 1) + 1], "40 data lines, one per record) but the "
+                                                                          "file holds 39 data lines, fewer")}
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        for reader in (read_point_set, read_geometry):
+            with pytest.raises(ValueError, match=re.escape(f"{name}' is not a readable PLY file: its header {message}"
+                                                           if "declares" in message else message)):
+                reader(tmp_path / name)
+    cut = tmp_path / "nolf.ply"  # cut inside the last number: "215" read as "21" unless refused
+    cut.write_bytes(data[:-2])
+    with pytest.raises(ValueError, match=r"^'[^']*nolf.ply' is not a readable PLY file: its last data line \(line 40 "
+                                         r"after the header\) has no line break at its end, as if the file were cut "
+                                         r"inside its last record; if the file is complete, end it with a line break"):
+        read_point_set(cut)
+    blank = tmp_path / "blank.ply"  # blank lines after the last record hold nothing: read as they are
+    blank.write_bytes(data + b"\n  \r\n\n")
+    back = read_point_set(blank)
+    assert np.array_equal(back.positions, p) and np.array_equal(back.colors, c)
+
+
+def test_binary_ply_mesh_whose_faces_disagree_with_the_header_is_refused(tmp_path):
+    src = trimesh.creation.icosphere(1)  # 42 vertices, 80 triangles
+    quads = [[0, 1, 2, 3], [3, 4, 5], [5, 6, 7, 8, 9]]
+    tri = _write_ply(tmp_path / "tri.ply", src.vertices.astype(np.float32), faces=src.faces).read_bytes()
+    poly = _write_ply(tmp_path / "poly.ply", src.vertices.astype(np.float32), faces=quads).read_bytes()
+    assert len(load_mesh(tmp_path / "tri.ply").faces) == 80 and len(load_mesh(tmp_path / "poly.ply").faces) == 6
+    cases = {
+        "fewer_faces.ply": (_recount(tri, "face", 79), r"declares 42 vertex, 79 face records \(1,531 bytes of binary "
+                                                       r"data, as its records' lists are long\) but the file holds "
+                                                       r"1,544 bytes after the header \(more than declared\)"),
+        "extra_bytes.ply": (poly + b"\x03", r"declares 42 vertex, 3 face records \(555 bytes .* but the file holds "
+                                            r"556 bytes after the header \(more than declared\)"),
+        "fewer_vertices.ply": (_recount(poly, "vertex", 41), r"declares 41 vertex, 3 face records"),
+        "more_faces.ply": (_recount(poly, "face", 4), r"declares 42 vertex, 4 face records \(at least 508 bytes of "
+                                                      r"binary data\) but the file holds 555 bytes after the header, "
+                                                      r"which end too early \(.*early end-of-file: truncated"),
+        "cut.ply": (tri[:-5], r"declares 42 vertex, 80 face records \(at least 584 bytes of binary data\) but the "
+                              r"file holds 1,539 bytes after the header, which end too early"),
+    }
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        for reader in (read_geometry, load_mesh, read_point_set):
+            with pytest.raises(ValueError, match=f"^'[^']*{name}' is not a readable PLY file: its header {message}"):
+                reader(tmp_path / name)
+
+
+def _ply_sources(folder):
+    p, n, c = _cloud(12, seed=3)
+    src = trimesh.creation.icosphere(0)  # 12 vertices, 20 faces
+    quads = [[0, 1, 2, 3], [3, 4, 5], [5, 6, 7, 8, 9]]
+    files = {
+        "ascii points": _write_ply(folder / "a.ply", p, n, c, encoding="ascii"),
+        "binary points": _write_ply(folder / "b.ply", p, n, c, encoding="binary_big_endian"),
+        "binary mesh": _write_ply(folder / "m.ply", src.vertices.astype(np.float32), faces=src.faces),
+        "binary polygons": _write_ply(folder / "q.ply", p, faces=quads),
+        "ascii polygons": _write_ply(folder / "r.ply", p, faces=quads, encoding="ascii"),
+    }
+    return {k: (v.read_bytes(), read_geometry(v)) for k, v in files.items()}
+
+
+@pytest.fixture(scope="module")
+def ply_sources(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ply_sources")
+    return _Sources((folder, _ply_sources(folder)))
+
+
+def _disagreements():
+    recount = st.tuples(st.just("recount"), st.sampled_from(["vertex", "face"]),
+                        st.integers(-12, 12).filter(lambda k: k != 0))
+    extra = st.tuples(st.just("extra"), st.binary(min_size=1, max_size=40))
+    cut = st.tuples(st.just("cut"), st.integers(1, 60))
+    return st.one_of(recount, extra, cut)
+
+
+def _disagree(data: bytes, change) -> bytes:
+    kind, *arg = change
+    if kind == "recount":
+        element, delta = arg
+        m = re.search(rb"element " + element.encode() + rb" (\d+)", data)
+        return data if m is None else _recount(data, element, max(0, int(m.group(1)) + delta))
+    if kind == "extra":
+        return data + arg[0]
+    head = data.index(b"end_header") + len(b"end_header\n")
+    return data[:max(head, len(data) - arg[0])]
+
+
+def _same(result, want) -> None:
+    """A file that reads must give everything its source held: never a part of it."""
+    assert type(result) is type(want)
+    if isinstance(want, PointSet):
+        assert np.array_equal(result.positions, want.positions)
+        for a, b in ((result.normals, want.normals), (result.colors, want.colors)):
+            assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+    else:
+        assert np.array_equal(result.vertices, want.vertices) and np.array_equal(result.faces, want.faces)
+
+
+@pytest.mark.parametrize("source", ["ascii points", "binary points", "binary mesh", "binary polygons",
+                                    "ascii polygons"])
+@settings(max_examples=int(os.environ.get("GEOSYNTH_MANGLE_EXAMPLES", 40)), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(change=_disagreements())
+def test_ply_headers_that_disagree_with_their_data_are_read_whole_or_refused(ply_sources, source, change):
+    # a count larger or smaller than the data, bytes beyond the data, a truncated body:
+    # the file reads as its source did (only blank lines after an ASCII body can), or is
+    # refused in one line naming the file; never read in part, never a raw plyfile error
+    folder, sources = ply_sources
+    data, want = sources[source]
+    path = folder / f"disagree {source.replace(' ', '_')}.ply"
+    path.write_bytes(_disagree(data, change))
+    readers = [read_geometry, read_point_set] + ([load_mesh] if isinstance(want, trimesh.Trimesh) else [])
+    for reader in readers:
+        try:
+            result = reader(path)
+        except ValueError as exc:
+            _one_line_naming(exc, path)
+        else:
+            if reader is read_point_set and isinstance(want, trimesh.Trimesh):
+                assert np.array_equal(result.positions, np.asarray(want.vertices, np.float32))
+            else:
+                _same(result, want)
+
+
+# ------------------------------------------------------------------ STL files that are not (issue 37)
+
+
+def test_a_corrupt_stl_is_refused_saying_what_is_wrong_with_it(tmp_path):
+    # the reported file: ASCII STL with binary junk in a vertex line (was: "No module named 'charset_normalizer'")
+    corrupt = tmp_path / "corrupt.stl"
+    corrupt.write_bytes(b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 \x89\xfe\x00\xc3junk\x01\n")
+    with pytest.raises(ValueError, match=r"^'[^']*corrupt.stl' is not a readable STL file: not valid ASCII STL: line 4 "
+                                         r"holds a byte that is not text \(0x89 at column 12\), nor a binary STL "
+                                         r"\(it holds 59 bytes, fewer than the 84 of a binary STL's header\); give a "
+                                         r"complete binary or ASCII STL file.$"):
+        load_mesh(corrupt)
+    box = trimesh.creation.box()
+    text, binary = box.export(file_type="stl_ascii").encode(), box.export(file_type="stl")
+    cases = {
+        "word.stl": (text.replace(b"endloop", b"endlop", 1), "not valid ASCII STL: line 7: expected vertex or "
+                     "endloop, found 'endlop' (an ASCII STL holds only solid, facet normal, outer loop, vertex, "
+                     "endloop, endfacet, endsolid lines)"),
+        "number.stl": (text.replace(b"vertex", b"vertex x", 1), "not valid ASCII STL: line 4: 'vertex' needs 3 "
+                       "numbers, found 'vertex x -0.5 -0.5 0.5'"),
+        "four.stl": (text.replace(b"endloop", b"vertex 0 0 0\nendloop", 1), "not valid ASCII STL: line 8: a facet "
+                     "with 4 vertices (an STL facet has 3)"),
+        "cut_text.stl": (text[:text.index(b"endfacet", len(text) // 2) + 1], "the file ends inside this line ('e'), "
+                         "where endfacet was due (cut short?)"),
+        "no_end.stl": (text[:text.rindex(b"endsolid")], "the file ends inside a solid, without 'endsolid'"),
+        "cut_binary.stl": (binary[:-7], "it is neither an ASCII STL (it does not begin with 'solid') nor a binary "
+                           "STL (its header declares 12 triangles, 684 bytes, but the file holds 677)"),
+    }
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        for reader in (load_mesh, read_geometry):
+            with pytest.raises(ValueError, match=f"^'[^']*{name}' is not a readable STL file: .*{re.escape(message)}"):
+                reader(tmp_path / name)
+    for name, content in (("text.stl", text), ("binary.stl", binary), ("solid.stl", b"solid" + binary[5:])):
+        (tmp_path / name).write_bytes(content)  # a binary STL whose header begins with "solid" is binary
+        assert np.array_equal(load_mesh(tmp_path / name).vertices[load_mesh(tmp_path / name).faces],
+                              box.vertices[box.faces])
+
+
+# ------------------------------------------------------------------ writers refuse NaN and inf (issue 37)
+
+
+def test_every_writer_refuses_non_finite_values_before_creating_a_file(tmp_path):
+    from geosynth.completion import CompletedSurface, write_completion
+    from geosynth.surface import save_mesh
+
+    p, n, c = _cloud(300)
+    p[7, 1], p[9] = np.nan, np.inf
+    box = trimesh.creation.box()
+    bad_box = trimesh.Trimesh(np.r_[box.vertices[:-1], [[np.nan, 0, 0]]], box.faces, process=False)
+    grid = np.pad(np.full((2, 2, 2), np.nan, np.float32), 1)
+    m = 5
+    surface = CompletedSurface(np.zeros((m, 3), np.float32), np.full((m, 3), np.inf, np.float32), None,
+                               np.array([[0, 1, 2]], np.int32), np.ones(m, bool), np.ones(m, bool), np.ones(m, bool),
+                               None)
+    cases = [
+        (lambda: write_point_set(tmp_path / "p.ply", PointSet(p, n, c)),
+         "p.ply': 4 of its 900 position coordinates are NaN or inf, in 2 points (the first: point 7, counting from "
+         "0); nothing was written: remove those points or correct them first."),
+        (lambda: write_point_set(tmp_path / "n.ply", PointSet(p[10:], np.where(n[10:] > 2, 0, np.nan))),
+         "n.ply': 870 of its 870 normal coordinates are NaN or inf, in 290 points (the first: point 0"),
+        (lambda: save_mesh(bad_box, tmp_path / "m.stl"),
+         "m.stl': 1 of its 24 vertex coordinates is NaN or inf, in 1 vertex (the first: vertex 7, counting from 0); "
+         "nothing was written: remove that vertex or correct it first."),
+        (lambda: save_mesh(bad_box, tmp_path / "m.ply"), "m.ply': 1 of its 24 vertex coordinates is NaN or inf"),
+        (lambda: Field(grid, [0, 0, 0], [1, 1, 1]).save(tmp_path / "f.npz"),
+         "f.npz': 8 of its 64 field values are NaN or inf (the first: sample (z, y, x) = (1, 1, 1)); nothing was "
+         "written: correct those values first."),
+        (lambda: write_completion(tmp_path / "c.ply", surface),
+         "c.ply': 15 of its 15 normal coordinates are NaN or inf, in 5 points (the first: point 0"),
+    ]
+    for write, message in cases:
+        with pytest.raises(ValueError, match=r"^refusing to write '[^']*" + re.escape(message)):
+            write()
+    assert list(tmp_path.iterdir()) == []  # not even a temporary
+    # finite data are written as before
+    assert read_point_set(write_point_set(tmp_path / "ok.ply", PointSet(p[10:], n[10:]))).positions.shape == (290, 3)
+    assert Field.load(Field(np.zeros((2, 2, 2), np.float32), [0, 0, 0], [1, 1, 1]).save(tmp_path / "ok.npz")).shape \
+        == (2, 2, 2)
+
+
 # ------------------------------------------------------------------ property test: mangled files
 
 
@@ -462,6 +715,8 @@ def _sources(folder):
                         ".ply"),
         "ascii mesh": (_write_ply(folder / "q.ply", p, faces=quads, encoding="ascii").read_bytes(), ".ply"),
         "obj": (src.export(file_type="obj").encode(), ".obj"),
+        "ascii stl": (src.export(file_type="stl_ascii").encode(), ".stl"),
+        "binary stl": (src.export(file_type="stl"), ".stl"),
     }
 
 
@@ -492,7 +747,8 @@ def _mangle(data: bytes, mutation) -> bytes:
     return bytes(out)
 
 
-@pytest.mark.parametrize("source", ["ascii point set", "binary point set", "binary mesh", "ascii mesh", "obj"])
+@pytest.mark.parametrize("source", ["ascii point set", "binary point set", "binary mesh", "ascii mesh", "obj",
+                                    "ascii stl", "binary stl"])
 # GEOSYNTH_MANGLE_EXAMPLES=2000 for a longer hunt; 70 per source keeps the suite fast (~1 s in all)
 @settings(max_examples=int(os.environ.get("GEOSYNTH_MANGLE_EXAMPLES", 70)), deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])

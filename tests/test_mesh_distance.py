@@ -469,3 +469,76 @@ def test_distance_is_the_minimum_over_every_triangle(device, rng, name):
     banded = mesh_distance(mesh, pts, signed=False, band=float(band), device=device)
     want = np.where(m < band * band, np.sqrt(m), band)
     assert banded.tobytes() == np.where(want < band, want, band).tobytes()
+
+
+# ------------------------------------------------------------------ units (issue 37)
+
+
+def _plate() -> trimesh.Trimesh:
+    """The reported mesh: a 4 x 4 x 0.4 box with 16 spheres of radius 0.3 on top, concatenated."""
+    parts = [trimesh.creation.box(extents=(4, 4, 0.4))]
+    for i in range(4):
+        for j in range(4):
+            ball = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+            ball.apply_translation((-1.5 + i, -1.5 + j, 0.2))
+            parts.append(ball)
+    return trimesh.util.concatenate(parts)
+
+
+@pytest.fixture(scope="module")
+def plate_queries():
+    mesh = _plate()
+    lo, hi = mesh.bounds
+    pts = np.random.default_rng(0).uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), (20000, 3))
+    return mesh, pts
+
+
+def _scaled(mesh, s):
+    out = mesh.copy()
+    out.apply_scale(s)
+    return out
+
+
+def test_the_sign_does_not_depend_on_the_mesh_units(device, plate_queries):
+    # the plate at 1e-6 had 126 of 20,000 signs flipped (its small faces' plane distances
+    # underflowed float32 to 0, and -0 is no sign); distances are computed in units of the
+    # mesh's size: the same signs at any scale, distances equal to float32 rounding
+    mesh, pts = plate_queries
+    base = mesh_distance(mesh, pts, device=device)
+    assert (base < 0).sum() > 1000 and (base > 0).sum() > 1000 and (base != 0).all()
+    for s in (1e-6, 1e6):
+        got = mesh_distance(_scaled(mesh, s), pts * s, device=device)
+        assert np.array_equal(got < 0, base < 0), f"scale {s:g}: {int(((got < 0) != (base < 0)).sum())} signs differ"
+        assert (got != 0).all()
+        np.testing.assert_allclose(got / s, base, rtol=1e-4, atol=1e-5)
+    for k in (-20, 20):  # a power of two scales exactly: the same bits, scaled
+        got = mesh_distance(_scaled(mesh, 2.0**k), pts * 2.0**k, device=device)
+        assert got.tobytes() == (base * np.float32(2.0**k)).tobytes()
+    f = Field(np.zeros((10, 12, 14), np.float32), mesh.bounds[0] - 0.3, np.full(3, 0.37))
+    grid = mesh_distance(mesh, field=f, device=device).values
+    tiny = mesh_distance(_scaled(mesh, 1e-6), field=Field(f.values, f.origin * 1e-6, f.spacing * 1e-6),
+                         device=device).values
+    assert np.array_equal(tiny < 0, grid < 0) and (tiny != 0).all() and (grid < 0).any()
+
+
+def test_the_reference_agrees_at_a_micrometre(one_device, plate_queries):
+    mesh, pts = plate_queries
+    tiny = _scaled(mesh, 1e-6)
+    got = mesh_distance(tiny, pts[:150] * 1e-6, device=one_device)
+    want = reference.mesh_distance_naive(tiny, pts[:150] * 1e-6)
+    assert np.array_equal(got < 0, want < 0)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-11)
+
+
+def test_queries_beyond_float32_reach_are_refused(one_device):
+    mesh = trimesh.creation.box()
+    far = np.array([[0.0, 0.0, 0.0], [3e18, 0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"^points lie up to 3e\+18 beyond the mesh's bounding box, more than "
+                                         r"2\^60 \(1.15e\+18\) times its size \(diagonal 1.73\): their squared "
+                                         r"distances would leave float32; query points nearer the mesh.$"):
+        mesh_distance(mesh, far, device=one_device)
+    tiny = _scaled(mesh, 1e-20)  # the same limit, relative to the mesh's size
+    with pytest.raises(ValueError, match=r"^points lie up to 1 beyond the mesh's bounding box, more than 2\^60 .*"
+                                         r"\(diagonal 1.73e-20\)"):
+        mesh_distance(tiny, np.array([[1.0, 0.0, 0.0]]), device=one_device)
+    assert mesh_distance(tiny, np.array([[1e-3, 0.0, 0.0]]), device=one_device)[0] == pytest.approx(1e-3, rel=1e-5)
