@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["log_fixed", "round_log_f32", "solve_fixed", "sum_products_f32", "times3x3"]
+__all__ = ["exp_fixed", "log_fixed", "round_log_f32", "solve_fixed", "sum_products_f32", "times3x3"]
 
 
 def times3x3(p: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -127,3 +127,23 @@ def solve_fixed(a: np.ndarray, b: np.ndarray, tiny: float = 1e-13) -> np.ndarray
             acc -= (for_k[:, None] * x[k + 1:]).sum(axis=0)
         x[k] = acc / a[k, k]
     return x
+
+
+# fdlibm's e_exp.c: its polynomial for exp(r), |r| <= ln2 / 2
+_EP = (1.66666666666666019037e-01, -2.77777777770155933842e-03, 6.61375632143793436117e-05,
+       -1.65339022054652515390e-06, 4.13813679705723846039e-08)
+
+
+def exp_fixed(x: np.ndarray) -> np.ndarray:
+    """exp of finite float64 ``x`` <= 709 (any shape) by fdlibm's method (error < 1 ulp) in
+    elementwise NumPy (rint, + - * /, ldexp): the same bits on every CPU, where NumPy's own
+    exp may dispatch to SIMD code that rounds differently (AVX-512)."""
+    x = np.maximum(np.asarray(x, np.float64), -746.0)  # below: 0 (ldexp underflows)
+    k = np.rint(x * 1.44269504088896338700e+00)  # x = k ln2 + r
+    hi = x - k * _LN2_HI  # exact for |k| < 2^11
+    lo = k * _LN2_LO
+    r = hi - lo
+    z = r * r
+    c = r - z * (_EP[0] + z * (_EP[1] + z * (_EP[2] + z * (_EP[3] + z * _EP[4]))))
+    y = 1.0 - ((lo - (r * c) / (2.0 - c)) - hi)
+    return np.ldexp(y, k.astype(np.int64))

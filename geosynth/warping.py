@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth._checks import as_points3, as_unit_vectors, check_positive
-from geosynth.cpu_exact import log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
+from geosynth.cpu_exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
 from geosynth.host_steps import run_parts
 
 __all__ = [
@@ -527,7 +527,7 @@ def _greedy_pairing(
         rd, rn = _kdtree(pq).query(pq, k=kr + 1)
         rd, rn = rd[:, 1:].reshape(n_q, kr), rn[:, 1:].reshape(n_q, kr)
         sigma = max(float(np.median(rd[:, 0])) * 1.5, spacing)
-        phi = np.exp(-0.5 * (rd / sigma) ** 2)
+        phi = exp_fixed(-0.5 * (rd / sigma) ** 2)  # (not np.exp: its bits depend on the CPU)
     else:
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
