@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 BENCH_STAMP := $(VENV)/.installed-bench
 PIP := $(BIN)/python -m pip --disable-pip-version-check --quiet
 
-.PHONY: demo test bench gpu-check clean
+.PHONY: demo test test-cpus bench gpu-check clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,13 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# test-cpus: the tests of outputs that must not depend on the CPU (pinned hashes of M1, M2,
+# M3; M2's and M4's tests) three times, with NumPy and OpenBLAS acting as this CPU, an AVX2
+# and an SSE4 machine (tools/cpu_matrix.sh); CPU_TESTS= (empty) runs the whole suite so.
+CPU_TESTS ?= tests/test_unchanged.py tests/test_point_texture.py tests/test_completion.py tests/test_warping.py
+test-cpus: $(STAMP)
+	bash tools/cpu_matrix.sh $(BIN)/python -m pytest -q $(CPU_TESTS)
 
 bench: $(BENCH_STAMP)
 	$(BIN)/python bench/bm_main.py

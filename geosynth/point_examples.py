@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth.cpu_exact import times3x3
 from geosynth.point_textures import PointTexture, texture_from_image
 
 __all__ = ["POINT_EXAMPLES", "PointExample", "point_texture_example", "stones_image"]
@@ -100,8 +101,8 @@ def _sphere(rng, count, centre, radius, scale=(1.0, 1.0, 1.0), rotation=None):
     s = np.asarray(scale, np.float64)
     p = d * radius * s
     n = d / s
-    if rotation is not None:
-        p, n = p @ rotation.T, n @ rotation.T
+    if rotation is not None:  # p @ rotation.T in a fixed order (BLAS rounds by the CPU)
+        p, n = times3x3(p, rotation.T), times3x3(n, rotation.T)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     return p + np.asarray(centre), n
 
@@ -224,8 +225,8 @@ def flowers(count: int = 37_473, seed: int = 0) -> PointTexture:
             rot = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1.0]])
             tilt = 0.35  # petals rise outward
             ct, st = np.cos(tilt), np.sin(tilt)
-            rot = rot @ np.array([[ct, 0, -st], [0, 1, 0], [st, 0, ct]])
-            centre = base + rot @ np.array([heart + petal_len * 0.8, 0, 0])
+            rot = times3x3(rot, np.array([[ct, 0, -st], [0, 1, 0], [st, 0, ct]]))
+            centre = base + times3x3(np.array([[heart + petal_len * 0.8, 0, 0]]), rot.T)[0]
             ar = 4 * np.pi * (petal_len * petal_w + petal_len * 0.008 + petal_w * 0.008) / 3
             parts.append(_sphere(rng, rng.poisson(density * ar), centre, 1.0, (petal_len, petal_w, 0.008), rot))
     return _finish(parts, "flowers", 0.0, lift + 0.04)

@@ -53,12 +53,12 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from geosynth._checks import as_points3, as_unit_vectors, check_positive
+from geosynth.cpu_exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
 from geosynth.host_steps import run_parts
 
 __all__ = [
@@ -527,7 +527,7 @@ def _greedy_pairing(
         rd, rn = _kdtree(pq).query(pq, k=kr + 1)
         rd, rn = rd[:, 1:].reshape(n_q, kr), rn[:, 1:].reshape(n_q, kr)
         sigma = max(float(np.median(rd[:, 0])) * 1.5, spacing)
-        phi = np.exp(-0.5 * (rd / sigma) ** 2)
+        phi = exp_fixed(-0.5 * (rd / sigma) ** 2)  # (not np.exp: its bits depend on the CPU)
     else:
         rn = np.zeros((n_q, 0), np.int64)
         phi = np.zeros((n_q, 0))
@@ -592,8 +592,10 @@ def _greedy_pairing(
 
 class ThinPlateSpline:
     """A 3D thin-plate spline W(x) = x + sum_i w_i phi(|x - c_i|) + a_0 + A x, phi(r) = r^2 log r,
-    through ``W(c_i) = y_i`` (the interpolation of Sec. 5.2, solved with scipy.linalg on
-    the spline's linear system), with its analytic Jacobian.
+    through ``W(c_i) = y_i`` (the interpolation of Sec. 5.2; the spline's linear system
+    solved by :func:`solve_fixed`), with its analytic Jacobian. With dtype float32 (the
+    warp's) the result is the same bits on every CPU (see :meth:`_rows_f32`); float64 is
+    the evaluation's oracle (BLAS products: its last bits depend on the CPU).
 
     Args:
         centres: (n, 3) float positions c_i.
@@ -606,7 +608,7 @@ class ThinPlateSpline:
 
     # Rows per evaluation step: 256 keeps the step's three (256, |Q|) float32 matrices
     # (~200 KB each at |Q| = 200) in the L2 cache; 1,024 rows (before) took ~20% longer.
-    # OpenBLAS's products round a row differently with other row counts: this decides bits.
+    # (float64 evaluation: OpenBLAS's products round a row differently with other row counts.)
     _CHUNK = 256
     # r^2 (in units of the centres' extent) at or below which an evaluation point counts
     # as a centre (r = 0): above the product's rounding, below any real spacing.
@@ -618,6 +620,7 @@ class ThinPlateSpline:
         if np.dtype(dtype) not in (np.dtype(np.float32), np.dtype(np.float64)):
             raise ValueError(f"dtype must be np.float32 or np.float64, got {dtype!r}.")
         self.dtype = np.dtype(dtype).type
+        self.degenerate = False  # solved by least squares (see below)
 
         c = as_points3("centres", centres)
         y = as_points3("values", values, len(c))
@@ -631,7 +634,8 @@ class ThinPlateSpline:
             self.w = np.zeros((0, 3))
             self.affine = np.zeros((4, 3))
             return
-        kmat = self._phi(self._r2(self.centres, self.centres))
+        r2 = self._r2(self.centres, self.centres)
+        kmat = 0.5 * r2 * log_fixed(np.where(r2 > 0, r2, 1.0))  # _phi, with a log of the same bits on every CPU
         system = np.zeros((n + 4, n + 4))
         system[:n, :n] = kmat + float(smoothing) * np.eye(n)
         system[:n, n] = system[n, :n] = 1.0
@@ -639,13 +643,14 @@ class ThinPlateSpline:
         system[n + 1:, :n] = self.centres.T
         rhs = np.zeros((n + 4, 3))
         rhs[:n] = disp
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-                sol = scipy.linalg.solve(system, rhs, assume_a="sym", check_finite=False)
-        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, scipy.linalg.LinAlgWarning):
+        # By elimination in fixed-order elementwise arithmetic, not LAPACK: its blocked kernels
+        # round differently on every CPU (SSE4, AVX2, AVX-512), and the output must not.
+        sol = solve_fixed(system, rhs)
+        if sol is None:
             # Degenerate pairs (fewer than 4, or all on one plane): the least-squares
-            # solution of least norm leaves the undetermined directions unmoved.
+            # solution of least norm leaves the undetermined directions unmoved. (LAPACK's
+            # SVD: these rare splines' bits may depend on the CPU; the built-ins meet none.)
+            self.degenerate = True
             sol = scipy.linalg.lstsq(system, rhs, cond=1e-10, check_finite=False)[0]
         self.w = sol[:n]
         self.affine = sol[n:]  # row 0: a_0; rows 1-3: A (x, y, z) -> displacement
@@ -689,7 +694,7 @@ class ThinPlateSpline:
         (k < 3), then sum_i psi_i w_ik c_ij at 3 + 3 k + j (psi = 2 log r + 1, 0 at r = 0)."""
         u = (x - self.shift) / self.scale
         if len(self.centres) == 0:
-            disp = self.affine[0] + u @ self.affine[1:]
+            disp = self.affine[0] + times3x3(u, self.affine[1:])
             return x + disp * self.scale, u, np.zeros((len(x), 12), self.dtype) if want_sums else None
         dt = self.dtype
         n = len(self.centres)
@@ -741,11 +746,58 @@ class ThinPlateSpline:
                     log_r2.flat[at_centre] = 0.0  # psi
                     np.matmul(log_r2, w12, out=sums12[lo:lo + m])
 
+        if dt is np.float32:
+            rows_of = self._rows_f32(u, sums3, sums12)
         # Parts of whole chunks on every core (NumPy lets go of the GIL in these passes and
         # products): each chunk's rows are computed as alone, so the bits do not depend on it.
         run_parts(rows_of, len(u), quantum=self._CHUNK, min_part=4 * self._CHUNK)
-        disp = dt(0.5) * sums3 + self.affine[0] + u @ self.affine[1:]
+        disp = dt(0.5) * sums3 + self.affine[0] + times3x3(u, self.affine[1:])
         return x + disp * self.scale, u, sums12
+
+    def _rows_f32(self, u: np.ndarray, sums3: np.ndarray, sums12: np.ndarray | None):
+        """The float32 evaluation's step over rows [first, last) (see :meth:`_eval_sums`),
+        the same bits on every CPU (the warp's: M2's output must not depend on the machine):
+
+        - r^2 by differences in float64 (elementwise: correctly rounded on every SIMD path;
+          exactly 0 where u is a centre);
+        - log r^2 in float64 by NumPy, rounded to float32; NumPy's float64 log may round a
+          last bit differently by CPU (AVX-512), so the rare entry within 16 float64 ulps of
+          a float32 rounding boundary is recomputed by the scalar ``math.log`` first:
+          :func:`round_log_f32`;
+        - phi = r^2 log r^2 and psi = log r^2 + 1 in float32 (elementwise);
+        - the sums over the centres by a float64 product of the float32 matrices (each
+          product exact in float64, the sum within gamma_n of exact in any order: BLAS may
+          sum in any order), rounded once to float32; the rare sum within twice that bound
+          of a float32 rounding boundary is summed again in a fixed order first
+          (:func:`sum_products_f32`). Either way every CPU rounds to the same float32."""
+        n = len(self.centres)
+        cols = [np.ascontiguousarray(self.centres[:, j]) for j in range(3)]
+        w = self.w.astype(np.float32).astype(np.float64)  # the float32 weights, exactly
+        wc = (self.w[:, :, None] * self.centres[:, None, :]).reshape(n, 9)
+        w12 = np.concatenate([self.w, wc], axis=1).astype(np.float32).astype(np.float64)
+        at_centre = self._AT_CENTRE
+
+        def rows_of(first: int, last: int) -> None:
+            rows = min(self._CHUNK, last - first)
+            r2_buf = np.empty((rows, n))
+            tmp_buf = np.empty((rows, n))
+            near_buf = np.empty((rows, n), bool)
+            for lo in range(first, last, self._CHUNK):
+                m = min(self._CHUNK, last - lo)
+                r2, tmp, near = r2_buf[:m], tmp_buf[:m], near_buf[:m]
+                self._r2_into(u[lo:lo + m], cols, r2, tmp)
+                np.less_equal(r2, at_centre, out=near)
+                centre = np.flatnonzero(near)
+                r2.flat[centre] = 1.0  # log 0 there: 2 phi = r^2 log r^2 = 0, psi zeroed below
+                log32 = round_log_f32(r2, tmp)
+                phi = r2.astype(np.float32)
+                phi *= log32  # 2 phi
+                sum_products_f32(phi, w, sums3[lo:lo + m])
+                if sums12 is not None:
+                    log32 += np.float32(1.0)
+                    log32.flat[centre] = 0.0  # psi
+                    sum_products_f32(log32, w12, sums12[lo:lo + m])
+        return rows_of
 
     def _eval_single(self, x: np.ndarray, want_jacobian: bool):
         # thin products: one BLAS thread is faster and thread-count independent (geometry_texture says why)

@@ -1,4 +1,5 @@
-"""Outputs pinned by hash: one small volume synthesis and three small point texturings.
+"""Outputs pinned by hash: one small volume synthesis, three small point texturings and
+three small point-set geometry texture syntheses (M2).
 
 The hashes were recorded from the code before the modules were restructured (search and
 texturing split into one question per module) and are the outputs of the current
@@ -10,16 +11,31 @@ means to change that output, and say so in its message.
 Both M1 searches and every M3 method are exact integer searches with seeded random
 choices, so every device gives the same bytes: each case runs on every test device
 against the one recorded hash.
+
+M2 (synthesize_point_texture) is the same bytes on every device and, since issue 40, on
+every x86-64 CPU: its host steps that NumPy or OpenBLAS would round by the CPU's SIMD
+width are done in fixed-order elementwise arithmetic (geosynth.cpu_exact). ``make
+test-cpus`` runs these tests with NumPy and OpenBLAS acting as an AVX2 and an SSE4
+machine (tools/cpu_matrix.sh); the last test here checks SSE4 from any ``make test``.
+(The M2 hashes were recorded on branch h40-cpus, before the blend decision of issue 40
+item 3 changed: a change of that decision re-records them.)
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from geosynth.examples import exemplar_field
+from geosynth.geometry_texture import synthesize_point_texture
+from geosynth.point_examples import point_texture_example
 from geosynth.pointmodels import point_model
 from geosynth.textures import texture_example
 from geosynth.texturing import texture_points
@@ -60,3 +76,45 @@ def test_point_texturing_output_unchanged(device, options, expected):
     assert out.colors.shape == (2000, 3)
     errors = np.array(sorted(report.error.items()), dtype=object).astype(str)  # exact float reprs
     assert _digest(out.colors, errors) == expected
+
+
+# M2 at small sizes: (built-in, digest of the exemplar's points and normals, of the output's)
+M2_CASES = [
+    ("weave", "ad7b66bdce3239cb", "ae0a5cf6c39b09f5"),
+    ("flowers", "5a2e818d20106106", "3fbb45f654a30c8a"),  # its petals were rotated by BLAS: other bytes on SSE4
+    ("heightfield", "489e7de31fb34700", "05228235e95bedb5"),
+]
+M2_OPTIONS = dict(seed=0, scale=1.2, patch=0.4, resolution=24, quality=False)
+
+
+def _m2_digests(name: str, device: str) -> tuple[str, str]:
+    texture = point_texture_example(name, count=10_000)
+    points, _, _ = synthesize_point_texture(texture, None, device=device, **M2_OPTIONS)
+    return _digest(texture.points, texture.normals), _digest(points.positions, points.normals)
+
+
+@pytest.mark.parametrize("name, exemplar, expected", M2_CASES)
+def test_point_texture_synthesis_output_unchanged(device, name, exemplar, expected):
+    assert _m2_digests(name, device) == (exemplar, expected)
+
+
+# NumPy and OpenBLAS acting as an SSE4 machine (tools/cpu_matrix.sh has the same settings)
+SSE4_ENV = {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Nehalem"}
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="the SSE4 settings are x86-64's")
+def test_point_texture_synthesis_is_the_same_bytes_on_an_sse4_cpu():
+    """M2 in a subprocess with NumPy's and OpenBLAS's SIMD code held to SSE4 (what an old
+    machine runs) gives the bytes this process gives: a host step that rounds by the CPU
+    (a BLAS product, LAPACK's solve or eigh, a SIMD transcendental feeding a decision)
+    shows here on any x86-64 machine, not only on another one. weave and flowers (the
+    flowers' exemplar itself was other bytes on SSE4 before issue 40)."""
+    here = [_m2_digests(name, "cpu") for name in ("weave", "flowers")]
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from test_unchanged import _m2_digests; "
+            "print(repr([_m2_digests(n, 'cpu') for n in ('weave', 'flowers')]))")
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ, **SSE4_ENV, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
+    run = subprocess.run([sys.executable, "-c", code, str(Path(__file__).resolve().parent)], env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip().splitlines()[-1] == repr(here)
