@@ -71,6 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geosynth.cpu_exact import norm3
 from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods)
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
@@ -751,7 +752,7 @@ def _vertex_normals(positions: np.ndarray, faces: np.ndarray, fallback: np.ndarr
     vn = np.zeros_like(positions)
     for i in range(3):
         np.add.at(vn, faces[:, i], fn)
-    length = np.linalg.norm(vn, axis=1, keepdims=True)
+    length = norm3(vn)[:, None]  # not np.linalg.norm: the same bits on every CPU (issue 40)
     return np.where(length > 0, vn / np.maximum(length, 1e-300), fallback)
 
 
@@ -863,7 +864,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     frame_rows = None
     if frames == "fit":
         fu, fv = fit_frames(sf, rs.normals)
-        frame_rows = np.stack([fu, fv, rs.normals / np.linalg.norm(rs.normals, axis=1, keepdims=True)], axis=1)
+        frame_rows = np.stack([fu, fv, rs.normals / norm3(rs.normals)[:, None]], axis=1)
     partners = np.arange(rs.n_samples, dtype=np.int64)
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
     textured0 = np.zeros(rs.n_vertices, dtype=bool)
@@ -887,9 +888,13 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     completed[rs.n_samples:] = True
     captured = np.zeros(rs.n_vertices, bool)
     captured[: rs.n_original] = True
+    written = positions.astype(np.float32)
     surface = CompletedSurface(
-        positions=positions.astype(np.float32),
-        normals=_vertex_normals(positions, rs.faces, rs.normals).astype(np.float32),
+        positions=written,
+        # the normals of the mesh as written: from its float32 positions, which every CPU
+        # rounds alike (the float64 ones carry the fit's last bits, which LAPACK's and
+        # NumPy's SIMD paths round by the CPU; issue 40)
+        normals=_vertex_normals(written.astype(np.float64), rs.faces, rs.normals).astype(np.float32),
         colors=None if rs.colors is None else rs.colors.copy(),
         faces=rs.faces.astype(np.int32), completed=completed, captured=captured, textured=textured.copy(), fit=sf)
     report = CompletionReport(
