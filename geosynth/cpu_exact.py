@@ -70,9 +70,12 @@ def round_log_f32(x: np.ndarray, scratch: np.ndarray | None = None) -> np.ndarra
     import math
 
     lg = np.log(x, out=scratch)
-    bits = lg.view(np.int64) & _LOW29
-    bits -= _MID
-    close = np.flatnonzero(np.abs(bits) <= 16)
+    # |low 29 bits - 2^28| <= 16, as one unsigned comparison ((bits - (2^28 - 16)) as
+    # uint64 <= 32), with NumPy arrays for the constants: a Python integer operand sends
+    # the int64 ufuncs through a path ten times slower
+    bits = np.bitwise_and(lg.view(np.int64), _LOW29)
+    np.subtract(bits, _MID - np.int64(16), out=bits)
+    close = np.flatnonzero(bits.view(np.uint64) <= np.uint64(32))
     if close.size:
         flat_x, flat_lg = x.reshape(-1), lg.reshape(-1)
         flat_lg[close] = [math.log(float(v)) for v in flat_x[close]]
@@ -93,10 +96,19 @@ def sum_products_f32(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     v = a64 @ b
     n = a.shape[1]
     gamma = n * 2.0 ** -53 / (1.0 - n * 2.0 ** -53)
-    tol = (2.5 * gamma) * np.abs(a64).sum(axis=1)[:, None] * np.abs(b).max(axis=0)[None, :]
+    # S_r = sum_i |a_ri| in float32 (|a| is float32 already), raised by 1% for the float32
+    # sum's own error (at most n 2^-24 relative): still an upper bound, at half the traffic
+    s_r = np.abs(a).sum(axis=1, dtype=np.float64) * 1.01
+    tol = (2.5 * gamma) * s_r[:, None] * np.abs(b).max(axis=0)[None, :]
     v32 = v.astype(np.float32)
-    gap = np.minimum(np.nextafter(v32, np.float32(np.inf)) - v32, v32 - np.nextafter(v32, np.float32(-np.inf)))
-    margin = 0.5 * gap.astype(np.float64) - np.abs(v - v32.astype(np.float64))
+    # the gap to v32's neighbour on v's side: np.spacing(|v32|) away from zero, and toward
+    # zero too except at a power of two, where it is half (np.nextafter is several times
+    # slower); the rounding boundary lies half that gap from v32
+    mag = np.abs(v32)
+    gap = np.spacing(mag).astype(np.float64)
+    toward_zero_at_power = (np.abs(v) < mag) & ((v32.view(np.int32) & np.int32(0x7FFFFF)) == np.int32(0))
+    gap[toward_zero_at_power] *= 0.5
+    margin = 0.5 * gap - np.abs(v - v32.astype(np.float64))
     rows, cols = np.nonzero(margin <= tol)
     if rows.size:
         v32[rows, cols] = (a64[rows] * b[:, cols].T).sum(axis=1).astype(np.float32)
@@ -115,6 +127,7 @@ def solve_fixed(a: np.ndarray, b: np.ndarray, tiny: float = 1e-13) -> np.ndarray
     big = float(np.abs(a).max()) if n else 0.0
     if not big > 0:
         return None if n else b
+    scratch = np.empty((max(n - 1, 1), max(n - 1, 1)))  # the elimination's products, one buffer
     for k in range(n):
         p = k + int(np.argmax(np.abs(a[k:, k])))
         if not abs(a[p, k]) > tiny * big:
@@ -124,7 +137,8 @@ def solve_fixed(a: np.ndarray, b: np.ndarray, tiny: float = 1e-13) -> np.ndarray
             b[[k, p]] = b[[p, k]]
         if k + 1 < n:
             col = a[k + 1:, k] / a[k, k]
-            a[k + 1:, k + 1:] -= col[:, None] * a[k, k + 1:]
+            update = np.multiply.outer(col, a[k, k + 1:], out=scratch[:n - k - 1, :n - k - 1])
+            a[k + 1:, k + 1:] -= update
             b[k + 1:] -= col[:, None] * b[k]
     x = np.empty_like(b)
     for k in range(n - 1, -1, -1):
