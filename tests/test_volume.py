@@ -32,14 +32,26 @@ def test_the_seed_decides_the_field(device, source):
     assert not np.array_equal(run(source, device, seed=4).quantized, first)
 
 
+SEEDS = range(3)  # quality claims over seeds (issue 40): the mean and the worst, never one picked seed
+
+
 def test_beats_random_tiling(device, source):
-    synth = run(source, device)
-    base = run(source, device, baseline=True)
-    assert synth.quantized.shape == (32, 32, 32)
-    q_synth = bidirectional_block_distance(synth.source, synth.quantized, 8, samples=40, device=device)
-    q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, device=device)
-    assert q_synth["mean"] < 0.75 * q_base["mean"]
-    assert synth.levels[-1].mean_match_distance < base.levels[-1].mean_match_distance
+    """Block distance of the synthesis / random tiling's, over 3 seeds (synthesis, tiling and
+    the metric's draw): worst < 0.7, mean < 0.65; the last level's mean match distance
+    likewise, worst < 0.4, mean < 0.32. Measured over seeds 0-9, the same under native,
+    AVX2 and SSE4 (M1 is exact): block 0.559 mean, 0.602 worst (sd 0.032); match 0.248
+    mean, 0.271 worst (sd 0.012); bench/RESULTS.md."""
+    block, match = [], []
+    for seed in SEEDS:
+        synth = run(source, device, seed=seed)
+        base = run(source, device, seed=seed, baseline=True)
+        assert synth.quantized.shape == (32, 32, 32)
+        q_synth = bidirectional_block_distance(synth.source, synth.quantized, 8, samples=40, seed=seed, device=device)
+        q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, seed=seed, device=device)
+        block.append(q_synth["mean"] / q_base["mean"])
+        match.append(synth.levels[-1].mean_match_distance / base.levels[-1].mean_match_distance)
+    assert max(block) < 0.7 and np.mean(block) < 0.65, block
+    assert max(match) < 0.4 and np.mean(match) < 0.32, match
 
 
 def test_every_target_sample_comes_from_the_source_at_one_level(device, source):
