@@ -113,6 +113,18 @@ def geometry_balls(seed):
 
 
 @claim
+def geometry_terrain_32(seed):
+    """The same at 32 samples across (the test's size since issue 40)."""
+    return _geometry("terrain", seed, size=32)
+
+
+@claim
+def geometry_balls_32(seed):
+    """The same at 32 samples across (the test's size since issue 40)."""
+    return _geometry("balls", seed, size=32)
+
+
+@claim
 def metrics_random_tiling_scores_low(seed):
     """tests/test_metrics.py::test_builtin_balls_and_terrain_against_random_tiling: the
     structure scores of randomly tiled balls and terrain."""
