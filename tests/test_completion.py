@@ -56,25 +56,50 @@ def wave_run():
     return complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3, device=ONE_DEVICE, seed=0)
 
 
-def test_wave_keeps_amplitude_and_period(wave_run):
-    surface, report, timings = wave_run
-    assert report.unreached == 0 and report.targets > 50
-    done = surface.completed
-    p = surface.positions[done].astype(np.float64)
-    h = surface.fit.distance(p)
-    x = surface.fit.to_param(p)[:, 0]
-    amp, period = _sine_fit(x, h)
-    assert abs(amp - AMPLITUDE) <= 0.1 * AMPLITUDE, amp
-    assert abs(period - PERIOD) <= 0.1 * PERIOD, period
+def _wave_numbers(surface, report) -> dict:
+    """The wave's quality numbers asserted on over seeds (relative errors, ratios to the random baseline)."""
+    p = surface.positions[surface.completed].astype(np.float64)
+    amp, period = _sine_fit(surface.fit.to_param(p)[:, 0], surface.fit.distance(p))
     q = report.quality
-    assert q["volume_diff_pct"] < 10
-    assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"]  # neighbours fit together, unlike random copies
-    assert q["hist_distance"] is not None and q["hist_distance"] < 0.5
-    # colours that follow the relief: neighbouring colours fit together, unlike random copies
-    assert q["colour_step_diff_pct"] < q["colour_step_baseline_diff_pct"]
+    assert q["hist_distance"] is not None
+    return {"amplitude": abs(amp / AMPLITUDE - 1), "period": abs(period / PERIOD - 1),
+            "volume_pct": q["volume_diff_pct"], "slope": q["slope_diff_pct"] / q["slope_baseline_diff_pct"],
+            "hist": q["hist_distance"], "hist_baseline": q["hist_distance"] / q["hist_baseline"],
+            "colour_step": q["colour_step_diff_pct"] / q["colour_step_baseline_diff_pct"]}
+
+
+def _assert_over_seeds(runs: list[dict], bounds: dict):
+    for key, (worst, mean) in bounds.items():
+        got = [r[key] for r in runs]
+        assert max(got) < worst and np.mean(got) < mean, (key, got)
+
+
+# Over seeds 0-2, (worst, mean) bounds. Measured over seeds 0-9, the same under native, AVX2 and
+# SSE4, mean / worst (sd): amplitude error 0.009 / 0.023 (0.006), period error 0.010 / 0.022
+# (0.006), volume difference 0.61% / 1.53% (0.49), slope difference / the random baseline's
+# 0.011 / 0.012 (0.002), RGB histogram distance 0.056 / 0.076 (0.014), colour step / the
+# baseline's 0.013 / 0.019 (0.004); bench/RESULTS.md.
+WAVE = {"amplitude": (0.1, 0.05), "period": (0.1, 0.05), "volume_pct": (5, 3), "slope": (0.1, 0.05),
+        "hist": (0.2, 0.12), "colour_step": (0.1, 0.05)}
+
+
+def test_wave_keeps_amplitude_and_period(wave_run):
+    """Seeds 0 (the module's run), 1 and 2: the wave keeps its amplitude and period within
+    10%, neighbours (relief and colour) fit together unlike random copies, on the mean and
+    the worst (WAVE)."""
+    surface, report, timings = wave_run
+    runs = []
+    for seed in range(3):
+        if seed:
+            surface, report, timings = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
+                                                        device=ONE_DEVICE, seed=seed)
+        assert report.unreached == 0 and report.targets > 50
+        assert timings["grow"] > 0 and timings["targets_per_s"] > 0
+        runs.append(_wave_numbers(surface, report))
+    _assert_over_seeds(runs, WAVE)
     # the capture's halves: two periods of one wave, so the same volume and close histograms
+    q = report.quality
     assert q["volume_self_diff_pct"] < 5 and q["hist_self"] is not None and q["hist_self"] < 0.2
-    assert timings["grow"] > 0 and timings["targets_per_s"] > 0
 
 
 def test_baseline_is_a_mean_over_seeded_draws(wave_run):
@@ -341,19 +366,25 @@ def test_fit_frames_follow_the_axis_and_keep_same_bits_on_every_device(device_pa
     assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
 
 
+# refine=2 over seeds 0-2, (worst, mean) bounds. Measured over seeds 0-9, the same under native,
+# AVX2 and SSE4, mean / worst (sd): amplitude error 0.011 / 0.023 (0.008), period error 0.010 /
+# 0.022 (0.006), slope / the baseline's 0.008 / 0.012 (0.005), histogram distance / the
+# baseline's 0.52 / 0.73 (0.16).
+WAVE_REFINED = {"amplitude": (0.1, 0.05), "period": (0.1, 0.05), "slope": (0.1, 0.05), "hist_baseline": (1.0, 0.8)}
+
+
 def test_refinement_passes_keep_the_wave_and_change_sources():
     """refine=2 (our extension): every completed target matched again with its whole window;
-    the wave's amplitude and period survive, sources change, nothing is left untextured."""
-    surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
-                                          device=ONE_DEVICE, seed=0, refine=2)
-    assert report.refine == 2 and report.refined > 0 and report.unreached == 0
-    assert any(line.startswith("refinement: 2 passes") for line in report.lines())
-    p = surface.positions[surface.completed].astype(np.float64)
-    amp, period = _sine_fit(surface.fit.to_param(p)[:, 0], surface.fit.distance(p))
-    assert abs(amp - AMPLITUDE) <= 0.1 * AMPLITUDE, amp
-    assert abs(period - PERIOD) <= 0.1 * PERIOD, period
-    q = report.quality
-    assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"] and q["hist_distance"] < q["hist_baseline"]
+    the wave's amplitude and period survive, sources change, nothing is left untextured;
+    over 3 seeds, on the mean and the worst (WAVE_REFINED)."""
+    runs = []
+    for seed in range(3):
+        surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
+                                              device=ONE_DEVICE, seed=seed, refine=2)
+        assert report.refine == 2 and report.refined > 0 and report.unreached == 0
+        assert any(line.startswith("refinement: 2 passes") for line in report.lines())
+        runs.append(_wave_numbers(surface, report))
+    _assert_over_seeds(runs, WAVE_REFINED)
 
 
 def test_refinement_same_bits_on_every_device_and_bad_values(device_pair):
