@@ -359,6 +359,28 @@ def completion_wave_refined(seed):
 
 
 @claim
+def completion_balance(seed):
+    """tests/test_completion.py::test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram:
+    histogram distance of the balanced pick / the paper's uniform pick, the case, the picks
+    and the offers drawn from seed (the test: case 0, picks 1, offers 2)."""
+    from test_completion import _balance_case
+
+    from geosynth.relief_match import Matches
+
+    bal, level = _balance_case(seed=seed)
+    uni, _ = _balance_case(seed=seed)
+    rng, rng_u, offer = (np.random.default_rng([seed, k]) for k in (1, 1, 2))
+    for _ in range(300):
+        s = offer.choice(len(level), 12, replace=False)
+        code = offer.integers(1000, 1501, 12).astype(np.uint32)
+        m = Matches(s, s, np.zeros(12, np.int64), code, code / 1e4, np.ones(12, bool), code.min() / 1e4)
+        bal.add(int(s[bal.pick(m, rng)]))
+        uni.add(int(s[rng_u.integers(12)]))
+    dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
+    return {"balanced_uniform": dist[0] / dist[1]}
+
+
+@claim
 def completion_tower(seed):
     """tests/test_completion.py::test_tower_keeps_its_ledges_at_the_median_spacing."""
     from geosynth.completion import complete_surface

@@ -318,21 +318,27 @@ def test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram():
     from geosynth.completion import TOLERANCE
     from geosynth.relief_match import Matches
 
-    bal, level = _balance_case()
-    uni, _ = _balance_case()
-    rng, rng_u, offer = np.random.default_rng(1), np.random.default_rng(1), np.random.default_rng(2)
-    for _ in range(300):
-        s = offer.choice(len(level), 12, replace=False)  # a match set: 12 candidates, codes 1000..1500
-        code = offer.integers(1000, 1501, 12).astype(np.uint32)
-        m = Matches(s, s, np.zeros(12, np.int64), code, code / 1e4, np.ones(12, bool), code.min() / 1e4)
-        j = bal.pick(m, rng)
-        adj = code * (1 + bal.penalty * (1 - bal.score(s)) / 2)
-        assert adj[j] <= TOLERANCE * adj.min() + 1e-9  # the 1.1x rule on penalized codes
-        assert code[j] <= TOLERANCE * (1 + bal.penalty) * code.min()
-        bal.add(int(s[j]))
-        uni.add(int(s[rng_u.integers(12)]))  # the paper's uniform pick
-    dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
-    assert dist[0] < 0.5 * dist[1], dist
+    # The histogram distance of the balanced pick / the paper's uniform pick, over 3 draws (case,
+    # picks and offers): measured over draws 0-19, the same under native, AVX2 and SSE4, 0.131
+    # mean, 0.216 worst (sd 0.045).
+    ratios = []
+    for draw in range(3):
+        bal, level = _balance_case(seed=draw)
+        uni, _ = _balance_case(seed=draw)
+        rng, rng_u, offer = (np.random.default_rng([draw, k]) for k in (1, 1, 2))
+        for _ in range(300):
+            s = offer.choice(len(level), 12, replace=False)  # a match set: 12 candidates, codes 1000..1500
+            code = offer.integers(1000, 1501, 12).astype(np.uint32)
+            m = Matches(s, s, np.zeros(12, np.int64), code, code / 1e4, np.ones(12, bool), code.min() / 1e4)
+            j = bal.pick(m, rng)
+            adj = code * (1 + bal.penalty * (1 - bal.score(s)) / 2)
+            assert adj[j] <= TOLERANCE * adj.min() + 1e-9  # the 1.1x rule on penalized codes
+            assert code[j] <= TOLERANCE * (1 + bal.penalty) * code.min()
+            bal.add(int(s[j]))
+            uni.add(int(s[rng_u.integers(12)]))  # the paper's uniform pick
+        dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
+        ratios.append(dist[0] / dist[1])
+    assert max(ratios) < 0.5 and np.mean(ratios) < 0.25, ratios
 
 
 def _small_cylinder(seed):
