@@ -213,6 +213,27 @@ def point_texture_beats_random_pasting(seed):
 
 
 @claim
+def point_texture_tileable(seed):
+    """tests/test_point_texture.py::test_tileable_output_continues_across_its_borders: the median
+    distance of the right border's points, moved one period, to the left border's surface, in spacings."""
+    sys.path.insert(0, "tests")
+    from test_point_texture import SMALL, _wavy
+
+    from geosynth.geometry_texture import synthesize_point_texture
+    from geosynth.pointsets import pointset_distance
+
+    pts, report, _ = synthesize_point_texture(_wavy(), device=ONE_DEVICE, tileable=True, seed=seed, **SMALL)
+    w = np.asarray(report.size)
+    p, n = pts.positions.astype(np.float64), pts.normals
+    h = 2 * report.spacing
+    right, left = p[:, 0] > w[0] - 2 * h, p[:, 0] < 4 * h
+    moved = p[right] - [w[0], 0, 0]
+    d, _ = pointset_distance(np.r_[p[left], moved].astype(np.float32), np.r_[n[left], n[right]],
+                             moved.astype(np.float32), radius=h, device=ONE_DEVICE)
+    return {"median_spacings": float(np.median(np.abs(d))) / report.spacing}
+
+
+@claim
 def blending_scene(seed):
     """tests/test_blending.py::test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface
     and test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error: the synthetic

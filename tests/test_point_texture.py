@@ -244,19 +244,24 @@ def test_blending_lowers_the_seam_error_on_flowers_over_seeds(one_device):
 
 
 def test_tileable_output_continues_across_its_borders(one_device, wavy):
-    pts, report, _ = synthesize_point_texture(wavy, device=one_device, tileable=True, **SMALL)
-    assert report.tileable
-    w = np.asarray(report.size)
-    p, n = pts.positions.astype(np.float64), pts.normals
-    assert p[:, 0].min() >= 0 and p[:, 0].max() < w[0]
-    h = 2 * report.spacing
-    # the points near the right border, moved by one period, lie on the surface of those near the left
-    right = p[:, 0] > w[0] - 2 * h
-    left = p[:, 0] < 4 * h
-    moved = p[right] - [w[0], 0, 0]
-    d, _ = pointset_distance(np.r_[p[left], moved].astype(np.float32), np.r_[n[left], n[right]],
-                             moved.astype(np.float32), radius=h, device=one_device)
-    assert np.median(np.abs(d)) < 0.3 * report.spacing
+    """The points near the right border, moved by one period, lie on the surface of those near
+    the left: median distance in spacings over seeds 0-2, worst < 0.3 and mean < 0.18 (measured
+    over seeds 0-19 as native, AVX2 and SSE4: 0.084 mean, 0.147 worst, sd 0.039)."""
+    medians = []
+    for seed in range(3):
+        pts, report, _ = synthesize_point_texture(wavy, device=one_device, tileable=True, seed=seed, **SMALL)
+        assert report.tileable
+        w = np.asarray(report.size)
+        p, n = pts.positions.astype(np.float64), pts.normals
+        assert p[:, 0].min() >= 0 and p[:, 0].max() < w[0]
+        h = 2 * report.spacing
+        right = p[:, 0] > w[0] - 2 * h
+        left = p[:, 0] < 4 * h
+        moved = p[right] - [w[0], 0, 0]
+        d, _ = pointset_distance(np.r_[p[left], moved].astype(np.float32), np.r_[n[left], n[right]],
+                                 moved.astype(np.float32), radius=h, device=one_device)
+        medians.append(np.median(np.abs(d)) / report.spacing)
+    assert max(medians) < 0.3 and np.mean(medians) < 0.18, medians
 
 
 # ------------------------------------------------------------------ bad input
