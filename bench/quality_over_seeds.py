@@ -60,7 +60,6 @@ def volume_beats_random_tiling(seed):
 def volume_tileable_wraps(seed):
     """tests/test_volume.py::test_tileable_output_wraps: seam / (2 interior + 50) tiled, and
     plain seam - tiled seam (> 0)."""
-    sys.path.insert(0, "tests")
     from test_volume import _seam_and_interior_distance
 
     from geosynth.volume import synthesize_volume
@@ -87,7 +86,8 @@ def methods_beat_random_tiling(seed):
     out = {}
     for m in ("paper", "graphcut", "optimize"):
         r = synthesize_volume(src, 32, **kw, method=m, iterations=3)
-        out[m] = bidirectional_block_distance(r.source, r.quantized, 8, samples=40, seed=seed, device="cpu")["mean"] / qb
+        q = bidirectional_block_distance(r.source, r.quantized, 8, samples=40, seed=seed, device="cpu")["mean"]
+        out[m] = q / qb
     return out
 
 
@@ -149,7 +149,6 @@ def metrics_random_tiling_scores_low(seed):
 @claim
 def metrics_noise_scores_low(seed):
     """tests/test_metrics.py::test_random_noise_scores_low: wholeness of smoothed noise."""
-    sys.path.insert(0, "tests")
     from scipy import ndimage
     from test_metrics import TORI_SHAPE, tori
 
@@ -179,7 +178,8 @@ def tiled_seams(seed):
     from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
 
     out = {}
-    kw = dict(levels=2, block=8, seed=seed, progress=False, iterations=2, device=ONE_DEVICE, scheduler="threads", workers=1)
+    kw = dict(levels=2, block=8, seed=seed, progress=False, iterations=2, device=ONE_DEVICE, scheduler="threads",
+              workers=1)
     for name in ("terrain", "chainmail"):
         src, _, _ = exemplar_source(name, 32, 2)
         shape = (src.shape[0] // 2 * 2, 64, 64)
@@ -216,7 +216,6 @@ def point_texture_beats_random_pasting(seed):
 def point_texture_tileable(seed):
     """tests/test_point_texture.py::test_tileable_output_continues_across_its_borders: the median
     distance of the right border's points, moved one period, to the left border's surface, in spacings."""
-    sys.path.insert(0, "tests")
     from test_point_texture import SMALL, _wavy
 
     from geosynth.geometry_texture import synthesize_point_texture
@@ -238,7 +237,6 @@ def blending_scene(seed):
     """tests/test_blending.py::test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface
     and test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error: the synthetic
     scenes drawn with rng(seed) (the tests' rng fixture is seed 1234)."""
-    sys.path.insert(0, "tests")
     from test_blending import SP, flowers_scene, height, scene
 
     from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
@@ -277,7 +275,6 @@ def blending_scene(seed):
 def blending_relax(seed):
     """tests/test_blending.py::test_relaxation_spreads_points_and_keeps_the_surface and
     test_relaxation_keeps_curved_geometry, drawn with rng(seed)."""
-    sys.path.insert(0, "tests")
     from scipy.spatial import cKDTree
     from test_blending import SP, grid_xy, height, normal
 
@@ -423,8 +420,9 @@ def summary(rows):
     for k in keys:
         v = np.array([r[k] for r in rows], float)
         worst = v.min() if k.endswith("_min") else v.max()
-        out[k] = {"mean": round(float(v.mean()), 4), "worst": round(float(worst), 4), "sd": round(float(v.std(ddof=1)), 4)
-                  if len(v) > 1 else 0.0, "min": round(float(v.min()), 4), "max": round(float(v.max()), 4)}
+        sd = float(v.std(ddof=1)) if len(v) > 1 else 0.0
+        out[k] = {"mean": round(float(v.mean()), 4), "worst": round(float(worst), 4), "sd": round(sd, 4),
+                  "min": round(float(v.min()), 4), "max": round(float(v.max()), 4)}
     return out
 
 

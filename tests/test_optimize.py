@@ -203,7 +203,8 @@ def test_methods_beat_random_tiling(source):
         kw = dict(levels=2, block=8, progress=False, device="cpu", seed=seed)
         base = synthesize_volume(source, 32, **kw, baseline=True)
         assert base.method == "random tiling"
-        q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, seed=seed, device="cpu")["mean"]
+        q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, seed=seed,
+                                              device="cpu")["mean"]
         for method in BEATS:
             r = synthesize_volume(source, 32, **kw, method=method, iterations=3)
             q = bidirectional_block_distance(r.source, r.quantized, 8, samples=40, seed=seed, device="cpu")["mean"]
