@@ -62,9 +62,16 @@ def test_overlap_ramp():
         overlap_ramp(pts, [0, 0], [1, 1], 0.25, 0.1, sides=("left",))
 
 
-def test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface(rng):
-    for offset in (0.5, 2.0):  # half a spacing, and two
-        (p, n), (nbp, nbn) = scene(offset, rng)
+DRAWS = range(4)  # quality claims over several jittered scenes, never one hand-picked draw (issue 40)
+
+
+def test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface():
+    """Over 4 draws of the jittered scene, the seam error after / before blending: worst
+    <= 0.1, mean <= 0.08 (measured over 20 draws, 0-19, as native, AVX2 and SSE4: mean
+    0.069 / 0.070 and worst 0.069 / 0.071 at offsets 0.5 / 2; bench/RESULTS.md)."""
+    ratios = []
+    for draw, offset in ((d, o) for d in DRAWS for o in (0.5, 2.0)):  # half a spacing, and two
+        (p, n), (nbp, nbn) = scene(offset, np.random.default_rng(draw))
         ramp = overlap_ramp(p, [0, 0], [1, 1], 0.3, 0.3)
         bp, bn = blend_patch(p, n, ramp, nbp, nbn, SP)
         # Seam error along the overlap's outer edge (x = 0 and y = 0).
@@ -72,7 +79,8 @@ def test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface(rng):
         edge_xy = np.concatenate([np.c_[np.full(60, 0.01), ex], np.c_[ex, np.full(60, 0.01)]])
         edge = np.c_[edge_xy, height(edge_xy)]
         before, after = seam_error(p, n, nbp, nbn, edge, SP), seam_error(bp, bn, nbp, nbn, edge, SP)
-        assert before > 0.8 * offset and after < 0.1 * before, (offset, before, after)
+        assert before > 0.8 * offset, (draw, offset, before)
+        ratios.append(after / before)
         # Every overlap point lies within (1 - r) offset of the true surface (and
         # within one spacing); points outside the overlap are untouched.
         sel = ramp > 0
@@ -82,6 +90,7 @@ def test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface(rng):
         np.testing.assert_array_equal(bp[~sel], p[~sel])
         np.testing.assert_allclose(np.linalg.norm(bn, axis=1), 1.0)
         assert (np.einsum("ij,ij->i", bn, n) > 0.9).all()
+    assert max(ratios) <= 0.1 and np.mean(ratios) <= 0.08, ratios
 
 
 def test_counterparts_cross_along_the_normal_over_a_valley():
@@ -136,19 +145,25 @@ def test_border_cut():
         border_cut(p, n, [0, 0], [1, 1], 0.5)
 
 
-def test_relaxation_spreads_points_and_keeps_the_surface(rng):
-    xy = grid_xy(0, 1, 0, 1, rng, 0.45)
-    p, n = np.c_[xy, height(xy)], normal(xy)
+def test_relaxation_spreads_points_and_keeps_the_surface():
+    """Over 4 jittered draws: pairs closer than half a spacing after / before relaxing, worst
+    < 1 and mean < 0.1 (measured over 20 draws as native, AVX2 and SSE4: mean 0.001, worst
+    0.007; the points stay within 0.0065 spacings of the surface, the bound is 0.05)."""
     from scipy.spatial import cKDTree
 
     def close_pairs(q):
         return len(cKDTree(q).query_pairs(0.5 * SP))
 
-    rp, rn = relax_points(p, n, SP, iterations=2)
-    inner = ((rp[:, :2] > 0.1) & (rp[:, :2] < 0.9)).all(axis=1)
-    assert close_pairs(rp) < close_pairs(p)
-    assert (np.abs(rp[inner, 2] - height(rp[inner, :2])) < 0.05 * SP).all()
-    assert (np.einsum("ij,ij->i", rn, normal(rp[:, :2]))[inner] > 0.999).all()
+    fewer = []
+    for draw in DRAWS:
+        xy = grid_xy(0, 1, 0, 1, np.random.default_rng(draw), 0.45)
+        p, n = np.c_[xy, height(xy)], normal(xy)
+        rp, rn = relax_points(p, n, SP, iterations=2)
+        inner = ((rp[:, :2] > 0.1) & (rp[:, :2] < 0.9)).all(axis=1)
+        fewer.append(close_pairs(rp) / close_pairs(p))
+        assert (np.abs(rp[inner, 2] - height(rp[inner, :2])) < 0.05 * SP).all()
+        assert (np.einsum("ij,ij->i", rn, normal(rp[:, :2]))[inner] > 0.999).all()
+    assert max(fewer) < 1 and np.mean(fewer) < 0.1, fewer
 
 
 def test_same_bits_on_every_device(device_pair, rng):
@@ -211,20 +226,28 @@ def test_relative_blend_leaves_a_matching_patch_alone():
     assert shrink.mean() > 0.05 * SP
 
 
-def test_relaxation_keeps_curved_geometry(rng):
-    # A thin thread 2.5 spacings in radius, jittered samples: relaxing spreads them
-    # without shrinking the thread onto its (smoothed) MLS surface.
+def test_relaxation_keeps_curved_geometry():
+    """A thin thread 2.5 spacings in radius, jittered samples: relaxing spreads them
+    without shrinking the thread onto its (smoothed) MLS surface. Over 4 draws, in
+    spacings: mean shift of the radius < 0.01 each and < 0.005 on average, largest
+    deviation < 0.15 each and < 0.12 on average (measured over 20 draws as native, AVX2
+    and SSE4: shift mean 0.0024 worst 0.0030; deviation mean 0.090 worst 0.109)."""
     radius = 2.5 * SP
-    a = rng.uniform(0, 2 * np.pi, 3000)
-    y = rng.uniform(-0.3, 0.3, 3000)
-    p = np.c_[radius * np.cos(a), y, radius * np.sin(a)]
-    n = np.c_[np.cos(a), np.zeros(3000), np.sin(a)]
-    rp, rn = relax_points(p, n, SP, iterations=2)
-    inner = np.abs(rp[:, 1]) < 0.2
-    r = np.linalg.norm(rp[inner][:, [0, 2]], axis=1)
-    assert abs(np.mean(r - radius)) < 0.01 * SP, np.mean(r - radius) / SP  # no shrinking
-    assert np.abs(r - radius).max() < 0.15 * SP, np.abs(r - radius).max() / SP
-    np.testing.assert_allclose(rn, n, atol=1e-12)
+    shifts, devs = [], []
+    for draw in DRAWS:
+        rng = np.random.default_rng(draw)
+        a = rng.uniform(0, 2 * np.pi, 3000)
+        y = rng.uniform(-0.3, 0.3, 3000)
+        p = np.c_[radius * np.cos(a), y, radius * np.sin(a)]
+        n = np.c_[np.cos(a), np.zeros(3000), np.sin(a)]
+        rp, rn = relax_points(p, n, SP, iterations=2)
+        inner = np.abs(rp[:, 1]) < 0.2
+        r = np.linalg.norm(rp[inner][:, [0, 2]], axis=1)
+        shifts.append(abs(np.mean(r - radius)) / SP)  # no shrinking
+        devs.append(np.abs(r - radius).max() / SP)
+        np.testing.assert_allclose(rn, n, atol=1e-12)
+    assert max(shifts) < 0.01 and np.mean(shifts) < 0.005, shifts
+    assert max(devs) < 0.15 and np.mean(devs) < 0.12, devs
 
 
 # ------------------------------------------------------------------ cutting disconnected pieces
@@ -273,8 +296,9 @@ def test_pieces_are_connected_components():
     assert len({lab[0], lab[2500], lab[-1]}) == 3  # the blobs float 5 spacings up: apart
 
 
-def test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error(rng):
-    (p, n, lp), (q, qn, lq) = flowers_scene(rng)
+def _cut_flowers_scene(draw):
+    """One draw of the flowers scene, cut and blended: (warped, blended, cut) seam errors."""
+    (p, n, lp), (q, qn, lq) = flowers_scene(np.random.default_rng(draw))
     box = ([0, 0, -1], [1, 1, 1])
     ramp = overlap_ramp(p, *box, 0.3, 0.3)
     ramp_q = overlap_ramp(q, *box, 0.3, 0.3)
@@ -309,9 +333,19 @@ def test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error(rng):
     blended = seam_error(plain, n, q, qn, edge, SP)
     cut = seam_error(np.concatenate([bp[~drop], q[restore]]), np.concatenate([bn[~drop], qn[restore]]), q, qn,
                      edge, SP)
-    assert cut < 0.5 * blended and cut < 0.5 * warped, (warped, blended, cut)
     # The patch's blob kept on its side is not dragged toward N_k's ground.
     np.testing.assert_array_equal(bp[lp == 1], p[lp == 1])
+    return warped, blended, cut
+
+
+def test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error():
+    """Over 4 draws of the jittered scene (whole pieces in each), the seam error cut / blended
+    and cut / warped: worst < 0.5, mean < 0.2 (measured over 20 draws, 0-19, as native,
+    AVX2 and SSE4: cut / blended mean 0.133 worst 0.138, cut / warped mean 0.131 worst 0.133)."""
+    runs = np.array([_cut_flowers_scene(draw) for draw in DRAWS])
+    warped, blended, cut = runs.T
+    for ratio in (cut / blended, cut / warped):
+        assert ratio.max() < 0.5 and ratio.mean() < 0.2, runs
 
 
 def test_cutting_is_a_no_op_on_a_connected_surface(rng):

@@ -56,25 +56,50 @@ def wave_run():
     return complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3, device=ONE_DEVICE, seed=0)
 
 
-def test_wave_keeps_amplitude_and_period(wave_run):
-    surface, report, timings = wave_run
-    assert report.unreached == 0 and report.targets > 50
-    done = surface.completed
-    p = surface.positions[done].astype(np.float64)
-    h = surface.fit.distance(p)
-    x = surface.fit.to_param(p)[:, 0]
-    amp, period = _sine_fit(x, h)
-    assert abs(amp - AMPLITUDE) <= 0.1 * AMPLITUDE, amp
-    assert abs(period - PERIOD) <= 0.1 * PERIOD, period
+def _wave_numbers(surface, report) -> dict:
+    """The wave's quality numbers asserted on over seeds (relative errors, ratios to the random baseline)."""
+    p = surface.positions[surface.completed].astype(np.float64)
+    amp, period = _sine_fit(surface.fit.to_param(p)[:, 0], surface.fit.distance(p))
     q = report.quality
-    assert q["volume_diff_pct"] < 10
-    assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"]  # neighbours fit together, unlike random copies
-    assert q["hist_distance"] is not None and q["hist_distance"] < 0.5
-    # colours that follow the relief: neighbouring colours fit together, unlike random copies
-    assert q["colour_step_diff_pct"] < q["colour_step_baseline_diff_pct"]
+    assert q["hist_distance"] is not None
+    return {"amplitude": abs(amp / AMPLITUDE - 1), "period": abs(period / PERIOD - 1),
+            "volume_pct": q["volume_diff_pct"], "slope": q["slope_diff_pct"] / q["slope_baseline_diff_pct"],
+            "hist": q["hist_distance"], "hist_baseline": q["hist_distance"] / q["hist_baseline"],
+            "colour_step": q["colour_step_diff_pct"] / q["colour_step_baseline_diff_pct"]}
+
+
+def _assert_over_seeds(runs: list[dict], bounds: dict):
+    for key, (worst, mean) in bounds.items():
+        got = [r[key] for r in runs]
+        assert max(got) < worst and np.mean(got) < mean, (key, got)
+
+
+# Over seeds 0-2, (worst, mean) bounds. Measured over seeds 0-9, the same under native, AVX2 and
+# SSE4, mean / worst (sd): amplitude error 0.009 / 0.023 (0.006), period error 0.010 / 0.022
+# (0.006), volume difference 0.61% / 1.53% (0.49), slope difference / the random baseline's
+# 0.011 / 0.012 (0.002), RGB histogram distance 0.056 / 0.076 (0.014), colour step / the
+# baseline's 0.013 / 0.019 (0.004); bench/RESULTS.md.
+WAVE = {"amplitude": (0.1, 0.05), "period": (0.1, 0.05), "volume_pct": (5, 3), "slope": (0.1, 0.05),
+        "hist": (0.2, 0.12), "colour_step": (0.1, 0.05)}
+
+
+def test_wave_keeps_amplitude_and_period(wave_run):
+    """Seeds 0 (the module's run), 1 and 2: the wave keeps its amplitude and period within
+    10%, neighbours (relief and colour) fit together unlike random copies, on the mean and
+    the worst (WAVE)."""
+    surface, report, timings = wave_run
+    runs = []
+    for seed in range(3):
+        if seed:
+            surface, report, timings = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
+                                                        device=ONE_DEVICE, seed=seed)
+        assert report.unreached == 0 and report.targets > 50
+        assert timings["grow"] > 0 and timings["targets_per_s"] > 0
+        runs.append(_wave_numbers(surface, report))
+    _assert_over_seeds(runs, WAVE)
     # the capture's halves: two periods of one wave, so the same volume and close histograms
+    q = report.quality
     assert q["volume_self_diff_pct"] < 5 and q["hist_self"] is not None and q["hist_self"] < 0.2
-    assert timings["grow"] > 0 and timings["targets_per_s"] > 0
 
 
 def test_baseline_is_a_mean_over_seeded_draws(wave_run):
@@ -293,21 +318,27 @@ def test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram():
     from geosynth.completion import TOLERANCE
     from geosynth.relief_match import Matches
 
-    bal, level = _balance_case()
-    uni, _ = _balance_case()
-    rng, rng_u, offer = np.random.default_rng(1), np.random.default_rng(1), np.random.default_rng(2)
-    for _ in range(300):
-        s = offer.choice(len(level), 12, replace=False)  # a match set: 12 candidates, codes 1000..1500
-        code = offer.integers(1000, 1501, 12).astype(np.uint32)
-        m = Matches(s, s, np.zeros(12, np.int64), code, code / 1e4, np.ones(12, bool), code.min() / 1e4)
-        j = bal.pick(m, rng)
-        adj = code * (1 + bal.penalty * (1 - bal.score(s)) / 2)
-        assert adj[j] <= TOLERANCE * adj.min() + 1e-9  # the 1.1x rule on penalized codes
-        assert code[j] <= TOLERANCE * (1 + bal.penalty) * code.min()
-        bal.add(int(s[j]))
-        uni.add(int(s[rng_u.integers(12)]))  # the paper's uniform pick
-    dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
-    assert dist[0] < 0.5 * dist[1], dist
+    # The histogram distance of the balanced pick / the paper's uniform pick, over 3 draws (case,
+    # picks and offers): measured over draws 0-19, the same under native, AVX2 and SSE4, 0.131
+    # mean, 0.216 worst (sd 0.045).
+    ratios = []
+    for draw in range(3):
+        bal, level = _balance_case(seed=draw)
+        uni, _ = _balance_case(seed=draw)
+        rng, rng_u, offer = (np.random.default_rng([draw, k]) for k in (1, 1, 2))
+        for _ in range(300):
+            s = offer.choice(len(level), 12, replace=False)  # a match set: 12 candidates, codes 1000..1500
+            code = offer.integers(1000, 1501, 12).astype(np.uint32)
+            m = Matches(s, s, np.zeros(12, np.int64), code, code / 1e4, np.ones(12, bool), code.min() / 1e4)
+            j = bal.pick(m, rng)
+            adj = code * (1 + bal.penalty * (1 - bal.score(s)) / 2)
+            assert adj[j] <= TOLERANCE * adj.min() + 1e-9  # the 1.1x rule on penalized codes
+            assert code[j] <= TOLERANCE * (1 + bal.penalty) * code.min()
+            bal.add(int(s[j]))
+            uni.add(int(s[rng_u.integers(12)]))  # the paper's uniform pick
+        dist = [0.5 * np.abs(b.counts / b.n - b.share).sum(1).mean() for b in (bal, uni)]
+        ratios.append(dist[0] / dist[1])
+    assert max(ratios) < 0.5 and np.mean(ratios) < 0.25, ratios
 
 
 def _small_cylinder(seed):
@@ -341,19 +372,25 @@ def test_fit_frames_follow_the_axis_and_keep_same_bits_on_every_device(device_pa
     assert np.array_equal(sa.positions, sb.positions) and np.array_equal(sa.colors, sb.colors)
 
 
+# refine=2 over seeds 0-2, (worst, mean) bounds. Measured over seeds 0-9, the same under native,
+# AVX2 and SSE4, mean / worst (sd): amplitude error 0.011 / 0.023 (0.008), period error 0.010 /
+# 0.022 (0.006), slope / the baseline's 0.008 / 0.012 (0.005), histogram distance / the
+# baseline's 0.52 / 0.73 (0.16).
+WAVE_REFINED = {"amplitude": (0.1, 0.05), "period": (0.1, 0.05), "slope": (0.1, 0.05), "hist_baseline": (1.0, 0.8)}
+
+
 def test_refinement_passes_keep_the_wave_and_change_sources():
     """refine=2 (our extension): every completed target matched again with its whole window;
-    the wave's amplitude and period survive, sources change, nothing is left untextured."""
-    surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
-                                          device=ONE_DEVICE, seed=0, refine=2)
-    assert report.refine == 2 and report.refined > 0 and report.unreached == 0
-    assert any(line.startswith("refinement: 2 passes") for line in report.lines())
-    p = surface.positions[surface.completed].astype(np.float64)
-    amp, period = _sine_fit(surface.fit.to_param(p)[:, 0], surface.fit.distance(p))
-    assert abs(amp - AMPLITUDE) <= 0.1 * AMPLITUDE, amp
-    assert abs(period - PERIOD) <= 0.1 * PERIOD, period
-    q = report.quality
-    assert q["slope_diff_pct"] < q["slope_baseline_diff_pct"] and q["hist_distance"] < q["hist_baseline"]
+    the wave's amplitude and period survive, sources change, nothing is left untextured;
+    over 3 seeds, on the mean and the worst (WAVE_REFINED)."""
+    runs = []
+    for seed in range(3):
+        surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
+                                              device=ONE_DEVICE, seed=seed, refine=2)
+        assert report.refine == 2 and report.refined > 0 and report.unreached == 0
+        assert any(line.startswith("refinement: 2 passes") for line in report.lines())
+        runs.append(_wave_numbers(surface, report))
+    _assert_over_seeds(runs, WAVE_REFINED)
 
 
 def test_refinement_same_bits_on_every_device_and_bad_values(device_pair):
@@ -400,21 +437,31 @@ def test_median_spacing_lays_the_targets_in_the_capture_rows():
 
 def test_tower_keeps_its_ledges_at_the_median_spacing():
     """The tower built-in's parameters, one pass (refine 0, 3x cheaper than its default 2),
-    seed 3: the completed part holds the capture's share of ledge vertices and its mean |h|
-    is closer to the capture's than the random baseline's (the issue's volume target). At the
-    paper's minimum spacing the same run had 8.9% ledges against 10.5% and a 1.49% deficit."""
+    seeds 0-2: the completed part holds the capture's share of ledge vertices and its mean |h|
+    is closer to the capture's than the random baseline's on average (the issue's volume
+    target). At the paper's minimum spacing the seed 3 run had 8.9% ledges against 10.5% and
+    a 1.49% deficit.
+
+    Measured over seeds 0-9 (bench/RESULTS.md): the ledge share's difference 0.0005 mean,
+    0.0038 worst as native and AVX2, 0.0004 / 0.0042 (seed 0) as SSE4; the volume difference /
+    the random baseline's 0.23 mean, 0.60 worst as native and AVX2, but 0.52 mean, 2.19 worst
+    as SSE4: worse than random on seeds 0 (2.19) and 6 (1.26) there. The volume claim holds on
+    average only (seeds 0-2 as SSE4: 0.88), and M4 is not the same bits on every CPU (#40)."""
     from geosynth.completion_examples import tower_example
 
     ex = tower_example()
-    surface, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window,
-                                          rotations=ex.rotations, frames=ex.frames, mu=ex.mu, spacing=ex.spacing,
-                                          device=ONE_DEVICE, seed=3)
-    h = surface.fit.distance(surface.positions.astype(np.float64))
-    ledge_captured, ledge_completed = np.mean(h[surface.captured] > 0.035), np.mean(h[surface.completed] > 0.035)
-    assert abs(ledge_completed - ledge_captured) < 0.004, (ledge_completed, ledge_captured)
-    q = report.quality
-    assert q["volume_diff_pct"] < q["volume_baseline_diff_pct"], q
-    assert report.spacing_rule == "median" and "(the capture's median edge)" in report.lines()[1]
+    ledges, volumes = [], []
+    for seed in range(3):
+        surface, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=ex.window,
+                                              rotations=ex.rotations, frames=ex.frames, mu=ex.mu,
+                                              spacing=ex.spacing, device=ONE_DEVICE, seed=seed)
+        h = surface.fit.distance(surface.positions.astype(np.float64))
+        ledges.append(abs(np.mean(h[surface.completed] > 0.035) - np.mean(h[surface.captured] > 0.035)))
+        q = report.quality
+        volumes.append(q["volume_diff_pct"] / q["volume_baseline_diff_pct"])
+        assert report.spacing_rule == "median" and "(the capture's median edge)" in report.lines()[1]
+    assert max(ledges) < 0.006 and np.mean(ledges) < 0.003, ledges
+    assert max(volumes) < 3 and np.mean(volumes) < 1, volumes
 
 
 def test_median_spacing_same_bits_on_every_device(device_pair):

@@ -80,10 +80,14 @@ def test_fused_tori_are_not_whole():
 
 
 def test_random_noise_scores_low():
+    """Over 3 draws of smoothed noise (0 on each of draws 0-19 as native, AVX2 and SSE4)."""
     d = tori()
-    noise = ndimage.gaussian_filter(np.random.default_rng(0).standard_normal(TORI_SHAPE), 2)
-    noise = (3 * noise / noise.std()).astype(np.float32)
-    assert element_wholeness(d, noise)["score"] < 0.1
+    scores = []
+    for draw in range(3):
+        noise = ndimage.gaussian_filter(np.random.default_rng(draw).standard_normal(TORI_SHAPE), 2)
+        noise = (3 * noise / noise.std()).astype(np.float32)
+        scores.append(element_wholeness(d, noise)["score"])
+    assert max(scores) < 0.1 and np.mean(scores) < 0.05, scores
 
 
 def test_cores_cut_by_the_box_left_out_unless_periodic():
@@ -281,24 +285,36 @@ def test_periodic_output_on_a_refined_grid():
 
 
 def test_builtin_balls_and_terrain_against_random_tiling():
+    """The exemplars score 1 against themselves; randomly tiled, over seeds 0-2, low. Measured
+    over seeds 0-9, the same under native, AVX2 and SSE4 (bench/RESULTS.md): balls' wholeness
+    0.406 mean, 0.604 worst (seed 2; sd 0.100), so the old "< 0.6" on seed 0 was a draw;
+    terrain's slopes 0 on every seed; its overhangs above the exemplar's by 0.829 on average,
+    0.792 at least (sd 0.027)."""
     from geosynth.examples import balls_field, terrain_heights
     from geosynth.volume import synthesize_volume
 
     ex = balls_field(resolution=48)  # the exact distance of the "balls" exemplar, 29 x 48 x 48
     h = float(ex.spacing[0])
     z = ex.shape[0] // 2 * 2
-    tiled = synthesize_volume(ex.values[:z] / np.float32(h), (z, 64, 64), levels=2, block=8, seed=0,
-                              progress=False, baseline=True, spacing=h)
     self_report = structure_report(ex, ex)
     assert self_report["kind"] == "elements" and self_report["elements"]["score"] == 1.0
     assert self_report["elements"]["reference_cores"] == 40
-    assert structure_report(ex, tiled.field)["elements"]["score"] < 0.6
-
     heights = terrain_heights(48, seed=0)
     d = (np.arange(24)[:, None, None] - (4 + 14 * heights.T[None])).astype(np.float32)  # z up, heights [x, y]
-    tiled = synthesize_volume(d, (24, 64, 64), levels=2, block=8, seed=0, progress=False, baseline=True)
-    itself, against = structure_report(d, d), structure_report(d, tiled.field)
-    assert itself["kind"] == against["kind"] == "surface"
+    itself = structure_report(d, d)
+    assert itself["kind"] == "surface"
     assert itself["surface"]["slopes"]["score"] == 1.0 and itself["surface"]["debris"]["output"] == 0.0
-    assert against["surface"]["slopes"]["score"] < 0.5
-    assert against["surface"]["overhangs"]["output"] > itself["surface"]["overhangs"]["output"] + 0.3
+
+    balls, slopes, overhangs = [], [], []
+    for seed in range(3):
+        tiled = synthesize_volume(ex.values[:z] / np.float32(h), (z, 64, 64), levels=2, block=8, seed=seed,
+                                  progress=False, baseline=True, spacing=h)
+        balls.append(structure_report(ex, tiled.field)["elements"]["score"])
+        tiled = synthesize_volume(d, (24, 64, 64), levels=2, block=8, seed=seed, progress=False, baseline=True)
+        against = structure_report(d, tiled.field)
+        assert against["kind"] == "surface"
+        slopes.append(against["surface"]["slopes"]["score"])
+        overhangs.append(against["surface"]["overhangs"]["output"] - itself["surface"]["overhangs"]["output"])
+    assert max(balls) < 0.7 and np.mean(balls) < 0.55, balls
+    assert max(slopes) < 0.5 and np.mean(slopes) < 0.25, slopes
+    assert min(overhangs) > 0.3 and np.mean(overhangs) > 0.6, overhangs

@@ -187,19 +187,32 @@ def test_each_method_same_bits_on_every_device(source, method):
         np.testing.assert_array_equal(other.quantized, runs[0].quantized)
 
 
+# Block distance of each method / random tiling's over 3 seeds: (worst, mean) bounds. Measured
+# over seeds 0-9, the same under native, AVX2 and SSE4 (M1 is exact), mean / worst (sd):
+# paper 0.559 / 0.602 (0.032), graphcut 0.521 / 0.602 (0.039), optimize 0.214 / 0.274 (0.023).
+# The test once asserted < 0.6 on seed 3 alone: paper (seed 7) and graphcut (seed 6) are at 0.602.
+# The paper's scan, with the same settings and seeds, is tests/test_volume.py::test_beats_random_tiling.
+BEATS = {"graphcut": (0.7, 0.65), "optimize": (0.35, 0.3)}
+
+
 def test_methods_beat_random_tiling(source):
     from geosynth.metrics import bidirectional_block_distance
 
-    base = synthesize_volume(source, 32, levels=2, block=8, progress=False, device="cpu", seed=3, baseline=True)
-    assert base.method == "random tiling"
-    q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, device="cpu")["mean"]
-    for method in METHODS:
-        r = synthesize_volume(source, 32, levels=2, block=8, progress=False, device="cpu", seed=3, method=method,
-                              iterations=3)
-        q = bidirectional_block_distance(r.source, r.quantized, 8, samples=40, device="cpu")["mean"]
-        assert q < 0.6 * q_base, method
-    opt = r.levels[-1]
-    assert opt.iterations >= 1 and "texture optimization" in opt.search
+    ratios = {m: [] for m in BEATS}
+    for seed in range(3):
+        kw = dict(levels=2, block=8, progress=False, device="cpu", seed=seed)
+        base = synthesize_volume(source, 32, **kw, baseline=True)
+        assert base.method == "random tiling"
+        q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, seed=seed,
+                                              device="cpu")["mean"]
+        for method in BEATS:
+            r = synthesize_volume(source, 32, **kw, method=method, iterations=3)
+            q = bidirectional_block_distance(r.source, r.quantized, 8, samples=40, seed=seed, device="cpu")["mean"]
+            ratios[method].append(q / q_base)
+        opt = r.levels[-1]
+        assert opt.iterations >= 1 and "texture optimization" in opt.search
+    for method, (worst, mean) in BEATS.items():
+        assert max(ratios[method]) < worst and np.mean(ratios[method]) < mean, (method, ratios[method])
 
 
 def test_bad_method_is_refused(source):

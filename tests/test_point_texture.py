@@ -189,14 +189,28 @@ def test_no_device_given_runs_on_auto(small_weave):
     np.testing.assert_array_equal(a.positions, b.positions)
 
 
+# Weave over 3 seeds: (worst, mean) bounds of each ratio. Measured over seeds 0-9, mean / worst
+# (sd) as native and AVX2 | as SSE4 (bench/RESULTS.md): field distance / random pasting's
+# 0.626 / 0.752 (0.090) | 0.589 / 0.679 (0.067); seam after / before blending 0.621 / 0.692
+# (0.040) | 0.603 / 0.677 (0.053); seam before / random pasting's 0.455 / 0.527 (0.042) |
+# 0.429 / 0.535 (0.051); stray points 0.035 / 0.045 (0.005) | 0.033 / 0.039 (0.004).
+WEAVE_BEATS = {"field": (0.9, 0.75), "seam_after_before": (0.85, 0.72), "seam_before_baseline": (0.7, 0.55),
+               "stray": (0.1, 0.06)}
+
+
 def test_synthesis_beats_random_pasting(one_device, small_weave):
-    _, report, timings = synthesize_point_texture(small_weave, device=one_device, seed=1,
-                                                  **{**SMALL, "quality": True, "quality_samples": 6})
-    q = report.quality
-    assert q["field_distance"][2] < q["field_distance_baseline"][2]
-    assert q["seam_after"] < q["seam_before"] < q["seam_baseline"]
-    assert q["stray"] < 0.1
-    assert set(timings) >= {"search", "warp", "blend", "other", "total"}
+    got = {k: [] for k in WEAVE_BEATS}
+    for seed in range(3):
+        _, report, timings = synthesize_point_texture(small_weave, device=one_device, seed=seed,
+                                                      **{**SMALL, "quality": True, "quality_samples": 6})
+        q = report.quality
+        got["field"].append(q["field_distance"][2] / q["field_distance_baseline"][2])
+        got["seam_after_before"].append(q["seam_after"] / q["seam_before"])
+        got["seam_before_baseline"].append(q["seam_before"] / q["seam_baseline"])
+        got["stray"].append(q["stray"])
+        assert set(timings) >= {"search", "warp", "blend", "other", "total"}
+    for key, (worst, mean) in WEAVE_BEATS.items():
+        assert max(got[key]) < worst and np.mean(got[key]) < mean, (key, got[key])
 
 
 @pytest.mark.parametrize("name, expected", [("flowers", True), ("heightfield", False), ("chainmail", False),
@@ -230,19 +244,24 @@ def test_blending_lowers_the_seam_error_on_flowers_over_seeds(one_device):
 
 
 def test_tileable_output_continues_across_its_borders(one_device, wavy):
-    pts, report, _ = synthesize_point_texture(wavy, device=one_device, tileable=True, **SMALL)
-    assert report.tileable
-    w = np.asarray(report.size)
-    p, n = pts.positions.astype(np.float64), pts.normals
-    assert p[:, 0].min() >= 0 and p[:, 0].max() < w[0]
-    h = 2 * report.spacing
-    # the points near the right border, moved by one period, lie on the surface of those near the left
-    right = p[:, 0] > w[0] - 2 * h
-    left = p[:, 0] < 4 * h
-    moved = p[right] - [w[0], 0, 0]
-    d, _ = pointset_distance(np.r_[p[left], moved].astype(np.float32), np.r_[n[left], n[right]],
-                             moved.astype(np.float32), radius=h, device=one_device)
-    assert np.median(np.abs(d)) < 0.3 * report.spacing
+    """The points near the right border, moved by one period, lie on the surface of those near
+    the left: median distance in spacings over seeds 0-2, worst < 0.3 and mean < 0.18 (measured
+    over seeds 0-19 as native, AVX2 and SSE4: 0.084 mean, 0.147 worst, sd 0.039)."""
+    medians = []
+    for seed in range(3):
+        pts, report, _ = synthesize_point_texture(wavy, device=one_device, tileable=True, seed=seed, **SMALL)
+        assert report.tileable
+        w = np.asarray(report.size)
+        p, n = pts.positions.astype(np.float64), pts.normals
+        assert p[:, 0].min() >= 0 and p[:, 0].max() < w[0]
+        h = 2 * report.spacing
+        right = p[:, 0] > w[0] - 2 * h
+        left = p[:, 0] < 4 * h
+        moved = p[right] - [w[0], 0, 0]
+        d, _ = pointset_distance(np.r_[p[left], moved].astype(np.float32), np.r_[n[left], n[right]],
+                                 moved.astype(np.float32), radius=h, device=one_device)
+        medians.append(np.median(np.abs(d)) / report.spacing)
+    assert max(medians) < 0.3 and np.mean(medians) < 0.18, medians
 
 
 # ------------------------------------------------------------------ bad input

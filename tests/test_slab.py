@@ -122,13 +122,22 @@ def test_defaults_grow_a_thin_plate_that_they_refused(one_device):
     source", now a slab grown across, one piece, slopes like the exemplar's."""
     from geosynth.volume import synthesize_geometry
 
-    r = synthesize_geometry("domes", 96, source_resolution=48, device=one_device, progress=False,
-                            quality_samples=20, smooth=0, iterations=2)
-    assert r.volume.slab and r.volume.levels[-1].block == (12, 16, 16)
-    assert r.method == "graphcut"  # the default for a slab
-    s = r.quality["synthesis"]["structure"]["surface"]
-    assert s["debris"]["output"] <= 0.005 and s["slopes"]["score"] >= 0.8
-    assert r.quality["synthesis"]["mean"] < 0.5 * r.quality["random tiling"]["mean"]
+    # Over seeds 0-2, on the mean and the worst. Measured over seeds 0-9, the same under native,
+    # AVX2 and SSE4 (M1 is exact; bench/RESULTS.md): debris 0 on every seed; slopes score 0.980
+    # mean, 0.955 worst (sd 0.013); block distance / random tiling's 0.088 mean, 0.113 worst (sd 0.020).
+    debris, slopes, ratios = [], [], []
+    for seed in range(3):
+        r = synthesize_geometry("domes", 96, source_resolution=48, device=one_device, progress=False, seed=seed,
+                                quality_samples=20, smooth=0, iterations=2)
+        assert r.volume.slab and r.volume.levels[-1].block == (12, 16, 16)
+        assert r.method == "graphcut"  # the default for a slab
+        s = r.quality["synthesis"]["structure"]["surface"]
+        debris.append(s["debris"]["output"])
+        slopes.append(s["slopes"]["score"])
+        ratios.append(r.quality["synthesis"]["mean"] / r.quality["random tiling"]["mean"])
+    assert max(debris) <= 0.005 and np.mean(debris) <= 0.0025, debris
+    assert min(slopes) >= 0.9 and np.mean(slopes) >= 0.93, slopes
+    assert max(ratios) < 0.2 and np.mean(ratios) < 0.15, ratios
 
 
 def test_random_tiling_baseline_is_one_whatever_the_method(one_device, domes_source):

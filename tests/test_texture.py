@@ -310,10 +310,15 @@ def test_texel_search_matches_brute_force(device, rng, coarse, tileable):
 def test_matching_a_flat_grid_reproduces_the_exemplar(device):
     tex = texture_example("noise", 24, seed=4)
     ps = grid_points(30, 30, spacing=1.0)  # texel spacing: offsets are whole texels
-    # batched (the default): far below random colouring
-    out, rep = texture_points(ps, tex, method="match", k=24, device=device, seed=1, quality_samples=40)
-    assert rep.searches["launches"] < rep.searches["count"] / 3  # several points per launch
-    assert rep.error["result"] < 0.05 * rep.error["random"], rep.error
+    # batched (the default): far below random colouring, over 3 seeds. Measured over seeds 0-9,
+    # the same under native, AVX2 and SSE4 (M3 is exact): result / random 0.0215 mean, 0.0494
+    # worst (seed 7; sd 0.023): an exact copy (0) on half the seeds, 0.03-0.05 on the others.
+    ratios = []
+    for seed in range(3):
+        out, rep = texture_points(ps, tex, method="match", k=24, device=device, seed=seed, quality_samples=40)
+        assert rep.searches["launches"] < rep.searches["count"] / 3  # several points per launch
+        ratios.append(rep.error["result"] / rep.error["random"])
+    assert max(ratios) < 0.06 and np.mean(ratios) < 0.04, ratios
     # the paper's sequential order (one score_gather per point): a copy of the exemplar
     out, rep = texture_points(ps, tex, method="match", k=24, device=device, seed=1, quality_samples=40, batch=1)
     assert rep.matched_fraction == 1.0 and out.colors is not None
@@ -334,16 +339,25 @@ def test_hybrid_colours_every_point_and_is_close_to_parameterization(one_device)
     tex = texture_example("noise", 32, seed=0)
     ps = point_model("sphere", 2500, seed=0)
     dev = one_device
-    out, rep = texture_points(ps, tex, method="hybrid", device=dev, seed=2, quality_samples=50)
-    assert out.colors is not None and len(out.colors) == len(ps)
-    assert 0 < rep.gap_fraction < rep.matched_fraction < 1  # gaps widened, then matched
-    assert rep.error["result"] < 0.15 * rep.error["random"]
-    # Without widening, matching only the parameterization's own gaps: as good as the
-    # parameterization's blend within 15%. (Better would be <=; the eq. 5 SSD favours
-    # the blurred blends of the gaps, so matched gaps measure about equal, not better.)
-    out0, rep0 = texture_points(ps, tex, method="hybrid", pattern_size=0, device=dev, seed=2, quality_samples=50)
-    assert rep0.matched_fraction == rep0.gap_fraction
-    assert rep0.error["result"] <= 1.15 * rep0.error["parameterization"], rep0.error
+    # Over 3 seeds, on the mean and the worst. Measured over seeds 0-9, the same under native,
+    # AVX2 and SSE4 (M3 is exact): result / random 0.088 mean, 0.097 worst (sd 0.008); gaps
+    # matched / the parameterization's blend (below) 1.059 mean, 1.228 worst (sd 0.086).
+    vs_random, vs_param = [], []
+    for seed in range(3):
+        out, rep = texture_points(ps, tex, method="hybrid", device=dev, seed=seed, quality_samples=50)
+        assert out.colors is not None and len(out.colors) == len(ps)
+        assert 0 < rep.gap_fraction < rep.matched_fraction < 1  # gaps widened, then matched
+        vs_random.append(rep.error["result"] / rep.error["random"])
+        # Without widening, matching only the parameterization's own gaps: about as good as
+        # the parameterization's blend. (Better would be <=; the eq. 5 SSD favours the blurred
+        # blends of the gaps, so matched gaps measure about equal, not better.) It was "within
+        # 15%" on seed 2: over seeds 0-9 it is 1.06 on average, 1.16 and 1.23 on seeds 4 and 9.
+        out0, rep0 = texture_points(ps, tex, method="hybrid", pattern_size=0, device=dev, seed=seed,
+                                    quality_samples=50)
+        assert rep0.matched_fraction == rep0.gap_fraction
+        vs_param.append(rep0.error["result"] / rep0.error["parameterization"])
+    assert max(vs_random) < 0.15 and np.mean(vs_random) < 0.12, vs_random
+    assert max(vs_param) < 1.35 and np.mean(vs_param) < 1.15, vs_param
 
 
 def test_multilevel_and_coherent_matching(one_device):
@@ -351,11 +365,17 @@ def test_multilevel_and_coherent_matching(one_device):
     ps = point_model("torus", 1000, seed=0)
     out2, rep2 = texture_points(ps, tex, method="match", levels=2, k=16, device=one_device, quality=False)
     assert rep2.levels == 2 and rep2.searches["count"] == len(ps)  # the coarsest level is random, no search
-    out_c, rep_c = texture_points(ps, tex, method="match", coherent=True, k=16, device=one_device, quality_samples=15)
-    assert rep_c.searches.get("count", 0) < 0.2 * len(ps)  # coherent: most points need no full search
-    assert rep_c.error["result"] < 0.5 * rep_c.error["random"]
-    for out in (out2, out_c):
-        assert out.colors.shape == (len(ps), 3)
+    # coherent, over 3 seeds: result / random measured over seeds 0-9, the same under native,
+    # AVX2 and SSE4 (M3 is exact), 0.209 mean, 0.267 worst (sd 0.039)
+    ratios = []
+    for seed in range(3):
+        out_c, rep_c = texture_points(ps, tex, method="match", coherent=True, k=16, device=one_device, seed=seed,
+                                      quality_samples=15)
+        assert rep_c.searches.get("count", 0) < 0.2 * len(ps)  # coherent: most points need no full search
+        assert out_c.colors.shape == (len(ps), 3)
+        ratios.append(rep_c.error["result"] / rep_c.error["random"])
+    assert max(ratios) < 0.4 and np.mean(ratios) < 0.33, ratios
+    assert out2.colors.shape == (len(ps), 3)
 
 
 @pytest.mark.parametrize("tileable, subtexel, m, prefilled", [(True, True, 8, False), (False, True, 8, True),

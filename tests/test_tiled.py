@@ -155,25 +155,37 @@ def test_store_and_meshes(terrain, clients, tmp_path):
 
 
 def test_seams_as_good_as_inside(clients):
-    # 64 x 64 targets, 2 x 2 tiles of 32: the blocks across a tile border are matched by the
-    # exemplar as well as the blocks inside a tile (block distance within 10%).
-    for name in ("terrain", "chainmail"):
-        src, _, _ = exemplar_source(name, 32, 2)
-        shape = (src.shape[0] // 2 * 2, 64, 64)
-        r = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], **dict(KW, iterations=2, seed=1))
-        s = seam_report(r.source, r.quantized, r.grid, 8, stride=2, device=ONE_DEVICE)
-        assert s["seam_blocks"] > 100 and s["interior_blocks"] > 100
-        assert s["ratio"] <= 1.10, (name, s)
-        if name == "terrain":
-            # one smooth surface: a step at the borders would show. Measured 1.21; the same columns of the
-            # untiled field 1.42, independent tiles (phases=1) 1.46, the schedule without feathering 1.79.
-            assert s["step_ratio"] <= 1.35, s
-            # the block distance does not tell the schedule from independent tiles (both 0.93-1.02); the
-            # step does: independent tiles 1.46 and 1.53 against the schedule's 1.21 and 1.30 (seeds 1, 2)
-            naive = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], phases=1,
-                                            **dict(KW, iterations=2, seed=1))
-            n = seam_report(naive.source, naive.quantized, naive.grid, 8, stride=2, device=ONE_DEVICE)
-            assert n["step_ratio"] >= s["step_ratio"] + 0.15, (s, n)
+    """64 x 64 targets, 2 x 2 tiles of 32, over seeds 0-2: the blocks across a tile border are
+    matched by the exemplar as well as the blocks inside a tile (block distance seam / inside
+    within 10% on average), and on the terrain (one smooth surface: a step at the borders would
+    show) the step across the borders is near the one inside, and well below independent tiles'.
+
+    Measured over seeds 0-9, the same under native, AVX2 and SSE4 (M1 is exact; bench/RESULTS.md),
+    mean / worst (sd): seam / inside terrain 0.963 / 1.035 (0.064), chainmail 0.985 / 1.122
+    (seed 5; 0.074); terrain step ratio 1.225 / 1.409 (seed 9; 0.112); independent tiles'
+    (phases=1) step ratio above the schedule's by 0.284 / 0.187 (0.073). Once asserted on seed 1
+    alone: seam / inside <= 1.10 and step <= 1.35 each fail on one seed of ten. (On seed 1 the
+    same columns of the untiled field measured 1.42, the schedule without feathering 1.79.)"""
+    ratios, steps, gains = {"terrain": [], "chainmail": []}, [], []
+    for seed in range(3):
+        for name in ("terrain", "chainmail"):
+            src, _, _ = exemplar_source(name, 32, 2)
+            shape = (src.shape[0] // 2 * 2, 64, 64)
+            r = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], **dict(KW, iterations=2, seed=seed))
+            s = seam_report(r.source, r.quantized, r.grid, 8, stride=2, device=ONE_DEVICE)
+            assert s["seam_blocks"] > 100 and s["interior_blocks"] > 100
+            ratios[name].append(s["ratio"])
+            if name == "terrain":
+                steps.append(s["step_ratio"])
+                # the block distance does not tell the schedule from independent tiles; the step does
+                naive = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[4], phases=1,
+                                                **dict(KW, iterations=2, seed=seed))
+                n = seam_report(naive.source, naive.quantized, naive.grid, 8, stride=2, device=ONE_DEVICE)
+                gains.append(n["step_ratio"] - s["step_ratio"])
+    for name, got in ratios.items():
+        assert max(got) <= 1.25 and np.mean(got) <= 1.10, (name, got)
+    assert max(steps) <= 1.55 and np.mean(steps) <= 1.35, steps
+    assert min(gains) >= 0.1 and np.mean(gains) >= 0.18, gains
 
 
 def test_killed_worker_leaves_the_output_identical(terrain):

@@ -32,14 +32,26 @@ def test_the_seed_decides_the_field(device, source):
     assert not np.array_equal(run(source, device, seed=4).quantized, first)
 
 
+SEEDS = range(3)  # quality claims over seeds (issue 40): the mean and the worst, never one picked seed
+
+
 def test_beats_random_tiling(device, source):
-    synth = run(source, device)
-    base = run(source, device, baseline=True)
-    assert synth.quantized.shape == (32, 32, 32)
-    q_synth = bidirectional_block_distance(synth.source, synth.quantized, 8, samples=40, device=device)
-    q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, device=device)
-    assert q_synth["mean"] < 0.75 * q_base["mean"]
-    assert synth.levels[-1].mean_match_distance < base.levels[-1].mean_match_distance
+    """Block distance of the synthesis / random tiling's, over 3 seeds (synthesis, tiling and
+    the metric's draw): worst < 0.7, mean < 0.65; the last level's mean match distance
+    likewise, worst < 0.4, mean < 0.32. Measured over seeds 0-9, the same under native,
+    AVX2 and SSE4 (M1 is exact): block 0.559 mean, 0.602 worst (sd 0.032); match 0.248
+    mean, 0.271 worst (sd 0.012); bench/RESULTS.md."""
+    block, match = [], []
+    for seed in SEEDS:
+        synth = run(source, device, seed=seed)
+        base = run(source, device, seed=seed, baseline=True)
+        assert synth.quantized.shape == (32, 32, 32)
+        q_synth = bidirectional_block_distance(synth.source, synth.quantized, 8, samples=40, seed=seed, device=device)
+        q_base = bidirectional_block_distance(base.source, base.quantized, 8, samples=40, seed=seed, device=device)
+        block.append(q_synth["mean"] / q_base["mean"])
+        match.append(synth.levels[-1].mean_match_distance / base.levels[-1].mean_match_distance)
+    assert max(block) < 0.7 and np.mean(block) < 0.65, block
+    assert max(match) < 0.4 and np.mean(match) < 0.32, match
 
 
 def test_every_target_sample_comes_from_the_source_at_one_level(device, source):
@@ -70,13 +82,24 @@ def _seam_and_interior_distance(out, src, block, device):
     return float(np.mean(seam)), float(np.mean(interior))
 
 
-def test_tileable_output_wraps(device, source):
-    tiled = run(source, device, tileable=True)
-    seam, interior = _seam_and_interior_distance(tiled.quantized, tiled.source, 8, device)
-    assert seam < 2.0 * interior + 50
-    plain = run(source, device, tileable=False)
-    seam_plain, interior_plain = _seam_and_interior_distance(plain.quantized, plain.source, 8, device)
-    assert seam_plain > seam  # without wrapping the faces do not continue each other
+def test_tileable_output_wraps(one_device, source):
+    """Over 3 seeds (one device: the fields are the same bits on every device): the tileable
+    field's blocks across the wrap seam against inside, seam / (2 interior + 50) worst < 1
+    and mean < 0.85; the plain field's seam is worse than the tileable one's on average,
+    mean (plain - tileable) > 0. Measured over seeds 0-9, the same under native, AVX2 and
+    SSE4 (M1 is exact): bound 0.724 mean, 0.954 worst (sd 0.119); plain - tileable 80 mean,
+    sd 62, and -18.9 worst: on seed 7 of 10 the plain seam (12 sampled blocks) scored
+    better, so the old claim, plain > tileable on seed 3, holds on average, not per seed."""
+    bound, gain = [], []
+    for seed in SEEDS:
+        tiled = run(source, one_device, seed=seed, tileable=True)
+        seam, interior = _seam_and_interior_distance(tiled.quantized, tiled.source, 8, one_device)
+        bound.append(seam / (2.0 * interior + 50))
+        plain = run(source, one_device, seed=seed, tileable=False)
+        seam_plain, _ = _seam_and_interior_distance(plain.quantized, plain.source, 8, one_device)
+        gain.append(seam_plain - seam)  # without wrapping the faces do not continue each other
+    assert max(bound) < 1 and np.mean(bound) < 0.85, bound
+    assert np.mean(gain) > 0, gain
 
 
 def test_downsample_and_positions():
@@ -135,23 +158,35 @@ def test_linear_tree_and_cascade_searches_give_the_same_field(device, source):
     np.testing.assert_array_equal(linear.quantized, cascade.quantized)
 
 
+# Block distance synthesis / random tiling at 32 across over 3 seeds: (worst, mean) bounds, from
+# seeds 0-9 at 32 across, the same under native, AVX2 and SSE4 (bench/RESULTS.md): terrain mean
+# 0.154, worst 0.218 (sd 0.037); balls mean 0.278, worst 0.332 (sd 0.037). (At 48 across, the
+# size before issue 40: terrain 0.130 / 0.171, balls 0.253 / 0.313; the test asserted < 1 on seed 0.)
+GEOMETRY_BEATS = {"terrain": (0.35, 0.25), "balls": (0.45, 0.38)}
+
+
 @pytest.mark.parametrize("name", ["terrain", "balls"])
 def test_geometry_beats_random_tiling_on_built_in_exemplars(name, one_device):
-    """Mesh in, mesh out on a built-in exemplar (small settings for CI): a closed
-    surface, and matched blocks closer to the exemplar's than randomly tiled ones."""
+    """Mesh in, mesh out on a built-in exemplar (small settings for CI): a closed surface,
+    and matched blocks closer to the exemplar's than randomly tiled ones, over 3 seeds on
+    the mean and the worst (GEOMETRY_BEATS)."""
     from geosynth.volume import synthesize_geometry
 
-    r = synthesize_geometry(name, 48, source_resolution=32, levels=2, block=8, quality_samples=40,
-                            device=one_device, progress=False, smooth=2, iterations=[4, 2])
-    assert r.mesh.is_watertight and len(r.mesh.faces) > 100
-    assert r.volume.quantized.shape[1:] == (48, 48)
-    assert r.volume.quantized.shape[0] == r.exemplar_field.shape[0]  # the slab keeps its thickness
-    assert r.quality["synthesis"]["mean"] < r.quality["random tiling"]["mean"]
-    # the default, "auto": graphcut for a slab, optimize otherwise
-    assert r.method == r.quality["synthesis"]["method"] == ("graphcut" if r.volume.slab else "optimize")
-    kind = "surface" if name == "terrain" else "elements"
-    for side in ("synthesis", "random tiling"):
-        assert r.quality[side]["structure"]["kind"] == kind
+    ratios = []
+    for seed in SEEDS:
+        r = synthesize_geometry(name, 32, source_resolution=32, levels=2, block=8, quality_samples=40, seed=seed,
+                                device=one_device, progress=False, smooth=2, iterations=[4, 2])
+        assert r.mesh.is_watertight and len(r.mesh.faces) > 100
+        assert r.volume.quantized.shape[1:] == (32, 32)
+        assert r.volume.quantized.shape[0] == r.exemplar_field.shape[0]  # the slab keeps its thickness
+        ratios.append(r.quality["synthesis"]["mean"] / r.quality["random tiling"]["mean"])
+        # the default, "auto": graphcut for a slab, optimize otherwise
+        assert r.method == r.quality["synthesis"]["method"] == ("graphcut" if r.volume.slab else "optimize")
+        kind = "surface" if name == "terrain" else "elements"
+        for side in ("synthesis", "random tiling"):
+            assert r.quality[side]["structure"]["kind"] == kind
+    worst, mean = GEOMETRY_BEATS[name]
+    assert max(ratios) < worst and np.mean(ratios) < mean, ratios
 
 
 def test_exemplar_grid_and_target_size():
