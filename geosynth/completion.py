@@ -71,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.cpu_exact import norm3
+from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods)
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
@@ -516,7 +516,12 @@ class _Balance:
         b = self.bins[:, samples]  # (F, k)
         f = np.arange(len(b))[:, None]
         d = np.clip(self.share[f, b] * (self.n + 1) - self.counts[f, b], -1.0, 1.0)
-        return self.feature_weight @ d
+        # the weighted sum in a fixed order, elementwise: BLAS's gemv (feature_weight @ d) rounds by
+        # the CPU, and the score decides which matches are drawn (issue 40)
+        out = self.feature_weight[0] * d[0]
+        for f in range(1, len(d)):
+            out = out + self.feature_weight[f] * d[f]
+        return out
 
     def pick(self, m, rng: np.random.Generator) -> int:
         """Index into the arrays of ``m`` (a non-empty Matches found with tolerance
@@ -525,7 +530,7 @@ class _Balance:
         score = self.score(m.sample)
         adj = m.code.astype(np.float64) * (1.0 + self.penalty * (1.0 - score) / 2)
         sel = np.flatnonzero(adj <= TOLERANCE * adj.min())
-        w = np.exp(self.strength * (score[sel] - score[sel].max()))
+        w = exp_fixed(self.strength * (score[sel] - score[sel].max()))  # not np.exp: AVX-512's rounds otherwise
         cum = np.cumsum(w)
         return int(sel[min(np.searchsorted(cum, rng.random() * cum[-1], side="right"), len(sel) - 1)])
 
@@ -639,7 +644,7 @@ def _pairs(rs: ReliefSurface, part: np.ndarray):
         return None
     b = rs.base[ids]
     pairs = cKDTree(b).query_pairs(1.3 * rs.spacing, output_type="ndarray")
-    length = np.linalg.norm(b[pairs[:, 0]] - b[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
+    length = norm3(b[pairs[:, 0]] - b[pairs[:, 1]]) if len(pairs) else np.zeros(0)
     keep = length >= 0.7 * rs.spacing
     if not keep.any():
         return None

@@ -134,7 +134,10 @@ def golf_example(seed: int = 0, delta: float = 0.065, dimples: int = 72) -> Comp
     count = int(4 * math.pi / (delta * delta * math.sqrt(3) / 2))
     d = _fibonacci(count)
     centres = _fibonacci(dimples)
-    cosang = np.clip(d @ centres.T, -1, 1)
+    # d . centre in a fixed order, elementwise (BLAS's d @ centres.T rounds by the CPU: 158
+    # coordinates of the default capture moved under SSE4; issue 40)
+    cosang = np.clip(d[:, None, 0] * centres[None, :, 0] + d[:, None, 1] * centres[None, :, 1]
+                     + d[:, None, 2] * centres[None, :, 2], -1, 1)
     ang = np.arccos(cosang.max(1))
     radius = 0.55 * math.sqrt(4 * math.pi / dimples) / 2 * 1.6
     depth = 0.035

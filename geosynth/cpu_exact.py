@@ -11,9 +11,12 @@ arbiters do), so that M2 gives the same output on any machine.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["exp_fixed", "log_fixed", "norm3", "round_log_f32", "solve_fixed", "sum_products_f32", "times3x3"]
+__all__ = ["dot3", "eigh3_fixed", "exp_fixed", "gram_fixed", "log_fixed", "lstsq_fixed", "norm3", "round_log_f32", "solve_fixed",
+           "sum_products_f32", "times3x3", "unit_fixed", "vdot_fixed"]
 
 
 def times3x3(p: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -168,3 +171,85 @@ def exp_fixed(x: np.ndarray) -> np.ndarray:
     c = r - z * (_EP[0] + z * (_EP[1] + z * (_EP[2] + z * (_EP[3] + z * _EP[4]))))
     y = 1.0 - ((lo - (r * c) / (2.0 - c)) - hi)
     return np.ldexp(y, k.astype(np.int64))
+
+
+def dot3(p: np.ndarray, v) -> np.ndarray:
+    """``p @ v`` for (k, 3) p and a (3,) v in a fixed order, (p0 v0 + p1 v1) + p2 v2: (k,)
+    float64, the same bits on every CPU (BLAS's gemv is not)."""
+    v = np.asarray(v, np.float64)
+    return p[:, 0] * v[0] + p[:, 1] * v[1] + p[:, 2] * v[2]
+
+
+def vdot_fixed(a, b) -> float:
+    """The dot product of two short 1-D float64 vectors, summed left to right in Python
+    floats (``a @ b`` and ``np.linalg.norm`` of a vector call BLAS's ddot)."""
+    s = 0.0
+    for x, y in zip(np.asarray(a, np.float64).tolist(), np.asarray(b, np.float64).tolist()):
+        s += x * y
+    return s
+
+
+def unit_fixed(d) -> np.ndarray:
+    """``d / |d|`` for a short 1-D vector, the length from :func:`vdot_fixed`."""
+    d = np.asarray(d, np.float64)
+    return d / math.sqrt(vdot_fixed(d, d))
+
+
+def gram_fixed(a: np.ndarray) -> np.ndarray:
+    """``a.T @ a`` for an (n, m) float64 ``a`` with small m: each entry one NumPy sum of
+    elementwise products (pairwise summation in a fixed order), the same bits on every CPU."""
+    a = np.asarray(a, np.float64)
+    m = a.shape[1]
+    g = np.empty((m, m))
+    for i in range(m):
+        for j in range(i, m):
+            g[i, j] = g[j, i] = float(np.sum(a[:, i] * a[:, j]))
+    return g
+
+
+def lstsq_fixed(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """The least-squares solution of ``a x = b`` ((n, m) with small m, (n,)) by the normal
+    equations, their sums in a fixed order (:func:`gram_fixed`) and solved by
+    :func:`solve_fixed`: the same bits on every CPU, where LAPACK's lstsq is not. Squares
+    the condition number: centre and scale the columns first. None when singular."""
+    a = np.asarray(a, np.float64)
+    rhs = np.array([float(np.sum(a[:, i] * b)) for i in range(a.shape[1])])
+    x = solve_fixed(gram_fixed(a), rhs[:, None])
+    return None if x is None else x[:, 0]
+
+
+def eigh3_fixed(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and unit eigenvectors (columns) of a symmetric 3x3 float64
+    matrix, as ``np.linalg.eigh`` returns them, by cyclic Jacobi rotations in Python floats
+    (+ - * / and sqrt, correctly rounded on every CPU; LAPACK's eigh is not)."""
+    a = [[float(x) for x in row] for row in np.asarray(c, np.float64)]
+    v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    for _ in range(50):
+        off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2]
+        scale = a[0][0] * a[0][0] + a[1][1] * a[1][1] + a[2][2] * a[2][2]
+        if off == 0.0 or off <= 1e-40 * scale:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            apq = a[p][q]
+            if apq == 0.0:
+                continue
+            theta = (a[q][q] - a[p][p]) / (2.0 * apq)
+            t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+            cs = 1.0 / math.sqrt(t * t + 1.0)
+            sn = t * cs
+            for k in range(3):  # columns p, q of a
+                akp, akq = a[k][p], a[k][q]
+                a[k][p], a[k][q] = cs * akp - sn * akq, sn * akp + cs * akq
+            for k in range(3):  # rows p, q
+                apk, aqk = a[p][k], a[q][k]
+                a[p][k], a[q][k] = cs * apk - sn * aqk, sn * apk + cs * aqk
+            a[p][q] = a[q][p] = 0.0
+            for k in range(3):
+                vkp, vkq = v[k][p], v[k][q]
+                v[k][p], v[k][q] = cs * vkp - sn * vkq, sn * vkp + cs * vkq
+    w = [a[0][0], a[1][1], a[2][2]]
+    order = sorted(range(3), key=lambda i: (w[i], i))
+    vals = np.array([w[i] for i in order])
+    vecs = np.array([[v[k][i] for i in order] for k in range(3)])
+    vecs /= np.sqrt(vecs[0] * vecs[0] + vecs[1] * vecs[1] + vecs[2] * vecs[2])[None, :]
+    return vals, vecs

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth.arrays import DeviceArray
+from geosynth.cpu_exact import exp_fixed, norm3
 
 FRAME_ONE = 1 << 14  # a unit frame component
 SCORE_ONE = 1 << 24  # the code of an ssd of 1.0
@@ -58,13 +59,13 @@ def paper_frames(normals: np.ndarray) -> np.ndarray:
         (V, 3, 3) float64, rows u, v, n.
     """
     n = np.asarray(normals, np.float64).reshape(-1, 3)
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    n = n / norm3(n)[:, None]  # norm3: the same bits on every CPU (issue 40)
     x, y, z = n[:, 0], n[:, 1], n[:, 2]
     k = np.argmin(np.abs(n), axis=1)  # first minimum: x before y before z
     zero = np.zeros_like(x)
     u = np.where((k == 0)[:, None], np.stack([zero, -z, y], 1),
                  np.where((k == 1)[:, None], np.stack([z, zero, -x], 1), np.stack([-y, x, zero], 1)))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    u /= norm3(u)[:, None]
     v = np.cross(n, u)
     return np.stack([u, v, n], axis=1)
 
@@ -213,7 +214,7 @@ class ReliefIndex:
         if v < 3:
             _fail("base", f"{v} vertices", "pass a triangulation of at least 3 vertices")
         normals = _float_array("normals", normals, (3,), v)
-        lengths = np.linalg.norm(normals, axis=1)
+        lengths = norm3(normals)
         if np.any(lengths < 1e-12):
             _fail("normals", f"{int((lengths < 1e-12).sum())} zero normals", "pass unit normals of the fit")
         disp = _float_array("displacements", displacements, (3,), v)
@@ -300,7 +301,7 @@ class ReliefIndex:
         # walk starts (a hint only: any start gives a deterministic partner, the same on every device)
         from pykdtree.kdtree import KDTree
 
-        cell = float(np.median(np.linalg.norm(base[e[:, 0]] - base[e[:, 1]], axis=1)))
+        cell = float(np.median(norm3(base[e[:, 0]] - base[e[:, 1]])))
         cell = cell if cell > 0 else quantum
         k = np.arange(-STENCIL_K, STENCIL_K + 1) * cell
         a, b = np.meshgrid(k, k, indexing="ij")
@@ -373,7 +374,9 @@ class ReliefIndex:
 def _cos_sin(r: np.ndarray, n_rotations: int) -> tuple[np.ndarray, np.ndarray]:
     """cos and sin of 2 pi r / R, exact where they are 0 or +-1."""
     a = 2 * np.pi * np.asarray(r, np.float64) / n_rotations
-    c, s = np.cos(a), np.sin(a)
+    # the C library's scalar cos and sin, not NumPy's (AVX-512 has its own SIMD ones; issue 40)
+    c = np.array([math.cos(x) for x in a.reshape(-1).tolist()]).reshape(a.shape)
+    s = np.array([math.sin(x) for x in a.reshape(-1).tolist()]).reshape(a.shape)
     c = np.where(np.abs(c - np.rint(c)) < 1e-12, np.rint(c), c)
     s = np.where(np.abs(s - np.rint(s)) < 1e-12, np.rint(s), s)
     return c, s
@@ -490,7 +493,8 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
     rel_b = index.base[nb] - index.base[t_of]
     d2 = np.einsum("ij,ij->i", rel_b, rel_b)
     d2min = np.minimum.reduceat(d2, qs[:-1])
-    w = np.exp(-(d2 - d2min[qid]) / (2.0 * sigma * sigma))  # relative to the largest weight of the query
+    # relative to the largest weight of the query; exp_fixed, not np.exp: AVX-512's rounds otherwise (issue 40)
+    w = exp_fixed(-(d2 - d2min[qid]) / (2.0 * sigma * sigma))
     wi = np.maximum(1, np.rint(WEIGHT_ONE * w)).astype(np.int64)
     order = np.lexsort((nb, -wi, qid))  # by decreasing weight, ties by id, within a query
     qid, nb, rel_b, wi, t_of = qid[order], nb[order], rel_b[order], wi[order], t_of[order]
@@ -513,8 +517,8 @@ def neighbourhood_queries(index: ReliefIndex, targets, nbr_start, nbr, sigma: fl
     cells = np.where(inside, (cu + STENCIL_K) * side + cv + STENCIL_K, -1).astype(np.int32)
     chain = np.zeros(len(nb), np.int32)
     if len(nb) > 1:
-        step = np.linalg.norm(o[1:] - o[:-1], axis=1)
-        chain[1:] = (step < np.linalg.norm(o[1:], axis=1)) & (qid[1:] == qid[:-1])
+        step = norm3(o[1:] - o[:-1])
+        chain[1:] = (step < norm3(o[1:])) & (qid[1:] == qid[:-1])
     total = np.add.reduceat(wi, qs[:-1]).astype(np.float64)
     ks = mu * SCORE_ONE / (total * index.shape_norm_q2)
     kc = (1.0 - mu) * SCORE_ONE / (total * COLOUR_RANGE2)

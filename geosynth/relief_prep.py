@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
 __all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",
@@ -176,7 +177,7 @@ def _triangulate(fit: SurfaceFit, base: np.ndarray, param: np.ndarray) -> np.nda
 
     if fit.kind == "sphere":
         d = base - fit.center
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        d /= norm3(d)[:, None]
         hull = ConvexHull(d)
         faces = hull.simplices.astype(np.int64)
         if len(np.unique(faces)) < len(d):
@@ -201,7 +202,7 @@ def _triangulate(fit: SurfaceFit, base: np.ndarray, param: np.ndarray) -> np.nda
 
 
 def _drop_long(faces: np.ndarray, points: np.ndarray, limit: float) -> np.ndarray:
-    e = np.stack([np.linalg.norm(points[faces[:, i]] - points[faces[:, (i + 1) % 3]], axis=1) for i in range(3)], 1)
+    e = np.stack([norm3(points[faces[:, i]] - points[faces[:, (i + 1) % 3]]) for i in range(3)], 1)
     return faces[e.max(1) <= limit]
 
 
@@ -357,7 +358,7 @@ def _gaussian_knn_colours(points: np.ndarray, colors: np.ndarray, queries: np.nd
     k = min(_KNN, len(points))
     d, i = cKDTree(points).query(queries, k=k)
     d, i = d.reshape(len(queries), k), i.reshape(len(queries), k)
-    w = np.exp(-(d / sigma) ** 2)
+    w = exp_fixed(-(d / sigma) ** 2)  # not np.exp: AVX-512's rounds otherwise (issue 40)
     w /= w.sum(1, keepdims=True)
     return np.clip(np.round((w[:, :, None] * colors[i].astype(np.float64)).sum(1)), 0, 255).astype(np.uint8)
 
@@ -449,19 +450,19 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     param0 = fit.to_param(capture.positions)
     faces0 = _capture_faces(capture, fit, base0, param0)
     e = _edges(faces0)
-    lengths = np.linalg.norm(capture.positions[e[:, 0]] - capture.positions[e[:, 1]], axis=1)
+    lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
     if len(lengths) == 0:
         raise ValueError("the capture has no triangle to measure its sampling; give more points.")
     med = float(np.median(lengths))
     faces0 = _drop_long(faces0, capture.positions, _LONG_EDGE * med)
     e = _edges(faces0)
-    lengths = np.linalg.norm(capture.positions[e[:, 0]] - capture.positions[e[:, 1]], axis=1)
+    lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
     if spacing == "minimum":
         delta = max(float(lengths.min()), _FLOOR * med)  # Sec. 4: targets at the minimum edge length
     else:
         # as dense as the capture's own sampling where the targets lie: its edges on the fit (the
         # 3-D lengths grow with the relief's slope and would space the targets wider than the capture)
-        delta = float(np.median(np.linalg.norm(base0[e[:, 0]] - base0[e[:, 1]], axis=1)))
+        delta = float(np.median(norm3(base0[e[:, 0]] - base0[e[:, 1]])))
 
     # Sec. 4: oversample the capture once, 1-to-4 (a new vertex at each edge's midpoint).
     n0 = len(capture.positions)

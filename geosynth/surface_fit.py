@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth.cpu_exact import dot3, eigh3_fixed, gram_fixed, lstsq_fixed, norm3, unit_fixed, vdot_fixed
+
 __all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "tangent_frames"]
 
 FIT_KINDS = ("plane", "sphere", "cylinder")
@@ -54,7 +56,7 @@ def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     zero = np.zeros_like(x)
     u = np.where((k == 0)[:, None], np.stack([zero, -z, y], 1),
                  np.where((k == 1)[:, None], np.stack([z, zero, -x], 1), np.stack([-y, x, zero], 1)))
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    u /= np.maximum(norm3(u)[:, None], 1e-300)
     v = np.cross(n, u)
     return u, v
 
@@ -86,8 +88,8 @@ def fit_frames(fit: "SurfaceFit", normals: np.ndarray) -> tuple[np.ndarray, np.n
         u = np.cross(np.asarray(fit.axis, np.float64)[None, :], n)
     else:
         u = np.broadcast_to(np.asarray(fit.basis[0], np.float64), n.shape).copy()
-        u = u - (u * n).sum(1, keepdims=True) * n
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+        u = u - dot3(n, fit.basis[0])[:, None] * n
+    u /= np.maximum(norm3(u)[:, None], 1e-300)
     v = np.cross(n, u)
     return u, v
 
@@ -124,11 +126,11 @@ class SurfaceFit:
         """Signed distance of (N, 3) points to the fit, positive on the normal's side (outside)."""
         p = np.asarray(points, dtype=np.float64) - self.center
         if self.kind == "plane":
-            return p @ self.axis
+            return dot3(p, self.axis)
         if self.kind == "sphere":
-            return np.linalg.norm(p, axis=1) - self.radius
-        radial = p - np.outer(p @ self.axis, self.axis)
-        return np.linalg.norm(radial, axis=1) - self.radius
+            return norm3(p) - self.radius
+        radial = p - np.outer(dot3(p, self.axis), self.axis)
+        return norm3(radial) - self.radius
 
     def normal(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) float64 unit outward normals of the fit at the points' projections."""
@@ -136,8 +138,8 @@ class SurfaceFit:
         if self.kind == "plane":
             return np.broadcast_to(self.axis, p.shape).copy()
         if self.kind == "cylinder":
-            p = p - np.outer(p @ self.axis, self.axis)
-        r = np.linalg.norm(p, axis=1, keepdims=True)
+            p = p - np.outer(dot3(p, self.axis), self.axis)
+        r = norm3(p)[:, None]
         out = p / np.maximum(r, 1e-300)
         bad = r[:, 0] < 1e-12  # on the axis / at the centre: any direction orthogonal to the axis
         out[bad] = self.basis[0]
@@ -155,11 +157,11 @@ class SurfaceFit:
         [0, pi] from ``axis``); cylinder: (angle in [0, 2 pi), height along ``axis``).
         """
         p = np.asarray(points, dtype=np.float64) - self.center
-        a, b = p @ self.basis[0], p @ self.basis[1]
+        a, b = dot3(p, self.basis[0]), dot3(p, self.basis[1])
         if self.kind == "plane":
             return np.stack([a, b], 1)
         az = np.mod(np.arctan2(b, a), 2 * np.pi)
-        h = p @ self.axis
+        h = dot3(p, self.axis)
         if self.kind == "cylinder":
             return np.stack([az, h], 1)
         polar = np.arctan2(np.hypot(a, b), h)
@@ -204,7 +206,7 @@ class SurfaceFit:
 
 def _canonical(d: np.ndarray) -> np.ndarray:
     """A unit direction with its largest-magnitude component positive (a sign convention)."""
-    d = d / np.linalg.norm(d)
+    d = unit_fixed(d)
     return -d if d[np.argmax(np.abs(d))] < 0 else d
 
 
@@ -213,36 +215,65 @@ def _orthonormal(axis: np.ndarray) -> np.ndarray:
     return np.stack([u[0], v[0]])
 
 
-def _plane(p: np.ndarray, normals: np.ndarray | None, extent: float) -> SurfaceFit:
+def _principal_axes(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centroid, (3, 3) rows: the principal directions of the points, of decreasing
+    variance), as the rows of the SVD's vt: the eigenvectors of their scatter matrix, its
+    sums in a fixed order and the eigenvectors by Jacobi rotations, so that the fits are
+    the same bits on every CPU (issue 40; LAPACK's svd and eigh round by the CPU's SIMD
+    path and its last bits moved every fit, hence the base lattice, the triangulation and
+    the written positions)."""
     c = p.mean(0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    _, vecs = eigh3_fixed(gram_fixed(p - c))
+    return c, vecs[:, ::-1].T
+
+
+def _plane(p: np.ndarray, normals: np.ndarray | None, extent: float) -> SurfaceFit:
+    c, vt = _principal_axes(p)
     n = _canonical(vt[2])
-    if normals is not None and float(np.sum(normals @ n)) < 0:
+    if normals is not None and float(np.sum(dot3(normals, n))) < 0:
         n = -n  # the capture's normals say which side is outside
     # (u, v) in world terms: with the normal mostly along world axis k, u is world axis
     # k+1 (cyclically) projected into the plane and v = n x u, so that a plane z = c has
     # u = x, v = y; the origin is the plane's point nearest the world origin.
     k = (int(np.argmax(np.abs(n))) + 1) % 3
     e0 = np.eye(3)[k] - n[k] * n
-    e0 /= np.linalg.norm(e0)
+    e0 = unit_fixed(e0)
     basis = np.stack([e0, np.cross(n, e0)])
-    rms = float(np.sqrt(np.mean(((p - c) @ n) ** 2)))
-    return SurfaceFit("plane", n * float(c @ n), n, math.inf, basis, rms, extent)
+    rms = float(np.sqrt(np.mean(dot3(p - c, n) ** 2)))
+    return SurfaceFit("plane", n * vdot_fixed(c, n), n, math.inf, basis, rms, extent)
+
+
+def _algebraic(q: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The algebraic sphere (3 columns) or circle (2) fit |q|^2 = 2 c . q + d by least
+    squares: (centre, squared radius), or None. The points are centred and scaled to unit
+    spread first (the normal equations square the condition), and solved in a fixed order
+    (:func:`geosynth.cpu_exact.lstsq_fixed`: LAPACK's lstsq is not the same bits on every CPU)."""
+    m = q.mean(0)
+    w = q - m
+    s = math.sqrt(float(np.mean(np.sum(w * w, 1)))) if len(w) else 0.0
+    if not s > 0:
+        return None
+    w = w / s
+    a = np.hstack([2 * w, np.ones((len(w), 1))])
+    sol = lstsq_fixed(a, np.sum(w * w, 1))
+    if sol is None:
+        return None
+    k = q.shape[1]
+    r2 = (sol[k] + vdot_fixed(sol[:k], sol[:k])) * (s * s)
+    return m + s * sol[:k], r2
 
 
 def _sphere(p: np.ndarray, extent: float) -> SurfaceFit | str:
     from scipy.optimize import least_squares
 
-    a = np.hstack([2 * p, np.ones((len(p), 1))])
-    sol, *_ = np.linalg.lstsq(a, (p ** 2).sum(1), rcond=None)
-    c0 = sol[:3]
-    r2 = sol[3] + c0 @ c0
+    got = _algebraic(p)
+    c0, r2 = got if got is not None else (None, math.nan)
     if not np.isfinite(r2) or r2 <= 0:
         return "the algebraic sphere fit has no real radius (the points may be coplanar)"
     x0 = np.concatenate([c0, [math.sqrt(r2)]])
 
     def res(x):
-        return np.linalg.norm(p - x[:3], axis=1) - x[3]
+        return norm3(p - x[:3]) - x[3]  # fixed-order arithmetic: MINPACK's own steps are scalar
 
     out = least_squares(res, x0, method="lm", max_nfev=200, x_scale="jac")
     if not out.success or not np.all(np.isfinite(out.x)) or out.x[3] <= 0:
@@ -254,36 +285,34 @@ def _sphere(p: np.ndarray, extent: float) -> SurfaceFit | str:
 
 
 def _circle(q: np.ndarray) -> tuple[np.ndarray, float] | None:
-    a = np.hstack([2 * q, np.ones((len(q), 1))])
-    sol, *_ = np.linalg.lstsq(a, (q ** 2).sum(1), rcond=None)
-    r2 = sol[2] + sol[:2] @ sol[:2]
-    if not np.isfinite(r2) or r2 <= 0:
+    got = _algebraic(q)
+    if got is None or not np.isfinite(got[1]) or got[1] <= 0:
         return None
-    return sol[:2], math.sqrt(r2)
+    return got[0], math.sqrt(got[1])
 
 
 def _cylinder_from(p: np.ndarray, d: np.ndarray, extent: float):
     from scipy.optimize import least_squares
 
-    d = d / np.linalg.norm(d)
+    d = unit_fixed(d)
     basis = _orthonormal(d)
-    q = p @ basis.T
+    q = np.stack([dot3(p, basis[0]), dot3(p, basis[1])], 1)
     circ = _circle(q)
     if circ is None:
         return None, "the circle fit across the axis has no real radius"
     cq, r0 = circ
-    c0 = cq @ basis
+    c0 = cq[0] * basis[0] + cq[1] * basis[1]
     # Parameters: axis direction as d + a*b0 + b*b1 (normalized), centre as c0 + e*b0 + f*b1, radius.
     def unpack(x):
         dd = d + x[0] * basis[0] + x[1] * basis[1]
-        dd = dd / np.linalg.norm(dd)
+        dd = unit_fixed(dd)
         return dd, c0 + x[2] * basis[0] + x[3] * basis[1], x[4]
 
     def res(x):
         dd, cc, r = unpack(x)
         w = p - cc
-        radial = w - np.outer(w @ dd, dd)
-        return np.linalg.norm(radial, axis=1) - r
+        radial = w - np.outer(dot3(w, dd), dd)
+        return norm3(radial) - r
 
     out = least_squares(res, np.array([0, 0, 0, 0, r0], dtype=np.float64), method="lm", max_nfev=400,
                         x_scale="jac")
@@ -292,18 +321,17 @@ def _cylinder_from(p: np.ndarray, d: np.ndarray, extent: float):
     dd, cc, r = unpack(out.x)
     dd = _canonical(dd)
     # centre: the axis point level with the capture's lowest point along the axis (height 0 there)
-    cc = cc + ((p - cc) @ dd).min() * dd
+    cc = cc + dot3(p - cc, dd).min() * dd
     rms = float(np.sqrt(np.mean(res(out.x) ** 2)))
     return SurfaceFit("cylinder", cc, dd, float(r), _orthonormal(dd), rms, extent), None
 
 
 def _cylinder(p: np.ndarray, normals: np.ndarray | None, extent: float) -> SurfaceFit | str:
-    c = p.mean(0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    _, vt = _principal_axes(p)
     candidates = [vt[0], vt[1], vt[2]]
     if normals is not None:
-        nn = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-        _, vecs = np.linalg.eigh(nn.T @ nn)
+        nn = normals / np.maximum(norm3(normals)[:, None], 1e-300)
+        _, vecs = eigh3_fixed(gram_fixed(nn))
         candidates.insert(0, vecs[:, 0])
     best, why = None, "no axis candidate gave a cylinder"
     for d in candidates:
@@ -339,9 +367,10 @@ def fit_surface(points: np.ndarray, kind: str | None = None, normals: np.ndarray
         raise ValueError(f"a surface fit needs at least 6 points of shape (N, 3), got shape {p.shape}.")
     if not np.isfinite(p).all():
         raise ValueError("the capture's positions have NaN or inf values; remove those points.")
-    extent = float(np.linalg.norm(p.max(0) - p.min(0)))
+    extent = math.sqrt(vdot_fixed(p.max(0) - p.min(0), p.max(0) - p.min(0)))
     if extent <= 0:
         raise ValueError("the capture's points all coincide; no surface can be fitted.")
+    # LAPACK's svd here only for the error (its last bits decide nothing else)
     spread = np.linalg.svd(p - p.mean(0), compute_uv=False)
     if spread[1] <= 1e-9 * spread[0]:
         raise ValueError("the capture's points lie on a line; no surface can be fitted (give a surface patch).")

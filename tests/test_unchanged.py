@@ -1,5 +1,6 @@
-"""Outputs pinned by hash: one small volume synthesis, three small point texturings and
-three small point-set geometry texture syntheses (M2).
+"""Outputs pinned by hash: one small volume synthesis, three small point texturings,
+three small point-set geometry texture syntheses (M2) and three small surface
+completions (M4: a sphere, a cylinder and a plane fit).
 
 The hashes were recorded from the code before the modules were restructured (search and
 texturing split into one question per module) and are the outputs of the current
@@ -17,6 +18,8 @@ every x86-64 CPU: its host steps that NumPy or OpenBLAS would round by the CPU's
 width are done in fixed-order elementwise arithmetic (geosynth.cpu_exact). ``make
 test-cpus`` runs these tests with NumPy and OpenBLAS acting as an AVX2 and an SSE4
 machine (tools/cpu_matrix.sh); the last test here checks SSE4 from any ``make test``.
+M4 (complete_surface) likewise since issue 40 (branch h40-m4): its fits and host
+arithmetic are fixed-order (geosynth.cpu_exact), and an SSE4 test covers the small golf.
 (The M2 hashes were recorded on branch h40-cpus, before the blend decision of issue 40
 item 3 changed: a change of that decision re-records them.)
 """
@@ -112,6 +115,56 @@ def test_point_texture_synthesis_is_the_same_bytes_on_an_sse4_cpu():
     here = [_m2_digests(name, "cpu") for name in ("weave", "flowers")]
     code = ("import sys; sys.path.insert(0, sys.argv[1]); from test_unchanged import _m2_digests; "
             "print(repr([_m2_digests(n, 'cpu') for n in ('weave', 'flowers')]))")
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ, **SSE4_ENV, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
+    run = subprocess.run([sys.executable, "-c", code, str(Path(__file__).resolve().parent)], env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip().splitlines()[-1] == repr(here)
+
+
+# M4 (complete_surface) at small sizes, one case per fit: (built-in, its options, digests of the
+# completed mesh's positions, normals, colours, faces and completed mask). Every host step before
+# the integer match codes is fixed-order arithmetic since issue 40 (the fits' eigenvectors and
+# least squares, every product and length: geosynth.cpu_exact), so these are the same bytes on
+# every device and every x86-64 CPU.
+M4_CASES = [
+    ("golf", dict(delta=0.13, dimples=24),
+     ("4967eb98bbbc485a", "71571c93ba98d36f", "4dec7e1a7b496d4b", "5acf5ab578563104", "a5dd101a6f779e7a")),
+    ("tower", dict(delta=0.11, height=0.9),
+     ("9dd87bf12402a318", "5290824fd0277467", "591f61b6465cd168", "4bb9ce817fb72c44", "2119f809a89982e3")),
+    ("wave", dict(delta=0.1),
+     ("e7e7365ee5c831b8", "93a2f5d516a7cfc0", "1b34e6ae82a82669", "4b04fe295b1f3696", "103efb6661ab436d")),
+]
+
+
+def _m4_digests(name: str, options: dict, device: str) -> tuple[str, ...]:
+    from geosynth.completion import complete_surface
+    from geosynth.completion_examples import completion_example
+
+    ex = completion_example(name, seed=0, **options)
+    s, _, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=min(ex.window, 3),
+                               rotations=ex.rotations, frames=ex.frames, refine=ex.refine, spacing=ex.spacing,
+                               device=device, seed=0)
+    return tuple(_digest(a) for a in (s.positions, s.normals, s.colors, s.faces, s.completed))
+
+
+@pytest.mark.parametrize("name, options, expected", M4_CASES, ids=[c[0] for c in M4_CASES])
+def test_m4_completion_output_unchanged(device, name, options, expected):
+    """A small golf ball (sphere fit), tower (cylinder fit, the fit's frames, two refinement
+    passes) and wave (plane fit)."""
+    assert _m4_digests(name, options, device) == expected
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="the SSE4 settings are x86-64's")
+def test_m4_completion_is_the_same_bytes_on_an_sse4_cpu():
+    """The small golf ball in a subprocess with NumPy's and OpenBLAS's SIMD code held to SSE4
+    gives the bytes this process gives (before issue 40's fix: its capture differed in 158
+    coordinates and one written float32 position; the sphere fit's lstsq and every fit's svd
+    rounded by the CPU)."""
+    here = _m4_digests("golf", M4_CASES[0][1], "cpu")
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from test_unchanged import _m4_digests, M4_CASES; "
+            "print(repr(_m4_digests('golf', M4_CASES[0][1], 'cpu')))")
     root = Path(__file__).resolve().parent.parent
     env = dict(os.environ, **SSE4_ENV, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
     run = subprocess.run([sys.executable, "-c", code, str(Path(__file__).resolve().parent)], env=env,
