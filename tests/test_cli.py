@@ -415,7 +415,7 @@ def test_sigint_at_any_moment_leaves_every_old_output_or_every_new_one(tmp_path,
     full = time.monotonic() - t0
     new = {name: (tmp_path / name).read_bytes() for name in ("k.ply", "k.png")}
     seen = []
-    for moment in [0.05, 0.15, 0.3] + [full * f for f in (0.4, 0.6, 0.75, 0.85, 0.95)]:
+    for moment in [0.05, 0.3] + [full * f for f in (0.45, 0.7, 0.9)]:
         for name in new:
             (tmp_path / name).write_bytes(b"old")
         proc = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
@@ -437,4 +437,4 @@ def test_sigint_at_any_moment_leaves_every_old_output_or_every_new_one(tmp_path,
         elif sent:  # the signal came after the commit: the run had finished, its outputs are whole
             assert proc.returncode in (0, 130, -signal.SIGINT), seen
         assert not [p.name for p in tmp_path.iterdir() if ".geosynth-" in p.name], seen
-    assert sum(state == "old" for _, _, _, state in seen) >= 4, seen  # most moments fell inside the run
+    assert sum(state == "old" for _, _, _, state in seen) >= 3, seen  # most moments fell inside the run
