@@ -230,8 +230,8 @@ def test_blending_lowers_the_seam_error_on_flowers_over_seeds(one_device):
     the patch lacks cut whole (blending.cut_pieces) it does on average, and a patch whose
     blend would raise its seam error is pasted as warped (issue 40: the blend made the
     seam worse on a third of the seeds). A claim over seeds, on the mean and the worst:
-    measured over 20 seeds (0-19), after/before mean 0.916 / worst 0.942 as AVX2 and
-    native here, 0.918 / 0.971 as SSE4 (bench/RESULTS.md); here 6 seeds."""
+    measured over 20 seeds (0-19), after/before mean 0.900 / worst 0.940, the same as
+    native, AVX2 and SSE4 (bench/RESULTS.md); here 6 seeds."""
     tex = point_texture_example("flowers", count=10_000)
     ratios = []
     for seed in range(6):
