@@ -474,8 +474,11 @@ def _engine(scheduler, workers: int):
 
         from distributed import LocalCluster
 
+        # CRITICAL: a task's exception is raised again here, on the client, and reaches the
+        # user as one line; the worker's own "Compute Failed" log (task, exception and
+        # traceback, at ERROR) would print seven lines before it
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.CRITICAL)
         return _Distributed(Client(cluster), cluster)
     if not isinstance(scheduler, str) or "://" not in scheduler:
         raise ValueError(f"scheduler must be 'threads', a distributed.Client, None (a LocalCluster) or an address "
