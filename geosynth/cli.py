@@ -502,6 +502,12 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         outputs += [(p, (".ply",), f"--tile-meshes' file") for p in tile_mesh_paths(args.tile_meshes, tiles)]
     _check_outputs(outputs, inputs)
     checkpoint = _checkpoint_path(out)
+    if args.tile_meshes is not None:  # the folder itself must not be another output's path
+        folder = os.path.realpath(args.tile_meshes)
+        for path, what in ((out, "-o/--output"), (png, png_what), (checkpoint, "the checkpoint (beside -o/--output)")):
+            if os.path.realpath(path) == folder:
+                raise ValueError(f"--tile-meshes {args.tile_meshes!r} is the path of {what}; give the tile meshes a "
+                                 "folder of their own.")
     if args.store is not None:
         store = os.path.realpath(args.store)
         for path, _, what in outputs + [(checkpoint, None, "the checkpoint (beside -o/--output)")]:

@@ -408,6 +408,8 @@ def test_cli_tile_meshes_never_replace_the_input(tmp_path, capsys):
     (["--scheduler", "threads"], "--scheduler applies to tiled runs only"),
     (["--tiles", "2x2", "--store", "s.zarr", "--tile-meshes", "s.zarr/tm"], "same path or one lies inside the other"),
     (["--tiles", "2x2", "--store", "s.zarr", "-o", "s.zarr/t.ply"], "same path or one lies inside the other"),
+    (["--tiles", "2x2", "--tile-meshes", "t.ply"], "--tile-meshes 't.ply' is the path of -o/--output"),
+    (["--tiles", "2x2", "--tile-meshes", "t.png"], "--tile-meshes 't.png' is the path of the default --png"),
 ])
 def test_cli_tiled_options_refused_where_they_do_nothing(extra, says, tmp_path, capsys, monkeypatch):
     from geosynth.cli import main
