@@ -237,7 +237,7 @@ def blending_scene(seed):
     """tests/test_blending.py::test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface
     and test_cutting_the_overlap_keeps_whole_pieces_and_lowers_the_seam_error: the synthetic
     scenes drawn with rng(seed) (the tests' rng fixture is seed 1234)."""
-    from test_blending import SP, flowers_scene, height, scene
+    from test_blending import SP, flowers_edge, flowers_scene, height, scene, scene_edge
 
     from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
 
@@ -247,9 +247,7 @@ def blending_scene(seed):
         (p, n), (nbp, nbn) = scene(offset, rng)
         ramp = overlap_ramp(p, [0, 0], [1, 1], 0.3, 0.3)
         bp, bn = blend_patch(p, n, ramp, nbp, nbn, SP)
-        ex = np.linspace(0.02, 0.98, 60)
-        edge_xy = np.concatenate([np.c_[np.full(60, 0.01), ex], np.c_[ex, np.full(60, 0.01)]])
-        edge = np.c_[edge_xy, height(edge_xy)]
+        edge = scene_edge()
         before, after = seam_error(p, n, nbp, nbn, edge, SP), seam_error(bp, bn, nbp, nbn, edge, SP)
         out[f"after_before_{offset}"] = after / before
         out[f"before_offset_{offset}_min"] = before / offset
@@ -261,9 +259,7 @@ def blending_scene(seed):
     ramp = overlap_ramp(p, *box, 0.3, 0.3)
     drop, unblend, restore = cut_pieces(p, ramp, q, overlap_ramp(q, *box, 0.3, 0.3), *box, SP)
     bp, bn = blend_patch(p, n, np.where(unblend, 0.0, ramp), q, qn, SP)
-    t = np.linspace(0.02, 0.98, 49)
-    edge_xy = np.concatenate([np.c_[np.full(49, 0.01), t], np.c_[t, np.full(49, 0.01)]])
-    edge = np.concatenate([np.c_[edge_xy, np.full(len(edge_xy), z)] for z in (0.0, 0.12, 0.16, 0.2)])
+    edge = flowers_edge()
     plain, _ = blend_patch(p, n, ramp, q, qn, SP)
     warped, blended = seam_error(p, n, q, qn, edge, SP), seam_error(plain, n, q, qn, edge, SP)
     cut = seam_error(np.concatenate([bp[~drop], q[restore]]), np.concatenate([bn[~drop], qn[restore]]), q, qn, edge, SP)

@@ -718,9 +718,7 @@ def _pointtexture_check(args: argparse.Namespace, box_min, box_max, points_in: i
                         overlap=args.overlap, resolution=args.resolution, tileable=args.tileable,
                         quality=not args.no_quality, count=count,
                         mesh_resolution=args.mesh_resolution if args.mesh else None, z_span=z_span, spacing=spacing)
-    except MemoryError:
-        raise
-    except ValueError as exc:
+    except ValueError as exc:  # (a MemoryBudgetError is no ValueError: it passes, its option named)
         text = str(exc)
         for pattern, flag in _POINTTEXTURE_FLAGS:
             text = re.sub(pattern, flag, text)
@@ -1213,14 +1211,12 @@ def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
 
     ``early``: signals recorded before this module was loaded (:mod:`geosynth._launch`):
     the run ends at once, writing nothing."""
-    from geosynth.files import staged_outputs
-
     in_main = threading.current_thread() is threading.main_thread()
     _SIGNALS.clear()
     previous = ({sig: signal.signal(sig, handler) for sig, handler in
                  ((signal.SIGINT, _on_sigint), (signal.SIGTERM, _on_sigterm))} if in_main else {})
     try:
-        return _main(argv, list(early), staged_outputs)
+        return _main(argv, list(early))
     except _Terminated:  # outside the command's own handling (parsing, loading a command's modules)
         return 143
     except KeyboardInterrupt:
@@ -1233,7 +1229,10 @@ def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
 
 
-def _main(argv, early: list[int], staged_outputs) -> int:
+def _main(argv, early: list[int]) -> int:
+    """:func:`main` inside its signal handlers."""
+    from geosynth.files import staged_outputs
+
     if early:  # interrupted while loading: nothing has been done
         if signal.SIGTERM in early:
             return 143

@@ -42,6 +42,25 @@ def grid_xy(x0, x1, y0, y1, rng=None, jitter=0.0):
     return g
 
 
+def _edge_xy(count: int) -> np.ndarray:
+    """(2 count, 2) samples along the overlap's outer edge, x = 0.01 and y = 0.01."""
+    t = np.linspace(0.02, 0.98, count)
+    return np.concatenate([np.c_[np.full(count, 0.01), t], np.c_[t, np.full(count, 0.01)]])
+
+
+def scene_edge() -> np.ndarray:
+    """(120, 3) seam samples of :func:`scene`: the outer edge, on the true surface."""
+    xy = _edge_xy(60)
+    return np.c_[xy, height(xy)]
+
+
+def flowers_edge() -> np.ndarray:
+    """(392, 3) seam samples of :func:`flowers_scene`: the outer edge through the ground and
+    the blobs' heights."""
+    xy = _edge_xy(49)
+    return np.concatenate([np.c_[xy, np.full(len(xy), z)] for z in (0.0, 0.12, 0.16, 0.2)])
+
+
 def scene(offset, rng):
     """A patch over [0, 1]^2 lifted by ``offset`` spacings, and the neighbourhood N_k
     (the true surface) on the L-shaped region left of x = 0.3 and below y = 0.3."""
@@ -74,10 +93,7 @@ def test_blending_lowers_the_seam_error_and_keeps_points_on_the_surface():
         (p, n), (nbp, nbn) = scene(offset, np.random.default_rng(draw))
         ramp = overlap_ramp(p, [0, 0], [1, 1], 0.3, 0.3)
         bp, bn = blend_patch(p, n, ramp, nbp, nbn, SP)
-        # Seam error along the overlap's outer edge (x = 0 and y = 0).
-        ex = np.linspace(0.02, 0.98, 60)
-        edge_xy = np.concatenate([np.c_[np.full(60, 0.01), ex], np.c_[ex, np.full(60, 0.01)]])
-        edge = np.c_[edge_xy, height(edge_xy)]
+        edge = scene_edge()  # seam error along the overlap's outer edge (x = 0 and y = 0)
         before, after = seam_error(p, n, nbp, nbn, edge, SP), seam_error(bp, bn, nbp, nbn, edge, SP)
         assert before > 0.8 * offset, (draw, offset, before)
         ratios.append(after / before)
@@ -325,9 +341,7 @@ def _cut_flowers_scene(draw):
             assert share in (0.0, 1.0), (i, share)
     # The seam error along the overlap's outer edge (through the ground and the blobs'
     # heights): blending alone cannot remove a blob one side lacks; the cut does.
-    t = np.linspace(0.02, 0.98, 49)
-    edge_xy = np.concatenate([np.c_[np.full(49, 0.01), t], np.c_[t, np.full(49, 0.01)]])
-    edge = np.concatenate([np.c_[edge_xy, np.full(len(edge_xy), z)] for z in (0.0, 0.12, 0.16, 0.2)])
+    edge = flowers_edge()
     plain, _ = blend_patch(p, n, ramp, q, qn, SP)
     warped = seam_error(p, n, q, qn, edge, SP)
     blended = seam_error(plain, n, q, qn, edge, SP)

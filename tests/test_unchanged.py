@@ -113,14 +113,20 @@ def test_point_texture_synthesis_is_the_same_bytes_on_an_sse4_cpu():
     shows here on any x86-64 machine, not only on another one. weave and flowers (the
     flowers' exemplar itself was other bytes on SSE4 before issue 40)."""
     here = [_m2_digests(name, "cpu") for name in ("weave", "flowers")]
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); from test_unchanged import _m2_digests; "
-            "print(repr([_m2_digests(n, 'cpu') for n in ('weave', 'flowers')]))")
+    assert _as_sse4("[_m2_digests(n, 'cpu') for n in ('weave', 'flowers')]") == repr(here)
+
+
+def _as_sse4(expression: str) -> str:
+    """repr() of ``expression``, evaluated with this module's names in a subprocess whose
+    NumPy and OpenBLAS act as an SSE4 machine."""
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import test_unchanged; "
+            f"print(repr(eval({expression!r}, vars(test_unchanged))))")
     root = Path(__file__).resolve().parent.parent
     env = dict(os.environ, **SSE4_ENV, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
     run = subprocess.run([sys.executable, "-c", code, str(Path(__file__).resolve().parent)], env=env,
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert run.stdout.strip().splitlines()[-1] == repr(here)
+    return run.stdout.strip().splitlines()[-1]
 
 
 # M4 (complete_surface) at small sizes, one case per fit: (built-in, its options, digests of the
@@ -163,11 +169,4 @@ def test_m4_completion_is_the_same_bytes_on_an_sse4_cpu():
     coordinates and one written float32 position; the sphere fit's lstsq and every fit's svd
     rounded by the CPU)."""
     here = _m4_digests("golf", M4_CASES[0][1], "cpu")
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); from test_unchanged import _m4_digests, M4_CASES; "
-            "print(repr(_m4_digests('golf', M4_CASES[0][1], 'cpu')))")
-    root = Path(__file__).resolve().parent.parent
-    env = dict(os.environ, **SSE4_ENV, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
-    run = subprocess.run([sys.executable, "-c", code, str(Path(__file__).resolve().parent)], env=env,
-                         capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr[-2000:]
-    assert run.stdout.strip().splitlines()[-1] == repr(here)
+    assert _as_sse4("_m4_digests('golf', M4_CASES[0][1], 'cpu')") == repr(here)
