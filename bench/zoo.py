@@ -20,7 +20,8 @@ Families
 - pointtexture (point sets with normals, plyfile ASCII / binary PLY, or an OBJ mesh):
   ``bumps``, ``ridges`` (one period and direction), ``cobbles`` (Worley domes), ``noise``
   (band-limited isotropic), ``rings`` (separate tori lying on a plane).
-- complete (captured part of a surface as a vertex-grid mesh, with or without colour):
+- complete (captured part of a surface as a vertex-grid mesh, with or without colour; a plane
+  misses a band across its middle, a cylinder or a sphere one side):
   relief ``ridges`` (horizontal, vertical or diagonal), ``bumps`` (isotropic) or ``knurl``
   on a ``plane``, ``cylinder`` or ``sphere``; written by trimesh (binary PLY, RGBA uchar),
   plyfile (ASCII PLY, float or ushort colours) or as OBJ with vertex colours.
@@ -395,7 +396,6 @@ def capture_surface(member: Member, whole: bool = False):
     if p["surface"] == "plane":
         nu = nv = int(2.0 / d) + 1
         u, v = np.meshgrid(np.linspace(0, 2, nu), np.linspace(0, 2, nv), indexing="ij")
-        keep_u = 2.0 * p["fraction"]
     elif p["surface"] == "cylinder":
         nu, nv = int(2 * np.pi / d) + 1, int(2.0 / d) + 1
         u, v = np.meshgrid(np.linspace(0, 2 * np.pi, nu), np.linspace(0, 2, nv), indexing="ij")  # u = arc length
@@ -433,15 +433,21 @@ def capture_surface(member: Member, whole: bool = False):
         pal = np.asarray(p["palette"], float)
         c = (1 - t[..., None]) * pal[0] + t[..., None] * pal[1] + rng.normal(0, 4, h.shape + (3,))
         colours = np.clip(np.round(c), 0, 255).astype(np.uint8)
-    iu = nu if whole else max(2, int(np.searchsorted(u[:, 0], keep_u)))
-    if whole and p["surface"] != "plane":
-        iu = nu - 1  # the seam column repeats the first
-    idx = np.arange(iu * nv).reshape(iu, nv)
+    rows = np.ones(nu, bool)
+    if not whole:  # the plane: a band across the middle missing (its box is the region to fill); else one side
+        rows = (np.abs(u[:, 0] - 1.0) >= 1.0 - p["fraction"]) if p["surface"] == "plane" else u[:, 0] < keep_u
+    elif p["surface"] != "plane":
+        rows[-1] = False  # the seam column repeats the first
+    keep = np.repeat(rows, nv)
+    idx = np.arange(nu * nv).reshape(nu, nv)
     v00, v10, v01, v11 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
     faces = np.concatenate([np.stack([v00, v10, v11], -1).reshape(-1, 3), np.stack([v00, v11, v01], -1).reshape(-1, 3)])
-    verts = pos[:iu].reshape(-1, 3)
-    uv = np.column_stack([su[:iu].ravel(), v[:iu].ravel()])
-    return verts, faces.astype(np.int64), None if colours is None else colours[:iu].reshape(-1, 3), uv
+    faces = faces[keep[faces].all(1)]
+    new_index = np.cumsum(keep) - 1
+    verts = pos.reshape(-1, 3)[keep]
+    uv = np.column_stack([su.ravel(), v.ravel()])[keep]
+    cols = None if colours is None else colours.reshape(-1, 3)[keep]
+    return verts, new_index[faces].astype(np.int64), cols, uv
 
 
 def _write_complete(member: Member, path: Path) -> None:
