@@ -539,9 +539,16 @@ def _trimesh_colors(p: Path, kind: str, g) -> np.ndarray | None:
     visual = getattr(g, "visual", None)
     vkind = getattr(visual, "kind", None)
     n = len(g.vertices)
-    if vkind is None:
+    if not hasattr(g, "faces"):  # a trimesh.PointCloud (OBJ vertices without faces): its colours or none
+        c = np.asarray(getattr(g, "colors", np.zeros((0, 4))))
+        if c.size == 0:
+            return None
+        vkind = "points"
+    elif vkind is None:
         return None
-    if vkind in ("vertex", "face"):
+    if vkind == "points":
+        pass
+    elif vkind in ("vertex", "face"):
         c = np.asarray(visual.vertex_colors)
     elif vkind == "texture":
         material = getattr(visual, "material", None)
