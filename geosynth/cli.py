@@ -821,7 +821,8 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     say("timings (s): " + "  ".join(f"{k} {timings[k]:.2f}" for k in
                                     ("precompute", "search", "warp", "blend", "other", "total", "quality")
                                     if k in timings))
-    say(f"written {out}: {len(points):,} points with normals")
+    say(f"written {out}: {len(points):,} points with normals" + (" and the exemplar's colours" if points.colors is not None
+                                                                  else ""))
     if mesh is not None:
         from geosynth.surface import save_mesh
 
@@ -830,11 +831,13 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
             f"(watertight: {bool(mesh.is_watertight)})")
     inside = texture.inside_mask(texture.points, texture.box_min, texture.box_max)
     view = (-60, 40)
-    pics = [render_points(texture.points[inside], texture.normals[inside], size=(360, 360), view=view),
-            render_points(points.positions, points.normals, size=(560, 560), view=view)]
+    pics = [render_points(texture.points[inside], texture.normals[inside],
+                          None if texture.colors is None else texture.colors[inside], size=(360, 360), view=view),
+            render_points(points.positions, points.normals, points.colors, size=(560, 560), view=view)]
     labels = ["exemplar (inside B)", "synthesized"]
     if report.baseline is not None:
-        pics.append(render_points(report.baseline.positions, report.baseline.normals, size=(560, 560), view=view))
+        pics.append(render_points(report.baseline.positions, report.baseline.normals, report.baseline.colors,
+                                  size=(560, 560), view=view))
         labels.append("random pasting")
     write_image(png, side_by_side(pics, labels=labels), inputs=inputs)
     say(f"picture: {png} ({', '.join(labels)})")
