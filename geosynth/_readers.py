@@ -72,6 +72,29 @@ def read_any(p: Path, faces: bool = True) -> Geometry:
 # ------------------------------------------------------------------ PLY
 
 
+def has_colours(p: Path) -> bool:
+    """Whether a geometry file holds colours (vertex, face or texture), for the methods that
+    cannot carry them to say so: a PLY file from its header alone (a vertex or face element
+    with a red, r or diffuse_red property), the others read whole. A file that cannot be
+    read says False here (its reader refuses it in its own words)."""
+    try:
+        if p.suffix.lower() == ".ply":
+            with open(p, "rb") as fh:
+                head = fh.read(1 << 16)
+            element = None
+            for line in head.split(b"end_header")[0].decode("ascii", "replace").splitlines():
+                w = line.split()
+                if len(w) >= 2 and w[0] == "element":
+                    element = w[1]
+                elif len(w) >= 3 and w[0] == "property" and element in ("vertex", "face") and \
+                        w[-1] in ("red", "r", "diffuse_red"):
+                    return True
+            return False
+        return read_any(p).colors is not None
+    except (OSError, ValueError):
+        return False
+
+
 @dataclass
 class _PlyElementHead:
     """One element of a PLY header: its name, declared count, the bytes of its scalar

@@ -403,6 +403,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
                   else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
     say(f"geosynth volume: {label} -> {shape_text} samples, {args.levels} levels, "
         f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
+    _m1_colour_note(exemplar, say)
     result = synthesize_geometry(
         example or exemplar, size,
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
@@ -527,6 +528,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
+    _m1_colour_note(exemplar, say)
 
     slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
 
@@ -662,6 +664,8 @@ def _cmd_texture(args: argparse.Namespace) -> int:
         model, model_label = point_model(args.example, args.count, seed=args.seed), f"example {args.example}"
     else:
         model, model_label = load_point_model(model_path, count=args.count, seed=args.seed), model_path
+    if model_path is not None and _has_colours(model_path):
+        say(f"note: MODEL {model_path!r} has colours of its own; texture (M3) replaces them with the texture's.")
     if texture_path:
         texture, tex_label = read_texture(texture_path), Path(texture_path).name
         tileable = bool(args.tileable)
@@ -764,6 +768,20 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     _pointtexture_check(args, texture.box_min, texture.box_max, len(texture), inside, count=sampled,
                         z_span=float(np.ptp(texture.points[:, 2])), spacing=texture.spacing, patch=patch)
     return texture
+
+
+def _has_colours(path) -> bool:
+    from geosynth._readers import has_colours
+
+    return has_colours(Path(path))
+
+
+def _m1_colour_note(exemplar, say) -> None:
+    """M1 synthesizes a signed distance field (shape only): an exemplar's colours cannot be
+    carried, and a user is told so in one line rather than finding a grey output."""
+    if exemplar is not None and _has_colours(exemplar):
+        say(f"note: EXEMPLAR {exemplar!r} has colours; volume synthesis (M1) works on the shape's distance field and "
+            "cannot carry them: the output mesh has no colour.")
 
 
 def _cmd_pointtexture(args: argparse.Namespace) -> int:
