@@ -607,8 +607,41 @@ def _trimesh_load(trimesh, p: Path, suffix: str):
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         text = raw.decode("latin-1")  # never fails; the parser judges the content
+    if suffix == ".obj":
+        _check_obj_colours(p, text)
     return trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
                         resolver=trimesh.resolvers.FilePathResolver(str(p)))
+
+
+_OBJ_COLOR_FIX = "store colours after x y z as 0..1 or as whole numbers 0..255, or drop them"
+
+
+def _check_obj_colours(p: Path, text: str) -> None:
+    """Refuse OBJ vertex colours (``v x y z r g b``) that trimesh would drop or misread without
+    a word: colours on some vertices but not others (trimesh drops them all), NaN (read as 0),
+    or values neither in [0, 1] nor whole numbers 0..255 (the two ways writers store them)."""
+    rows = [line.split() for line in text.splitlines() if line.startswith("v ")]
+    words = np.fromiter((len(r) for r in rows), np.int64, len(rows))
+    coloured = words >= 7  # "v", x, y, z, r, g, b
+    if not coloured.any():
+        return
+    if not coloured.all():
+        first = int(np.argmin(coloured))
+        raise ValueError(f"{_name(p)} has colours (v x y z r g b) on {int(coloured.sum()):,} of its {len(rows):,} "
+                         f"vertices and none on the others (the first: vertex {first + 1}); colour every vertex or "
+                         "none.")
+    try:
+        c = np.array([r[4:7] for r in rows], dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"{_name(p)} has vertex colours (v x y z r g b) that are not numbers; fix the file.") from None
+    if not np.isfinite(c).all():
+        first = int(np.argmax(~np.isfinite(c).all(1)))
+        raise ValueError(f"{_name(p)} has vertex colours (v x y z r g b) that are NaN or inf (the first: vertex "
+                         f"{first + 1}); {_OBJ_COLOR_FIX}.")
+    lo, hi = float(c.min()), float(c.max())
+    if not (lo >= -_FLOAT_SLACK and hi <= 1 + _FLOAT_SLACK) and not (lo >= 0 and hi <= 255 and (c == np.rint(c)).all()):
+        raise ValueError(f"{_name(p)} has vertex colours (v x y z r g b) in [{lo:.4g}, {hi:.4g}], neither in [0, 1] "
+                         f"nor whole numbers 0..255; {_OBJ_COLOR_FIX}.")
 
 
 _STL_WORDS = "solid, facet normal, outer loop, vertex, endloop, endfacet, endsolid"

@@ -336,3 +336,24 @@ def test_methods_that_cannot_carry_colour_say_so(tmp_path):
         assert has_colours(tmp_path / f"c{suffix}") and not has_colours(tmp_path / f"n{suffix}")
     fc = _ply(tmp_path / "fc.ply", pos, faces, fcols=np.zeros((len(faces), 3), np.uint8))
     assert has_colours(fc)
+
+
+@pytest.mark.parametrize("body, want", [
+    ("v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0 0 0 1\n", r"has colours \(v x y z r g b\) on 2 of its 3 vertices and none on "
+                                                  r"the others \(the first: vertex 2\)"),
+    ("v 0 0 0 nan 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\n", r"vertex colours \(v x y z r g b\) that are NaN or inf \(the "
+                                                         r"first: vertex 1\)"),
+    ("v 0 0 0 1.5 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\n", r"in \[0, 1.5\], neither in \[0, 1\] nor whole numbers"),
+    ("v 0 0 0 255 0 0\nv 1 0 0 0 255 0\nv 0 1 0 0 0 255\n", None),
+])
+def test_obj_colours_trimesh_would_drop_are_refused(tmp_path, body, want):
+    """OBJ colours trimesh would drop (some vertices coloured) or misread (NaN as 0) are
+    refused in one line; whole numbers 0..255 are read as such."""
+    path = tmp_path / "c.obj"
+    path.write_text(body + "f 1 2 3\n")
+    if want is None:
+        assert np.array_equal(np.asarray(read_geometry(path).visual.vertex_colors)[:, :3], 255 * np.eye(3))
+        return
+    with pytest.raises(ValueError, match=want) as info:
+        read_geometry(path)
+    assert "\n" not in str(info.value) and str(info.value).startswith(repr(str(path)))
