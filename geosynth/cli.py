@@ -839,8 +839,8 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     say("timings (s): " + "  ".join(f"{k} {timings[k]:.2f}" for k in
                                     ("precompute", "search", "warp", "blend", "other", "total", "quality")
                                     if k in timings))
-    say(f"written {out}: {len(points):,} points with normals" + (" and the exemplar's colours" if points.colors is not None
-                                                                  else ""))
+    coloured = " and the exemplar's colours" if points.colors is not None else ""
+    say(f"written {out}: {len(points):,} points with normals{coloured}")
     if mesh is not None:
         from geosynth.surface import save_mesh
 

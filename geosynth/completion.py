@@ -931,7 +931,8 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
     """Write the completed surface as a binary PLY mesh, atomically.
 
     Vertex properties: x, y, z, nx, ny, nz (float32), red, green, blue (uchar, when
-    coloured; then alpha too when the capture gave one), completed (uchar: 1 for the completed part); faces as vertex_indices.
+    coloured; then alpha too when the capture gave one), completed (uchar: 1 for the
+    completed part); faces as vertex_indices.
 
     Args:
         path: the .ply file.
@@ -953,7 +954,9 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
     out = check_output(path, inputs=inputs, suffixes=(".ply",), what="completion output")
     layout = [(c, "<f4") for c in ("x", "y", "z", "nx", "ny", "nz")]
     if surface.colors is not None:
-        layout += [(c, "u1") for c in ("red", "green", "blue")] + ([("alpha", "u1")] if surface.alpha is not None else [])
+        layout += [(c, "u1") for c in ("red", "green", "blue")]
+        if surface.alpha is not None:
+            layout.append(("alpha", "u1"))
     layout.append(("completed", "u1"))
     v = np.empty(len(surface), dtype=layout)
     for i, c in enumerate("xyz"):
