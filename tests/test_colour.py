@@ -357,3 +357,19 @@ def test_obj_colours_trimesh_would_drop_are_refused(tmp_path, body, want):
     with pytest.raises(ValueError, match=want) as info:
         read_geometry(path)
     assert "\n" not in str(info.value) and str(info.value).startswith(repr(str(path)))
+
+
+def test_point_set_exemplar_keeps_its_colours(tmp_path):
+    """A PLY point-set exemplar's colours reach the PointTexture, row for row with its points
+    (coincident points merged, the first one's colour kept)."""
+    from geosynth.point_textures import read_point_texture
+
+    rng = np.random.default_rng(2)
+    p = np.column_stack([rng.random((400, 2)), 0.01 * rng.random(400)]).astype(np.float32)
+    p[7] = p[3]  # a coincident point: merged
+    c = rng.integers(0, 256, (400, 3), dtype=np.uint8)
+    path = write_point_set(tmp_path / "pts.ply", PointSet(p, np.tile([0, 0, 1.0], (400, 1)), c))
+    tex = read_point_texture(path)
+    keep = np.r_[0:7, 8:400]
+    assert tex.merged == 1 and np.array_equal(tex.colors, c[keep])
+    assert np.array_equal(tex.points, p[keep].astype(np.float64))
