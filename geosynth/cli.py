@@ -925,6 +925,25 @@ def _max_error_type(text: str) -> float:
         raise argparse.ArgumentTypeError(str(exc).rstrip(".")) from None
 
 
+def _capture_colours(capture) -> str:
+    """How the capture is coloured, for the run's first line: 'RGB colours', 'RGBA colours'
+    or 'no colours' (then the completion matches relief only, mu 1)."""
+    from geosynth.relief_prep import as_capture
+
+    cap = capture if hasattr(capture, "colors") and hasattr(capture, "alpha") else None
+    if cap is None and hasattr(capture, "visual"):
+        kind = getattr(capture.visual, "kind", None)
+        if kind not in ("vertex", "face"):
+            return "no colours"
+        try:
+            cap = as_capture(capture)
+        except ValueError:  # refused by complete_surface itself, in its words
+            return "colours"
+    if cap is None or cap.colors is None:
+        return "no colours"
+    return "RGBA colours" if cap.alpha is not None else "RGB colours"
+
+
 def _cmd_complete(args: argparse.Namespace) -> int:
     from geosynth.completion_examples import COMPLETION_EXAMPLES
 
@@ -967,7 +986,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
                          "singular point); use --frames paper or another --fit.")
     mu = args.mu if args.mu is not None else 0.5
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
-        f"captured points, fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
+        f"captured points ({_capture_colours(capture)}), fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
         f"refine {refine}, spacing {spacing}, seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
                                                 rotations=rotations, mu=mu, max_error=args.max_error,
