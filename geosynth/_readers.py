@@ -339,7 +339,8 @@ def _ply_content(p: Path, ply, faces: bool) -> Geometry:
     elif has_faces:
         _face_range(p, ply["face"].data, len(vertex), not ply.text)
     fgroup = _color_group(p, ply["face"].data.dtype.names or (), "face") if has_faces else None
-    if fgroup is not None and group is None:  # face colours only: each vertex the mean of its faces'
+    # face colours only: each vertex the mean of its faces' (vertex colours, when given, are the ones used)
+    if fgroup is not None and group is None:
         face = ply["face"].data
         fcol = _colors(p, np.stack([np.asarray(face[n]) for n in fgroup], 1), "face", fgroup)
         tri = out.faces if out.faces is not None else _ply_faces(p, face)
@@ -620,7 +621,7 @@ def _check_obj_colours(p: Path, text: str) -> None:
     """Refuse OBJ vertex colours (``v x y z r g b``) that trimesh would drop or misread without
     a word: colours on some vertices but not others (trimesh drops them all), NaN (read as 0),
     or values neither in [0, 1] nor whole numbers 0..255 (the two ways writers store them)."""
-    rows = [line.split() for line in text.splitlines() if line.startswith("v ")]
+    rows = [line.split("#", 1)[0].split() for line in text.splitlines() if line.startswith("v ")]
     words = np.fromiter((len(r) for r in rows), np.int64, len(rows))
     coloured = words >= 7  # "v", x, y, z, r, g, b
     if not coloured.any():
