@@ -193,8 +193,12 @@ def read_geometry(path: str | os.PathLike):
 
     Returns:
         A ``trimesh.Trimesh`` (float64 vertices, int64 triangle faces; PLY polygons are
-        split into triangle fans) when the file has faces, else a :class:`PointSet`
-        (positions; normals and colours from PLY files).
+        split into triangle fans) when the file has faces, its colours as
+        ``visual.vertex_colors`` (RGBA; ``metadata["alpha_given"]`` says whether the file
+        gave the alpha), else a :class:`PointSet` (positions; normals from PLY files;
+        colours and alpha from any format). Colours: PLY vertex or face colours, OBJ
+        ``v x y z r g b``, GLB COLOR_0, a texture sampled at the vertices' UVs; colours
+        that cannot be used are refused in one line (see :func:`read_point_set`).
 
     Raises:
         FileNotFoundError: ``"mesh or point-set file 'X' does not exist."``
