@@ -27,8 +27,12 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 _TEXT_FORMATS = {".obj": "obj", ".off": "off"}  # decoded here: trimesh needs charset_normalizer otherwise
 _PLY_HINT = ("a complete PLY file (ASCII or binary) whose vertex element has x, y, z properties")
 _NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
-_COLOR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+# colour property groups (red, green, blue, alpha); the alpha is optional
+_COLOR_NAMES = (("red", "green", "blue", "alpha"), ("r", "g", "b", "a"),
+                ("diffuse_red", "diffuse_green", "diffuse_blue", "diffuse_alpha"))
 _COLOR_FIX = "store colours as uchar 0..255 or float 0..1, or drop the red, green, blue properties"
+# float colours up to this far outside [0, 1] are rounding (clipped): half a step of uchar
+_FLOAT_SLACK = 0.5 / 255
 _FACE_LISTS = ("vertex_indices", "vertex_index")
 # bytes of each PLY scalar type (the header check below)
 _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
@@ -48,12 +52,14 @@ def _name(p: Path) -> str:
 @dataclass
 class Geometry:
     """What a geometry file holds: (N, 3) float64 positions, (N, 3) float64 normals or
-    None, (N, 3) uint8 colours or None, (F, 3) int64 triangles or None (no faces)."""
+    None, (N, 3) uint8 RGB colours or None, (F, 3) int64 triangles or None (no faces),
+    (N,) uint8 alpha or None (the file gave no alpha; always None without colours)."""
 
     positions: np.ndarray
     normals: np.ndarray | None = None
     colors: np.ndarray | None = None
     faces: np.ndarray | None = None
+    alpha: np.ndarray | None = None
 
 
 def read_any(p: Path, faces: bool = True) -> Geometry:
@@ -64,6 +70,29 @@ def read_any(p: Path, faces: bool = True) -> Geometry:
 
 
 # ------------------------------------------------------------------ PLY
+
+
+def has_colours(p: Path) -> bool:
+    """Whether a geometry file holds colours (vertex, face or texture), for the methods that
+    cannot carry them to say so: a PLY file from its header alone (a vertex or face element
+    with a red, r or diffuse_red property), the others read whole. A file that cannot be
+    read says False here (its reader refuses it in its own words)."""
+    try:
+        if p.suffix.lower() == ".ply":
+            with open(p, "rb") as fh:
+                head = fh.read(1 << 16)
+            element = None
+            for line in head.split(b"end_header")[0].decode("ascii", "replace").splitlines():
+                w = line.split()
+                if len(w) >= 2 and w[0] == "element":
+                    element = w[1]
+                elif len(w) >= 3 and w[0] == "property" and element in ("vertex", "face") and \
+                        w[-1] in ("red", "r", "diffuse_red"):
+                    return True
+            return False
+        return read_any(p).colors is not None
+    except (OSError, ValueError):
+        return False
 
 
 @dataclass
@@ -300,14 +329,70 @@ def _ply_content(p: Path, ply, faces: bool) -> Geometry:
     group = next((g for g in _NORMAL_NAMES if set(g) <= set(fields)), None)
     if group is not None:
         out.normals = columns(group, "normals").astype(np.float64)
-    group = next((g for g in _COLOR_NAMES if set(g) <= set(fields)), None)
+    group = _color_group(p, fields, "vertex")
     if group is not None:
-        out.colors = _colors(p, columns(group, "colours"))
-    if faces and "face" in names and ply["face"].count > 0:
+        rgba = _colors(p, columns(group, "colours"), "vertex", group)
+        out.colors, out.alpha = rgba[:, :3], (rgba[:, 3] if rgba.shape[1] == 4 else None)
+    has_faces = "face" in names and ply["face"].count > 0
+    if faces and has_faces:
         out.faces = _ply_faces(p, ply["face"].data)
-    elif "face" in names and ply["face"].count > 0:
+    elif has_faces:
         _face_range(p, ply["face"].data, len(vertex), not ply.text)
+    fgroup = _color_group(p, ply["face"].data.dtype.names or (), "face") if has_faces else None
+    # face colours only: each vertex the mean of its faces' (vertex colours, when given, are the ones used)
+    if fgroup is not None and group is None:
+        face = ply["face"].data
+        fcol = _colors(p, np.stack([np.asarray(face[n]) for n in fgroup], 1), "face", fgroup)
+        tri = out.faces if out.faces is not None else _ply_faces(p, face)
+        if len(fcol) != len(tri):  # polygons were split into fans: repeat each polygon's colour
+            fcol = np.repeat(fcol, _fan_counts(face), axis=0)
+        rgba = _face_to_vertex(p, fcol, tri, len(vertex))
+        out.colors, out.alpha = rgba[:, :3], (rgba[:, 3] if rgba.shape[1] == 4 else None)
     return out
+
+
+def _color_group(p: Path, fields, element: str) -> tuple | None:
+    """The colour properties of a PLY element: (red, green, blue) or (red, green, blue,
+    alpha) names, None without colour; a group with some but not all of red, green and
+    blue, or an alpha without them, is refused (half a colour cannot be used)."""
+    have = set(fields)
+    for group in _COLOR_NAMES:
+        present = [n for n in group[:3] if n in have]
+        if len(present) == 3:
+            return group if group[3] in have else group[:3]
+        if present and (len(group[0]) > 1 or group[3] in have):  # lone r/g/b/a may be other data
+            missing = [n for n in group[:3] if n not in have]
+            raise _ply_error(p, f"its {element} element has the colour properties {', '.join(present)} but not "
+                                f"{', '.join(missing)}", "give all of red, green, blue or none of them")
+    alone = [g[3] for g in _COLOR_NAMES if len(g[3]) > 1 and g[3] in have]
+    if alone:
+        raise _ply_error(p, f"its {element} element has {alone[0]} but no red, green, blue",
+                         "give red, green, blue with it, or drop it")
+    return None
+
+
+def _fan_counts(face) -> np.ndarray:
+    """Triangles per polygon of a PLY face element (as :func:`_ply_faces` splits them)."""
+    name = next(n for n in _FACE_LISTS if n in (face.dtype.names or ()))
+    col = face[name]
+    if col.dtype != object:
+        return np.ones(len(col), np.int64)
+    return np.fromiter((len(a) for a in col), np.int64, len(col)) - 2
+
+
+def _face_to_vertex(p: Path, fcol: np.ndarray, tri: np.ndarray, n: int) -> np.ndarray:
+    """(n, C) uint8 vertex colours from (F, C) uint8 triangle colours: each vertex the mean
+    of the colours of the triangles around it (as trimesh converts them); a vertex on no
+    face has none, and is refused."""
+    count = np.bincount(tri.reshape(-1), minlength=n)
+    if (count == 0).any():
+        lone = np.flatnonzero(count == 0)
+        raise _ply_error(p, f"its colours are per face but {len(lone):,} vertices lie on no face (the first: vertex "
+                            f"{lone[0]}), so they have no colour", "give vertex colours, or remove those vertices")
+    sums = np.zeros((n, fcol.shape[1]), np.float64)
+    for k in range(3):
+        np.add.at(sums, tri[:, k], fcol.astype(np.float64))
+    return np.clip(np.rint(sums / count[:, None]), 0, 255).astype(np.uint8)
 
 
 def _face_range(p: Path, face, n: int, binary: bool) -> None:
@@ -339,24 +424,34 @@ def _face_range(p: Path, face, n: int, binary: bool) -> None:
                             f"0 to {n - 1:,})", "the header's counts or the faces are wrong: fix the file")
 
 
-def _colors(p: Path, c: np.ndarray) -> np.ndarray:
-    """uint8 colours: integers 0..255 as they are, 16-bit ones scaled, floats in [0, 1]
-    times 255 (floats beyond 1 are taken as 0..255)."""
+def _colors(p: Path, c: np.ndarray, element: str = "vertex", group=("red", "green", "blue")) -> np.ndarray:
+    """(N, C) uint8 colours (C = 3 or 4, RGB[A]) from (N, C) numbers: integers 0..255 as
+    they are; 16-bit ones (any value above 255) scaled by 1/257; floats in [0, 1] times 255
+    (values within half a uchar step outside it are rounding, clipped); floats that are all
+    whole numbers in 0..255 (some writers store uchar values as floats) as they are.
+    Anything else (NaN, other floats beyond [0, 1], integers beyond 0..65535) is refused
+    in one line naming the file, the element and the properties."""
+    props = ", ".join(group)
     if c.size == 0:
         return c.astype(np.uint8)
     if c.dtype.kind == "f":
+        c = c.astype(np.float64)
         if not np.isfinite(c).all():
-            raise _ply_error(p, "its vertex colours contain NaN or inf", _COLOR_FIX)
+            bad = int(np.argmax(~np.isfinite(c).all(1)))
+            raise _ply_error(p, f"its {element} colours ({props}) contain NaN or inf (the first: {element} {bad})",
+                             _COLOR_FIX)
         lo, hi = float(c.min()), float(c.max())
-        if lo < 0 or hi > 255:
-            raise _ply_error(p, f"its float vertex colours lie in [{lo:.4g}, {hi:.4g}], neither in [0, 1] nor in "
-                                "[0, 255]", _COLOR_FIX)
-        return np.rint(c * (255.0 if hi <= 1.0 else 1.0)).astype(np.uint8)
+        if lo >= -_FLOAT_SLACK and hi <= 1 + _FLOAT_SLACK:
+            return np.rint(np.clip(c, 0, 1) * 255.0).astype(np.uint8)
+        if lo >= 0 and hi <= 255 and (c == np.rint(c)).all():
+            return c.astype(np.uint8)
+        raise _ply_error(p, f"its float {element} colours ({props}) lie in [{lo:.4g}, {hi:.4g}], neither in [0, 1] "
+                            "nor whole numbers 0..255", _COLOR_FIX)
     lo, hi = int(c.min()), int(c.max())
-    if c.dtype == np.uint16 and hi > 255:
+    if c.dtype == np.uint16 and hi > 255:  # 16-bit colours (8-bit values stored as ushort stay as they are)
         return np.rint(c / 257.0).astype(np.uint8)
     if lo < 0 or hi > 255:
-        raise _ply_error(p, f"its vertex colours lie in {lo}..{hi}, not in 0..255", _COLOR_FIX)
+        raise _ply_error(p, f"its {element} colours ({props}) lie in {lo}..{hi}, not in 0..255", _COLOR_FIX)
     return c.astype(np.uint8)
 
 
@@ -425,18 +520,82 @@ def read_with_trimesh(p: Path) -> Geometry:
         if any(len(v) != 2 or v[1] != 3 for v in shapes):
             raise ValueError(f"its vertices have shape {shapes}, not (N, 3)")
         if meshes:
+            colours = [_trimesh_colors(p, kind, g) for g in meshes]
             mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
-            return Geometry(np.asarray(mesh.vertices, np.float64), faces=np.asarray(mesh.faces, np.int64))
-        points = [np.asarray(g.vertices, np.float64) for g in parts
-                  if isinstance(g, (trimesh.Trimesh, trimesh.PointCloud)) and len(g.vertices)]
+            out = Geometry(np.asarray(mesh.vertices, np.float64), faces=np.asarray(mesh.faces, np.int64))
+        else:
+            clouds = [g for g in parts if isinstance(g, (trimesh.Trimesh, trimesh.PointCloud)) and len(g.vertices)]
+            colours = [_trimesh_colors(p, kind, g) for g in clouds]
+            points = [np.asarray(g.vertices, np.float64) for g in clouds]
+            out = Geometry(np.concatenate(points)) if points else None
+    except ValueError as exc:
+        if str(exc).startswith(_name(p)):  # a colour refusal: already one line naming the file
+            raise
+        raise ValueError(f"{_name(p)} is not a readable {kind} file: {reason(exc)}; give a complete {kind} file."
+                         ) from exc
     except Exception as exc:  # trimesh raises many kinds (IndexError, ValueError, KeyError, ...) on bad files
         raise ValueError(f"{_name(p)} is not a readable {kind} file: {reason(exc)}; give a complete {kind} file."
                          ) from exc
-    if not points:
+    if out is None:
         found = ", ".join(sorted({type(g).__name__ for g in parts})) or "nothing"
         raise ValueError(f"{_name(p)} holds no vertices: trimesh read no mesh or points from this {kind} file "
                          f"(it read: {found}).")
-    return Geometry(np.concatenate(points))
+    if any(c is not None for c in colours):
+        if any(c is None for c in colours):  # some parts coloured, some not: the others get none to copy
+            raise ValueError(f"{_name(p)} has colours on {sum(c is not None for c in colours)} of its "
+                             f"{len(colours)} parts and none on the others; colour every part or none.")
+        rgba = np.concatenate(colours)
+        out.colors = np.ascontiguousarray(rgba[:, :3])
+        # trimesh always holds RGBA (255 where the file gave no alpha): kept where it says something
+        out.alpha = np.ascontiguousarray(rgba[:, 3]) if (rgba[:, 3] != 255).any() else None
+    return out
+
+
+def _trimesh_colors(p: Path, kind: str, g) -> np.ndarray | None:
+    """(N, 4) uint8 RGBA vertex colours of one trimesh mesh or point cloud, or None.
+
+    Vertex colours (OBJ ``v x y z r g b``, GLB COLOR_0, PLY through trimesh) as they are;
+    face colours as each vertex's mean of its faces' (trimesh's conversion); a texture
+    (GLB baseColorTexture, OBJ map_Kd) sampled at each vertex's UV (trimesh's
+    ``to_color``); a material's one colour without texture (an explicit base colour) as
+    that colour everywhere; a default material (no texture, no colour given) is no colour.
+    A texture whose vertices have no UV coordinates is refused in one line."""
+    visual = getattr(g, "visual", None)
+    vkind = getattr(visual, "kind", None)
+    n = len(g.vertices)
+    if not hasattr(g, "faces"):  # a trimesh.PointCloud (OBJ vertices without faces): its colours or none
+        c = np.asarray(getattr(g, "colors", np.zeros((0, 4))))
+        if c.size == 0:
+            return None
+        vkind = "points"
+    elif vkind is None:
+        return None
+    if vkind == "points":
+        pass
+    elif vkind in ("vertex", "face"):
+        c = np.asarray(visual.vertex_colors)
+    elif vkind == "texture":
+        material = getattr(visual, "material", None)
+        image = getattr(material, "image", None) or getattr(material, "baseColorTexture", None)
+        if image is None:
+            factor = getattr(material, "baseColorFactor", None)
+            if factor is None and "kd" in (getattr(material, "kwargs", None) or {}):  # an OBJ material's Kd
+                factor = getattr(material, "diffuse", None)
+            if factor is None:
+                return None  # a default material: no colour was given
+            return np.tile(np.asarray(factor, np.uint8).reshape(-1)[:4], (n, 1))
+        uv = getattr(visual, "uv", None)
+        if uv is None or len(uv) != n:
+            raise ValueError(f"{_name(p)} has a texture but {'no' if uv is None else len(uv)} UV coordinates for its "
+                             f"{n:,} vertices, so its colours cannot be sampled; bake the texture into vertex "
+                             "colours or give every vertex a UV.")
+        c = np.asarray(visual.to_color().vertex_colors)
+    else:  # pragma: no cover - trimesh has no other kinds
+        raise ValueError(f"{_name(p)} has colours of a kind ({vkind}) not read here; store vertex colours.")
+    if c.shape != (n, 4) or c.dtype != np.uint8:
+        raise ValueError(f"{_name(p)} has {c.shape} {c.dtype} colours for its {n:,} vertices, not one RGBA "
+                         f"colour per vertex; store one uchar RGB colour per vertex.")
+    return c
 
 
 def _trimesh_load(trimesh, p: Path, suffix: str):
@@ -449,8 +608,41 @@ def _trimesh_load(trimesh, p: Path, suffix: str):
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         text = raw.decode("latin-1")  # never fails; the parser judges the content
+    if suffix == ".obj":
+        _check_obj_colours(p, text)
     return trimesh.load(io.StringIO(text), file_type=_TEXT_FORMATS[suffix], process=False,
                         resolver=trimesh.resolvers.FilePathResolver(str(p)))
+
+
+_OBJ_COLOR_FIX = "store colours after x y z as 0..1 or as whole numbers 0..255, or drop them"
+
+
+def _check_obj_colours(p: Path, text: str) -> None:
+    """Refuse OBJ vertex colours (``v x y z r g b``) that trimesh would drop or misread without
+    a word: colours on some vertices but not others (trimesh drops them all), NaN (read as 0),
+    or values neither in [0, 1] nor whole numbers 0..255 (the two ways writers store them)."""
+    rows = [line.split("#", 1)[0].split() for line in text.splitlines() if line.startswith("v ")]
+    words = np.fromiter((len(r) for r in rows), np.int64, len(rows))
+    coloured = words >= 7  # "v", x, y, z, r, g, b
+    if not coloured.any():
+        return
+    if not coloured.all():
+        first = int(np.argmin(coloured))
+        raise ValueError(f"{_name(p)} has colours (v x y z r g b) on {int(coloured.sum()):,} of its {len(rows):,} "
+                         f"vertices and none on the others (the first: vertex {first + 1}); colour every vertex or "
+                         "none.")
+    try:
+        c = np.array([r[4:7] for r in rows], dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"{_name(p)} has vertex colours (v x y z r g b) that are not numbers; fix the file.") from None
+    if not np.isfinite(c).all():
+        first = int(np.argmax(~np.isfinite(c).all(1)))
+        raise ValueError(f"{_name(p)} has vertex colours (v x y z r g b) that are NaN or inf (the first: vertex "
+                         f"{first + 1}); {_OBJ_COLOR_FIX}.")
+    lo, hi = float(c.min()), float(c.max())
+    if not (lo >= -_FLOAT_SLACK and hi <= 1 + _FLOAT_SLACK) and not (lo >= 0 and hi <= 255 and (c == np.rint(c)).all()):
+        raise ValueError(f"{_name(p)} has vertex colours (v x y z r g b) in [{lo:.4g}, {hi:.4g}], neither in [0, 1] "
+                         f"nor whole numbers 0..255; {_OBJ_COLOR_FIX}.")
 
 
 _STL_WORDS = "solid, facet normal, outer loop, vertex, endloop, endfacet, endsolid"
@@ -579,4 +771,12 @@ def checked_mesh(p: Path, g: Geometry):
     if len(out):
         raise ValueError(f"{_name(p)} has {len(out)} face(s) with vertex indices out of range [0, {v_count}) (the "
                          f"first: face {out[0]}, {f[out[0]].tolist()}); fix the file.")
-    return trimesh.Trimesh(vertices=g.positions, faces=f, process=False, validate=False)
+    mesh = trimesh.Trimesh(vertices=g.positions, faces=f, process=False, validate=False)
+    if g.colors is not None:
+        if len(g.colors) != v_count:
+            raise ValueError(f"{_name(p)} has {len(g.colors):,} colours for its {v_count:,} vertices; give one colour "
+                             "per vertex.")
+        alpha = np.full(v_count, 255, np.uint8) if g.alpha is None else g.alpha
+        mesh.visual.vertex_colors = np.column_stack([g.colors, alpha])
+        mesh.metadata["alpha_given"] = g.alpha is not None  # the file had an alpha: written back (as_capture)
+    return mesh

@@ -403,6 +403,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
                   else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
     say(f"geosynth volume: {label} -> {shape_text} samples, {args.levels} levels, "
         f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
+    _m1_colour_note(exemplar, say)
     result = synthesize_geometry(
         example or exemplar, size,
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
@@ -527,6 +528,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
+    _m1_colour_note(exemplar, say)
 
     slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
 
@@ -662,6 +664,8 @@ def _cmd_texture(args: argparse.Namespace) -> int:
         model, model_label = point_model(args.example, args.count, seed=args.seed), f"example {args.example}"
     else:
         model, model_label = load_point_model(model_path, count=args.count, seed=args.seed), model_path
+    if model_path is not None and _has_colours(model_path):
+        say(f"note: MODEL {model_path!r} has colours of its own; texture (M3) replaces them with the texture's.")
     if texture_path:
         texture, tex_label = read_texture(texture_path), Path(texture_path).name
         tileable = bool(args.tileable)
@@ -766,6 +770,20 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     return texture
 
 
+def _has_colours(path) -> bool:
+    from geosynth._readers import has_colours
+
+    return has_colours(Path(path))
+
+
+def _m1_colour_note(exemplar, say) -> None:
+    """M1 synthesizes a signed distance field (shape only): an exemplar's colours cannot be
+    carried, and a user is told so in one line rather than finding a grey output."""
+    if exemplar is not None and _has_colours(exemplar):
+        say(f"note: EXEMPLAR {exemplar!r} has colours; volume synthesis (M1) works on the shape's distance field and "
+            "cannot carry them: the output mesh has no colour.")
+
+
 def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.point_examples import POINT_EXAMPLES
 
@@ -821,7 +839,8 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     say("timings (s): " + "  ".join(f"{k} {timings[k]:.2f}" for k in
                                     ("precompute", "search", "warp", "blend", "other", "total", "quality")
                                     if k in timings))
-    say(f"written {out}: {len(points):,} points with normals")
+    coloured = " and the exemplar's colours" if points.colors is not None else ""
+    say(f"written {out}: {len(points):,} points with normals{coloured}")
     if mesh is not None:
         from geosynth.surface import save_mesh
 
@@ -830,11 +849,13 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
             f"(watertight: {bool(mesh.is_watertight)})")
     inside = texture.inside_mask(texture.points, texture.box_min, texture.box_max)
     view = (-60, 40)
-    pics = [render_points(texture.points[inside], texture.normals[inside], size=(360, 360), view=view),
-            render_points(points.positions, points.normals, size=(560, 560), view=view)]
+    pics = [render_points(texture.points[inside], texture.normals[inside],
+                          None if texture.colors is None else texture.colors[inside], size=(360, 360), view=view),
+            render_points(points.positions, points.normals, points.colors, size=(560, 560), view=view)]
     labels = ["exemplar (inside B)", "synthesized"]
     if report.baseline is not None:
-        pics.append(render_points(report.baseline.positions, report.baseline.normals, size=(560, 560), view=view))
+        pics.append(render_points(report.baseline.positions, report.baseline.normals, report.baseline.colors,
+                                  size=(560, 560), view=view))
         labels.append("random pasting")
     write_image(png, side_by_side(pics, labels=labels), inputs=inputs)
     say(f"picture: {png} ({', '.join(labels)})")
@@ -904,6 +925,25 @@ def _max_error_type(text: str) -> float:
         raise argparse.ArgumentTypeError(str(exc).rstrip(".")) from None
 
 
+def _capture_colours(capture) -> str:
+    """How the capture is coloured, for the run's first line: 'RGB colours', 'RGBA colours'
+    or 'no colours' (then the completion matches relief only, mu 1)."""
+    from geosynth.relief_prep import as_capture
+
+    cap = capture if hasattr(capture, "colors") and hasattr(capture, "alpha") else None
+    if cap is None and hasattr(capture, "visual"):
+        kind = getattr(capture.visual, "kind", None)
+        if kind not in ("vertex", "face"):
+            return "no colours"
+        try:
+            cap = as_capture(capture)
+        except ValueError:  # refused by complete_surface itself, in its words
+            return "colours"
+    if cap is None or cap.colors is None:
+        return "no colours"
+    return "RGBA colours" if cap.alpha is not None else "RGB colours"
+
+
 def _cmd_complete(args: argparse.Namespace) -> int:
     from geosynth.completion_examples import COMPLETION_EXAMPLES
 
@@ -946,7 +986,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
                          "singular point); use --frames paper or another --fit.")
     mu = args.mu if args.mu is not None else 0.5
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
-        f"captured points, fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
+        f"captured points ({_capture_colours(capture)}), fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
         f"refine {refine}, spacing {spacing}, seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
                                                 rotations=rotations, mu=mu, max_error=args.max_error,

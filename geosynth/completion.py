@@ -113,6 +113,7 @@ class CompletedSurface:
         captured: (V,) bool, True for the capture's own vertices (not the oversampling's).
         textured: (V,) bool, False only for targets the growth could not reach.
         fit: the :class:`~geosynth.surface_fit.SurfaceFit`.
+        alpha: (V,) uint8 alpha of the colours when the capture gave one, else None.
     """
 
     positions: np.ndarray
@@ -123,6 +124,7 @@ class CompletedSurface:
     captured: np.ndarray
     textured: np.ndarray
     fit: SurfaceFit
+    alpha: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -133,7 +135,8 @@ class CompletedSurface:
 
         kw = {}
         if self.colors is not None:
-            kw["vertex_colors"] = np.hstack([self.colors, np.full((len(self), 1), 255, np.uint8)])
+            alpha = np.full(len(self), 255, np.uint8) if self.alpha is None else self.alpha
+            kw["vertex_colors"] = np.column_stack([self.colors, alpha])
         return trimesh.Trimesh(self.positions, self.faces, process=False, **kw)
 
 
@@ -460,6 +463,8 @@ def _copy_matches(rs: ReliefSurface, index, targets, samples, rots, rotations: i
     if rs.colors is not None:
         rs.colors[at] = rs.colors[src]
         col = rs.colors[at].astype(np.float64) / 255.0
+        if rs.alpha is not None:  # the alpha travels with its colour (it takes no part in matching)
+            rs.alpha[at] = rs.alpha[src]
     index.update(at, d, col)
     return at
 
@@ -901,7 +906,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         # NumPy's SIMD paths round by the CPU; issue 40)
         normals=_vertex_normals(written.astype(np.float64), rs.faces, rs.normals).astype(np.float32),
         colors=None if rs.colors is None else rs.colors.copy(),
-        faces=rs.faces.astype(np.int32), completed=completed, captured=captured, textured=textured.copy(), fit=sf)
+        faces=rs.faces.astype(np.int32), completed=completed, captured=captured, textured=textured.copy(), fit=sf,
+        alpha=None if rs.colors is None or rs.alpha is None else rs.alpha.copy())
     report = CompletionReport(
         fit=sf.describe(), samples=rs.n_samples, targets=rs.n_targets,
         textured=int(textured[rs.n_samples:].sum()), unreached=int((~textured[rs.n_samples:]).sum()),
@@ -925,7 +931,8 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
     """Write the completed surface as a binary PLY mesh, atomically.
 
     Vertex properties: x, y, z, nx, ny, nz (float32), red, green, blue (uchar, when
-    coloured), completed (uchar: 1 for the completed part); faces as vertex_indices.
+    coloured; then alpha too when the capture gave one), completed (uchar: 1 for the
+    completed part); faces as vertex_indices.
 
     Args:
         path: the .ply file.
@@ -948,6 +955,8 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
     layout = [(c, "<f4") for c in ("x", "y", "z", "nx", "ny", "nz")]
     if surface.colors is not None:
         layout += [(c, "u1") for c in ("red", "green", "blue")]
+        if surface.alpha is not None:
+            layout.append(("alpha", "u1"))
     layout.append(("completed", "u1"))
     v = np.empty(len(surface), dtype=layout)
     for i, c in enumerate("xyz"):
@@ -957,6 +966,8 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
     if surface.colors is not None:
         for i, c in enumerate(("red", "green", "blue")):
             v[c] = surface.colors[:, i]
+        if surface.alpha is not None:
+            v["alpha"] = surface.alpha
     v["completed"] = surface.completed.astype(np.uint8)
     f = np.empty(len(surface.faces), dtype=[("vertex_indices", "i4", (3,))])
     f["vertex_indices"] = surface.faces

@@ -370,7 +370,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
                 wide = 0.5 * pc * cell  # N_k's pieces are whole up to half a patch beyond the box
                 if lay.period is not None:  # one image of each point: the window within a period
                     wide = min(wide, max(0.0, 0.5 * float((lay.period - (hi - lo)).min()) - cell))
-                cq, cqn = grid.in_box(lo - wide, hi + wide)
+                cq, cqn, cs = grid.in_box(lo - wide, hi + wide, sources=True)
                 ramp_q = overlap_ramp(cq, box_min, box_max, lay.overlap * cell, lay.overlap * cell, names)
                 drop, unblend, restore = cut_pieces(wr.points, ramp, cq, ramp_q, box_min, box_max, spacing,
                                                     window=(lo - margin, hi + margin),
@@ -403,9 +403,11 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
         if drop is not None:
             keep &= ~drop
         grid.remove_box(lo, hi)
-        grid.insert(fp[keep], fn[keep], rank=2 * (j * lay.cols + i))  # the scan order's, whichever thread
+        # the scan order's rank, whichever thread; each point keeps the exemplar point it came from
+        # (warp and blend move points one for one), so its colour can follow it
+        grid.insert(fp[keep], fn[keep], rank=2 * (j * lay.cols + i), sources=sel[keep])
         if restore is not None and restore.any():  # N_k's pieces kept whole go back in
-            grid.insert(cq[restore], cqn[restore], rank=2 * (j * lay.cols + i) + 1)
+            grid.insert(cq[restore], cqn[restore], rank=2 * (j * lay.cols + i) + 1, sources=cs[restore])
         if not baseline:
             timer.add("other", t0)
         return out
@@ -541,16 +543,24 @@ def _edge_samples(search, offsets, q, sides):
 
 def _cut(grid: PointGrid, lay: _Layout, texture: PointTexture, tileable: bool):
     """Step 8: the final border cut (none when tileable); points in output coordinates
-    (x and y from the exemplar box's corner)."""
-    p, n = grid.all_points()
+    (x and y from the exemplar box's corner), normals, and the (N,) int64 exemplar point
+    each was copied from."""
+    p, n, src = grid.all_points(sources=True)
     lo = texture.box_min[:2]
     if tileable:  # one period, from B's corner (the grid keeps [0, period))
         p[:, :2] = lo + np.mod(p[:, :2] - lo, lay.period)
         p[:, :2] = np.where(p[:, :2] >= lo + lay.period, lo, p[:, :2])
-        return p, n
+        return p, n, src
     hi = lo + lay.size
     keep = ((p[:, :2] >= lo) & (p[:, :2] < hi)).all(axis=1)
-    return p[keep], n[keep]
+    return p[keep], n[keep], src[keep]
+
+
+def _source_colors(texture: PointTexture, src: np.ndarray) -> np.ndarray | None:
+    """(N, 3) uint8: each output point's colour, its exemplar point's (None without colour)."""
+    if texture.colors is None:
+        return None
+    return texture.colors[src]
 
 
 # ------------------------------------------------------------------ quality
@@ -888,7 +898,9 @@ def synthesize_point_texture(
 
     Returns:
         ``(points, report, timings)``: a :class:`geosynth.pointsets.PointSet` (float32
-        positions and unit normals, x and y from B's corner to B's corner + size), a
+        positions and unit normals, x and y from B's corner to B's corner + size; uint8
+        colours when the exemplar has them, each point's from the exemplar point it was
+        warped from), a
         :class:`PointTextureReport`, and seconds per stage (precompute, search, warp,
         blend, other, total; quality apart). On two or more cores the rows grow on two
         threads: the stage times are then summed over both (more than the total), and with
@@ -950,7 +962,7 @@ def synthesize_point_texture(
     grid, stats = _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer,
                         seams_wanted=quality, progress=progress, cut=cut)
     t0 = time.perf_counter()
-    p, n = _cut(grid, lay, texture, tileable)
+    p, n, src = _cut(grid, lay, texture, tileable)
     if relax:
         from geosynth.blending import relax_points
 
@@ -972,7 +984,7 @@ def synthesize_point_texture(
         tq = time.perf_counter()
         base_grid, base_stats = _grow(texture, search, lay, weights, eps, tileable, np.random.default_rng(seed + 1),
                                       device, spacing, h, variation, _Timer(), baseline=True)
-        bp, bn = _cut(base_grid, lay, texture, tileable)
+        bp, bn, bsrc = _cut(base_grid, lay, texture, tileable)
         qrng = np.random.default_rng(seed)
         lo = texture.box_min[:2]
         out_codes = _field_codes(p, n, lay, search, h, device, lo, lay.size)
@@ -988,9 +1000,9 @@ def synthesize_point_texture(
             q["seam_baseline"] = float(np.sqrt(np.mean(np.square(base_stats["seams"]["baseline"]))))
         q["stray"] = _stray_share(p, n, spacing, h, device)
         q["stray_baseline"] = _stray_share(bp, bn, spacing, h, device)
-        report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32))
+        report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32), _source_colors(texture, bsrc))
         timings["quality"] = time.perf_counter() - tq + seam_time
-    points = PointSet(p.astype(np.float32), n.astype(np.float32))
+    points = PointSet(p.astype(np.float32), n.astype(np.float32), _source_colors(texture, src))
     return points, report, timings
 
 

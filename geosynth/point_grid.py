@@ -42,6 +42,7 @@ class PointGrid:
         self._nrm = np.zeros((0, 3))
         self._alive = np.zeros(0, bool)
         self._rank = np.zeros(0, np.int64)
+        self._src = np.zeros(0, np.int64)  # each point's source id (-1: none given), carried along
         self._next_rank = 0
         self._lock = threading.RLock()
         self._count = 0
@@ -77,17 +78,22 @@ class PointGrid:
         rank = np.zeros(cap, np.int64)
         rank[: self._count] = self._rank[: self._count]
         self._rank = rank
+        src = np.full(cap, -1, np.int64)
+        src[: self._count] = self._src[: self._count]
+        self._src = src
 
     # ------------------------------------------------------------------ operations
 
-    def insert(self, points: np.ndarray, normals: np.ndarray, rank: int | None = None) -> None:
+    def insert(self, points: np.ndarray, normals: np.ndarray, rank: int | None = None, sources=None) -> None:
         """Add (M, 3) points with their (M, 3) normals (wrapped into the period when periodic).
         ``rank`` (an integer in [0, 2^31)): where they come in the grid's order (default: after
-        every rank given so far)."""
+        every rank given so far). ``sources``: (M,) int64 ids carried with the points (e.g. the
+        exemplar point each was copied from), read back by ``in_box``/``all_points`` with
+        ``sources=True``; -1 when not given."""
         with self._lock:
-            self._insert(points, normals, rank)
+            self._insert(points, normals, rank, sources)
 
-    def _insert(self, points, normals, rank) -> None:
+    def _insert(self, points, normals, rank, sources=None) -> None:
         p = np.asarray(points, np.float64).reshape(-1, 3).copy()
         n = np.asarray(normals, np.float64).reshape(-1, 3)
         if len(p) != len(n):
@@ -105,6 +111,7 @@ class PointGrid:
         self._grow(len(p))
         ids = np.arange(self._count, self._count + len(p))
         self._pos[ids], self._nrm[ids], self._alive[ids], self._rank[ids] = p, n, True, int(rank)
+        self._src[ids] = -1 if sources is None else np.asarray(sources, np.int64).reshape(len(p))
         self._count += len(p)
         c = self._cells(p[:, :2])
         keys = self._key(c[:, 0], c[:, 1])
@@ -154,25 +161,28 @@ class PointGrid:
         """``ids`` sorted by (rank, id): one sort of rank * 2^32 + id."""
         return np.sort((self._rank[ids] << 32) | ids) & 0xFFFFFFFF
 
-    def in_box(self, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    def in_box(self, lo, hi, sources: bool = False):
         """Points (and normals) whose x and y lie in the box [lo, hi] ((2,) xy corners; a
         point's height is not tested), in insertion order, (K, 3) float64 each; periodic
-        images are translated into the box's frame."""
+        images are translated into the box's frame. With ``sources``, their (K,) int64
+        source ids too."""
         lo, hi = np.asarray(lo, np.float64)[:2], np.asarray(hi, np.float64)[:2]
         with self._lock:
-            return self._in_box(lo, hi)
+            out = self._in_box(lo, hi)
+        return out if sources else out[:2]
 
     def _in_box(self, lo, hi):
-        ps, ns = [], []
+        ps, ns, ss = [], [], []
         for shift, a, b in self._images(lo, hi):
             ids = self._ids_in(a, b)
             p = self._pos[ids].copy()
             p[:, :2] += shift
             ps.append(p)
             ns.append(self._nrm[ids])
+            ss.append(self._src[ids])
         if not ps:
-            return np.zeros((0, 3)), np.zeros((0, 3))
-        return np.concatenate(ps), np.concatenate(ns)
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64)
+        return np.concatenate(ps), np.concatenate(ns), np.concatenate(ss)
 
     def remove_box(self, lo, hi) -> int:
         """Remove every point whose x and y lie in [lo, hi) (half-open, so that boxes that
@@ -216,8 +226,10 @@ class PointGrid:
         keep = np.isfinite(d)
         return p[keep], n[keep]
 
-    def all_points(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every alive point and its normal, (N, 3) float64 each, in the grid's order."""
+    def all_points(self, sources: bool = False):
+        """Every alive point and its normal, (N, 3) float64 each, in the grid's order (and,
+        with ``sources``, their (N,) int64 source ids)."""
         with self._lock:
             alive = self._ordered(np.flatnonzero(self._alive[: self._count]))
-        return self._pos[alive].copy(), self._nrm[alive].copy()
+        out = self._pos[alive].copy(), self._nrm[alive].copy()
+        return out + (self._src[alive].copy(),) if sources else out

@@ -46,6 +46,8 @@ class PointTexture:
         merged: how many coincident points were merged: points at exactly the same
             position as an earlier one are dropped (the first one and its normal kept),
             since a point set's spacing, and so its MLS width, must not be 0.
+        colors: (N, 3) uint8 RGB colour of each point, or None; the synthesis copies each
+            output point's colour from the exemplar point it was warped from.
     """
 
     points: np.ndarray
@@ -54,6 +56,7 @@ class PointTexture:
     box_max: np.ndarray
     name: str = "texture"
     merged: int = 0
+    colors: np.ndarray | None = None
 
     def __post_init__(self):
         p = np.asarray(self.points, np.float64)
@@ -68,10 +71,16 @@ class PointTexture:
         if bad.size:
             raise ValueError(f"points has {bad.size} position(s) with NaN or inf, the first at index {int(bad[0])}; "
                              "drop or fix them.")
+        c = None
+        if self.colors is not None:
+            c = np.asarray(self.colors)
+            if c.shape != p.shape or c.dtype != np.uint8:
+                raise ValueError(f"colors must be {p.shape} uint8 (RGB) to match points, got {c.shape} {c.dtype}.")
         keep = _first_of_each_position(p)
         if keep is not None:  # coincident points: the spacing (and the MLS width) would be 0
             object.__setattr__(self, "merged", int(self.merged) + len(p) - len(keep))
             p, n = p[keep], n[keep]
+            c = None if c is None else c[keep]
         if len(p) < MIN_POINTS:
             raise ValueError(f"points holds {len(p)} distinct points; a point texture needs at least {MIN_POINTS}.")
         bad = np.flatnonzero(~np.isfinite(n).all(axis=1))
@@ -96,6 +105,7 @@ class PointTexture:
         object.__setattr__(self, "normals", np.ascontiguousarray(n / length[:, None]))
         object.__setattr__(self, "box_min", lo.copy())
         object.__setattr__(self, "box_max", hi.copy())
+        object.__setattr__(self, "colors", None if c is None else np.ascontiguousarray(c))
 
     @staticmethod
     def inside_mask(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -153,7 +163,7 @@ def _box(points: np.ndarray, box, padding: float):
 
 
 def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2, k: int = 16,
-                        name: str = "texture") -> PointTexture:
+                        name: str = "texture", colors=None) -> PointTexture:
     """A point texture from an oriented point set.
 
     Args:
@@ -166,6 +176,7 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
         padding: see ``box``, in [0, 0.5).
         k: neighbours for normal estimation, >= 3.
         name: a label for reports.
+        colors: (N, 3) uint8 colours, or None (a PointSet's own are used unless given).
 
     Returns:
         The :class:`PointTexture`.
@@ -179,6 +190,7 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
 
     if isinstance(points, PointSet):
         normals = points.normals if normals is None else normals
+        colors = points.colors if colors is None else colors
         points = points.positions
     p = np.asarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -194,6 +206,11 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
     if keep is not None:  # coincident points have no normal of their own, and no spacing
         merged = len(p) - len(keep)
         p = p[keep]
+        if colors is not None:
+            colors = np.asarray(colors)
+            if len(colors) != merged + len(p):
+                raise ValueError(f"colors must have {merged + len(p)} rows to match points, got {len(colors)}.")
+            colors = colors[keep]
         if normals is not None:
             normals = np.asarray(normals)
             if normals.shape != (merged + len(p), 3):
@@ -219,11 +236,13 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
         except ValueError as exc:
             raise ValueError(f"the points have no normals and they cannot be estimated: {exc}") from None
     lo, hi = _box(p, box, padding)
-    return PointTexture(p, np.asarray(normals, np.float64), lo, hi, name=name, merged=merged)
+    return PointTexture(p, np.asarray(normals, np.float64), lo, hi, name=name, merged=merged, colors=colors)
 
 
-def _sample_mesh(mesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` points uniformly by area on a triangle mesh, with the faces' normals."""
+def _sample_mesh(mesh, count: int, seed: int):
+    """``count`` points uniformly by area on a triangle mesh, with the faces' normals and,
+    when the mesh has vertex (or face) colours, the colours interpolated at the points
+    ((n, 3) uint8, else None)."""
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.faces, np.int64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -239,7 +258,13 @@ def _sample_mesh(mesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     pts = a[face] * u[:, None] + b[face] * (s * (1 - r2))[:, None] + c[face] * w[:, None]
     good = area[face] > 0
     nrm = cross[face] / np.where(good, area[face], 1.0)[:, None]
-    return pts[good], nrm[good]
+    col = None
+    visual = getattr(mesh, "visual", None)
+    if getattr(visual, "kind", None) in ("vertex", "face"):
+        vc = np.asarray(visual.vertex_colors)[:, :3].astype(np.float64)
+        col = vc[f[face, 0]] * u[:, None] + vc[f[face, 1]] * (s * (1 - r2))[:, None] + vc[f[face, 2]] * w[:, None]
+        col = np.clip(np.rint(col[good]), 0, 255).astype(np.uint8)
+    return pts[good], nrm[good], col
 
 
 def texture_from_mesh(mesh, count: int = 40_000, *, box=None, padding: float = 0.2, seed: int = 0,
@@ -258,15 +283,16 @@ def texture_from_mesh(mesh, count: int = 40_000, *, box=None, padding: float = 0
     """
     if not isinstance(count, (int, np.integer)) or count < MIN_POINTS:
         raise ValueError(f"count must be an integer >= {MIN_POINTS}, got {count!r}.")
-    pts, nrm = _sample_mesh(mesh, int(count), seed)
+    pts, nrm, col = _sample_mesh(mesh, int(count), seed)
     lo, hi = _box(pts, box, padding)
-    return PointTexture(pts, nrm, lo, hi, name=name)
+    return PointTexture(pts, nrm, lo, hi, name=name, colors=col)
 
 
 def read_point_texture(path: str | os.PathLike, *, box=None, padding: float = 0.2, count: int = 40_000,
                        seed: int = 0, before_sampling=None) -> PointTexture:
     """A point texture from a file: a PLY point set (normals estimated when absent) or a mesh
-    (any format :func:`geosynth.pointsets.read_geometry` reads), sampled uniformly.
+    (any format :func:`geosynth.pointsets.read_geometry` reads), sampled uniformly; the
+    file's colours are kept (a mesh's interpolated at the sampled points).
 
     Args:
         path: the file.
@@ -293,7 +319,7 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float = 0.
         before_sampling(lo, hi)  # its refusals are about the options, not the file
     try:
         if isinstance(g, PointSet):
-            return texture_from_points(g.positions, g.normals, box=box, padding=padding, name=name)
+            return texture_from_points(g.positions, g.normals, box=box, padding=padding, name=name, colors=g.colors)
         return texture_from_mesh(g, count, box=box, padding=padding, seed=seed, name=name)
     except ValueError as exc:
         raise ValueError(f"{str(path)!r}: {exc}") from None

@@ -97,12 +97,15 @@ class PointSet:
         colors: (N, 3) uint8 RGB colours, or None.
         source: the file it was read from (set by :func:`read_point_set`), which
             :func:`write_point_set` refuses to overwrite; None otherwise.
+        alpha: (N,) uint8 alpha of the colours when the file gave one, or None (opaque);
+            only with ``colors``.
     """
 
     positions: np.ndarray
     normals: np.ndarray | None = None
     colors: np.ndarray | None = None
     source: Path | None = dc_field(default=None, compare=False)
+    alpha: np.ndarray | None = None
 
     def __post_init__(self):
         self.positions = _as_points("positions", self.positions)
@@ -120,6 +123,12 @@ class PointSet:
                     raise TypeError(f"colors must be uint8 (0..255), got dtype {c.dtype}.")
                 c = c.astype(np.uint8)
             self.colors = np.ascontiguousarray(c)
+        if self.alpha is not None:
+            a = np.asarray(self.alpha)
+            if self.colors is None or a.shape != (n,) or a.dtype != np.uint8:
+                raise ValueError(f"alpha must be ({n},) uint8 beside colors, got {a.shape} {a.dtype}"
+                                 + ("" if self.colors is not None else " without colors") + ".")
+            self.alpha = np.ascontiguousarray(a)
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -139,9 +148,11 @@ def read_point_set(path: str | os.PathLike) -> PointSet:
     """Read a point set from a PLY file (ASCII or binary, either byte order, through plyfile).
 
     Reads the vertex element: x, y, z; nx, ny, nz (or normal_x, ...) when present; red,
-    green, blue (or r, g, b, or diffuse_red, ...) when present: integer colours 0..255 as
-    they are, 16-bit ones scaled, float colours in [0, 1] times 255 (floats beyond 1 are
-    taken as 0..255). Other properties and faces are ignored. The file is noted as an
+    green, blue and optional alpha (or r, g, b, a, or diffuse_red, ...) when present:
+    integer colours 0..255 as they are, 16-bit ones scaled, float colours in [0, 1] times
+    255 (whole-number floats up to 255 as they are; other floats beyond [0, 1], NaN, half a
+    colour group are refused); face colours only: each vertex the mean of its faces'.
+    Other properties and faces are ignored. The file is noted as an
     input (:func:`geosynth.files.note_input`): no writer of this process replaces it.
 
     Args:
@@ -166,7 +177,7 @@ def read_point_set(path: str | os.PathLike) -> PointSet:
 
 def _point_set(p: Path, g) -> PointSet:
     positions, normals = _readers.checked_points(p, g)
-    return PointSet(positions, normals, g.colors, source=p)
+    return PointSet(positions, normals, g.colors, source=p, alpha=g.alpha)
 
 
 def read_geometry(path: str | os.PathLike):
@@ -182,8 +193,12 @@ def read_geometry(path: str | os.PathLike):
 
     Returns:
         A ``trimesh.Trimesh`` (float64 vertices, int64 triangle faces; PLY polygons are
-        split into triangle fans) when the file has faces, else a :class:`PointSet`
-        (positions; normals and colours from PLY files).
+        split into triangle fans) when the file has faces, its colours as
+        ``visual.vertex_colors`` (RGBA; ``metadata["alpha_given"]`` says whether the file
+        gave the alpha), else a :class:`PointSet` (positions; normals from PLY files;
+        colours and alpha from any format). Colours: PLY vertex or face colours, OBJ
+        ``v x y z r g b``, GLB COLOR_0, a texture sampled at the vertices' UVs; colours
+        that cannot be used are refused in one line (see :func:`read_point_set`).
 
     Raises:
         FileNotFoundError: ``"mesh or point-set file 'X' does not exist."``
@@ -204,7 +219,8 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
     """Write a point set as binary little-endian PLY (through plyfile), atomically.
 
     The vertex element holds x, y, z (float32), then nx, ny, nz (float32) when the set
-    has normals and red, green, blue (uchar) when it has colours. The file is written to
+    has normals and red, green, blue (uchar) when it has colours (and alpha when it has
+    one). The file is written to
     a temporary name beside ``path`` and then renamed over it, so a reader never sees a
     partial file (:func:`geosynth.files.atomic_write`).
 
@@ -236,8 +252,9 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
     layout = [(c, "<f4") for c in "xyz"]
     if ps.normals is not None:
         layout += [(c, "<f4") for c in ("nx", "ny", "nz")]
+    alpha = getattr(ps, "alpha", None) if ps.colors is not None else None
     if ps.colors is not None:
-        layout += [(c, "u1") for c in ("red", "green", "blue")]
+        layout += [(c, "u1") for c in ("red", "green", "blue")] + ([("alpha", "u1")] if alpha is not None else [])
     vertex = np.empty(len(ps), dtype=layout)
     for i, c in enumerate("xyz"):
         vertex[c] = ps.positions[:, i]
@@ -247,6 +264,8 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
     if ps.colors is not None:
         for i, c in enumerate(("red", "green", "blue")):
             vertex[c] = ps.colors[:, i]
+        if alpha is not None:
+            vertex["alpha"] = alpha
     data = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<")
 
     def write(tmp: str) -> None:

@@ -45,12 +45,14 @@ _FLOOR = 0.5  # the spacing is never below 0.5x the captured part's median edge 
 @dataclass
 class Capture:
     """A captured surface part: (N, 3) float64 positions, optional (N, 3) uint8 colours,
-    optional (F, 3) int64 triangles, optional (N, 3) normals."""
+    optional (F, 3) int64 triangles, optional (N, 3) normals, optional (N,) uint8 alpha of
+    the colours (the file gave one: it is copied with the colours and written back)."""
 
     positions: np.ndarray
     colors: np.ndarray | None = None
     faces: np.ndarray | None = None
     normals: np.ndarray | None = None
+    alpha: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -64,16 +66,24 @@ def as_capture(capture) -> Capture:
         ValueError: NaN/inf positions (how many, the first index), duplicated positions (how
             many, the first), colours or normals of the wrong shape, face indices out of range.
     """
+    alpha = None
     if isinstance(capture, Capture):
         pos, col, faces, nrm = capture.positions, capture.colors, capture.faces, capture.normals
+        alpha = capture.alpha
     elif hasattr(capture, "vertices") and hasattr(capture, "faces"):
         pos, faces, nrm = np.asarray(capture.vertices), np.asarray(capture.faces), None
         col = None
         visual = getattr(capture, "visual", None)
-        if visual is not None and getattr(visual, "kind", None) == "vertex":
-            col = np.asarray(visual.vertex_colors)[:, :3]
+        if visual is not None and getattr(visual, "kind", None) in ("vertex", "face"):  # face colours: per vertex
+            rgba = np.asarray(visual.vertex_colors)
+            col = rgba[:, :3]
+            # the alpha when the file gave one (geosynth's readers say so) or when it is not opaque
+            given = getattr(capture, "metadata", {}).get("alpha_given")
+            if rgba.shape[1:] == (4,) and (given or (given is None and (rgba[:, 3] != 255).any())):
+                alpha = rgba[:, 3]
     elif hasattr(capture, "positions"):
         pos, col, faces, nrm = capture.positions, getattr(capture, "colors", None), None, getattr(capture, "normals", None)
+        alpha = getattr(capture, "alpha", None)
     else:
         pos, col, faces, nrm = capture, None, None, None
     pos = np.asarray(pos, dtype=np.float64)
@@ -100,6 +110,12 @@ def as_capture(capture) -> Capture:
                 raise ValueError("the capture's colours must be 0..255 (uint8) or 0..1 (float).")
             c = c.astype(np.uint8)
         col = np.ascontiguousarray(c)
+    if alpha is not None:
+        a = np.asarray(alpha)
+        if col is None or a.shape != (n,) or a.dtype != np.uint8:
+            raise ValueError(f"the capture's alpha must be ({n},) uint8 beside its colours, got {a.shape} {a.dtype}"
+                             + ("" if col is not None else " without colours") + ".")
+        alpha = np.ascontiguousarray(a)
     if faces is not None:
         faces = np.asarray(faces, dtype=np.int64)
         if faces.size == 0:
@@ -110,7 +126,7 @@ def as_capture(capture) -> Capture:
         nrm = np.asarray(nrm, dtype=np.float64)
         if nrm.shape != (n, 3):
             raise ValueError(f"the capture's normals must have shape ({n}, 3), got {nrm.shape}.")
-    return Capture(pos, col, faces, nrm)
+    return Capture(pos, col, faces, nrm, alpha)
 
 
 @dataclass
@@ -126,6 +142,7 @@ class ReliefSurface:
         frame_u, frame_v: (V, 3) float64 the paper's tangent frames at ``base``.
         displacement: (V, 3) float64 ``D``; zero for targets until they are textured.
         colors: (V, 3) uint8 (zero for targets until they are textured); None without colour.
+        alpha: (V,) uint8 alpha of the colours, as ``colors`` (None when the capture gave none).
         faces: (F, 3) int32 triangles of samples and targets.
         param: (V, 2) float64 parameters on the fit (:meth:`SurfaceFit.to_param`).
         n_samples, n_original: counts (see above).
@@ -147,6 +164,7 @@ class ReliefSurface:
     n_original: int
     spacing: float
     adjacency: tuple[np.ndarray, np.ndarray]
+    alpha: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
@@ -473,6 +491,10 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     if capture.colors is not None:
         new = _gaussian_knn_colours(capture.positions, capture.colors, mid, sigma=0.5 * med)
         colors = np.concatenate([capture.colors, new])
+    alpha = None
+    if capture.alpha is not None:  # the alpha as a fourth channel of the same interpolation
+        new = _gaussian_knn_colours(capture.positions, capture.alpha[:, None], mid, sigma=0.5 * med)
+        alpha = np.concatenate([capture.alpha, new[:, 0]])
     sample_base = fit.project(sample_pos)
     n_samples = len(sample_pos)
 
@@ -497,6 +519,8 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     displacement = np.concatenate([sample_pos - sample_base, np.zeros_like(tbase)])
     if colors is not None:
         colors = np.concatenate([colors, np.zeros((len(tbase), 3), np.uint8)])
+    if alpha is not None:
+        alpha = np.concatenate([alpha, np.zeros(len(tbase), np.uint8)])
     faces = _triangulate(fit, base, param)
     faces = _drop_long(faces, base, _LONG_EDGE * delta)
     faces = _orient(faces, base, normals)
@@ -505,4 +529,4 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     return ReliefSurface(fit=fit, base=base, normals=normals, frame_u=u, frame_v=v, displacement=displacement,
                          colors=colors, faces=faces.astype(np.int32), param=param, n_samples=n_samples,
                          n_original=n0, spacing=delta,
-                         adjacency=(a.indptr.astype(np.int64), a.indices.astype(np.int64)))
+                         adjacency=(a.indptr.astype(np.int64), a.indices.astype(np.int64)), alpha=alpha)
