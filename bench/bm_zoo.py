@@ -110,12 +110,35 @@ def _split_scales(grid: np.ndarray, mask: np.ndarray, spacing: float, sigma: flo
     return np.where(mask, grid - base, np.nan), np.where(mask, base, np.nan)
 
 
+def correlation_length(grid: np.ndarray, mask: np.ndarray, spacing: float) -> float:
+    """The distance (world units) at which the masked heights' radially averaged
+    autocorrelation falls to 1/2: an isotropic relief's element size, steadier than the
+    spectrum's peak when the spectrum is broad (random bumps)."""
+    z = np.where(mask, grid - np.nanmean(np.where(mask, grid, np.nan)), 0.0)
+    m = mask.astype(np.float64)
+    shape = (2 * z.shape[0], 2 * z.shape[1])
+    acf = np.fft.irfft2(np.abs(np.fft.rfft2(z, shape)) ** 2, shape)
+    overlap = np.fft.irfft2(np.abs(np.fft.rfft2(m, shape)) ** 2, shape)
+    ok = overlap > 0.25 * overlap[0, 0]
+    acf = np.where(ok, acf / np.maximum(overlap, 1e-9), 0.0) / (acf[0, 0] / overlap[0, 0])
+    dy = np.fft.fftfreq(shape[0], 1 / shape[0])[:, None]
+    dx = np.fft.fftfreq(shape[1], 1 / shape[1])[None, :]
+    ring = np.rint(np.hypot(dy, dx)).astype(np.int64)[ok]
+    profile = np.bincount(ring, acf[ok]) / np.maximum(np.bincount(ring), 1)
+    below = np.nonzero(profile < 0.5)[0]
+    if not len(below):
+        return math.nan
+    i = int(below[0])
+    return spacing * (i - 1 + (profile[i - 1] - 0.5) / (profile[i - 1] - profile[i]))
+
+
 def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], spacing: float) -> dict:
     """Relief ``b`` (grid, mask) against the exemplar's ``a`` at one spacing.
 
     The exemplar's dominant period P (:func:`geosynth.relief_spectrum.relief_spectrum`) sets
     the scale: both reliefs are split into detail (less their Gaussian average over P) and
-    base. ``size``: detail period ratio; ``height``: detail amplitude ratio; ``base``: the
+    base. ``size``: detail period ratio (an isotropic exemplar, anisotropy < 0.5: the
+    correlation length's ratio instead); ``height``: detail amplitude ratio; ``base``: the
     base's standard deviation over the detail amplitude, output minus exemplar (a relief
     whose plate undulates, which a person sees as fading or sinking features); ``angle_diff``:
     degrees between the detail's directions. Without the split a slow undulation of the
@@ -128,9 +151,10 @@ def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.nd
     parts = []
     for grid, mask in (a, b):
         detail, base = _split_scales(grid, mask, spacing, period)
-        parts.append((relief_spectrum(detail, spacing, mask), float(np.nanstd(base))))
-    (ra, ba), (rb, bb) = parts
-    out["size"] = rb.period / ra.period
+        parts.append((relief_spectrum(detail, spacing, mask), float(np.nanstd(base)),
+                      correlation_length(detail, mask, spacing)))
+    (ra, ba, la), (rb, bb, lb) = parts
+    out["size"] = rb.period / ra.period if ra.anisotropy >= 0.5 else lb / la
     out["height"] = rb.amplitude / ra.amplitude
     out["base"] = bb / rb.amplitude - ba / ra.amplitude
     d = abs(math.degrees(rb.angle - ra.angle)) % 180

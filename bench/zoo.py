@@ -376,7 +376,7 @@ def _write_points(member: Member, path: Path) -> None:
 def _draw_complete(rng, surface: str, relief: str, i: int) -> dict:
     writer = ("trimesh-ply", "plyfile-ascii", "obj", "plyfile-binary")[i % 4]
     coloured = bool(i % 5 != 4)
-    # a scale of the surface: plane side 2, cylinder radius 1 height 2, sphere radius 1
+    # a scale of the surface: plane 3 x 2, cylinder radius 1 height 2, sphere radius 1
     period = float(rng.uniform(0.25, 0.5))
     angle = {"ridges": float(rng.choice([0.0, 90.0, float(rng.uniform(30, 60))])), "bumps": 0.0, "knurl": 0.0}[relief]
     p = {"writer": writer, "surface": surface, "relief": relief, "coloured": coloured,
@@ -394,8 +394,8 @@ def capture_surface(member: Member, whole: bool = False):
     rng = np.random.default_rng(p["build_seed"])
     d = p["spacing"]
     if p["surface"] == "plane":
-        nu = nv = int(2.0 / d) + 1
-        u, v = np.meshgrid(np.linspace(0, 2, nu), np.linspace(0, 2, nv), indexing="ij")
+        nu, nv = int(3.0 / d) + 1, int(2.0 / d) + 1
+        u, v = np.meshgrid(np.linspace(0, 3, nu), np.linspace(0, 2, nv), indexing="ij")
     elif p["surface"] == "cylinder":
         nu, nv = int(2 * np.pi / d) + 1, int(2.0 / d) + 1
         u, v = np.meshgrid(np.linspace(0, 2 * np.pi, nu), np.linspace(0, 2, nv), indexing="ij")  # u = arc length
@@ -435,7 +435,7 @@ def capture_surface(member: Member, whole: bool = False):
         colours = np.clip(np.round(c), 0, 255).astype(np.uint8)
     rows = np.ones(nu, bool)
     if not whole:  # the plane: a band across the middle missing (its box is the region to fill); else one side
-        rows = (np.abs(u[:, 0] - 1.0) >= 1.0 - p["fraction"]) if p["surface"] == "plane" else u[:, 0] < keep_u
+        rows = (np.abs(u[:, 0] - 1.5) >= 1.5 * (1.0 - p["fraction"])) if p["surface"] == "plane" else u[:, 0] < keep_u
     elif p["surface"] != "plane":
         rows[-1] = False  # the seam column repeats the first
     keep = np.repeat(rows, nv)
