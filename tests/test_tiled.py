@@ -488,3 +488,76 @@ def test_cli_one_tile_says_what_it_does(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "1x1 tiles: the whole target is one tile, run as one Dask task" in out
     assert (tmp_path / "one.ply").read_bytes().startswith(b"ply")
+
+
+# ------------------------------------------------------------------ slabs from files (issue 32 item 4)
+
+
+def _plate(path=None, seed: int = 0):
+    """A user's slab as trimesh makes it: a 4 x 4 x 0.3 plate with 9 hemispherical rivets
+    (radius 0.12-0.2, a jittered 1.2 grid), box and icospheres concatenated, not unioned."""
+    import trimesh
+
+    rng = np.random.default_rng(seed)
+    parts = [trimesh.creation.box(extents=(4, 4, 0.3))]
+    for i in range(3):
+        for j in range(3):
+            s = trimesh.creation.icosphere(subdivisions=2, radius=rng.uniform(0.12, 0.2))
+            s.apply_translation((1.2 * (i - 1) + rng.uniform(-0.15, 0.15), 1.2 * (j - 1) + rng.uniform(-0.15, 0.15),
+                                 0.15))
+            parts.append(s)
+    mesh = trimesh.util.concatenate(parts)
+    if path is not None:
+        mesh.export(path)
+    return mesh
+
+
+def test_plate_from_a_file_is_tiled_with_the_untiled_choices():
+    """The plate is a slab to both paths, by the same function (volume.choose_volume_settings):
+    the same slab, blocks, band and iterations; the tiled run runs texture optimization where
+    the untiled "auto" picks graphcut, and says so. Its tiles' seams are matched by the
+    exemplar as well as their insides (seam_report with the slab's full-thickness block: it
+    once refused the slab's field with "block 16 is larger than the source field")."""
+    from geosynth.volume import choose_volume_settings
+
+    src, _, _ = exemplar_source(_plate(), 40, 2)  # 10 samples thick, 40 across
+    shape = (src.shape[0], 64, 64)
+    untiled = synthesize_volume(src, shape, **FAST)
+    got, ratios = [], []
+    for seed in range(2):
+        r = synthesize_volume_tiled(src, shape, (2, 2), scheduler="threads", workers=1, **dict(FAST, seed=seed))
+        got.append(r.settings)
+        s = seam_report(r.source, r.quantized, r.grid, stride=2, device=ONE_DEVICE)
+        assert r.grid.block_shape(1) == (shape[0], 8, 8) and s["seam_blocks"] > 50 and s["interior_blocks"] > 50
+        ratios.append(s["ratio"])
+    u, t = untiled.settings, got[0]
+    assert u.slab and u.slab_auto and untiled.method == "graphcut" and u.auto_method == "graphcut"
+    assert (t.slab, t.slab_auto, t.blocks, t.block_shapes, t.band, t.iterations, t.auto_method) == \
+        (u.slab, u.slab_auto, u.blocks, u.block_shapes, u.band, u.iterations, u.auto_method)
+    assert t.method == "optimize" and t.tiled and "here graphcut; tiles run optimize only" in t.lines(src.shape)[0]
+    assert u.lines(src.shape)[1:] == t.lines(src.shape)[1:]  # the slab line, word for word
+    assert choose_volume_settings(src.shape, shape, 2, 8, iterations=1, tiled=True) == t
+    assert max(ratios) <= 1.3 and np.mean(ratios) <= 1.15, ratios
+
+
+def test_cli_plate_file_tiled_says_the_untiled_choices(tmp_path, capsys):
+    # issue 32: the plate at --tiles 2x2 was refused ("block 16 is larger than the source
+    # field") while the untiled run took it as a slab
+    from geosynth.cli import main
+
+    plate = tmp_path / "plate.ply"
+    _plate(plate)
+    # 8 samples thick, 32 across: the finest block (16) is thicker than the plate
+    base = ["volume", str(plate), "--size", "64", "--levels", "2", "--block", "16", "--source-resolution", "32",
+            "--quality-samples", "0", "--device", ONE_DEVICE]
+    lines = {}
+    for name, extra in (("untiled", []), ("tiled", ["--tiles", "2x2", "--scheduler", "threads", "--quality-samples",
+                                                    "4"])):
+        assert main(base + ["-o", str(tmp_path / f"{name}.ply")] + extra) == 0, name
+        out = capsys.readouterr().out
+        lines[name] = [ln for ln in out.splitlines() if ln.startswith(("method:", "slab exemplar"))]
+        assert (tmp_path / f"{name}.ply").read_bytes().startswith(b"ply")
+    assert len(lines["untiled"]) == 2 and lines["untiled"][1] == lines["tiled"][1]
+    assert lines["untiled"][1].endswith("grown across only (chosen automatically)")
+    assert lines["untiled"][0].startswith("method: graphcut (auto")
+    assert lines["tiled"][0].startswith("method: optimize (auto") and "here graphcut" in lines["tiled"][0]
