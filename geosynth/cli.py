@@ -480,8 +480,6 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         raise ValueError(f"--tiles takes NXxNY, two integers >= 1 (e.g. 4x4), got {args.tiles!r}.") from None
     if args.tileable:
         raise ValueError("--tileable cannot be tiled yet (the tiles' margins would wrap); drop --tiles or --tileable.")
-    if args.method not in ("optimize", "auto"):  # auto: tiles run texture optimization (the only tiled method)
-        raise ValueError(f"--tiles runs --method optimize only, got --method {args.method}.")
     inputs = []
     if exemplar is not None:
         inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "

@@ -3,12 +3,14 @@ same answer whatever the number of workers?
 
 :func:`synthesize_volume_tiled` runs the M1 synthesis of :func:`geosynth.volume.synthesize_volume`
 (texture optimization per level, Kwatra, Essa, Bobick and Kwatra, "Texture Optimization
-for Example-based Synthesis", SIGGRAPH 2005, on the multiresolution block pyramid of
-Lagae, Dumont and Dutre, "Geometry Synthesis", Sec. 5.2) as a task graph on
+for Example-based Synthesis", SIGGRAPH 2005, or the scan, with graphcut pasting on a
+slab, on the multiresolution block pyramid of Lagae, Dumont and Dutre, "Geometry
+Synthesis", Sec. 5.2; the untiled synthesis's choices,
+:func:`geosynth.volume.choose_volume_settings`) as a task graph on
 ``dask.distributed``: the tiles, margins and the two-phase (checkerboard) schedule of
 :mod:`geosynth.tiling`; phase B tiles are constrained syntheses
-(:func:`geosynth.optimize.optimize_level` with ``fixed``) against their phase-A
-neighbours' results.
+(:func:`geosynth.optimize.optimize_level` with ``fixed``, or the scan with the given
+samples kept and the scan run away from them) against their phase-A neighbours' results.
 
 - The engine: a ``LocalCluster`` by default (``workers`` processes of one thread), any
   running scheduler by address (``scheduler="tcp://..."``), an existing
@@ -94,6 +96,7 @@ class _Exemplar:
     search: str
     seed: int
     key: str  # digest of the sources and parameters: the worker's search cache key
+    method: str = "optimize"  # geosynth.volume.METHODS: texture optimization or the scan (graphcut, paper)
 
 
 _CACHE: dict = {}  # (key, level) -> geosynth.volume.Matcher, per worker process
@@ -124,9 +127,29 @@ def _info(result) -> dict:
     return result[1]
 
 
+def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, fixed) -> dict:
+    """One level of ``ex.method`` on a tile's or corner's ``target`` (in place), ``fixed``
+    samples given: texture optimization (:func:`geosynth.optimize.optimize_level`) or the
+    scan of synthesize_volume (graphcut, paper). Returns its matches, iterations,
+    mean_distance and stopped."""
+    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
+
+    source, b, matcher = ex.sources[level], ex.blocks[level], _matcher(ex, level)
+    if ex.method != "optimize":
+        from geosynth.volume import _synthesize_level
+
+        count, mean = _synthesize_level(source, target, b, matcher, False, None, False, "", False,
+                                        cut=ex.method == "graphcut", fixed=fixed)
+        return {"matches": count, "iterations": 1, "mean_distance": mean, "stopped": "scan"}
+    finest = level == grid.levels - 1
+    return optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
+                          stride=level_stride(grid.blocks[level], finest), sigma=level_sigma(finest),
+                          final=level_final(finest), fixed=fixed)
+
+
 def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list, fixed: list):
     """Synthesize one tile of one level; returns (core (Z, rows, columns) uint8, info)."""
-    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level, random_blocks
+    from geosynth.optimize import random_blocks
 
     start = time.time()
     with _LOCK:
@@ -136,7 +159,11 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         source, b = ex.sources[level], ex.blocks[level]
         if level == 0:
             rng = np.random.default_rng(ex.seed) if grid.whole(level) else tile_rng(ex.seed, level, index)
-            target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
+            if ex.method == "optimize":
+                target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
+            else:  # the scan starts from random source samples, as synthesize_volume's
+                n = int(np.prod((shape[0],) + region.shape))
+                target = source.reshape(-1)[rng.integers(0, source.size, size=n)].reshape((shape[0],) + region.shape)
         else:
             cbox = grid.upsample_source(level, index)
             prev = grid.level_shape(level - 1)
@@ -147,11 +174,7 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         mask = None
         if fixed:
             target, mask = assemble(shape[0], region, fixed, fill=target)
-        finest = level == grid.levels - 1
-        matcher = _matcher(ex, level)
-        got = optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
-                             stride=level_stride(grid.blocks[level], finest), sigma=level_sigma(finest),
-                             final=level_final(finest), fixed=mask)
+        got = _synthesize(ex, grid, level, target, mask)
         out = np.ascontiguousarray(target[region.local(core)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "tile": index, "phase": grid.phase(index), "start": start, "end": time.time(),
@@ -164,8 +187,6 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
     """Phase C: re-synthesize the free square of corner ``k`` of ``level`` with the rest
     of its window (from the four tiles' final cores) fixed. Returns (free square's
     samples (Z, rows, columns) uint8, info). Draws nothing at random."""
-    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
-
     start = time.time()
     with _LOCK:
         t0 = time.perf_counter()
@@ -176,10 +197,7 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
             raise RuntimeError(f"corner {k} level {level + 1}: the tiles' crops miss samples.")
         mask = np.ones(target.shape, bool)
         mask[window.local(free)] = False
-        finest = level == grid.levels - 1
-        got = optimize_level(ex.sources[level], target, ex.blocks[level], _matcher(ex, level),
-                             iterations=int(ex.caps[level]), stride=level_stride(grid.blocks[level], finest),
-                             sigma=level_sigma(finest), final=level_final(finest), fixed=mask)
+        got = _synthesize(ex, grid, level, target, mask)
         out = np.ascontiguousarray(target[window.local(free)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "corner": k, "phase": PHASE_C, "start": start, "end": time.time(), "seconds": seconds,
@@ -801,17 +819,18 @@ def synthesize_volume_tiled(
     resume: bool = False,
     method: str = "auto",
 ) -> TiledResult:
-    """Tiled M1 synthesis (texture optimization) of a field larger than one process
-    should hold, on Dask; the same bits whatever the engine and number of workers.
+    """Tiled M1 synthesis of a field larger than one process should hold, on Dask; the
+    same bits whatever the engine and number of workers.
 
     Args:
         source, size, levels, block, seed, device, search, band, spacing, iterations, slab: as
             :func:`geosynth.volume.synthesize_volume`, with the same choices made from the
             input (:func:`geosynth.volume.choose_volume_settings`: ``result.settings``);
             tileable targets are not tiled (see ``tiles``).
-        method: "optimize" or "auto" (the untiled choice where it is tiled: texture
-            optimization, :data:`geosynth.volume.TILED_METHODS`; ``settings.lines`` says
-            what "auto" would pick untiled when that differs).
+        method: as synthesize_volume (:data:`geosynth.volume.METHODS` or "auto": graphcut
+            for a slab, optimize otherwise). The scans (graphcut, paper) run each phase-B
+            tile and corner window with its neighbours' samples given
+            (``geosynth.volume._synthesize_level``'s ``fixed``).
         tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
             tiled level's cores must hold its block plus the margin.
         workers: workers of the LocalCluster started when ``scheduler`` is None (or
@@ -924,13 +943,17 @@ def synthesize_volume_tiled(
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**63))
     exemplar_bytes = b"".join(s.tobytes() for s in sources)
-    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed))).encode()).hexdigest()
+    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed),
+                                                 settings.method)).encode()).hexdigest()
     ckpt, resumed_found = None, 0
     if checkpoint is not None:  # the device is not part of the key: every device gives the same bits
         key = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, search, int(seed), tuple(target_shape),
-                                                  (nx, ny), margin, coarse_whole, phases)).encode()).hexdigest()
+                                                  (nx, ny), margin, coarse_whole, phases)
+                                                 + ((settings.method,) if settings.method != "optimize" else ())
+                                                 ).encode()).hexdigest()
         ckpt, resumed_found, _ = _open_checkpoint(checkpoint, key, resume, inputs)
-    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device, search, int(seed), digest)
+    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device, search,
+                   int(seed), digest, settings.method)
     estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
                           phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}

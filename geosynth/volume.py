@@ -412,12 +412,27 @@ class Matcher:
         return self.origins[best], int(scores.numpy()[best])
 
 
-def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False):
+def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False,
+                      fixed=None):
+    """One level of the scan (the paper's copying, or graphcut with ``cut``), in place on
+    ``target``; returns (blocks matched, mean SSD per sample). ``fixed``: None, or a
+    (Z, Y, X) bool mask of given samples (a tiled run's neighbouring results): they count
+    as synthesized, enter the matches and never change; blocks made only of them are skipped,
+    and the scan runs away from them along y and x (from the side that holds more of them), so
+    that a block meets given samples where the untiled scan meets synthesized ones."""
     shape = target.shape
-    done = np.zeros(shape, bool)
+    done = np.zeros(shape, bool) if fixed is None else fixed.copy()
     sides = block_shape(block)
     axes = [scan_positions(n, b, wrap) for n, b in zip(shape, sides)]
+    if fixed is not None:
+        for axis in (1, 2):
+            per = fixed.sum(axis=tuple(a for a in range(3) if a != axis), dtype=np.int64)
+            half = shape[axis] // 2
+            if per[shape[axis] - half:].sum() > per[:half].sum():
+                axes[axis] = axes[axis][::-1]
     positions = [(z, y, x) for z in axes[0] for y in axes[1] for x in axes[2]]
+    if fixed is not None:
+        positions = [p for p in positions if not fixed[_box(p, block, shape, wrap)].all()]
     ssd_sum = 0
     bar = None
     if progress:
@@ -462,7 +477,8 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
             if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
                 from geosynth.graphcut import min_cut, must_keep
 
-                fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
+                keep = must_keep(done, pos, block, wrap)
+                fresh = min_cut(query, piece, fresh, keep if fixed is None else keep | fixed[box])
             query[fresh] = piece[fresh]
             target[box] = query
             done[box] = True
@@ -643,11 +659,6 @@ def check_source_and_size(src: np.ndarray, size, levels: int) -> tuple[bool, tup
     return float_source, target_shape
 
 
-# Methods the tiled synthesis (geosynth.tiled) runs: texture optimization only, for now; an
-# "auto" choice of another method runs this one there and says so (VolumeSettings.lines).
-TILED_METHODS = ("optimize",)
-
-
 @dataclass(frozen=True)
 class VolumeSettings:
     """What an M1 synthesis chose from its input (:func:`choose_volume_settings`): one
@@ -656,10 +667,8 @@ class VolumeSettings:
     Attributes:
         slab: blocks span each level's full thickness along z (:func:`is_slab`).
         slab_auto: ``slab`` was chosen from the shapes (the caller gave None).
-        method: the method that runs (:data:`METHODS`).
+        method: the method that runs (:data:`METHODS`; "auto": :func:`resolve_method`).
         method_auto: ``method`` was chosen ("auto" given).
-        auto_method: what "auto" picks for this input (:func:`resolve_method`), whether
-            or not it runs (a tiled run runs :data:`TILED_METHODS` only).
         blocks: each level's block (its side across for a slab), coarsest first
             (:func:`level_blocks`, :func:`plan_blocks`).
         block_shapes: each level's block as matched: N or (Z_l, B, B) (:func:`level_block_shapes`).
@@ -672,7 +681,6 @@ class VolumeSettings:
     slab_auto: bool
     method: str
     method_auto: bool
-    auto_method: str
     blocks: tuple[int, ...]
     block_shapes: tuple
     band: float
@@ -682,13 +690,8 @@ class VolumeSettings:
     def lines(self, source_shape) -> list[str]:
         """What was chosen, one line each: the method, and for a slab (source (Z, Y, X)) the
         slab line. The untiled and the tiled CLI print these."""
-        method = f"method: {self.method}"
-        if self.method_auto and self.method == self.auto_method:
-            method += " (auto: graphcut for a slab, optimize otherwise)"
-        elif self.method_auto:
-            method += (f" (auto: graphcut for a slab, optimize otherwise, here {self.auto_method}; tiles run "
-                       f"{' or '.join(TILED_METHODS)} only)")
-        out = [method]
+        out = [f"method: {self.method}" + (" (auto: graphcut for a slab, optimize otherwise)" if self.method_auto
+                                            else "")]
         if self.slab:
             z, y, x = (int(v) for v in source_shape)
             out.append(f"slab exemplar ({x} x {y} x {z} samples, x y z): blocks span its full thickness along z, "
@@ -702,13 +705,13 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
     """The choices of an M1 synthesis from a (Z, Y, X) source to a (Z, Y, X) target, made
     in one place for :func:`synthesize_volume` and :func:`geosynth.tiled.synthesize_volume_tiled`:
     slab or not (:func:`is_slab` when ``slab`` is None), each level's block (:func:`level_blocks`,
-    shrunk to fit by :func:`plan_blocks`), the method ("auto": :func:`resolve_method`; a tiled
-    run runs :data:`TILED_METHODS` only), the band and the iteration caps. Only shapes are
+    shrunk to fit by :func:`plan_blocks`), the method ("auto": :func:`resolve_method`), the
+    band and the iteration caps (``tiled`` is recorded only: a tiled run chooses the same). Only shapes are
     used: nothing is allocated, so a tiling can be refused before any field is computed.
 
     Raises:
-        ValueError: blocks that do not fit (:func:`plan_blocks`), an unknown method (a
-            tiled run: one it does not run), bad iterations.
+        ValueError: blocks that do not fit (:func:`plan_blocks`), an unknown method, bad
+            iterations.
     """
     if slab is not None:
         _checks.check_bool("slab", slab)
@@ -717,17 +720,13 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
     shapes = level_block_shapes(target_shape, levels, blocks, flat)
     if method != "auto" and method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
-    if tiled and method not in TILED_METHODS + ("auto",):
-        raise ValueError(f"tiles run method {' or '.join(TILED_METHODS)} only, got method {method!r}.")
-    chosen = resolve_method(method, flat)
-    runs = TILED_METHODS[0] if tiled and chosen not in TILED_METHODS else chosen
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
     caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
     if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
                                   for c in caps):
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
-    return VolumeSettings(flat, slab is None, runs, method == "auto", chosen, tuple(int(b) for b in blocks),
+    return VolumeSettings(flat, slab is None, resolve_method(method, flat), method == "auto", tuple(int(b) for b in blocks),
                           tuple(shapes), float(blocks[-1] / 2 if band is None else band),
                           tuple(int(c) for c in caps), bool(tiled))
 

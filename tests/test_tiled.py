@@ -514,50 +514,54 @@ def _plate(path=None, seed: int = 0):
 
 def test_plate_from_a_file_is_tiled_with_the_untiled_choices():
     """The plate is a slab to both paths, by the same function (volume.choose_volume_settings):
-    the same slab, blocks, band and iterations; the tiled run runs texture optimization where
-    the untiled "auto" picks graphcut, and says so. Its tiles' seams are matched by the
-    exemplar as well as their insides (seam_report with the slab's full-thickness block: it
-    once refused the slab's field with "block 16 is larger than the source field")."""
-    from geosynth.volume import choose_volume_settings
+    the same slab, blocks, method (graphcut), band and iterations; one tile is the untiled
+    graphcut field. Its tiles' seams are matched by the exemplar as well as their insides
+    (seam_report with the slab's full-thickness block: it once refused the slab's field with
+    "block 16 is larger than the source field"), with no step at the borders.
+
+    Measured over seeds 0-7 (opencl): seam / inside 0.876 mean, 1.034 worst (the untiled
+    field on the same lines 0.99 mean, 1.13 worst); step ratio 1.46 mean, 1.87 worst (untiled
+    1.25, 1.48; a flat plate's steps inside are small). Independent tiles (phases=1), seeds
+    0-3: step ratio 1.95 mean, 2.17 worst (seeds 0-1: 1.81 mean, 2.13 worst: refused here)."""
+    import dataclasses
 
     src, _, _ = exemplar_source(_plate(), 40, 2)  # 10 samples thick, 40 across
     shape = (src.shape[0], 64, 64)
     untiled = synthesize_volume(src, shape, **FAST)
-    got, ratios = [], []
+    one = synthesize_volume_tiled(src, shape, (1, 1), scheduler="threads", **FAST)
+    assert np.array_equal(one.quantized, untiled.quantized)
+    got, ratios, steps = [], [], []
     for seed in range(2):
         r = synthesize_volume_tiled(src, shape, (2, 2), scheduler="threads", workers=1, **dict(FAST, seed=seed))
         got.append(r.settings)
         s = seam_report(r.source, r.quantized, r.grid, stride=2, device=ONE_DEVICE)
         assert r.grid.block_shape(1) == (shape[0], 8, 8) and s["seam_blocks"] > 50 and s["interior_blocks"] > 50
         ratios.append(s["ratio"])
-    u, t = untiled.settings, got[0]
-    assert u.slab and u.slab_auto and untiled.method == "graphcut" and u.auto_method == "graphcut"
-    assert (t.slab, t.slab_auto, t.blocks, t.block_shapes, t.band, t.iterations, t.auto_method) == \
-        (u.slab, u.slab_auto, u.blocks, u.block_shapes, u.band, u.iterations, u.auto_method)
-    assert t.method == "optimize" and t.tiled and "here graphcut; tiles run optimize only" in t.lines(src.shape)[0]
-    assert u.lines(src.shape)[1:] == t.lines(src.shape)[1:]  # the slab line, word for word
-    assert choose_volume_settings(src.shape, shape, 2, 8, iterations=1, tiled=True) == t
-    assert max(ratios) <= 1.3 and np.mean(ratios) <= 1.15, ratios
+        steps.append(s["step_ratio"])
+    u = untiled.settings
+    assert u.slab and u.slab_auto and u.method == "graphcut" == untiled.method and u.method_auto
+    assert all(dataclasses.replace(t, tiled=False) == u and t.tiled for t in got)
+    assert u.lines(src.shape) == got[0].lines(src.shape) and len(u.lines(src.shape)) == 2
+    assert max(ratios) <= 1.25 and np.mean(ratios) <= 1.1, ratios
+    assert max(steps) <= 2.0 and np.mean(steps) <= 1.75, steps
 
 
 def test_cli_plate_file_tiled_says_the_untiled_choices(tmp_path, capsys):
     # issue 32: the plate at --tiles 2x2 was refused ("block 16 is larger than the source
-    # field") while the untiled run took it as a slab
+    # field", by the seam numbers) while the untiled run took it as a slab; both print
+    # VolumeSettings.lines (their equality: the test above)
     from geosynth.cli import main
 
     plate = tmp_path / "plate.ply"
     _plate(plate)
     # 8 samples thick, 32 across: the finest block (16) is thicker than the plate
-    base = ["volume", str(plate), "--size", "64", "--levels", "2", "--block", "16", "--source-resolution", "32",
-            "--quality-samples", "0", "--device", ONE_DEVICE]
-    lines = {}
-    for name, extra in (("untiled", []), ("tiled", ["--tiles", "2x2", "--scheduler", "threads", "--quality-samples",
-                                                    "4"])):
-        assert main(base + ["-o", str(tmp_path / f"{name}.ply")] + extra) == 0, name
-        out = capsys.readouterr().out
-        lines[name] = [ln for ln in out.splitlines() if ln.startswith(("method:", "slab exemplar"))]
-        assert (tmp_path / f"{name}.ply").read_bytes().startswith(b"ply")
-    assert len(lines["untiled"]) == 2 and lines["untiled"][1] == lines["tiled"][1]
-    assert lines["untiled"][1].endswith("grown across only (chosen automatically)")
-    assert lines["untiled"][0].startswith("method: graphcut (auto")
-    assert lines["tiled"][0].startswith("method: optimize (auto") and "here graphcut" in lines["tiled"][0]
+    argv = ["volume", str(plate), "-o", str(tmp_path / "t.ply"), "--size", "64", "--levels", "2", "--block", "16",
+            "--source-resolution", "32", "--quality-samples", "4", "--smooth", "0", "--device", ONE_DEVICE,
+            "--tiles", "2x2", "--scheduler", "threads"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    lines = [ln for ln in out.splitlines() if ln.startswith(("method:", "slab exemplar"))]
+    assert lines == ["method: graphcut (auto: graphcut for a slab, optimize otherwise)",
+                     "slab exemplar (32 x 32 x 8 samples, x y z): blocks span its full thickness along z, grown "
+                     "across only (chosen automatically)"], lines
+    assert "seams (block distance" in out and (tmp_path / "t.ply").read_bytes().startswith(b"ply")
