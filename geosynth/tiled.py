@@ -587,7 +587,10 @@ def tile_task_bytes(grid: TileGrid, level: int, index: int) -> int:
     trilinear upsampling of the coarser crops (_UPSAMPLE_SAMPLE_BYTES, a finer level)
     and the texture optimization (:func:`geosynth.optimize.memory_estimate`; phase B
     with its given samples), plus the core's copy returned. Measured against the traced
-    peak of every task in tests/test_tiled_memory.py."""
+    peak of every task in tests/test_tiled_memory.py. The scans (graphcut, paper: a slab's
+    default) need less and are not modelled: this bounds them (their traced peaks measured
+    2.5-16x below it, chainmail and terrain, blocks 8 and 16), so a tiling is refused early
+    rather than late."""
     from geosynth.optimize import level_stride, memory_estimate
 
     r, c = grid.region(level, index), grid.core_region(level, index)
