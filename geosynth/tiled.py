@@ -704,7 +704,7 @@ def _settings_and_grid(source_shape, target_shape, tiles, levels: int, block, ma
     target_shape = tuple(int(v) for v in target_shape)
     settings = choose_volume_settings(source_shape, target_shape, levels, block, slab=slab, method=method, band=band,
                                       iterations=iterations, tiled=True)
-    if settings.slab and search == "tree":  # each tile's Matcher would refuse it, on a worker, after the cluster started
+    if settings.slab and search == "tree":  # each tile's Matcher would refuse it on a worker, the cluster started
         raise ValueError("search='tree' takes cubic blocks only; this slab exemplar's blocks span its full thickness: "
                          "use search='cascade' or 'linear' (or slab=False).")
     grid = TileGrid.make(target_shape, parse_tiles(tiles), settings.blocks, margin, coarse_whole, settings.slab)
@@ -955,8 +955,8 @@ def synthesize_volume_tiled(
                                                  + ((settings.method,) if settings.method != "optimize" else ())
                                                  ).encode()).hexdigest()
         ckpt, resumed_found, _ = _open_checkpoint(checkpoint, key, resume, inputs)
-    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device, search,
-                   int(seed), digest, settings.method)
+    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device,
+                   search, int(seed), digest, settings.method)
     estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
                           phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}

@@ -706,8 +706,9 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
     in one place for :func:`synthesize_volume` and :func:`geosynth.tiled.synthesize_volume_tiled`:
     slab or not (:func:`is_slab` when ``slab`` is None), each level's block (:func:`level_blocks`,
     shrunk to fit by :func:`plan_blocks`), the method ("auto": :func:`resolve_method`), the
-    band and the iteration caps (``tiled`` is recorded only: a tiled run chooses the same). Only shapes are
-    used: nothing is allocated, so a tiling can be refused before any field is computed.
+    band and the iteration caps (``tiled`` is recorded only: a tiled run chooses the same).
+    Only shapes are used: nothing is allocated, so a tiling can be refused before any field
+    is computed.
 
     Raises:
         ValueError: blocks that do not fit (:func:`plan_blocks`), an unknown method, bad
@@ -726,7 +727,8 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
     if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
                                   for c in caps):
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
-    return VolumeSettings(flat, slab is None, resolve_method(method, flat), method == "auto", tuple(int(b) for b in blocks),
+    return VolumeSettings(flat, slab is None, resolve_method(method, flat), method == "auto",
+                          tuple(int(b) for b in blocks),
                           tuple(shapes), float(blocks[-1] / 2 if band is None else band),
                           tuple(int(c) for c in caps), bool(tiled))
 

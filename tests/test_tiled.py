@@ -118,7 +118,8 @@ def test_slab_tiles_span_the_thickness_like_the_untiled_synthesis(clients):
     one = synthesize_volume_tiled(src, shape, (1, 1), scheduler="threads", slab=True, method="optimize", **KW)
     assert ref.slab and one.grid.slab and one.grid.block_shape(1) == (shape[0], 8, 8)
     assert np.array_equal(one.quantized, ref.quantized)
-    a = synthesize_volume_tiled(src, shape, (2, 2), scheduler="threads", workers=1, slab=True, method="optimize", **FAST)
+    a = synthesize_volume_tiled(src, shape, (2, 2), scheduler="threads", workers=1, slab=True, method="optimize",
+                                **FAST)
     b = synthesize_volume_tiled(src, shape, (2, 2), scheduler=clients[2], slab=True, method="optimize", **FAST)
     assert a.levels[-1]["tasks"] == 4 and np.array_equal(a.quantized, b.quantized)
     cubes = synthesize_volume_tiled(src, shape, (2, 2), scheduler="threads", workers=1, slab=False, **FAST)
