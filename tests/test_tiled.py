@@ -517,7 +517,7 @@ def _plate(path=None, seed: int = 0):
 def test_plate_from_a_file_is_tiled_with_the_untiled_choices():
     """The plate is a slab to both paths, by the same function (volume.choose_volume_settings):
     the same slab, blocks, method (graphcut), band and iterations; one tile is the untiled
-    graphcut field. Its tiles' seams are matched by the exemplar as well as their insides
+    graphcut field, and the tiles' bits do not depend on the workers. Its tiles' seams are matched by the exemplar as well as their insides
     (seam_report with the slab's full-thickness block: it once refused the slab's field with
     "block 16 is larger than the source field"), with no step at the borders.
 
@@ -540,6 +540,9 @@ def test_plate_from_a_file_is_tiled_with_the_untiled_choices():
         assert r.grid.block_shape(1) == (shape[0], 8, 8) and s["seam_blocks"] > 50 and s["interior_blocks"] > 50
         ratios.append(s["ratio"])
         steps.append(s["step_ratio"])
+        if seed == 0:  # the scan's tiles: the same bits whatever the workers
+            two = synthesize_volume_tiled(src, shape, (2, 2), scheduler="threads", workers=2, **dict(FAST, seed=seed))
+            assert np.array_equal(two.quantized, r.quantized)
     u = untiled.settings
     assert u.slab and u.slab_auto and u.method == "graphcut" == untiled.method and u.method_auto
     assert all(dataclasses.replace(t, tiled=False) == u and t.tiled for t in got)
