@@ -108,7 +108,7 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
     finally:
         client.close()
         cluster.close()
-    finest = BLOCK
+    finest = None  # the grid's finest block: a slab's spans the thickness, as its tiles matched
     q = seam_report(r.source, r.quantized, r.grid, finest, stride=max(2, size // 128), device=device)
     rss = list(r.peak_rss.values())
     n = int(np.prod(shape))
@@ -133,7 +133,7 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
     ratio_line = None
     if untiled:
         t0 = time.perf_counter()
-        u = synthesize_volume(src, shape, method="optimize", slab=r.grid.slab, **kw)  # the tiles' method and blocks
+        u = synthesize_volume(src, shape, method=r.settings.method, slab=r.grid.slab, **kw)  # the tiles' choices
         u_wall = time.perf_counter() - t0
         qu = seam_report(u.source, u.quantized, r.grid, finest, stride=max(2, size // 128), device=device)
         lines.append(f"| untiled, one process | {u_wall:.1f} s (tiled / untiled {wall / u_wall:.2f}); the same "

@@ -411,12 +411,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
         slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
     )
-    say(f"method: {result.method}" + (" (auto: graphcut for a slab, optimize otherwise)" if args.method == "auto"
-                                      else ""))
-    if result.volume.slab:
-        z, y, x = result.volume.source.shape
-        say(f"slab exemplar ({x} x {y} x {z} samples, x y z): blocks span its full thickness along z, "
-            f"grown across only" + (" (chosen automatically)" if getattr(args, "slab", "auto") == "auto" else ""))
+    for line in result.volume.settings.lines(result.volume.source.shape):  # the tiled run prints the same
+        say(line)
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
     say("\nper level:")
@@ -485,8 +481,6 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         raise ValueError(f"--tiles takes NXxNY, two integers >= 1 (e.g. 4x4), got {args.tiles!r}.") from None
     if args.tileable:
         raise ValueError("--tileable cannot be tiled yet (the tiles' margins would wrap); drop --tiles or --tileable.")
-    if args.method not in ("optimize", "auto"):  # auto: tiles run texture optimization (the only tiled method)
-        raise ValueError(f"--tiles runs --method optimize only, got --method {args.method}.")
     inputs = []
     if exemplar is not None:
         inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
@@ -534,10 +528,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
 
     def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
         tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
-                  search=args.search)
+                  search=args.search, method=args.method)
 
     source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
-                                         args.device, check=check_tiling)
+                                         args.device, check=check_tiling, drop_degenerate=args.drop_degenerate)
     shape = target_size(size, source.shape, args.levels)
     workers = 2 if args.workers is None else args.workers
     engine = args.scheduler or f"a LocalCluster of {workers} workers"
@@ -560,13 +554,12 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
         search=args.search, spacing=spacing, workers=workers, scheduler=args.scheduler, store=args.store,
         gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs, slab=slab,
-        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume)
+        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume, method=args.method)
     if args.resume:
         say(f"--resume: {result.resumed} finished task(s) of the interrupted run loaded from {str(checkpoint)!r}"
             if result.resumed else "--resume: no checkpoint of an interrupted run with these settings; ran from the start")
-    if result.grid.slab:
-        say(f"slab exemplar: blocks span its full thickness along z, grown across only"
-            + (" (chosen automatically)" if slab is None else ""))
+    for line in result.settings.lines(result.source.shape):  # the untiled run's lines, from the same choices
+        say(line)
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces (tiles merged)")
     if result.store:
@@ -579,9 +572,8 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     for k, v in result.timings.items():
         say(f"  {k:<34} {v:8.2f} s")
     if gather:
-        finest = result.grid.blocks[-1]
-        q = seam_report(result.source, result.quantized, result.grid, finest, stride=max(1, finest // 2),
-                        device=args.device)
+        finest = result.grid.blocks[-1]  # a slab's block spans the thickness (the grid's block shape)
+        q = seam_report(result.source, result.quantized, result.grid, stride=max(1, finest // 2), device=args.device)
         say(f"seams (block distance, squared uint8 units per sample; interior blocks are the baseline): across tile "
             f"borders {q['seam']:.1f}, inside tiles {q['interior']:.1f} (ratio {q['ratio']:.2f}); step across "
             f"borders {q['step_seam']:.2f}, elsewhere {q['step_interior']:.2f}")
@@ -1049,7 +1041,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
     p.add_argument("--slab", choices=["auto", "yes", "no"], default="auto",
                    help="blocks through the exemplar's full thickness, grown across only: auto (default: when the "
-                        "exemplar is at least 4x thinner along z than across), yes or no")
+                        "exemplar is at least 2.5x thinner along z than across: geosynth.volume.SLAB_RATIO), yes or "
+                        "no; the same choice with --tiles")
     p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
                    help=f"Taubin smoothing iterations, 0 to {MAX_SMOOTH} (default 10)")
     p.add_argument("--quality-samples", type=_int_type(0), default=100,

@@ -3,12 +3,14 @@ same answer whatever the number of workers?
 
 :func:`synthesize_volume_tiled` runs the M1 synthesis of :func:`geosynth.volume.synthesize_volume`
 (texture optimization per level, Kwatra, Essa, Bobick and Kwatra, "Texture Optimization
-for Example-based Synthesis", SIGGRAPH 2005, on the multiresolution block pyramid of
-Lagae, Dumont and Dutre, "Geometry Synthesis", Sec. 5.2) as a task graph on
+for Example-based Synthesis", SIGGRAPH 2005, or the scan, with graphcut pasting on a
+slab, on the multiresolution block pyramid of Lagae, Dumont and Dutre, "Geometry
+Synthesis", Sec. 5.2; the untiled synthesis's choices,
+:func:`geosynth.volume.choose_volume_settings`) as a task graph on
 ``dask.distributed``: the tiles, margins and the two-phase (checkerboard) schedule of
 :mod:`geosynth.tiling`; phase B tiles are constrained syntheses
-(:func:`geosynth.optimize.optimize_level` with ``fixed``) against their phase-A
-neighbours' results.
+(:func:`geosynth.optimize.optimize_level` with ``fixed``, or the scan with the given
+samples kept and the scan run away from them) against their phase-A neighbours' results.
 
 - The engine: a ``LocalCluster`` by default (``workers`` processes of one thread), any
   running scheduler by address (``scheduler="tcp://..."``), an existing
@@ -94,6 +96,7 @@ class _Exemplar:
     search: str
     seed: int
     key: str  # digest of the sources and parameters: the worker's search cache key
+    method: str = "optimize"  # geosynth.volume.METHODS: texture optimization or the scan (graphcut, paper)
 
 
 _CACHE: dict = {}  # (key, level) -> geosynth.volume.Matcher, per worker process
@@ -124,9 +127,29 @@ def _info(result) -> dict:
     return result[1]
 
 
+def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, fixed) -> dict:
+    """One level of ``ex.method`` on a tile's or corner's ``target`` (in place), ``fixed``
+    samples given: texture optimization (:func:`geosynth.optimize.optimize_level`) or the
+    scan of synthesize_volume (graphcut, paper). Returns its matches, iterations,
+    mean_distance and stopped."""
+    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
+
+    source, b, matcher = ex.sources[level], ex.blocks[level], _matcher(ex, level)
+    if ex.method != "optimize":
+        from geosynth.volume import _synthesize_level
+
+        count, mean = _synthesize_level(source, target, b, matcher, False, None, False, "", False,
+                                        cut=ex.method == "graphcut", fixed=fixed)
+        return {"matches": count, "iterations": 1, "mean_distance": mean, "stopped": "scan"}
+    finest = level == grid.levels - 1
+    return optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
+                          stride=level_stride(grid.blocks[level], finest), sigma=level_sigma(finest),
+                          final=level_final(finest), fixed=fixed)
+
+
 def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list, fixed: list):
     """Synthesize one tile of one level; returns (core (Z, rows, columns) uint8, info)."""
-    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level, random_blocks
+    from geosynth.optimize import random_blocks
 
     start = time.time()
     with _LOCK:
@@ -136,7 +159,11 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         source, b = ex.sources[level], ex.blocks[level]
         if level == 0:
             rng = np.random.default_rng(ex.seed) if grid.whole(level) else tile_rng(ex.seed, level, index)
-            target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
+            if ex.method == "optimize":
+                target = random_blocks(source, (shape[0],) + region.shape, b, rng, False)
+            else:  # the scan starts from random source samples, as synthesize_volume's
+                n = int(np.prod((shape[0],) + region.shape))
+                target = source.reshape(-1)[rng.integers(0, source.size, size=n)].reshape((shape[0],) + region.shape)
         else:
             cbox = grid.upsample_source(level, index)
             prev = grid.level_shape(level - 1)
@@ -147,11 +174,7 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         mask = None
         if fixed:
             target, mask = assemble(shape[0], region, fixed, fill=target)
-        finest = level == grid.levels - 1
-        matcher = _matcher(ex, level)
-        got = optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
-                             stride=level_stride(grid.blocks[level], finest), sigma=level_sigma(finest),
-                             final=level_final(finest), fixed=mask)
+        got = _synthesize(ex, grid, level, target, mask)
         out = np.ascontiguousarray(target[region.local(core)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "tile": index, "phase": grid.phase(index), "start": start, "end": time.time(),
@@ -164,8 +187,6 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
     """Phase C: re-synthesize the free square of corner ``k`` of ``level`` with the rest
     of its window (from the four tiles' final cores) fixed. Returns (free square's
     samples (Z, rows, columns) uint8, info). Draws nothing at random."""
-    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
-
     start = time.time()
     with _LOCK:
         t0 = time.perf_counter()
@@ -176,10 +197,7 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
             raise RuntimeError(f"corner {k} level {level + 1}: the tiles' crops miss samples.")
         mask = np.ones(target.shape, bool)
         mask[window.local(free)] = False
-        finest = level == grid.levels - 1
-        got = optimize_level(ex.sources[level], target, ex.blocks[level], _matcher(ex, level),
-                             iterations=int(ex.caps[level]), stride=level_stride(grid.blocks[level], finest),
-                             sigma=level_sigma(finest), final=level_final(finest), fixed=mask)
+        got = _synthesize(ex, grid, level, target, mask)
         out = np.ascontiguousarray(target[window.local(free)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "corner": k, "phase": PHASE_C, "start": start, "end": time.time(), "seconds": seconds,
@@ -517,6 +535,8 @@ class TiledResult:
         engine: "threads" or "distributed"; workers: how many.
         resumed: tile and corner tasks whose results were loaded from the checkpoint of
             an interrupted run instead of computed (0 without ``resume``).
+        settings: the choices made from the input, the untiled synthesis's
+            (:class:`geosynth.volume.VolumeSettings`).
     """
 
     quantized: np.ndarray | None
@@ -537,6 +557,7 @@ class TiledResult:
     engine: str = "distributed"
     workers: int = 0
     resumed: int = 0
+    settings: object = None
 
     def lines(self) -> list[str]:
         """The per-level timings and the run's figures, one line each."""
@@ -566,7 +587,10 @@ def tile_task_bytes(grid: TileGrid, level: int, index: int) -> int:
     trilinear upsampling of the coarser crops (_UPSAMPLE_SAMPLE_BYTES, a finer level)
     and the texture optimization (:func:`geosynth.optimize.memory_estimate`; phase B
     with its given samples), plus the core's copy returned. Measured against the traced
-    peak of every task in tests/test_tiled_memory.py."""
+    peak of every task in tests/test_tiled_memory.py. The scans (graphcut, paper: a slab's
+    default) need less and are not modelled: this bounds them (their traced peaks measured
+    2.5-16x below it, chainmail and terrain, blocks 8 and 16), so a tiling is refused early
+    rather than late."""
     from geosynth.optimize import level_stride, memory_estimate
 
     r, c = grid.region(level, index), grid.core_region(level, index)
@@ -653,30 +677,38 @@ def _faces_per_sample(source: np.ndarray) -> float:
 
 
 def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int | None = None,
-              coarse_whole: bool = True, slab: bool | None = None, search: str = "cascade") -> TileGrid:
+              coarse_whole: bool = True, slab: bool | None = None, search: str = "cascade",
+              method: str = "auto") -> TileGrid:
     """The tiling of a synthesis from a source of ``source_shape`` to ``target_shape``
-    (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the blocks per level
-    (:func:`geosynth.volume.plan_blocks`; with ``slab``, or when None and
-    :func:`geosynth.volume.is_slab`, blocks through each level's full thickness, as
-    :func:`geosynth.volume.synthesize_volume` makes them) and :meth:`TileGrid.make`.
-    Needs the shapes only, so a tiling whose cores are smaller than a block plus the
-    margin, or a search the tiles would refuse (``search="tree"`` with a slab's blocks), is
-    refused before any field is computed or any worker starts.
+    (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the untiled
+    synthesis's choices (:func:`geosynth.volume.choose_volume_settings`: slab or not, the
+    blocks per level) and :meth:`TileGrid.make`. Needs the shapes only, so a tiling whose
+    cores are smaller than a block plus the margin, or a search the tiles would refuse
+    (``search="tree"`` with a slab's blocks), is refused before any field is computed or
+    any worker starts.
 
     Raises:
         ValueError / TypeError: bad tiles, blocks that do not fit, cores too small, the
-            tree search with a slab.
+            tree search with a slab, a method the tiles do not run.
     """
-    from geosynth.volume import is_slab, level_blocks, plan_blocks
+    return _settings_and_grid(source_shape, target_shape, tiles, levels, block, margin, coarse_whole, slab, search,
+                              method)[1]
+
+
+def _settings_and_grid(source_shape, target_shape, tiles, levels: int, block, margin, coarse_whole: bool, slab,
+                       search: str, method: str, band=None, iterations=None):
+    """(:class:`geosynth.volume.VolumeSettings` of a tiled run, its :class:`TileGrid`)."""
+    from geosynth.volume import choose_volume_settings
 
     source_shape = tuple(int(v) for v in source_shape)
     target_shape = tuple(int(v) for v in target_shape)
-    slab = is_slab(source_shape, target_shape) if slab is None else bool(slab)
-    if slab and search == "tree":  # each tile's Matcher would refuse it, on a worker, after the cluster started
+    settings = choose_volume_settings(source_shape, target_shape, levels, block, slab=slab, method=method, band=band,
+                                      iterations=iterations, tiled=True)
+    if settings.slab and search == "tree":  # each tile's Matcher would refuse it on a worker, the cluster started
         raise ValueError("search='tree' takes cubic blocks only; this slab exemplar's blocks span its full thickness: "
                          "use search='cascade' or 'linear' (or slab=False).")
-    blocks = plan_blocks(source_shape, target_shape, levels, block, level_blocks(levels, block, slab), slab)
-    return TileGrid.make(target_shape, parse_tiles(tiles), blocks, margin, coarse_whole, slab)
+    grid = TileGrid.make(target_shape, parse_tiles(tiles), settings.blocks, margin, coarse_whole, settings.slab)
+    return settings, grid
 
 
 def parse_tiles(tiles) -> tuple[int, int]:
@@ -788,14 +820,20 @@ def synthesize_volume_tiled(
     progress: bool = True,
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
+    method: str = "auto",
 ) -> TiledResult:
-    """Tiled M1 synthesis (texture optimization) of a field larger than one process
-    should hold, on Dask; the same bits whatever the engine and number of workers.
+    """Tiled M1 synthesis of a field larger than one process should hold, on Dask; the
+    same bits whatever the engine and number of workers.
 
     Args:
-        source, size, levels, block, seed, device, search, band, spacing, iterations: as
-            :func:`geosynth.volume.synthesize_volume` (method "optimize"; tileable
-            targets are not tiled: see ``tiles``).
+        source, size, levels, block, seed, device, search, band, spacing, iterations, slab: as
+            :func:`geosynth.volume.synthesize_volume`, with the same choices made from the
+            input (:func:`geosynth.volume.choose_volume_settings`: ``result.settings``);
+            tileable targets are not tiled (see ``tiles``).
+        method: as synthesize_volume (:data:`geosynth.volume.METHODS` or "auto": graphcut
+            for a slab, optimize otherwise). The scans (graphcut, paper) run each phase-B
+            tile and corner window with its neighbours' samples given
+            (``geosynth.volume._synthesize_level``'s ``fixed``).
         tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
             tiled level's cores must hold its block plus the margin.
         workers: workers of the LocalCluster started when ``scheduler`` is None (or
@@ -824,9 +862,6 @@ def synthesize_volume_tiled(
             point, where two phase-B tiles meet diagonally: :meth:`TileGrid.corners`),
             2 (the checkerboard only: the B-B corners chosen twice) or 1 (every tile
             independent: the naive baseline whose seams the schedule removes).
-        slab: blocks through each level's full thickness along z, grown across only,
-            as :func:`geosynth.volume.synthesize_volume` (None: when the exemplar is a
-            slab, :func:`geosynth.volume.is_slab`; chainmail, rings, domes).
         progress: a progress bar over the tile tasks.
         checkpoint: a folder where each finished tile and corner task's result is saved
             (None: none). Removed when the run succeeds; after an interruption it holds
@@ -873,14 +908,12 @@ def synthesize_volume_tiled(
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
     nx, ny = parse_tiles(tiles)
-    band, _, target_shape = check_source_and_size(src, size, levels, band, level_blocks(levels, block))
-    grid = tile_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab, search)
-    blocks = list(grid.blocks)
-    if iterations is None:
-        iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
-    caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
-    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1 for c in caps):
-        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
+    level_blocks(levels, block)  # the block's own errors before the source's, as synthesize_volume
+    _, target_shape = check_source_and_size(src, size, levels)
+    # the untiled synthesis's choices (slab, blocks, method, band, iterations), made by the same function
+    settings, grid = _settings_and_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab,
+                                        search, method, band, iterations)
+    blocks, band, caps = list(grid.blocks), settings.band, list(settings.iterations)
     if gather is None:
         gather = store is None
     _checks.check_bool("resume", resume)
@@ -913,13 +946,17 @@ def synthesize_volume_tiled(
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**63))
     exemplar_bytes = b"".join(s.tobytes() for s in sources)
-    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed))).encode()).hexdigest()
+    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed),
+                                                 settings.method)).encode()).hexdigest()
     ckpt, resumed_found = None, 0
     if checkpoint is not None:  # the device is not part of the key: every device gives the same bits
         key = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, search, int(seed), tuple(target_shape),
-                                                  (nx, ny), margin, coarse_whole, phases)).encode()).hexdigest()
+                                                  (nx, ny), margin, coarse_whole, phases)
+                                                 + ((settings.method,) if settings.method != "optimize" else ())
+                                                 ).encode()).hexdigest()
         ckpt, resumed_found, _ = _open_checkpoint(checkpoint, key, resume, inputs)
-    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device, search, int(seed), digest)
+    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device,
+                   search, int(seed), digest, settings.method)
     estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
                           phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}
@@ -1064,7 +1101,8 @@ def synthesize_volume_tiled(
                        levels_info, sum(lv["tasks"] for lv in levels_info), bytes_moved, peak, estimate, limit,
                        timings, engine.name, int(workers) if scheduler in (None, "threads") else
                        len(engine.client.scheduler_info(n_workers=-1)["workers"]),
-                       sum(bool(i.get("resumed")) for lv in levels_info for i in lv["tiles"] + lv["corners"]))
+                       sum(bool(i.get("resumed")) for lv in levels_info for i in lv["tiles"] + lv["corners"]),
+                       settings)
 
 
 def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int, checkpoint: str | None = None):
@@ -1177,33 +1215,33 @@ def _merge(pieces, smooth: int):
 
 
 def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed: int | None = 0,
-                    device: str | None = None, check=None):
+                    device: str | None = None, check=None, drop_degenerate: bool = False):
     """An exemplar mesh (a trimesh, a file or a built-in name) as the source of a
-    synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it: its exact signed
-    distance on :func:`geosynth.volume.exemplar_grid`. ``check``: None, or a callable
-    taking the source's (Z, Y, X) shape, called before the distance is computed (so that
-    a tiling that cannot be is refused before the field's seconds: see :func:`tile_grid`).
+    synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it
+    (:func:`geosynth.volume.exemplar_distance`): its exact signed distance on
+    :func:`geosynth.volume.exemplar_grid`. ``check``: None, or a callable taking the
+    source's (Z, Y, X) shape, called before the distance is computed (so that a tiling
+    that cannot be is refused before the field's seconds: see :func:`tile_grid`).
+    ``drop_degenerate``: drop the exemplar's zero-area faces instead of refusing it.
     Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
     the exemplar Field)."""
     from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.meshes import check_mesh, mesh_distance
-    from geosynth.volume import exemplar_grid
+    from geosynth.meshes import check_mesh
+    from geosynth.volume import exemplar_distance
 
     m = resolve_exemplar_mesh(exemplar, seed)
-    check_mesh(m, "exemplar")
-    grid = exemplar_grid(m, source_resolution, multiple=2 ** (levels - 1))
-    if check is not None:
-        check(grid.values.shape)
-    field = mesh_distance(m, field=grid, device=device)
-    spacing = float(field.spacing[0])
-    return field.values / np.float32(spacing), spacing, field
+    check_mesh(m, "exemplar", drop_degenerate=drop_degenerate)
+    return exemplar_distance(m, source_resolution, levels, device=device, drop_degenerate=drop_degenerate,
+                             before=check)
 
 
-def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: int, *, stride: int = 2,
+def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block=None, *, stride: int = 2,
                 device: str | None = None) -> dict:
     """Block distance at the seams against inside the tiles.
 
-    For every block of ``field`` on a lattice of ``stride`` (x-y, from stride // 2) and ``block`` (z), the
+    ``block``: N (a cube), (bz, by, bx), or None: the finest level's block of ``grid``
+    (a slab's spans the thickness, :meth:`TileGrid.block_shape`). For every block of
+    ``field`` on a lattice of ``stride`` (x-y, from stride // 2) and bz (z), the
     exact nearest block of ``source`` (SSD / block^3, squared uint8 units per sample,
     :class:`geosynth.cascade_search.CascadeSearch`); blocks whose x-y footprint crosses a
     border between two tile cores of the finest level are "seam", those within one core
@@ -1217,9 +1255,13 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: in
         {"seam": mean, "interior": mean, "ratio": seam / interior, "seam_blocks",
         "interior_blocks", "step_seam", "step_interior", "step_ratio"}.
     """
+    from geosynth.blocks import block_shape
     from geosynth.cascade_search import CascadeSearch
 
     last = grid.levels - 1
+    if block is None:
+        block = grid.block_shape(last)
+    bz, by, bx = block_shape(block)
     cores = list(grid.cores(last).values())
     ys = sorted({c.y0 for c in cores} - {0})
     xs = sorted({c.x0 for c in cores} - {0})
@@ -1228,16 +1270,16 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block: in
     sums = {"seam": [], "interior": []}
     queries, kinds = [], []
     start = stride // 2  # an odd offset: with any stride some blocks straddle each border
-    for z in range(0, Z - block + 1, block):
-        for y in range(start, Y - block + 1, stride):
-            for x in range(start, X - block + 1, stride):
-                crosses = any(y < e < y + block for e in ys) or any(x < e < x + block for e in xs)
-                queries.append(field[z:z + block, y:y + block, x:x + block])
+    for z in range(0, Z - bz + 1, bz):
+        for y in range(start, Y - by + 1, stride):
+            for x in range(start, X - bx + 1, stride):
+                crosses = any(y < e < y + by for e in ys) or any(x < e < x + bx for e in xs)
+                queries.append(field[z:z + bz, y:y + by, x:x + bx])
                 kinds.append("seam" if crosses else "interior")
     for lo in range(0, len(queries), 512):
         _, ssds, _ = search.nearest_batch(np.stack(queries[lo:lo + 512]), None)
         for kind, d in zip(kinds[lo:lo + 512], ssds):
-            sums[kind].append(d / block**3)
+            sums[kind].append(d / (bz * by * bx))
     seam, interior = float(np.mean(sums["seam"])), float(np.mean(sums["interior"]))
     # the step between neighbouring samples across a border against between any other two
     steps = {"seam": [], "interior": []}

@@ -57,9 +57,11 @@ __all__ = [
     "LevelReport",
     "METHODS",
     "VolumeResult",
+    "VolumeSettings",
     "SLAB_RATIO",
     "block_offsets",
     "block_text",
+    "choose_volume_settings",
     "downsample",
     "is_slab",
     "max_levels",
@@ -213,6 +215,7 @@ class VolumeResult:
         timings: seconds per stage.
         method: the method that made it (:data:`METHODS`, "auto" resolved), or "random tiling".
         slab: whether the blocks spanned the full thickness (:func:`is_slab`).
+        settings: what was chosen from the input (:func:`choose_volume_settings`).
     """
 
     quantized: np.ndarray
@@ -223,6 +226,7 @@ class VolumeResult:
     timings: dict = dc_field(default_factory=dict)
     method: str = "optimize"
     slab: bool = False
+    settings: VolumeSettings | None = None
 
 
 SEARCHES = ("cascade", "tree", "linear")
@@ -408,12 +412,27 @@ class Matcher:
         return self.origins[best], int(scores.numpy()[best])
 
 
-def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False):
+def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False,
+                      fixed=None):
+    """One level of the scan (the paper's copying, or graphcut with ``cut``), in place on
+    ``target``; returns (blocks matched, mean SSD per sample). ``fixed``: None, or a
+    (Z, Y, X) bool mask of given samples (a tiled run's neighbouring results): they count
+    as synthesized, enter the matches and never change; blocks made only of them are skipped,
+    and the scan runs away from them along y and x (from the side that holds more of them), so
+    that a block meets given samples where the untiled scan meets synthesized ones."""
     shape = target.shape
-    done = np.zeros(shape, bool)
+    done = np.zeros(shape, bool) if fixed is None else fixed.copy()
     sides = block_shape(block)
     axes = [scan_positions(n, b, wrap) for n, b in zip(shape, sides)]
+    if fixed is not None:
+        for axis in (1, 2):
+            per = fixed.sum(axis=tuple(a for a in range(3) if a != axis), dtype=np.int64)
+            half = shape[axis] // 2
+            if per[shape[axis] - half:].sum() > per[:half].sum():
+                axes[axis] = axes[axis][::-1]
     positions = [(z, y, x) for z in axes[0] for y in axes[1] for x in axes[2]]
+    if fixed is not None:
+        positions = [p for p in positions if not fixed[_box(p, block, shape, wrap)].all()]
     ssd_sum = 0
     bar = None
     if progress:
@@ -458,7 +477,8 @@ def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label
             if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
                 from geosynth.graphcut import min_cut, must_keep
 
-                fresh = min_cut(query, piece, fresh, must_keep(done, pos, block, wrap))
+                keep = must_keep(done, pos, block, wrap)
+                fresh = min_cut(query, piece, fresh, keep if fixed is None else keep | fixed[box])
             query[fresh] = piece[fresh]
             target[box] = query
             done[box] = True
@@ -623,12 +643,10 @@ def _require_size(size, target_shape, levels: int, estimate, option: str = "size
     require(estimate(target_shape), option=option, value=size, largest=largest, available=avail,
             what=f"{option} {x:,} x {y:,} x {z:,} (x y z)")
 
-def check_source_and_size(src: np.ndarray, size, levels: int, band: float | None, blocks: list) -> tuple:
+def check_source_and_size(src: np.ndarray, size, levels: int) -> tuple[bool, tuple[int, int, int]]:
     """The checks of a source volume and target size that synthesize_volume and the tiled
-    synthesis share: (band, defaulting to half the finest block; whether the source is float
-    distances, which must then be finite; the target shape, a multiple of 2^(levels-1))."""
-    if band is None:
-        band = blocks[-1] / 2
+    synthesis share: (whether the source is float distances, which must then be finite;
+    the target shape, a multiple of 2^(levels-1))."""
     float_source = src.dtype != np.uint8
     if float_source:
         if not np.issubdtype(src.dtype, np.floating):
@@ -638,7 +656,81 @@ def check_source_and_size(src: np.ndarray, size, levels: int, band: float | None
     factor = 2 ** (levels - 1)
     if any(s % factor for s in target_shape):
         raise ValueError(f"size {target_shape} must be a multiple of 2^(levels-1) = {factor} on every axis.")
-    return band, float_source, target_shape
+    return float_source, target_shape
+
+
+@dataclass(frozen=True)
+class VolumeSettings:
+    """What an M1 synthesis chose from its input (:func:`choose_volume_settings`): one
+    answer for the untiled and the tiled synthesis.
+
+    Attributes:
+        slab: blocks span each level's full thickness along z (:func:`is_slab`).
+        slab_auto: ``slab`` was chosen from the shapes (the caller gave None).
+        method: the method that runs (:data:`METHODS`; "auto": :func:`resolve_method`).
+        method_auto: ``method`` was chosen ("auto" given).
+        blocks: each level's block (its side across for a slab), coarsest first
+            (:func:`level_blocks`, :func:`plan_blocks`).
+        block_shapes: each level's block as matched: N or (Z_l, B, B) (:func:`level_block_shapes`).
+        band: the quantization band, in samples (default half the finest block).
+        iterations: texture-optimization iteration caps per level, coarsest first.
+        tiled: chosen for the tiled synthesis.
+    """
+
+    slab: bool
+    slab_auto: bool
+    method: str
+    method_auto: bool
+    blocks: tuple[int, ...]
+    block_shapes: tuple
+    band: float
+    iterations: tuple[int, ...]
+    tiled: bool = False
+
+    def lines(self, source_shape) -> list[str]:
+        """What was chosen, one line each: the method, and for a slab (source (Z, Y, X)) the
+        slab line. The untiled and the tiled CLI print these."""
+        out = [f"method: {self.method}" + (" (auto: graphcut for a slab, optimize otherwise)" if self.method_auto
+                                            else "")]
+        if self.slab:
+            z, y, x = (int(v) for v in source_shape)
+            out.append(f"slab exemplar ({x} x {y} x {z} samples, x y z): blocks span its full thickness along z, "
+                       "grown across only" + (" (chosen automatically)" if self.slab_auto else ""))
+        return out
+
+
+def choose_volume_settings(source_shape, target_shape, levels: int, block, *, slab: bool | None = None,
+                           method: str = "auto", band: float | None = None, iterations=None,
+                           tiled: bool = False) -> VolumeSettings:
+    """The choices of an M1 synthesis from a (Z, Y, X) source to a (Z, Y, X) target, made
+    in one place for :func:`synthesize_volume` and :func:`geosynth.tiled.synthesize_volume_tiled`:
+    slab or not (:func:`is_slab` when ``slab`` is None), each level's block (:func:`level_blocks`,
+    shrunk to fit by :func:`plan_blocks`), the method ("auto": :func:`resolve_method`), the
+    band and the iteration caps (``tiled`` is recorded only: a tiled run chooses the same).
+    Only shapes are used: nothing is allocated, so a tiling can be refused before any field
+    is computed.
+
+    Raises:
+        ValueError: blocks that do not fit (:func:`plan_blocks`), an unknown method, bad
+            iterations.
+    """
+    if slab is not None:
+        _checks.check_bool("slab", slab)
+    flat = is_slab(source_shape, target_shape) if slab is None else bool(slab)
+    blocks = plan_blocks(source_shape, target_shape, levels, block, level_blocks(levels, block, flat), flat)
+    shapes = level_block_shapes(target_shape, levels, blocks, flat)
+    if method != "auto" and method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
+    if iterations is None:
+        iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
+    caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
+    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
+                                  for c in caps):
+        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
+    return VolumeSettings(flat, slab is None, resolve_method(method, flat), method == "auto",
+                          tuple(int(b) for b in blocks),
+                          tuple(shapes), float(blocks[-1] / 2 if band is None else band),
+                          tuple(int(c) for c in caps), bool(tiled))
 
 
 def synthesize_volume(
@@ -733,25 +825,13 @@ def synthesize_volume(
         check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
     check_scale("spacing", spacing, "the world size of one sample")
     _checks.check_bool("baseline", baseline)
-    blocks = level_blocks(levels, block)
-    band, float_source, target_shape = check_source_and_size(src, size, levels, band, blocks)
-
-    if slab is not None:
-        _checks.check_bool("slab", slab)
-    slab = is_slab(src.shape, target_shape) if slab is None else bool(slab)
-    blocks = level_blocks(levels, block, slab)
-    blocks = plan_blocks(src.shape, target_shape, levels, block, blocks, slab)
-    shapes = level_block_shapes(target_shape, levels, blocks, slab)
-    if method != "auto" and method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
-    method = resolve_method(method, slab)
+    level_blocks(levels, block)  # the block's own errors before the source's
+    float_source, target_shape = check_source_and_size(src, size, levels)
+    settings = choose_volume_settings(src.shape, target_shape, levels, block, slab=slab, method=method, band=band,
+                                      iterations=iterations)
+    slab, method, band, caps = settings.slab, settings.method, settings.band, list(settings.iterations)
+    blocks, shapes = list(settings.blocks), list(settings.block_shapes)
     optimizing = method == "optimize" and not baseline
-    if iterations is None:
-        iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
-    caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
-    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
-                                  for c in caps):
-        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
 
     def estimate(shape) -> int:
         return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, slab), search, float_source,
@@ -805,7 +885,7 @@ def synthesize_volume(
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
     return VolumeResult(target, result_field, src, reports, float(band), timings,
-                        "random tiling" if baseline else method, slab)
+                        "random tiling" if baseline else method, slab, settings)
 
 
 def block_text(block) -> str:
@@ -908,7 +988,7 @@ def synthesize_geometry(
                   block, tileable, seed, device, search, progress)
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
-    from geosynth.meshes import check_mesh, mesh_distance
+    from geosynth.meshes import check_mesh
     from geosynth.metrics import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
     from geosynth.surface import field_to_mesh
 
@@ -919,19 +999,14 @@ def synthesize_geometry(
     timings["exemplar"] = time.perf_counter() - t0
     _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method, slab)
     t0 = time.perf_counter()
-    exemplar_field = mesh_distance(mesh, field=exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1)),
-                                   drop_degenerate=drop_degenerate, device=device)
+    distance_in_samples, spacing, exemplar_field = exemplar_distance(mesh, source_resolution, levels, device=device,
+                                                                     drop_degenerate=drop_degenerate)
     timings["exemplar distance field"] = time.perf_counter() - t0
     kind = None
     if quality_samples:  # the structure metrics' kind decides their memory: the estimate again, now exact
         kind = structure_kind(exemplar_field)  # its cores are dropped: they are not held through the synthesis
         _require_geometry(mesh, size, source_resolution, levels, block, search, smooth, quality_samples, method,
                           slab, kind)
-    spacing = float(exemplar_field.spacing[0])
-    if not _SCALE_RANGE[0] <= spacing <= _SCALE_RANGE[1]:
-        raise ValueError(f"the exemplar's samples would lie {spacing:g} apart, outside [{_SCALE_RANGE[0]:g}, "
-                         f"{_SCALE_RANGE[1]:g}] world units; scale the exemplar mesh.")
-    distance_in_samples = exemplar_field.values / np.float32(spacing)
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                             device=device, search=search, spacing=spacing, progress=progress, method=method,
@@ -1036,14 +1111,13 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
     def estimate(sz, res) -> int:
         shape, _, spacing = _exemplar_grid_geometry(mesh, res, multiple=factor)
         target = target_size(sz, shape, levels)
-        flat = is_slab(shape, target) if slab is None else bool(slab)
-        try:
-            blocks = plan_blocks(shape, target, levels, block, level_blocks(levels, block, flat), flat)
+        try:  # the synthesis's own choices (choose_volume_settings)
+            chosen = choose_volume_settings(shape, target, levels, block, slab=slab, method=method)
+            blocks, runs = list(chosen.block_shapes), chosen.method
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
-            blocks = base_blocks
-        blocks = level_block_shapes(target, levels, blocks, flat)
-        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples,
-                              resolve_method(method, flat), structure)
+            flat = is_slab(shape, target) if slab is None else bool(slab)
+            blocks, runs = level_block_shapes(target, levels, base_blocks, flat), resolve_method(method, flat)
+        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, runs, structure)
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
     target = target_size(size, shape, levels)
@@ -1070,6 +1144,37 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
         require(need, option="size", value=size, largest=best, available=avail, what=what)
     best = largest_fitting(lambda r: estimate(size, r), avail, 8, int(source_resolution))
     require(need, option="source_resolution", value=source_resolution, largest=best, available=avail, what=what)
+
+
+def exemplar_distance(mesh, source_resolution: int, levels: int, *, device: str | None = None,
+                      drop_degenerate: bool = False, before=None) -> tuple[np.ndarray, float, Field]:
+    """The source of an M1 synthesis from a checked exemplar mesh, one way for the untiled
+    (:func:`synthesize_geometry`) and the tiled synthesis (:func:`geosynth.tiled.exemplar_source`):
+    its exact signed distance (:func:`geosynth.meshes.mesh_distance`) on
+    :func:`exemplar_grid` of ``source_resolution`` samples along its longest side, z a
+    multiple of 2^(levels-1).
+
+    ``before``: None, or a callable taking the grid's (Z, Y, X) shape, called before the
+    distance is computed (a tiling that cannot be is refused before the field's seconds).
+
+    Returns:
+        (float32 (Z, Y, X) distances in samples, spacing (world units per sample), the
+        exemplar's Field in world units).
+
+    Raises:
+        ValueError: samples that would lie outside [1e-15, 1e15] world units apart.
+    """
+    from geosynth.meshes import mesh_distance
+
+    grid = exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1))
+    spacing = float(grid.spacing[0])
+    if not _SCALE_RANGE[0] <= spacing <= _SCALE_RANGE[1]:
+        raise ValueError(f"the exemplar's samples would lie {spacing:g} apart, outside [{_SCALE_RANGE[0]:g}, "
+                         f"{_SCALE_RANGE[1]:g}] world units; scale the exemplar mesh.")
+    if before is not None:
+        before(grid.values.shape)
+    field = mesh_distance(mesh, field=grid, drop_degenerate=drop_degenerate, device=device)
+    return field.values / np.float32(spacing), spacing, field
 
 
 def exemplar_grid(mesh, resolution: int = 64, margin: int = 2, multiple: int = 1) -> Field:

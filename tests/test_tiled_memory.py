@@ -50,7 +50,8 @@ def test_tile_task_estimate_bounds_the_traced_peak(terrain, monkeypatch, name):
     monkeypatch.setattr(tiled, "_tile_task", traced)
     z = source.shape[0] // 2 * 2
     synthesize_volume_tiled(source, (z, width, 2 * width), (2, 1), levels=2, block=8, seed=1, iterations=2, slab=slab,
-                            progress=False, device=ONE_DEVICE, scheduler="threads", workers=1, coarse_whole=False)
+                            progress=False, device=ONE_DEVICE, scheduler="threads", workers=1, coarse_whole=False,
+                            method="optimize")  # the estimate's model (a slab's "auto" is graphcut: less, unmodelled)
     assert len(peaks) == 4 and peaks[0][0].slab == bool(slab)
     phases = {(lv, g.phase(t)) for g, lv, t, _ in peaks}
     assert phases == {(0, 0), (0, 1), (1, 0), (1, 1)}
