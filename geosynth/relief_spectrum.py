@@ -30,7 +30,7 @@ import numpy as np
 
 from .cpu_exact import lstsq_fixed
 
-__all__ = ["ReliefSpectrum", "heights_on_grid", "relief_spectrum"]
+__all__ = ["ReliefSpectrum", "fine_share", "heights_on_grid", "relief_spectrum"]
 
 _MIN_CYCLES = 1.5  # a peak needs this many cycles across the grid: longer waves are trend, not relief
 _TIE = 0.7  # peaks at >= 70% of the strongest are ties (a cross-hatch's two diagonals)
@@ -84,6 +84,28 @@ def _parabolic(lo: float, mid: float, hi: float) -> float:
     return float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5))
 
 
+def _power(resid: np.ndarray, valid: np.ndarray, sx: float, sy: float):
+    """The windowed, zero-padded power spectrum of detrended heights ``resid`` at the (H, W) ``valid``
+    cells: (P (2H, W + 1) with ignored frequencies zeroed, fx (1, W + 1), fy (2H, 1), total power),
+    or None when no power is left."""
+    h, w = valid.shape
+    d = np.zeros((h, w))
+    d[valid] = resid
+    win = np.outer(np.hanning(h + 2)[1:-1], np.hanning(w + 2)[1:-1]) * valid  # nonzero at the edges
+    d *= win
+    d -= win * (float(np.sum(d)) / float(np.sum(win * win)))  # windowed mean out: no DC peak
+    hp, wp = 2 * h, 2 * w
+    p = np.abs(np.fft.rfft2(d, s=(hp, wp))) ** 2  # (hp, wp // 2 + 1): x >= 0 half-plane
+    fx = np.fft.rfftfreq(wp, d=sx)[None, :]
+    fy = np.fft.fftfreq(hp, d=sy)[:, None]
+    cyc = np.sqrt((fx * (w * sx)) ** 2 + (fy * (h * sy)) ** 2)  # cycles across the grid
+    fr = np.sqrt(fx * fx + fy * fy)
+    keep = (cyc >= _MIN_CYCLES) & (fr <= 0.5 / max(sx, sy))
+    pk = np.where(keep, p, 0.0)
+    total = float(np.sum(pk))
+    return (pk, fx, fy, total) if total > 0.0 else None
+
+
 def relief_spectrum(heights: np.ndarray, spacing: float | tuple[float, float],
                     mask: np.ndarray | None = None) -> ReliefSpectrum:
     """Measure a gridded relief's amplitude, dominant period, orientation and anisotropy.
@@ -129,22 +151,12 @@ def relief_spectrum(heights: np.ndarray, spacing: float | tuple[float, float],
     if not amplitude > 0.0:
         return ReliefSpectrum(amplitude, nan, nan, 0.0)
 
-    d = np.zeros((h, w))
-    d[valid] = resid
-    win = np.outer(np.hanning(h + 2)[1:-1], np.hanning(w + 2)[1:-1]) * valid  # nonzero at the edges
-    d *= win
-    d -= win * (float(np.sum(d)) / float(np.sum(win * win)))  # windowed mean out: no DC peak
-    hp, wp = 2 * h, 2 * w
-    p = np.abs(np.fft.rfft2(d, s=(hp, wp))) ** 2  # (hp, wp // 2 + 1): x >= 0 half-plane
-    fx = np.fft.rfftfreq(wp, d=sx)[None, :]
-    fy = np.fft.fftfreq(hp, d=sy)[:, None]
-    cyc = np.sqrt((fx * (w * sx)) ** 2 + (fy * (h * sy)) ** 2)  # cycles across the grid
-    fr = np.sqrt(fx * fx + fy * fy)
-    keep = (cyc >= _MIN_CYCLES) & (fr <= 0.5 / max(sx, sy))
-    pk = np.where(keep, p, 0.0)
-    total = float(np.sum(pk))
-    if not total > 0.0:
+    power = _power(resid, valid, sx, sy)
+    if power is None:
         return ReliefSpectrum(amplitude, nan, nan, 0.0)
+    pk, fx, fy, total = power
+    hp, wp = pk.shape[0], 2 * (pk.shape[1] - 1)
+    p = pk
 
     phi = np.arctan2(np.broadcast_to(fy, p.shape), np.broadcast_to(fx, p.shape))
     c2, s2 = float(np.sum(pk * np.cos(2 * phi))), float(np.sum(pk * np.sin(2 * phi)))
@@ -176,6 +188,25 @@ def relief_spectrum(heights: np.ndarray, spacing: float | tuple[float, float],
     return ReliefSpectrum(amplitude, period, angle, anisotropy)
 
 
+def fine_share(heights: np.ndarray, spacing: float | tuple[float, float], wavelength: float,
+               mask: np.ndarray | None = None) -> float:
+    """The share of a gridded relief's power (as :func:`relief_spectrum` windows and detrends it)
+    at wavelengths shorter than ``wavelength`` (world units), in [0, 1]; 0 for a flat relief.
+    Sharp steps and one-sample-thick features put power there (a tower's ledges: ~0.08 below
+    4 samples), smooth reliefs (a sine, smooth bumps) almost none."""
+    z = np.asarray(heights, np.float64)
+    sx, sy = _pair(spacing)
+    valid = np.isfinite(z) if mask is None else np.isfinite(z) & np.asarray(mask, bool)
+    if valid.sum() < 16:
+        return 0.0
+    resid = z[valid] - float(np.sum(z[valid])) / int(valid.sum())
+    power = _power(resid, valid, sx, sy)
+    if power is None:
+        return 0.0
+    pk, fx, fy, total = power
+    return float(np.sum(np.where(fx * fx + fy * fy > 1.0 / (wavelength * wavelength), pk, 0.0))) / total
+
+
 def heights_on_grid(uv: np.ndarray, h: np.ndarray, spacing: float | tuple[float, float]
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Resample scattered heights onto a regular grid for :func:`relief_spectrum`.
@@ -184,12 +215,13 @@ def heights_on_grid(uv: np.ndarray, h: np.ndarray, spacing: float | tuple[float,
     h: (N,) float heights at those positions.
     spacing: cell size, a float or ``(sx, sy)``, world units.
     Returns ``(grid, mask)``: (H, W) float64 heights at the cell positions
-    ``(min u + j sx, min v + i sy)`` and (H, W) bool, True where a cell lies inside the samples'
-    triangulation and within 1.5 sample spacings (or 1.5 cells, the larger) of a sample, so
-    holes and concave gaps stay masked. Linear interpolation (SciPy griddata) - no binning
-    holes when the cells are finer than the samples. Grids beyond 4096 cells a side are refused.
+    ``(min u + j sx, min v + i sy)`` and (H, W) bool, True where a cell lies within 1.5 sample
+    spacings (or 1.5 cells, the larger) of a sample, so holes and concave gaps stay masked (NaN).
+    A cell's height is the inverse-square-distance mean of its 4 nearest samples (a sample on
+    the cell: its own height): O(cells log N), where a Delaunay interpolation (griddata) took
+    3 s on a 21,600-point capture on a regular grid (cocircular points). Grids beyond 4096
+    cells a side are refused.
     """
-    from scipy.interpolate import griddata
     from scipy.spatial import cKDTree
 
     uv = np.asarray(uv, np.float64)
@@ -207,15 +239,16 @@ def heights_on_grid(uv: np.ndarray, h: np.ndarray, spacing: float | tuple[float,
     hh = int(math.floor(ext[1] / sy)) + 1
     if max(w, hh) > 4096:
         raise ValueError(f"a {hh} x {w} grid at spacing {(sx, sy)}: give a coarser spacing")
-    gu = lo[0] + sx * np.arange(w)
-    gv = lo[1] + sy * np.arange(hh)
-    cu, cv = np.meshgrid(gu, gv)
+    cu, cv = np.meshgrid(lo[0] + sx * np.arange(w), lo[1] + sy * np.arange(hh))
     cells = np.stack([cu.ravel(), cv.ravel()], axis=1)
-    grid = griddata(uv, h, cells, method="linear").reshape(hh, w)
     tree = cKDTree(uv)
     nn = tree.query(uv, k=2)[0][:, 1]
     reach = 1.5 * max(float(np.median(nn)), sx, sy)
-    dist = tree.query(cells, k=1, distance_upper_bound=reach)[0].reshape(hh, w)
-    mask = np.isfinite(grid) & np.isfinite(dist)
+    d, i = tree.query(cells, k=4)
+    wgt = 1.0 / np.maximum(d * d, 1e-300)
+    exact = d[:, 0] == 0.0
+    wgt[exact] = np.array([1.0, 0.0, 0.0, 0.0])
+    grid = ((wgt * h[i]).sum(axis=1) / wgt.sum(axis=1)).reshape(hh, w)
+    mask = (d[:, 0] <= reach).reshape(hh, w)
     grid = np.where(mask, grid, np.nan)
     return grid, mask
