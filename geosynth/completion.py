@@ -103,11 +103,13 @@ BASELINE_DRAWS = 5  # the random-copy baseline: mean (and min, max) over this ma
 AUTO_COARSEN = 12.0  # a capture with more samples on its dominant period than this is resampled ...
 AUTO_PER_PERIOD = 6.0  # ... to targets this many to a period (the built-ins grow well at 5-10) ...
 AUTO_BAND = 0.02  # ... when under this share of its power lies below half that period (band-limited)
-AUTO_WINDOW_PERIODS = 0.65  # window W = round(this x samples a period): (2W + 1) spacings ~ 1.3 periods
+AUTO_WINDOW_PERIODS = 0.75  # window W = round(this x samples a period): (2W + 1) spacings ~ 1.5 periods
 AUTO_WINDOW_RANGE = (3, 5)  # the paper's W = 3 at least; 5 at most (a 5-ring query holds ~91 vertices)
+AUTO_WHOLE = 2 / 3  # ... and no larger than two thirds of the capture's vertices can hold whole (3 at least)
 AUTO_DIRECTED = 0.2  # anisotropy at or above this: a directed relief, copied unturned in the fit's frames
 AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above this: sharp features,
-AUTO_REFINE = 2  # ... refined this many passes when directed (one-sided growth breaks them)
+AUTO_REFINE = 2  # ... refined this many passes when directed but not stripes (one-sided growth breaks them)
+AUTO_STRIPES = 0.5  # anisotropy at or above this: stripes (R 4 in the paper's frames, no refinement)
 AUTO_REGULAR = 0.9  # 10th percentile / median nearest-neighbour spacing at or above this: a regular lattice
 
 
@@ -220,7 +222,7 @@ class CompletionReport:
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
         q = self.quality
-        out = [f"fit: {self.fit}"] + ([self.auto] if self.auto else []) + [
+        out = [f"fit: {self.fit}",
                f"samples {self.samples:,} ({'captured part oversampled once' if self.samples > self.n_original else 'the capture, not oversampled'}"
                + (f", {self.n_candidates:,} of them candidates" if 0 < self.n_candidates < self.n_original else "")
                + f"), targets {self.targets:,} at spacing {self.spacing:.4g} "
@@ -229,7 +231,9 @@ class CompletionReport:
                f"{self.device}"
                + ("" if self.whole_windows < 0 else
                   f"; {self.whole_windows:,} of the capture's {self.n_original:,} vertices "
-                  f"({self.n_original and self.whole_windows / self.n_original:.0%}) hold a whole window"),
+                  f"({self.n_original and self.whole_windows / self.n_original:.0%}) hold a whole window")]
+        out += [self.auto] if self.auto else []
+        out += [
                f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
                f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
                f"{self.final_max_error:.4g}), {self.unreached} targets unreached; "
@@ -373,14 +377,23 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       regular (10th percentile of the spacings >= 0.9x the median: relief recesses below a
       curved fit shorten the 3-D edges, so the minimum edge measures the relief, not the
       sampling), else the paper's minimum edge (Sec. 4);
-    - window: W = round(0.65 x samples on T), in [3, 5]: the window spans about 1.3 periods;
-    - rotations and frames: a directed relief (anisotropy >= 0.2) on a plane or cylinder is
-      copied unturned in the fit's own frames (R = 1): a turned copy is something the capture
-      never shows. Isotropic reliefs, flat ones and spheres (no tangent field): the paper's
-      R = 4 in its frames;
-    - refine: a directed relief with sharp features (>= 5% of its power below 4 samples a
-      wavelength) gets 2 refinement passes: one-sided growth breaks thin features (a tower's
-      ledges), a second match with both sides textured rejoins them.
+    - window: W = round(0.75 x samples on T), in [3, 5]: the window spans about 1.5 periods
+      (bark, T ~ 5 samples: W 3 left the completion 8.7% flat, W 4 kept it); then, in
+      :func:`complete_surface`, lowered (not below 3) until most of the capture's vertices
+      hold a whole window (two thirds; a small capture's candidates are otherwise mostly its border's: the
+      noise plane at W 5 held 32%, and missed the volume and histogram targets);
+    - rotations and frames: a relief directed but not stripes (anisotropy 0.2 to 0.5: rows and
+      columns of features, a tower's arches) on a plane or cylinder is copied unturned in the
+      fit's own frames (R = 1): a turned copy is something the capture never shows (the tower at
+      R = 4 copied rows into vertical bands). Stripes (anisotropy >= 0.5: a sine, ridges, a
+      knurl), isotropic and flat reliefs and spheres (no tangent field): the paper's R = 4 in
+      its frames. Stripes are their own half turn and a quarter turn scores badly, so the extra
+      rotations only add candidates: the wave at R = 1 lost histogram (0.029-0.034 against
+      0.020-0.021 at R = 4);
+    - refine: such a directed relief with sharp features (>= 5% of its power below 4 samples a wavelength) gets
+      2 refinement passes: one-sided growth breaks thin features (a tower's ledges), a second
+      match with both sides textured rejoins them. Stripes (bark's ridges) run on without: on
+      bark the passes made the volume worse (0.31% -> 1.03%, bench/RESULTS.md m4refine).
 
     Args:
         capture: anything :func:`geosynth.relief_prep.as_capture` takes.
@@ -410,12 +423,18 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
         per_t = per
         why_s = (f"targets at the capture's {spacing} edge ({'a regular sampling on a curved fit' if spacing == 'median' else 'the paper'}"
                  + ("" if not math.isfinite(per) else f"; {per:.1f} samples on T") + ")")
-    window = lo if not math.isfinite(per_t) else int(min(hi, max(lo, round(AUTO_WINDOW_PERIODS * per_t))))
-    directed = fit.kind != "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
+    window = lo if not math.isfinite(per_t) else int(min(hi, max(lo, math.floor(AUTO_WINDOW_PERIODS * per_t + 0.5))))
+    stripes = math.isfinite(period) and spec.anisotropy >= AUTO_STRIPES
+    directed = (fit.kind != "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
+                and not stripes)
     rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "paper")
+    # a relief directed both ways (rows and columns of features) with sharp features breaks them
+    # under one-sided growth (a tower's ledges); stripes run on
     refine = AUTO_REFINE if directed and fine >= AUTO_FINE else 0
-    why_r = ("R 1 in the fit's frames (a directed relief)" if directed else
-             "R 4 in the paper's frames (" + ("a sphere" if fit.kind == "sphere" else "an isotropic relief"
+    why_r = ("R 1 in the fit's frames (a directed relief, not stripes)" if directed else
+             "R 4 in the paper's frames (" + ("a sphere" if fit.kind == "sphere" else
+                                               "stripes: a half turn is a symmetry, a quarter turn the "
+                                               "matching rejects" if stripes else "an isotropic relief"
                                                if math.isfinite(period) else "a flat relief") + ")")
     reason = (f"automatic settings: relief {spec.describe()}, sharp-feature share {fine:.3f}, capture spacing "
               f"{s_c:.4g} -> {why_s}; window {window}"
@@ -1054,6 +1073,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     if frames == "fit" and sf.kind == "sphere":
         fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
     auto = None
+    window_auto = window is None
     if None in (window, rotations, frames, refine, spacing):
         auto = choose_settings(cap, sf)
         coarse = auto.coarse and spacing is None
@@ -1076,6 +1096,14 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample, spacing=spacing)
     depth = capture_depth(rs) / rs.spacing  # in target spacings: a W-ring reaches about W of them
+    auto_line = "" if auto is None else auto.reason
+    if window_auto:  # a window most of the capture fills: else the candidates are its border's
+        w0 = window
+        while window > AUTO_WINDOW_RANGE[0] and float(np.mean(depth >= window)) < AUTO_WHOLE:
+            window -= 1
+        if window != w0:
+            auto_line += (f"; window {w0} -> {window}: {float(np.mean(depth >= w0)):.0%} of the capture holds a "
+                          f"whole window of {w0}, under {AUTO_WHOLE:.0%}")
     whole = int((depth >= window).sum())
     if whole == 0:
         deepest = float(depth.max()) if len(depth) else 0.0
@@ -1137,7 +1165,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
         spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
-        auto="" if auto is None else auto.reason, n_candidates=len(samples),
+        auto=auto_line, n_candidates=len(samples),
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,
