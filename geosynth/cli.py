@@ -951,35 +951,34 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.completion import DEFAULT_ROTATIONS, complete_surface, completion_picture, write_completion
+    from geosynth.completion import complete_surface, completion_picture, write_completion
     from geosynth.completion_examples import completion_example
     from geosynth.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     region = None
-    if args.example:
+    if args.example:  # a built-in gets what a file gets: its scene (capture, fit, region), no method settings
         ex = completion_example(args.example, seed=args.seed)
         capture, label, region = ex.capture, f"example {args.example} ({ex.note})", ex.region
         fit = args.fit or ex.fit
-        window = args.window or ex.window
-        rotations = args.rotations or ex.rotations
-        frames = args.frames or ex.frames
-        refine = ex.refine if args.refine is None else args.refine
-        spacing = args.spacing or ex.spacing
     else:
         from geosynth.pointsets import read_geometry
 
-        capture, label, fit, window = read_geometry(args.input), args.input, args.fit, args.window or 3
-        rotations, frames = args.rotations or DEFAULT_ROTATIONS, args.frames or "paper"
-        refine = args.refine or 0
-        spacing = args.spacing or "minimum"
+        capture, label, fit = read_geometry(args.input), args.input, args.fit
+    # unset options (None) are chosen from the capture's relief; the report's "automatic settings" line says how
+    window, rotations, frames, refine, spacing = args.window, args.rotations, args.frames, args.refine, args.spacing
     if frames == "fit" and fit == "sphere":  # known before any fit or preparation: refused now
         raise ValueError("--frames fit needs a plane or cylinder fit (a sphere has no tangent field without a "
                          "singular point); use --frames paper or another --fit.")
     mu = args.mu if args.mu is not None else 0.5
+
+    def shown(v):
+        return "auto" if v is None else v
+
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
-        f"captured points ({_capture_colours(capture)}), fit {fit or 'by residual'}, window {window}, rotations {rotations}, frames {frames}, mu {mu:g}, "
-        f"refine {refine}, spacing {spacing}, seed {args.seed}, device {args.device or 'auto'}")
+        f"captured points ({_capture_colours(capture)}), fit {fit or 'by residual'}, window {shown(window)}, "
+        f"rotations {shown(rotations)}, frames {shown(frames)}, mu {mu:g}, refine {shown(refine)}, "
+        f"spacing {shown(spacing)}, seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
                                                 rotations=rotations, mu=mu, max_error=args.max_error,
                                                 device=args.device, seed=args.seed, progress=not args.quiet,
@@ -1135,17 +1134,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a built-in capture instead of INPUT")
     p.add_argument("-o", "--output", required=True, help="the completed surface, .ply (mesh with colours)")
     p.add_argument("--fit", choices=["plane", "sphere", "cylinder"], default=None,
-                   help="the underlying surface (default: chosen by residual; built-ins: their own)")
+                   help="the underlying surface (default: chosen by residual; built-ins: their scene's)")
     p.add_argument("--window", type=_int_type(1, 12), default=None,
                    help="neighbourhood window W in edge rings, 1 to 12 and no wider than the capture (some captured "
-                        "vertex W target spacings from its border; the run says how many) (default 3; built-ins: "
-                        "their own)")
+                        "vertex W target spacings from its border; the run says how many) (default: chosen from the "
+                        "relief's period, about 1.3 periods across, 3 to 5; the run says why)")
     p.add_argument("--rotations", type=_int_type(1, 64), default=None,
-                   help="orientations tried about the normal, 1 to 64 (default 4; built-ins: their own)")
+                   help="orientations tried about the normal, 1 to 64 (default: 1 for a directed relief on a plane or "
+                        "cylinder, else 4; the run says why)")
     p.add_argument("--frames", choices=["paper", "fit"], default=None,
                    help="tangent frames the rotations start from: the paper's per-normal ones, or the fit's own "
                         "orientation (cylinder: around and along the axis; plane: its axes; not for a sphere) "
-                        "(default paper; built-ins: their own)")
+                        "(default: fit with 1 rotation for a directed relief, else paper)")
     p.add_argument("--mu", type=_float_type(0, inclusive=True), default=None,
                    help="weight of shape against colour, 0 to 1 (1: relief only; default 0.5)")
     p.add_argument("--max-error", type=_max_error_type, default=0.1,
@@ -1155,10 +1155,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", **seed)
     p.add_argument("--refine", type=_int_type(0, 8), default=None,
                    help="refinement passes after the growth, 0 to 8: every completed target matched again with "
-                        "its whole window (our extension; default 0, the paper's one pass; built-ins: their own)")
+                        "its whole window (our extension; default: 2 for a directed relief with sharp features, else 0)")
     p.add_argument("--spacing", choices=["minimum", "median"], default=None,
                    help="the targets' spacing: the capture's minimum edge length (the paper) or the median of its edges on "
-                        "the fit (our option: targets as dense as the capture) (default minimum; built-ins: their own)")
+                        "the fit (our option: targets as dense as the capture) (default: chosen from the capture: the median "
+                        "for a regular sampling on a curved fit, else the minimum; period / 6 for a capture with over "
+                        "12 samples on its relief's period)")
     p.add_argument("--no-balance", action="store_true",
                    help="the paper's uniform pick among the matches within 1.1x the best (default: the "
                         "histogram-aware pick, our extension; see geosynth.completion._Balance)")

@@ -76,8 +76,8 @@ from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, chec
                                   ring_neighbourhoods)
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
 
-__all__ = ["CompletedSurface", "CompletionReport", "check_max_error", "complete_surface", "completion_picture",
-           "write_completion"]
+__all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
+           "complete_surface", "completion_picture", "write_completion"]
 
 DEFAULT_WINDOW = 3
 DEFAULT_ROTATIONS = 4
@@ -98,6 +98,19 @@ HINT_PROBES: tuple[int, ...] | None = ()  # stride probes after the hints (None:
 BALANCE_STRENGTH = 4.0  # the histogram-aware draw: weights exp(strength x deficit score), score in [-1, 1]
 BALANCE_PENALTY = 0.5  # codes x (1 + penalty x (1 - score) / 2) before the 1.1x rule (find_matches at 1.1 x 1.5)
 BASELINE_DRAWS = 5  # the random-copy baseline: mean (and min, max) over this many seeded draws
+# Automatic settings (issue 32, :func:`choose_settings`): measured on the capture, the same for a
+# built-in and a file.
+AUTO_COARSEN = 12.0  # a capture with more samples on its dominant period than this is resampled ...
+AUTO_PER_PERIOD = 6.0  # ... to targets this many to a period (the built-ins grow well at 5-10) ...
+AUTO_BAND = 0.02  # ... when under this share of its power lies below half that period (band-limited)
+AUTO_WINDOW_PERIODS = 0.75  # window W = round(this x samples a period): (2W + 1) spacings ~ 1.5 periods
+AUTO_WINDOW_RANGE = (3, 5)  # the paper's W = 3 at least; 5 at most (a 5-ring query holds ~91 vertices)
+AUTO_WHOLE = 2 / 3  # ... and no larger than two thirds of the capture's vertices can hold whole (3 at least)
+AUTO_DIRECTED = 0.2  # anisotropy at or above this: a directed relief, copied unturned in the fit's frames
+AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above this: sharp features,
+AUTO_REFINE = 2  # ... refined this many passes when directed but not stripes (one-sided growth breaks them)
+AUTO_STRIPES = 0.5  # anisotropy at or above this: stripes (R 4 in the paper's frames, no refinement)
+AUTO_REGULAR = 0.9  # 10th percentile / median nearest-neighbour spacing at or above this: a regular lattice
 
 
 @dataclass
@@ -174,6 +187,13 @@ class CompletionReport:
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
             many of the samples are the capture's own vertices.
+        auto: the automatic settings' one-line reason (:func:`choose_settings`; "" when every
+            setting was given); n_candidates: how many samples are candidates.
+        The quality also holds the relief's scale, captured part against completed part, both
+        measured in the fit's unrolled frame at the target spacing
+        (:mod:`geosynth.relief_spectrum`): ``relief_captured`` and ``relief_completed``
+        (ReliefSpectrum, None when a part is too small to measure), ``period_ratio``,
+        ``amplitude_ratio`` (completed / captured) and ``angle_diff_deg`` (in [0, 90]).
     """
 
     fit: str
@@ -199,17 +219,24 @@ class CompletionReport:
     refined: int = 0
     spacing_rule: str = "minimum"
     whole_windows: int = -1
+    auto: str = ""
+    n_candidates: int = 0
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
         q = self.quality
         out = [f"fit: {self.fit}",
-               f"samples {self.samples:,} (captured part oversampled once), targets {self.targets:,} at spacing "
-               f"{self.spacing:.4g} (the capture's {self.spacing_rule} edge); window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
+               f"samples {self.samples:,} ({'captured part oversampled once' if self.samples > self.n_original else 'the capture, not oversampled'}"
+               + (f", {self.n_candidates:,} of them candidates" if 0 < self.n_candidates < self.n_original else "")
+               + f"), targets {self.targets:,} at spacing {self.spacing:.4g} "
+               + (f"(the capture's {self.spacing_rule} edge)" if self.spacing_rule in ("minimum", "median") else
+                  "(chosen from the relief's period)") + f"; window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
                f"{self.device}"
                + ("" if self.whole_windows < 0 else
                   f"; {self.whole_windows:,} of the capture's {self.n_original:,} vertices "
-                  f"({self.n_original and self.whole_windows / self.n_original:.0%}) hold a whole window"),
+                  f"({self.n_original and self.whole_windows / self.n_original:.0%}) hold a whole window")]
+        out += [self.auto] if self.auto else []
+        out += [
                f"growth: {self.lists} boundary lists, {self.failed_matches} skipped matches, "
                f"{self.passes_without_progress} lists without progress (MaxErrThreshold {self.max_error:g} -> "
                f"{self.final_max_error:.4g}), {self.unreached} targets unreached; "
@@ -218,6 +245,12 @@ class CompletionReport:
         if self.refine:
             out.append(f"refinement: {self.refine} pass{'es' if self.refine > 1 else ''} over every completed target "
                        f"with its whole window, {self.refined:,} source changes")
+        if q and q.get("relief_captured") is not None and q.get("relief_completed") is not None:
+            out.append(f"relief scale, captured: {q['relief_captured'].describe()}; completed: "
+                       f"{q['relief_completed'].describe()}; completed / captured: period "
+                       f"{q['period_ratio']:.3f}, amplitude {q['amplitude_ratio']:.3f}, orientation "
+                       + (f"{q['angle_diff_deg']:.1f} deg apart" if q['relief_captured'].anisotropy >= AUTO_DIRECTED
+                          else f"not compared (an isotropic relief: anisotropy {q['relief_captured'].anisotropy:.2f})"))
         if q:
             lo, hi = q["volume_baseline_diff_pct_range"]
             out.append(f"volume integral (Table 1): original {q['volume_original']:.5g}, completed "
@@ -275,6 +308,159 @@ def _check_params(window, rotations, mu, max_error, seed) -> None:
     check_max_error(max_error)
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
+
+
+@dataclass(frozen=True)
+class AutoSettings:
+    """What :func:`choose_settings` measured on a capture and chose from it (issue 32).
+
+    Attributes:
+        window, rotations, frames, refine, spacing: the choices, in
+            :func:`complete_surface`'s terms (``spacing`` "minimum", "median" or a length).
+        coarse: True when the targets are coarser than the capture (the capture then is not
+            oversampled and its candidates are thinned to the target spacing).
+        capture_spacing: the capture's median nearest-neighbour spacing in the fit's frame.
+        spectrum: the capture's :class:`~geosynth.relief_spectrum.ReliefSpectrum` in the fit's
+            unrolled frame (:func:`geosynth.surface_fit.relief_frame`).
+        fine: the share of its power below 4 capture spacings a wavelength.
+        regular: 10th percentile / median of the nearest-neighbour spacings.
+        reason: the one-line report.
+    """
+
+    window: int
+    rotations: int
+    frames: str
+    refine: int
+    spacing: str | float
+    coarse: bool
+    capture_spacing: float
+    spectrum: object
+    fine: float
+    regular: float
+    reason: str
+
+
+def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
+    """(spectrum, fine share, nn spacing, regularity, cut) of points' relief in the fit's frame."""
+    from scipy.spatial import cKDTree
+
+    from geosynth.relief_spectrum import fine_share, heights_on_grid, relief_spectrum
+    from geosynth.surface_fit import relief_frame
+
+    uv, h, cut = relief_frame(fit, points, cut)
+    nn = cKDTree(uv).query(uv, 2)[0][:, 1]
+    med = float(np.median(nn))
+    regular = float(np.quantile(nn, 0.1)) / med if med > 0 else 0.0
+    step = med if spacing is None else float(spacing)
+    # a grid no larger than 1024 a side (an oversampled capture is measured at a coarser step)
+    step = max(step, float(np.max(np.ptp(uv, axis=0))) / 1024.0)
+    grid, mask = heights_on_grid(uv, h, step)
+    spec = relief_spectrum(grid, step, mask)
+    # power below half the dominant period: ~0 for a band-limited relief (a sine, a knurl), a few % and
+    # more for broadband ones (bumps of many sizes), which keep the capture's own sampling
+    band = fine_share(grid, step, spec.period / 2, mask) if math.isfinite(spec.period) else 1.0
+    return spec, fine_share(grid, step, 4 * step, mask), med, regular, cut, band
+
+
+def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
+    """Measure a capture's relief and choose M4's settings from it (issue 32), the same for a
+    built-in and a user's file.
+
+    The relief's heights over the fit, unrolled into the fit's own (u, v) frame
+    (:func:`geosynth.surface_fit.relief_frame`), give its dominant period T, orientation and
+    anisotropy (:func:`geosynth.relief_spectrum.relief_spectrum`) and the share of power in
+    sharp features (:func:`~geosynth.relief_spectrum.fine_share`); the capture's sampling s is
+    the median nearest-neighbour spacing there. Then:
+
+    - target spacing: a band-limited relief (< 2% of its power below T / 2) with more than
+      ``AUTO_COARSEN`` (12) capture samples on T is sampled denser than the growth needs:
+      targets at T / ``AUTO_PER_PERIOD`` (6), no oversampling, the
+      candidates thinned to that spacing (cost falls with the square of both). Otherwise the
+      capture's own sampling: its median edge on the fit when the fit is curved and the sampling
+      regular (10th percentile of the spacings >= 0.9x the median: relief recesses below a
+      curved fit shorten the 3-D edges, so the minimum edge measures the relief, not the
+      sampling), else the paper's minimum edge (Sec. 4);
+    - window: W = round(0.75 x samples on T), in [3, 5]: the window spans about 1.5 periods
+      (bark, T ~ 5 samples: W 3 left the completion 8.7% flat, W 4 kept it); then, in
+      :func:`complete_surface`, lowered (not below 3) until most of the capture's vertices
+      hold a whole window (two thirds; a small capture's candidates are otherwise mostly its border's: the
+      noise plane at W 5 held 32%, and missed the volume and histogram targets);
+    - rotations and frames: a relief directed but not stripes (anisotropy 0.2 to 0.5: rows and
+      columns of features, a tower's arches) on a plane or cylinder is copied unturned in the
+      fit's own frames (R = 1): a turned copy is something the capture never shows (the tower at
+      R = 4 copied rows into vertical bands). Stripes (anisotropy >= 0.5: a sine, ridges, a
+      knurl), isotropic and flat reliefs and spheres (no tangent field): the paper's R = 4 in
+      its frames. Stripes are their own half turn and a quarter turn scores badly, so the extra
+      rotations only add candidates: the wave at R = 1 lost histogram (0.029-0.034 against
+      0.020-0.021 at R = 4);
+    - refine: such a directed relief with sharp features (>= 5% of its power below 4 samples a wavelength) gets
+      2 refinement passes: one-sided growth breaks thin features (a tower's ledges), a second
+      match with both sides textured rejoins them. Stripes (bark's ridges) run on without: on
+      bark the passes made the volume worse (0.31% -> 1.03%, bench/RESULTS.md m4refine).
+
+    Args:
+        capture: anything :func:`geosynth.relief_prep.as_capture` takes.
+        fit: the capture's :class:`SurfaceFit`.
+
+    Returns:
+        :class:`AutoSettings` with the one-line ``reason``.
+    """
+    cap = as_capture(capture)
+    spec, fine, s_c, regular, _, band = _capture_relief(fit, cap.positions)
+    period = spec.period
+    lo, hi = AUTO_WINDOW_RANGE
+    if not math.isfinite(period):
+        per = float("nan")
+        coarse = False
+    else:
+        per = period / s_c
+        coarse = per > AUTO_COARSEN and band < AUTO_BAND
+    if coarse:
+        spacing: str | float = period / AUTO_PER_PERIOD
+        per_t = AUTO_PER_PERIOD
+        why_s = (f"targets at T/{AUTO_PER_PERIOD:g} = {spacing:.4g} (a band-limited relief, {band:.1%} of its power "
+                 f"below T/2, and the capture holds {per:.1f} samples on T; "
+                 f"no oversampling, candidates thinned to the target spacing)")
+    else:
+        spacing = "median" if fit.kind != "plane" and regular >= AUTO_REGULAR else "minimum"
+        per_t = per
+        why_s = (f"targets at the capture's {spacing} edge ({'a regular sampling on a curved fit' if spacing == 'median' else 'the paper'}"
+                 + ("" if not math.isfinite(per) else f"; {per:.1f} samples on T") + ")")
+    window = lo if not math.isfinite(per_t) else int(min(hi, max(lo, math.floor(AUTO_WINDOW_PERIODS * per_t + 0.5))))
+    stripes = math.isfinite(period) and spec.anisotropy >= AUTO_STRIPES
+    directed = (fit.kind != "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
+                and not stripes)
+    rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "paper")
+    # a relief directed both ways (rows and columns of features) with sharp features breaks them
+    # under one-sided growth (a tower's ledges); stripes run on
+    refine = AUTO_REFINE if directed and fine >= AUTO_FINE else 0
+    why_r = ("R 1 in the fit's frames (a directed relief, not stripes)" if directed else
+             "R 4 in the paper's frames (" + ("a sphere" if fit.kind == "sphere" else
+                                               "stripes: a half turn is a symmetry, a quarter turn the "
+                                               "matching rejects" if stripes else "an isotropic relief"
+                                               if math.isfinite(period) else "a flat relief") + ")")
+    reason = (f"automatic settings: relief {spec.describe()}, sharp-feature share {fine:.3f}, capture spacing "
+              f"{s_c:.4g} -> {why_s}; window {window}"
+              + ("" if not math.isfinite(per_t) else f" (~{(2 * window + 1) / per_t:.1f} periods)")
+              + f"; {why_r}; refine {refine}")
+    return AutoSettings(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing,
+                        coarse=coarse, capture_spacing=s_c, spectrum=spec, fine=fine, regular=regular, reason=reason)
+
+
+def _thin(fit: SurfaceFit, points: np.ndarray, delta: float) -> np.ndarray:
+    """(k,) int64 ids of ``points`` one per cell of a ``delta`` grid in the fit's unrolled
+    frame: the point nearest its cell's centre (lowest id on ties), sorted."""
+    from geosynth.surface_fit import relief_frame
+
+    uv = relief_frame(fit, points)[0]
+    cell = np.floor(uv / delta)
+    off = uv / delta - cell - 0.5
+    d2 = off[:, 0] * off[:, 0] + off[:, 1] * off[:, 1]
+    order = np.lexsort((np.arange(len(uv)), d2, cell[:, 1], cell[:, 0]))
+    c = cell[order]
+    first = np.ones(len(order), bool)
+    first[1:] = (c[1:] != c[:-1]).any(axis=1)
+    return np.sort(order[first]).astype(np.int64)
 
 
 # ---------------------------------------------------------------------- growth
@@ -673,10 +859,10 @@ def _pct(a: float, b: float) -> float:
     return 100.0 * abs(b - a) / abs(a) if a != 0 else (0.0 if b == 0 else math.inf)
 
 
-def _baseline_draw(rs: ReliefSurface, h: np.ndarray, tgt: np.ndarray, rng: np.random.Generator, n_candidates: int):
+def _baseline_draw(rs: ReliefSurface, h: np.ndarray, tgt: np.ndarray, rng: np.random.Generator, cand: np.ndarray):
     """One random-copy baseline: every target takes a uniformly random candidate's
     displacement (frame components) and colour. Returns (pick, heights of every vertex)."""
-    pick = rng.integers(0, n_candidates, len(tgt))  # the completion's candidates: vertices 0..n_candidates-1
+    pick = cand[rng.integers(0, len(cand), len(tgt))]  # the completion's candidates (vertex ids)
     d = rs.displacement[pick]
     comp = np.stack([(d * rs.frame_u[pick]).sum(1), (d * rs.frame_v[pick]).sum(1), (d * rs.normals[pick]).sum(1)], 1)
     dbase = comp[:, :1] * rs.frame_u[tgt] + comp[:, 1:2] * rs.frame_v[tgt] + comp[:, 2:] * rs.normals[tgt]
@@ -685,7 +871,7 @@ def _baseline_draw(rs: ReliefSurface, h: np.ndarray, tgt: np.ndarray, rng: np.ra
     return pick, hb
 
 
-def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: int) -> dict:
+def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, cand: np.ndarray) -> dict:
     fit = rs.fit
     n_s, n0 = rs.n_samples, rs.n_original
     tgt = np.arange(n_s, rs.n_vertices)
@@ -699,14 +885,18 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: i
     allt[tgt] = True
     vo = float(np.mean(np.abs(h[:n0])))
     vc = float(np.mean(np.abs(h[done]))) if len(done) else float("nan")
-    (so, co), (sc, cc) = _pair_means(_pairs(rs, orig), h, rs.colors), _pair_means(_pairs(rs, part), h, rs.colors)
+    # the capture's pairs among its candidate vertices: all of them, or one a target spacing when
+    # the candidates were thinned (a capture 4x denser than the targets: 16x the pairs, 20 s)
+    own = np.zeros(rs.n_vertices, bool)
+    own[cand[cand < n0]] = True
+    (so, co), (sc, cc) = _pair_means(_pairs(rs, own), h, rs.colors), _pair_means(_pairs(rs, part), h, rs.colors)
     # the baseline: BASELINE_DRAWS independent random-copy draws (seeds [seed, 1, k]); one
     # draw is a noisy yardstick, so its numbers are reported as the mean over the draws with
     # their min and max
     target_pairs = _pairs(rs, allt)
     draws = {k: [] for k in ("vb", "vbp", "sb", "sbp", "cbs", "cbsp", "hb")}
     for k in range(BASELINE_DRAWS):
-        pick, hb = _baseline_draw(rs, h, tgt, np.random.default_rng([seed, 1, k]), n_candidates)
+        pick, hb = _baseline_draw(rs, h, tgt, np.random.default_rng([seed, 1, k]), cand)
         vb = float(np.mean(np.abs(hb[tgt])))
         cb = None
         if rs.colors is not None:
@@ -750,7 +940,31 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, n_candidates: i
     q["hist_self"] = None
     if rs.colors is not None and lo.any() and (~lo).any():
         q["hist_self"] = _histogram_distance(rs.colors[:n0][lo], rs.colors[:n0][~lo])
+    q.update(_relief_scale(rs, done))
     return q
+
+
+def _relief_scale(rs: ReliefSurface, done: np.ndarray) -> dict:
+    """The captured part's and the completed part's relief spectra at the target spacing (issue 32)."""
+    out = dict(relief_captured=None, relief_completed=None, period_ratio=float("nan"),
+               amplitude_ratio=float("nan"), angle_diff_deg=float("nan"))
+    p = rs.positions
+    try:
+        a = _capture_relief(rs.fit, p[: rs.n_original], rs.spacing)[0]
+        b = _capture_relief(rs.fit, p[done], rs.spacing)[0] if len(done) >= 16 else None
+    except (ValueError, RuntimeError):  # a part too thin or small to grid (scipy's qhull: RuntimeError-like QhullError)
+        return out
+    except Exception as e:  # noqa: BLE001 - qhull's own error class; the measurement is a report only
+        if type(e).__name__ != "QhullError":
+            raise
+        return out
+    out["relief_captured"], out["relief_completed"] = a, b
+    if b is not None:
+        out["period_ratio"] = b.period / a.period if math.isfinite(a.period) else float("nan")
+        out["amplitude_ratio"] = b.amplitude / a.amplitude if a.amplitude > 0 else float("nan")
+        d = abs(b.angle - a.angle) % math.pi
+        out["angle_diff_deg"] = math.degrees(min(d, math.pi - d))
+    return out
 
 
 # ---------------------------------------------------------------------- the public function
@@ -766,12 +980,12 @@ def _vertex_normals(positions: np.ndarray, faces: np.ndarray, fallback: np.ndarr
     return np.where(length > 0, vn / np.maximum(length, 1e-300), fallback)
 
 
-def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, window: int = DEFAULT_WINDOW,
-                     rotations: int = DEFAULT_ROTATIONS, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
+def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, window: int | None = None,
+                     rotations: int | None = None, mu: float = DEFAULT_MU, max_error: float = DEFAULT_MAX_ERROR,
                      device: str | None = None, seed: int = 0, progress: bool = False,
-                     max_targets: int | None = 200_000, oversample: str = "butterfly",
-                     candidates: str = "capture", balance: bool | float = True, frames: str = "paper",
-                     refine: int = 0, spacing: str = "minimum"):
+                     max_targets: int | None = 200_000, oversample: str | None = None,
+                     candidates: str = "capture", balance: bool | float = True, frames: str | None = None,
+                     refine: int | None = None, spacing: str | float | None = None):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -783,7 +997,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             lengths with u = x, v = y for a plane z = c; sphere: azimuth and polar angle,
             radians; cylinder: angle (radians) and height), or None: the plane's bounding
             box, the cylinder's full circle over the captured height, the whole sphere.
-        window: W, the neighbourhood radius in edge rings (>= 1).
+        window: W, the neighbourhood radius in edge rings (>= 1); None: chosen from the
+            relief (:func:`choose_settings`, as are ``rotations``, ``frames``, ``refine`` and
+            ``spacing`` when None; explicit values override, the report names both).
         rotations: R, orientations tried about the normal (1..64).
         mu: weight of shape against colour in [0, 1] (1: relief only).
         max_error: the initial MaxErrThreshold on the [0, 1] normalized ssd, from 2^-24 (about
@@ -793,8 +1009,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         seed: seed of the random picks (an int >= 0).
         progress: show a progress bar over the targets.
         max_targets: refuse a completion with more targets (None: no limit).
-        oversample: "butterfly" (default) or "midpoint" (the paper's coplanar midpoints);
-            see :func:`geosynth.relief_prep.prepare_relief`.
+        oversample: "butterfly", "midpoint" (the paper's coplanar midpoints) or "none"; see
+            :func:`geosynth.relief_prep.prepare_relief`. None: "butterfly", or "none" when the
+            automatic spacing makes the targets coarser than the capture.
         candidates: "capture" (default): only the capture's own vertices are candidate
             matches (their displacements and colours are copied), the oversampling's
             vertices serve as neighbour partners only; "samples": every sample, the
@@ -814,7 +1031,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         spacing: the target lattice's spacing: "minimum" (default, Sec. 4: the capture's
             minimum edge length) or "median" (our option: the median length of its edges on
             the fit, targets as dense as the capture, so that features one sample thick keep
-            their share of the vertices; see :func:`geosynth.relief_prep.prepare_relief`).
+            their share of the vertices; see :func:`geosynth.relief_prep.prepare_relief`), or a
+            length (world units). When the automatic choice coarsens the targets (a capture
+            with over 12 samples on its relief's period), the candidates are thinned to one a
+            target spacing in the fit's frame.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -833,16 +1053,20 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     from geosynth.backend import resolve_device
 
     t0 = time.perf_counter()
-    _check_params(window, rotations, mu, max_error, seed)
-    if not isinstance(frames, str) or frames not in ("paper", "fit"):
+    _check_params(DEFAULT_WINDOW if window is None else window, DEFAULT_ROTATIONS if rotations is None else rotations,
+                  mu, max_error, seed)
+    if frames is not None and (not isinstance(frames, str) or frames not in ("paper", "fit")):
         raise ValueError(f"frames must be 'paper' or 'fit', got {frames!r}.")
-    if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or not 0 <= refine <= 8:
+    if refine is not None and (isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer))
+                               or not 0 <= refine <= 8):
         raise ValueError(f"refine must be an integer from 0 to 8 (refinement passes), got {refine!r}.")
-    check_spacing_rule(spacing)  # before the fit's work
+    if spacing is not None:
+        check_spacing_rule(spacing)  # before the fit's work
     cap = as_capture(capture)
-    need = 3 * window * (window + 1) + 1  # vertices of one W-ring neighbourhood of a regular triangulation
-    if len(cap) < need:
-        raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {window} "
+    need = 3 * DEFAULT_WINDOW * (DEFAULT_WINDOW + 1) + 1 if window is None else 3 * window * (window + 1) + 1
+    if len(cap) < need:  # vertices of one W-ring neighbourhood of a regular triangulation
+        w_need = DEFAULT_WINDOW if window is None else window
+        raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {w_need} "
                          f"({need} vertices); give a larger capture or a smaller window.")
     dev = resolve_device(device or "auto")
     if isinstance(fit, SurfaceFit):
@@ -853,9 +1077,38 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
     if frames == "fit" and sf.kind == "sphere":
         fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
+    auto = None
+    window_auto = window is None
+    if None in (window, rotations, frames, refine, spacing):
+        auto = choose_settings(cap, sf)
+        coarse = auto.coarse and spacing is None
+        window = auto.window if window is None else window
+        rotations = auto.rotations if rotations is None else rotations
+        frames = auto.frames if frames is None else frames
+        if frames == "fit" and sf.kind == "sphere":  # an explicit R with an automatic frame
+            frames = "paper"
+        refine = auto.refine if refine is None else refine
+        spacing = auto.spacing if spacing is None else spacing
+        need = 3 * window * (window + 1) + 1
+        if len(cap) < need:
+            raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {window} "
+                             f"({need} vertices, chosen from its relief); give a larger capture or pass a smaller "
+                             f"window.")
+    else:
+        coarse = False
+    if oversample is None:
+        oversample = "none" if coarse else "butterfly"
     t1 = time.perf_counter()
     rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample, spacing=spacing)
     depth = capture_depth(rs) / rs.spacing  # in target spacings: a W-ring reaches about W of them
+    auto_line = "" if auto is None else auto.reason
+    if window_auto:  # a window most of the capture fills: else the candidates are its border's
+        w0 = window
+        while window > AUTO_WINDOW_RANGE[0] and float(np.mean(depth >= window)) < AUTO_WHOLE:
+            window -= 1
+        if window != w0:
+            auto_line += (f"; window {w0} -> {window}: {float(np.mean(depth >= w0)):.0%} of the capture holds a "
+                          f"whole window of {w0}, under {AUTO_WHOLE:.0%}")
     whole = int((depth >= window).sum())
     if whole == 0:
         deepest = float(depth.max()) if len(depth) else 0.0
@@ -877,6 +1130,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         frame_rows = np.stack([fu, fv, rs.normals / norm3(rs.normals)[:, None]], axis=1)
     partners = np.arange(rs.n_samples, dtype=np.int64)
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
+    if coarse:  # targets coarser than the capture: one candidate a target spacing is enough
+        samples = samples[_thin(sf, rs.base[samples], rs.spacing)]
     textured0 = np.zeros(rs.n_vertices, dtype=bool)
     textured0[: rs.n_samples] = True
     colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
@@ -891,7 +1146,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     refined = _refine(rs, index, rm, int(window), int(rotations), use_mu, rng, stats["picked"], textured,
                       int(refine), bal) if refine else 0
     t4 = time.perf_counter()
-    quality = _quality(rs, textured, int(seed), len(samples))
+    quality = _quality(rs, textured, int(seed), samples)
     t5 = time.perf_counter()
     positions = rs.positions
     completed = np.zeros(rs.n_vertices, bool)
@@ -915,7 +1170,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         final_max_error=stats["final_max_error"], lists=stats["lists"],
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
-        spacing_rule=spacing, whole_windows=whole,
+        spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
+        auto=auto_line, n_candidates=len(samples),
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

@@ -33,18 +33,10 @@ class CompletionExample:
             ``hidden_colors`` (M, 3) uint8.
         fit: the fit to use ("plane", "sphere", "cylinder").
         region: the region to complete (None: the fit's default).
-        window: the suggested window W (rings).
-        mu: the suggested shape / colour weight.
         note: what it stands for.
-        rotations: the suggested R (4, the paper's default, unless the relief has a
-            preferred direction in the fit's own frames).
-        frames: the suggested frames ("paper", or "fit": the fit's own orientation, see
-            :func:`geosynth.surface_fit.fit_frames`).
-        refine: the suggested refinement passes after the growth (0: the paper's one pass;
-            see :func:`geosynth.completion.complete_surface`).
-        spacing: the suggested target spacing rule ("minimum": the paper's minimum edge
-            length; "median": the capture's median edge, see
-            :func:`geosynth.relief_prep.prepare_relief`).
+
+    The scene only: no method settings. A built-in gets what a user's file gets, the settings
+    :func:`geosynth.completion.choose_settings` measures and chooses (issue 32).
     """
 
     name: str
@@ -53,13 +45,7 @@ class CompletionExample:
     hidden_colors: np.ndarray
     fit: str
     region: tuple | None
-    window: int
-    mu: float
     note: str
-    rotations: int = 4
-    frames: str = "paper"
-    refine: int = 0
-    spacing: str = "minimum"
 
 
 def _hex_grid(width: float, height: float, delta: float) -> np.ndarray:
@@ -78,13 +64,12 @@ def _colour_ramp(t: np.ndarray, low, high, rng, noise: float) -> np.ndarray:
     return np.clip(np.round(c), 0, 255).astype(np.uint8)
 
 
-def _split(name, points, colors, captured, fit, region, window, mu, note, rotations=4,
-           frames="paper", refine=0, spacing="minimum") -> CompletionExample:
+def _split(name, points, colors, captured, fit, region, note) -> CompletionExample:
     return CompletionExample(name, Capture(points[captured], colors[captured]), points[~captured], colors[~captured],
-                             fit, region, window, mu, note, rotations, frames, refine, spacing)
+                             fit, region, note)
 
 
-def _plane_example(name: str, height_fn, seed: int, size: float, delta: float, keep: float, window: int,
+def _plane_example(name: str, height_fn, seed: int, size: float, delta: float, keep: float,
                    note: str) -> CompletionExample:
     rng = np.random.default_rng(seed)
     q = _hex_grid(size, size * 0.75, delta)
@@ -94,14 +79,14 @@ def _plane_example(name: str, height_fn, seed: int, size: float, delta: float, k
     points = np.stack([q[:, 0], q[:, 1], h], 1)
     captured = q[:, 0] < keep * size
     region = ((0.0, size), (0.0, size * 0.75))
-    return _split(name, points, colors, captured, "plane", region, window, 0.5, note)
+    return _split(name, points, colors, captured, "plane", region, note)
 
 
 def wave_example(seed: int = 0, delta: float = 0.05) -> CompletionExample:
     """A plane with a periodic wave relief (Fig. 8 top): h = A cos(2 pi x / L), A = 0.08, L = 0.5
     (even about the capture's centre, so that the least-squares plane is level)."""
     return _plane_example("wave", lambda q, rng: 0.08 * np.cos(2 * math.pi * q[:, 0] / 0.5), seed, 2.0, delta, 0.5,
-                          3, "plane, sine wave relief (Fig. 8)")
+                          "plane, sine wave relief (Fig. 8)")
 
 
 def noise_example(seed: int = 0, delta: float = 0.05) -> CompletionExample:
@@ -112,12 +97,12 @@ def noise_example(seed: int = 0, delta: float = 0.05) -> CompletionExample:
         width = rng.uniform(0.06, 0.14, 160)
         d2 = ((q[:, None, :] - centres[None]) ** 2).sum(2)
         return (amp * np.exp(-d2 / (2 * width ** 2))).sum(1)
-    return _plane_example("noise", heights, seed, 2.0, delta, 0.45, 3, "plane, stochastic bump relief (Fig. 8)")
+    return _plane_example("noise", heights, seed, 2.0, delta, 0.45, "plane, stochastic bump relief (Fig. 8)")
 
 
 def flat_example(seed: int = 0, delta: float = 0.05) -> CompletionExample:
     """A flat plane with noisy colours only: completes flat."""
-    return _plane_example("flat", lambda q, rng: np.zeros(len(q)), seed, 1.2, delta, 0.5, 2, "a flat plane")
+    return _plane_example("flat", lambda q, rng: np.zeros(len(q)), seed, 1.2, delta, 0.5, "a flat plane")
 
 
 def _fibonacci(count: int) -> np.ndarray:
@@ -146,16 +131,7 @@ def golf_example(seed: int = 0, delta: float = 0.065, dimples: int = 72) -> Comp
     points = d * (1 + h)[:, None]
     colors = _colour_ramp(1 - (-h / depth), (170, 172, 180), (242, 242, 236), rng, 3.0)
     captured = d[:, 2] < math.sin(math.radians(50))
-    # window 5. The targets are spaced at the capture's minimum edge length (Sec. 4), which on
-    # this Fibonacci capture is 0.054, 0.83x its typical edge, so a dimple is about 7 target
-    # spacings across. With window 3 (Gaussian sigma ~1.1 spacings) the lands won (slope 20%
-    # low, RGB histogram distance 0.115); with window 4 (sigma 1.4 spacings, 0.4 of a dimple's
-    # radius) the dimples grew as arcs along the front and the cap closed with lands at the
-    # pole (seed 1: 44-65% land above 70 degrees against the capture's 33%; histogram
-    # distance 0.015-0.041 over seeds 0-4, mean 0.029); window 5: 0.010-0.021, mean 0.014,
-    # land above 70 degrees 35-42% (bench/RESULTS.md, m4close).
-    return _split("golf", points, colors, captured, "sphere", None, 5, 0.5,
-                  "golf ball, a cap missing (Fig. 1)")
+    return _split("golf", points, colors, captured, "sphere", None, "golf ball, a cap missing (Fig. 1)")
 
 
 def _cylinder_lattice(delta: float, height: float) -> tuple[np.ndarray, np.ndarray]:
@@ -192,9 +168,7 @@ def bark_example(seed: int = 0, delta: float = 0.06, height: float = 1.6, fracti
     r = 1 + h
     points = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
     captured = a < 2 * math.pi * fraction
-    # window 4: a ridge period is about 5 spacings (seeds 0, 1: volume 8.7% flat with window 3,
-    # 4.6-5.6% with 4)
-    return _split("bark", points, colors, captured, "cylinder", None, 4, 0.5,
+    return _split("bark", points, colors, captured, "cylinder", None,
                   "tree bark on a cylinder, half missing (Figs. 9, 11, 12)")
 
 
@@ -220,24 +194,8 @@ def tower_example(seed: int = 0, delta: float = 0.055, height: float = 1.8) -> C
     points = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
     captured = a < math.pi
     assert arches == 12
-    # R = 1 in the cylinder's own frames (u around, v up the axis): the rows of arches have a
-    # preferred direction and no half-turn symmetry (round tops, ledges below), so rotations
-    # 1 and 3 of R = 4 copied rows turned into vertical bands and 2 turned arches upside down
-    # (R = 2: volume 1.6-2.2% off). The paper's frames turn by 90 degrees on a column of
-    # vertices where the normal's smallest component switches (the fitted axis is tilted),
-    # the fit's frames nowhere. Window 3 kept (4: histogram 0.026 on seed 0; 5: worse).
-    # Two refinement passes: the one-row ledges broke in the single pass (the completed
-    # part's mean |h| 0.45-1.49% low on 8 of 8 seeds); matched again with both sides
-    # textured they run on, and the slope comes closer (bench/RESULTS.md, M4 m4refine).
-    # Targets at the capture's median edge on the fit (0.0548), not its minimum edge (0.0522, in
-    # the arch recesses 5% inside the wall): the ledges are one sample row thick and are copied
-    # row for row, so on the minimum's lattice (40 rows over the height against the capture's 38)
-    # they held 10.0% of the targets against 10.5% of the capture's vertices, and the completed
-    # part's mean |h| came out 0.25-0.93% low on 6 of 6 seeds (the relief itself sampled there:
-    # 1.08% low); on the capture's 38 rows, 0.00-0.32% (bench/RESULTS.md, M4 m4spacing).
-    return _split("tower", points, colors, captured, "cylinder", None, 3, 0.5,
-                  "tower with rows of arches, half missing (Fig. 10)", rotations=1, frames="fit", refine=2,
-                  spacing="median")
+    return _split("tower", points, colors, captured, "cylinder", None,
+                  "tower with rows of arches, half missing (Fig. 10)")
 
 
 COMPLETION_EXAMPLES = {

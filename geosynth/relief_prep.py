@@ -413,14 +413,19 @@ def _edge_points(points: np.ndarray, faces: np.ndarray, edges: np.ndarray, fit: 
 
 
 def check_spacing_rule(spacing) -> str:
-    """``spacing`` if it is one of TARGET_SPACINGS, else a one-line ValueError."""
+    """``spacing`` if it is one of TARGET_SPACINGS or a positive finite length (world units,
+    an explicit target spacing; issue 32's automatic choice), else a one-line ValueError."""
+    if isinstance(spacing, (float, int, np.floating, np.integer)) and not isinstance(spacing, (bool, np.bool_)):
+        if math.isfinite(float(spacing)) and float(spacing) > 0:
+            return spacing
     if not isinstance(spacing, str) or spacing not in TARGET_SPACINGS:
-        raise ValueError(f"spacing must be one of {', '.join(map(repr, TARGET_SPACINGS))}, got {spacing!r}.")
+        raise ValueError(f"spacing must be one of {', '.join(map(repr, TARGET_SPACINGS))} or a length > 0, "
+                         f"got {spacing!r}.")
     return spacing
 
 
 def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: int | None = None,
-                   oversample: str = "butterfly", spacing: str = "minimum") -> ReliefSurface:
+                   oversample: str = "butterfly", spacing: str | float = "minimum") -> ReliefSurface:
     """Samples, targets and their triangulation for a capture over its fit (Sec. 3, 4, 6).
 
     Args:
@@ -434,8 +439,12 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
             over the fit (an interpolating subdivision: it adds no detail, but the paper's
             coplanar midpoints lie on chords and lowered the mean relief height of the
             samples by 2-11% on the built-ins, a bias every copy inherits); "midpoint":
-            the paper's coplanar midpoints.
-        spacing: the target lattice's spacing. "minimum" (default, the paper's Sec. 4):
+            the paper's coplanar midpoints; "none": no oversampling (a capture already
+            much denser than the targets has the phases the oversampling is for).
+        spacing: a length (world units on the fit): the targets' spacing as given (the
+            automatic choice of :func:`geosynth.completion.complete_surface` for a capture
+            much denser than its relief needs; not below 0.5x the capture's median edge). Or the
+            target lattice's spacing. "minimum" (default, the paper's Sec. 4):
             the capture's minimum edge length (at least 0.5x its median), so that the
             targets are at least as dense as the capture everywhere. "median" (our option):
             the median length of the capture's edges on the fit (between their base
@@ -461,8 +470,8 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     """
     from scipy.spatial import cKDTree
 
-    if oversample not in ("butterfly", "midpoint"):
-        raise ValueError(f"oversample must be 'butterfly' or 'midpoint', got {oversample!r}.")
+    if oversample not in ("butterfly", "midpoint", "none"):
+        raise ValueError(f"oversample must be 'butterfly', 'midpoint' or 'none', got {oversample!r}.")
     check_spacing_rule(spacing)
     base0 = fit.project(capture.positions)
     param0 = fit.to_param(capture.positions)
@@ -475,7 +484,9 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     faces0 = _drop_long(faces0, capture.positions, _LONG_EDGE * med)
     e = _edges(faces0)
     lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
-    if spacing == "minimum":
+    if not isinstance(spacing, str):
+        delta = max(float(spacing), _FLOOR * med)
+    elif spacing == "minimum":
         delta = max(float(lengths.min()), _FLOOR * med)  # Sec. 4: targets at the minimum edge length
     else:
         # as dense as the capture's own sampling where the targets lie: its edges on the fit (the
@@ -484,8 +495,12 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
 
     # Sec. 4: oversample the capture once, 1-to-4 (a new vertex at each edge's midpoint).
     n0 = len(capture.positions)
-    mid = _edge_points(capture.positions, faces0, e, fit) if oversample == "butterfly" else \
-        0.5 * (capture.positions[e[:, 0]] + capture.positions[e[:, 1]])
+    if oversample == "none":
+        mid = np.zeros((0, 3))
+    elif oversample == "butterfly":
+        mid = _edge_points(capture.positions, faces0, e, fit)
+    else:
+        mid = 0.5 * (capture.positions[e[:, 0]] + capture.positions[e[:, 1]])
     sample_pos = np.concatenate([capture.positions, mid])
     colors = None
     if capture.colors is not None:

@@ -28,7 +28,7 @@ import numpy as np
 
 from geosynth.cpu_exact import dot3, eigh3_fixed, gram_fixed, lstsq_fixed, norm3, unit_fixed, vdot_fixed
 
-__all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "tangent_frames"]
+__all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "relief_frame", "tangent_frames"]
 
 FIT_KINDS = ("plane", "sphere", "cylinder")
 _CHOICE_SLACK = 1.25  # a simpler model within 25% of the best residual is preferred
@@ -92,6 +92,39 @@ def fit_frames(fit: "SurfaceFit", normals: np.ndarray) -> tuple[np.ndarray, np.n
     u /= np.maximum(norm3(u)[:, None], 1e-300)
     v = np.cross(n, u)
     return u, v
+
+
+def relief_frame(fit: "SurfaceFit", points: np.ndarray, cut: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """The points' relief in the fit's own unrolled (u, v) frame, world units (issue 32: the
+    relief's period and orientation are measured there, :mod:`geosynth.relief_spectrum`).
+
+    plane: (u, v) along ``basis``; cylinder: u = radius x angle, v = height along the axis;
+    sphere: a sinusoidal projection, u = radius x (azimuth - pi) x sin(polar), v = radius x
+    polar. The angle is measured from ``cut`` (radians; None: the middle of the widest gap
+    between the points' azimuths, so that a part of the surface is not split at 0 / 2 pi);
+    the frame's x (u) is the fit's u frame direction (around a cylinder), y (v) its axis.
+
+    Args:
+        fit: the :class:`SurfaceFit`.
+        points: (N, 3) float positions.
+        cut: the azimuth where the unrolling starts, or None.
+
+    Returns:
+        (uv (N, 2) float64, h (N,) float64 signed heights over the fit, the cut used).
+    """
+    q = fit.to_param(points)
+    h = fit.distance(points)
+    if fit.kind == "plane":
+        return q, h, 0.0
+    if cut is None:
+        az = np.sort(q[:, 0])
+        gaps = np.diff(np.concatenate([az, [az[0] + 2 * math.pi]])) if len(az) else np.array([2 * math.pi])
+        k = int(np.argmax(gaps))
+        cut = float((az[k] + gaps[k] / 2) % (2 * math.pi)) if len(az) else 0.0
+    a = np.mod(q[:, 0] - cut, 2 * math.pi)
+    if fit.kind == "cylinder":
+        return np.stack([fit.radius * a, q[:, 1]], 1), h, cut
+    return np.stack([fit.radius * (a - math.pi) * np.sin(q[:, 1]), fit.radius * q[:, 1]], 1), h, cut
 
 
 @dataclass(frozen=True)
