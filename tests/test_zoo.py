@@ -1,0 +1,81 @@
+"""The zoo of exemplars (bench/zoo.py) and the measures of bench/bm_zoo.py (#32): members are
+drawn the same way for the same seed, every writer's file reads back through geosynth's
+readers, and the relief measures find a capture's own ground truth within the issue's
+tolerance (a measure that fails the truth would call good results bad, or bad ones good)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _load(name: str):
+    sys.path.insert(0, str(ROOT / "bench"))
+    try:
+        spec = importlib.util.spec_from_file_location(f"_zoo_{name}", ROOT / "bench" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+        return module
+    finally:
+        sys.path.remove(str(ROOT / "bench"))
+
+
+zoo = _load("zoo")
+
+
+def test_members_are_drawn_again_for_the_same_seed_and_cover_every_family():
+    for method in zoo.METHODS:
+        a, b = zoo.zoo(method, 12, seed=3), zoo.zoo(method, 12, seed=3)
+        assert [m.params for m in a] == [m.params for m in b]
+        assert [m.params for m in a] != [m.params for m in zoo.zoo(method, 12, seed=4)]
+    assert {m.family for m in zoo.zoo("volume", 12)} == set(zoo.VOLUME_FAMILIES)
+    assert {m.family for m in zoo.zoo("pointtexture", 12)} == set(zoo.POINT_FAMILIES)
+    captures = zoo.zoo("complete", 12)
+    assert {m.params["surface"] for m in captures} == set(zoo.SURFACES)
+    assert {m.params["relief"] for m in captures} == set(zoo.RELIEFS)
+    assert {m.params["writer"] for m in captures} == {"trimesh-ply", "plyfile-ascii", "plyfile-binary", "obj"}
+    with pytest.raises(ValueError, match="unknown method"):
+        zoo.zoo("carving")
+
+
+@pytest.mark.parametrize("index", [0, 1, 2, 3])  # one capture per writer: trimesh PLY, plyfile ASCII, OBJ, plyfile binary
+def test_every_capture_writer_reads_back_with_its_positions_and_colours(tmp_path, index):
+    from geosynth.pointsets import read_geometry
+
+    member = zoo.zoo("complete", 4)[index]
+    verts, faces, colours, _ = zoo.capture_surface(member)
+    got = read_geometry(member.write(tmp_path))
+    positions = np.asarray(got.vertices if hasattr(got, "vertices") else got.positions)
+    assert positions.shape == verts.shape
+    np.testing.assert_allclose(positions, verts, atol=1e-5)
+    if colours is not None:
+        got_colours = got.visual.vertex_colors if hasattr(got, "visual") else got.colors
+        assert np.array_equal(np.asarray(got_colours)[:, :3], colours)
+
+
+def test_relief_measures_find_the_ground_truth():
+    bm_zoo = _load("bm_zoo")
+    member = zoo.zoo("complete", 12)[10]  # diagonal ridges on a cylinder
+    whole, _, _, _ = zoo.capture_surface(member, whole=True)
+    captured, _, _, _ = zoo.capture_surface(member)
+    from scipy.spatial import cKDTree
+
+    cap = cKDTree(captured).query(whole)[0] < 1e-9
+    uv, h, usable = bm_zoo._surface_uv(member, whole)
+    spacing = 1.5 * member.params["spacing"]  # coarser than the benchmark: quicker, as exact here
+    r = bm_zoo.compare_reliefs(bm_zoo._grid(uv[cap & usable], h[cap & usable], spacing),
+                               bm_zoo._grid(uv[~cap & usable], h[~cap & usable], spacing), spacing)
+    assert abs(r["size"] - 1) < 0.05 and abs(r["height"] - 1) < 0.05
+    assert r["angle_diff"] < 3
+    # and a wrong relief is caught: the hidden part's heights halved, its period stretched
+    stretched = uv[~cap & usable] * [1.3, 1.3]
+    worse = bm_zoo.compare_reliefs(bm_zoo._grid(uv[cap & usable], h[cap & usable], spacing),
+                                   bm_zoo._grid(stretched, 0.5 * h[~cap & usable], spacing), spacing)
+    assert worse["size"] > 1.2 and worse["height"] < 0.6
