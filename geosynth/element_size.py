@@ -59,7 +59,8 @@ class ReliefScale:
         angle: direction of the dominant spectral peak's wave vector, degrees in [0, 180)
             (0: the relief varies along x).
         peak: whether the spectrum had a local maximum (False: ``period`` is the longest
-            measured, half the map's shorter side: a lower bound of the element size).
+            measured, half the map's shorter side or ``longest``: a lower bound of the
+            element size).
         cell: (2,) the height map's cell (x, y).
         shape: (ny, nx) of the height map.
     """
@@ -118,7 +119,8 @@ def _window(n: int) -> np.ndarray:
     return 16.0 * (x * x) * (y * y)
 
 
-def relief_scale(points: np.ndarray, lo, hi, spacing: float) -> ReliefScale:
+def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None = None,
+                 longest: float | None = None) -> ReliefScale:
     """The element size (dominant period) and relief amplitude over the box [lo, hi].
 
     Args:
@@ -126,17 +128,23 @@ def relief_scale(points: np.ndarray, lo, hi, spacing: float) -> ReliefScale:
         lo, hi: (>= 2,) the area measured (a texture's B, an output's extent).
         spacing: the points' spacing (world units): the height map's cells are 1.5
             spacings, or B's longer side / 128 when that is larger.
+        cell: the height map's cell instead (world units): an output measured at its
+            exemplar's cell (``ReliefScale.cell[0]``), so that both see the same detail.
+        longest: the longest period considered (world units; default half the map's
+            shorter side): an output measured over the exemplar's band (half of B's
+            shorter side), or the random heights of its larger extent's stones can win.
 
     Returns:
         A :class:`ReliefScale`.
     """
     lo2, hi2 = np.asarray(lo, np.float64)[:2], np.asarray(hi, np.float64)[:2]
-    cell = max(1.5 * float(spacing), float((hi2 - lo2).max()) / MOST_CELLS)
-    h, g = height_map(points, lo2, hi2, cell)
-    return _scale_of_map(h, g)
+    if cell is None:
+        cell = max(1.5 * float(spacing), float((hi2 - lo2).max()) / MOST_CELLS)
+    h, g = height_map(points, lo2, hi2, float(cell))
+    return _scale_of_map(h, g, longest)
 
 
-def _scale_of_map(h: np.ndarray, g: np.ndarray) -> ReliefScale:
+def _scale_of_map(h: np.ndarray, g: np.ndarray, longest: float | None = None) -> ReliefScale:
     ny, nx = h.shape
     amplitude = float(np.percentile(h, 95) - np.percentile(h, 5))
     a = (h - math.fsum(h.ravel().tolist()) / h.size) * (_window(ny)[:, None] * _window(nx)[None, :])
@@ -151,6 +159,8 @@ def _scale_of_map(h: np.ndarray, g: np.ndarray) -> ReliefScale:
     counts = np.bincount(ring)
     profile = sums / np.maximum(1, counts)
     first = 2 * PAD  # periods up to half the shorter side
+    if longest is not None:
+        first = max(first, int(math.ceil(1.0 / (float(longest) * dk) - 1e-9)))
     last = min(len(profile) - 1, int(0.5 / float(g.max()) / dk))  # down to two cells
     k = np.arange(len(profile), dtype=np.float64)
     score = np.sqrt(k) * profile
