@@ -865,7 +865,7 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
     p.add_argument("--size", type=_float_type(0, inclusive=False), nargs=2, default=None, metavar=("W", "H"),
                    help="output extent in x and y, world units (instead of --scale)")
     p.add_argument("--patch", type=_float_type(0, inclusive=False), default=None,
-                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default: 1.5 "
+                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default: 1.25 "
                         "periods of the exemplar's relief, measured, within 6 field cells and 0.5; the run says what it "
                         "measured); the patch plus its extra region must fit in the exemplar box, else refused")
     p.add_argument("--extra", type=_float_type(0, inclusive=False), default=0.2,

@@ -47,6 +47,10 @@ __all__ = ["ReliefScale", "height_map", "relief_scale"]
 
 MOST_CELLS = 128  # height-map cells along B's longer side at most (a few ms of FFT)
 PAD = 4  # zero padding of the spectrum: rings of 1/(4 L), L = the map's shorter side
+PROMINENCE = 1.6  # a spectral peak's least height over the dip on its long-period side
+DOMINANT = 0.5  # a peak's least sqrt(k) P against the largest over the band measured
+FLAT = 0.1  # heights within this many point spacings RMS of their plane: no relief (a tilted plane
+# binned by the highest point per cell: 0.04)
 
 
 @dataclass(frozen=True)
@@ -59,8 +63,8 @@ class ReliefScale:
         angle: direction of the dominant spectral peak's wave vector, degrees in [0, 180)
             (0: the relief varies along x).
         peak: whether the spectrum had a local maximum (False: ``period`` is the longest
-            measured, half the map's shorter side or ``longest``: a lower bound of the
-            element size).
+            measured, half the map's shorter side or ``band``'s longest: a lower bound of
+            the element size).
         cell: (2,) the height map's cell (x, y).
         shape: (ny, nx) of the height map.
     """
@@ -120,7 +124,7 @@ def _window(n: int) -> np.ndarray:
 
 
 def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None = None,
-                 longest: float | None = None) -> ReliefScale:
+                 band: tuple[float, float] | None = None) -> ReliefScale:
     """The element size (dominant period) and relief amplitude over the box [lo, hi].
 
     Args:
@@ -130,9 +134,11 @@ def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None 
             spacings, or B's longer side / 128 when that is larger.
         cell: the height map's cell instead (world units): an output measured at its
             exemplar's cell (``ReliefScale.cell[0]``), so that both see the same detail.
-        longest: the longest period considered (world units; default half the map's
-            shorter side): an output measured over the exemplar's band (half of B's
-            shorter side), or the random heights of its larger extent's stones can win.
+        band: (shortest, longest) periods considered (world units; default two cells to
+            half the map's shorter side). An output is measured near its exemplar's
+            period (half to twice it): is the exemplar's element size still there, and
+            where; over the whole band its larger extent's long waves (seams, a stone's
+            random height) can win.
 
     Returns:
         A :class:`ReliefScale`.
@@ -141,13 +147,23 @@ def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None 
     if cell is None:
         cell = max(1.5 * float(spacing), float((hi2 - lo2).max()) / MOST_CELLS)
     h, g = height_map(points, lo2, hi2, float(cell))
-    return _scale_of_map(h, g, longest)
+    return _scale_of_map(h, g, float(spacing), band)
 
 
-def _scale_of_map(h: np.ndarray, g: np.ndarray, longest: float | None = None) -> ReliefScale:
+def _scale_of_map(h: np.ndarray, g: np.ndarray, spacing: float, band=None) -> ReliefScale:
     ny, nx = h.shape
     amplitude = float(np.percentile(h, 95) - np.percentile(h, 5))
-    a = (h - math.fsum(h.ravel().tolist()) / h.size) * (_window(ny)[:, None] * _window(nx)[None, :])
+    # heights above the map's least-squares plane (on a regular grid the x and y slopes
+    # decouple: each a sum over centred coordinates, math.fsum: correctly rounded)
+    cx = np.arange(nx, dtype=np.float64) - 0.5 * (nx - 1)
+    cy = np.arange(ny, dtype=np.float64) - 0.5 * (ny - 1)
+    mean = math.fsum(h.ravel().tolist()) / h.size
+    sx = math.fsum((h * cx[None, :]).ravel().tolist()) / (ny * math.fsum((cx * cx).tolist()))
+    sy = math.fsum((h * cy[:, None]).ravel().tolist()) / (nx * math.fsum((cy * cy).tolist()))
+    d = (h - mean) - sx * cx[None, :] - sy * cy[:, None]
+    # no relief beyond a plane (rounding, at most a tilt): no period to find
+    flat = math.sqrt(math.fsum((d * d).ravel().tolist()) / d.size) <= FLAT * spacing
+    a = d * (_window(ny)[:, None] * _window(nx)[None, :])
     f = np.fft.fft2(a, s=(PAD * ny, PAD * nx))
     power = f.real * f.real + f.imag * f.imag
     ky = np.fft.fftfreq(PAD * ny, float(g[1]))
@@ -159,15 +175,28 @@ def _scale_of_map(h: np.ndarray, g: np.ndarray, longest: float | None = None) ->
     counts = np.bincount(ring)
     profile = sums / np.maximum(1, counts)
     first = 2 * PAD  # periods up to half the shorter side
-    if longest is not None:
-        first = max(first, int(math.ceil(1.0 / (float(longest) * dk) - 1e-9)))
     last = min(len(profile) - 1, int(0.5 / float(g.max()) / dk))  # down to two cells
+    if band is not None:
+        first = max(first, int(math.ceil(1.0 / (float(band[1]) * dk) - 1e-9)))
+        last = min(last, int(math.floor(1.0 / (float(band[0]) * dk) + 1e-9)))
     k = np.arange(len(profile), dtype=np.float64)
     score = np.sqrt(k) * profile
     best = None
-    for i in range(first + 1, last):
-        if profile[i] > profile[i - 1] and profile[i] >= profile[i + 1] and (best is None or score[i] > score[best]):
-            best = i
+    if not flat:
+        for i in range(first + 1, last):
+            if not (profile[i] > profile[i - 1] and profile[i] >= profile[i + 1]):
+                continue
+            # a peak, not a ripple: PROMINENCE times the lowest ring within an octave towards
+            # longer periods (a window's sidelobes on a falling spectrum, a terrain's bumps and
+            # the harmonics of a period longer than measured were 1.25-1.4; real peaks >= 1.9)
+            if profile[i] < PROMINENCE * profile[max(first, i // 2):i].min():
+                continue
+            if best is None or score[i] > score[best]:
+                best = i
+        # and a dominant one: a ripple far below the longest periods' power (a terrain's
+        # falling spectrum, a period longer than measured) is no element
+        if best is not None and score[best] < DOMINANT * score[first:last].max():
+            best = None
     peak = best is not None
     if not peak:
         best = first

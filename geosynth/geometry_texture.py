@@ -134,8 +134,10 @@ class PointTextureReport:
 # The automatic patch size (issue 32; Sec. 3: "large enough to encompass at least a texture
 # element plus some neighborhood"): this many of the relief's dominant periods, within
 # [_PATCH_FEWEST_CELLS cells, _PATCH_MOST of B's shorter side]. Chosen by measuring the
-# built-ins at 1.25 to 2 periods (bench/RESULTS.md "M2 element size -> patch size").
-PATCH_PERIODS = 1.5
+# built-ins at 1.25 to 2 periods (bench/RESULTS.md "M2 element size -> patch size"): at 1.5
+# the flowers' patch-field distance came near random pasting's (0.96 of it; 0.76 at 1.25),
+# as at the old default 0.4; at 1.25 every built-in's was at or below its old default's.
+PATCH_PERIODS = 1.25
 _PATCH_MOST = 0.5  # a larger patch leaves few candidates in B (and no variation)
 _PATCH_FEWEST_CELLS = 6  # an overlap of 2 cells and an interior of 2
 
@@ -1043,10 +1045,12 @@ def synthesize_point_texture(
                                                                     spacing)
     out_lo = texture.box_min[:2]
     out_hi = out_lo + np.asarray(lay.size, np.float64)
-    ex_longest = 0.5 * min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])
+    # near the exemplar's period (half to twice it, within what the exemplar's map measures)
+    near = (0.5 * ex_scale.period, min(2.0 * ex_scale.period,
+                                       0.5 * min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])))
 
     def measured(points) -> tuple[float, float]:
-        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], longest=ex_longest)
+        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], band=near)
         return rs.period, rs.amplitude
 
     relief = {"exemplar": (ex_scale.period, ex_scale.amplitude), "output": measured(p)}
