@@ -62,9 +62,9 @@ class ReliefScale:
         amplitude: 5th to 95th percentile of the height map.
         angle: direction of the dominant spectral peak's wave vector, degrees in [0, 180)
             (0: the relief varies along x).
-        peak: whether the spectrum had a local maximum (False: ``period`` is the longest
-            measured, half the map's shorter side or ``band``'s longest: a lower bound of
-            the element size).
+        peak: whether the spectrum had a clear peak (False: ``period`` is the longest
+            measured, half the map's shorter side, a lower bound of the element size; with
+            a ``band``, the band's ring of the largest sqrt(k) P).
         cell: (2,) the height map's cell (x, y).
         shape: (ny, nx) of the height map.
     """
@@ -124,7 +124,7 @@ def _window(n: int) -> np.ndarray:
 
 
 def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None = None,
-                 band: tuple[float, float] | None = None) -> ReliefScale:
+                 band: tuple[float, float] | None = None, near: float | None = None) -> ReliefScale:
     """The element size (dominant period) and relief amplitude over the box [lo, hi].
 
     Args:
@@ -139,6 +139,9 @@ def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None 
             period (half to twice it): is the exemplar's element size still there, and
             where; over the whole band its larger extent's long waves (seams, a stone's
             random height) can win.
+        near: of the clear peaks, the one nearest this period (world units; default the
+            strongest): an output's peak that tracks its exemplar's element (weave's output
+            has a peak at its threads' pitch and one at 0.64 of it, either may be stronger).
 
     Returns:
         A :class:`ReliefScale`.
@@ -147,10 +150,10 @@ def relief_scale(points: np.ndarray, lo, hi, spacing: float, cell: float | None 
     if cell is None:
         cell = max(1.5 * float(spacing), float((hi2 - lo2).max()) / MOST_CELLS)
     h, g = height_map(points, lo2, hi2, float(cell))
-    return _scale_of_map(h, g, float(spacing), band)
+    return _scale_of_map(h, g, float(spacing), band, near)
 
 
-def _scale_of_map(h: np.ndarray, g: np.ndarray, spacing: float, band=None) -> ReliefScale:
+def _scale_of_map(h: np.ndarray, g: np.ndarray, spacing: float, band=None, near=None) -> ReliefScale:
     ny, nx = h.shape
     amplitude = float(np.percentile(h, 95) - np.percentile(h, 5))
     # heights above the map's least-squares plane (on a regular grid the x and y slopes
@@ -191,15 +194,18 @@ def _scale_of_map(h: np.ndarray, g: np.ndarray, spacing: float, band=None) -> Re
             # the harmonics of a period longer than measured were 1.25-1.4; real peaks >= 1.9)
             if profile[i] < PROMINENCE * profile[max(first, i // 2):i].min():
                 continue
-            if best is None or score[i] > score[best]:
+            # and a dominant one: a ripple far below the longest periods' power (a terrain's
+            # falling spectrum, a period longer than measured) is no element
+            if score[i] < DOMINANT * score[first:last].max():
+                continue
+            if near is not None:  # the peak nearest the given period (log scale)
+                if best is None or abs(math.log(i * dk * near)) < abs(math.log(best * dk * near)):
+                    best = i
+            elif best is None or score[i] > score[best]:
                 best = i
-        # and a dominant one: a ripple far below the longest periods' power (a terrain's
-        # falling spectrum, a period longer than measured) is no element
-        if best is not None and score[best] < DOMINANT * score[first:last].max():
-            best = None
     peak = best is not None
-    if not peak:
-        best = first
+    if not peak:  # the longest period; within a given band its strongest ring (no clear peak)
+        best = first if band is None else first + int(np.argmax(score[first:last + 1]))
     on_ring = np.flatnonzero(ring == best)
     j = on_ring[int(np.argmax(power.ravel()[on_ring]))]
     angle = math.degrees(math.atan2(ky[j // (PAD * nx)], kx[j % (PAD * nx)])) % 180.0

@@ -54,10 +54,11 @@ class PointTextureReport:
         patches: patches pasted; candidates: mean candidates within (1 + eps) of the best.
         patch_choice: with ``patch=None``, the line that says what was measured and which
             patch size was chosen (:func:`choose_patch`); else "".
-        relief: ``{"exemplar": (period, amplitude), "output": (...), "baseline": (...)}``,
-            world units (:func:`geosynth.element_size.relief_scale`; the output and the
-            baseline measured over their extent at the exemplar's height-map cell; the
-            baseline with ``quality`` only).
+        relief: ``{"exemplar": (period, amplitude, peak), "output": (...), "baseline":
+            (...)}``, world units, peak a bool (:func:`geosynth.element_size.relief_scale`;
+            the output and the baseline measured over their extent at the exemplar's
+            height-map cell, at half to twice the exemplar's period; the baseline with
+            ``quality`` only).
         spacing, radius: the exemplar's mean point spacing and the MLS width h.
         arbitrated: field samples the host recomputed for identical codes on every device.
         kept_warp: patches pasted as warped, without the blend and the cut, because blending
@@ -105,12 +106,13 @@ class PointTextureReport:
         ]
         r = self.relief
         if r:
-            (pe, ae), (po, ao) = r["exemplar"], r["output"]
-            line = (f"element size / relief amplitude (world units): exemplar {pe:.4g} / {ae:.4g}, output {po:.4g} / "
-                    f"{ao:.4g} ({po / pe:.2f}x / {ao / ae:.2f}x)")
+            (pe, ae, ke), (po, ao, ko) = r["exemplar"], r["output"]
+            vague = " (no clear spectral peak)"
+            line = (f"element size / relief amplitude (world units): exemplar {pe:.4g}{'' if ke else vague} / {ae:.4g}, "
+                    f"output {po:.4g}{'' if ko else vague} / {ao:.4g} ({po / pe:.2f}x / {ao / ae:.2f}x)")
             if "baseline" in r:
-                pb, ab = r["baseline"]
-                line += f"; random pasting {pb:.4g} / {ab:.4g} ({pb / pe:.2f}x / {ab / ae:.2f}x)"
+                pb, ab, kb = r["baseline"]
+                line += f"; random pasting {pb:.4g}{'' if kb else vague} / {ab:.4g} ({pb / pe:.2f}x / {ab / ae:.2f}x)"
             out.append(line)
         q = self.quality
         if q:
@@ -1046,14 +1048,15 @@ def synthesize_point_texture(
     out_lo = texture.box_min[:2]
     out_hi = out_lo + np.asarray(lay.size, np.float64)
     # near the exemplar's period (half to twice it, within what the exemplar's map measures)
-    near = (0.5 * ex_scale.period, min(2.0 * ex_scale.period,
-                                       0.5 * min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])))
+    ex_side = min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])
+    band = (0.5 * ex_scale.period, min(2.0 * ex_scale.period, 0.5 * ex_side))
 
-    def measured(points) -> tuple[float, float]:
-        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], band=near)
-        return rs.period, rs.amplitude
+    def measured(points) -> tuple[float, float, bool]:
+        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], band=band,
+                          near=ex_scale.period)
+        return rs.period, rs.amplitude, rs.peak
 
-    relief = {"exemplar": (ex_scale.period, ex_scale.amplitude), "output": measured(p)}
+    relief = {"exemplar": (ex_scale.period, ex_scale.amplitude, ex_scale.peak), "output": measured(p)}
     timer.add("other", t0)
     timings = dict(timer.t)
     seam_time = timings.pop("quality")  # the seam errors measured during the growth

@@ -106,8 +106,8 @@ def test_the_run_says_its_patch_and_reports_element_size_and_amplitude_and_patch
     choice = choose_patch(tex, 24)
     assert report.lines()[0] == report.patch_choice == choice.line
     assert report.patch == round(choice.patch * float(tex.extent[:2].min()) / report.cell)
-    (pe, ae), (po, ao) = report.relief["exemplar"], report.relief["output"]
-    assert (pe, ae) == (choice.scale.period, choice.scale.amplitude) and po > 0 and ao > 0
+    (pe, ae, _), (po, ao, _) = report.relief["exemplar"], report.relief["output"]
+    assert (pe, ae) == (choice.scale.period, choice.scale.amplitude) and 0.5 * pe <= po <= 2 * pe and ao > 0
     assert any(line.startswith("element size / relief amplitude") for line in report.lines())
     _, report, _ = synthesize_point_texture(tex, device="cpu", scale=1.2, patch=0.45, resolution=24, quality=False)
     assert report.patch_choice == "" and report.patch == round(0.45 * float(tex.extent[:2].min()) / report.cell)
@@ -149,3 +149,21 @@ def _fingerprint():
         rs = relief_scale(*_args(t))
         out.append((rs.period.hex(), rs.amplitude.hex(), choose_patch(t).patch))
     return out
+
+
+def test_cli_says_the_patch_it_chose(tmp_path, capsys):
+    """`geosynth pointtexture FILE` with no --patch: the header says "(automatic)" and the
+    next line what was measured; the report has the element size line."""
+    from geosynth.cli import main
+    from geosynth.pointsets import PointSet, write_point_set
+
+    tex = _relief(_ridges(0.2, 30), n=70)
+    path = tmp_path / "ridges.ply"
+    write_point_set(path, PointSet(tex.points.astype(np.float32), tex.normals.astype(np.float32)))
+    code = main(["pointtexture", str(path), "-o", str(tmp_path / "out.ply"), "--scale", "1.2", "--resolution", "24",
+                 "--no-quality", "--device", "cpu"])
+    out = capsys.readouterr().out.splitlines()
+    assert code == 0
+    head = next(i for i, line in enumerate(out) if line.startswith("geosynth pointtexture:"))
+    assert "(automatic)" in out[head] and out[head + 1].startswith("patch ") and "dominant period" in out[head + 1]
+    assert any(line.startswith("element size / relief amplitude") for line in out)
