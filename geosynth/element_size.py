@@ -21,9 +21,13 @@ scale of the stones' random heights on small cells (0.36 for cells of 0.1); sqrt
 picks the cells; |k| P or |k|^2 P (power per octave) picked the tubes' harmonics of
 chainmail and weave. The radially averaged autocorrelation's first peak was the other
 candidate: 10-18% long on ridges (a ring average of a 1D pattern peaks at 1.12 periods)
-and 47% long on bumps of mixed sizes. With no local maximum (a spectrum falling towards
-short periods everywhere: a terrain) the element size is the longest period measured,
-half of B's shorter side, and ``peak`` is False.
+and 47% long on bumps of mixed sizes. A peak must be clear: 1.6 times the lowest ring an
+octave towards longer periods, and at least half the band's largest sqrt(|k|) P. Without
+one (``peak`` False) the element size is the ring of the largest sqrt(|k|) P: for a
+spectrum falling towards short periods (a terrain, a period longer than half of B) the
+longest period measured, half of B's shorter side; for flowers whose few elements in B
+make a weak ring (one sampling seed of ten), that ring. Heights within 0.1 spacings RMS of
+their plane are flat: no period, the longest.
 
 The amplitude is the height map's 5th to 95th percentile range (world units).
 
@@ -62,9 +66,8 @@ class ReliefScale:
         amplitude: 5th to 95th percentile of the height map.
         angle: direction of the dominant spectral peak's wave vector, degrees in [0, 180)
             (0: the relief varies along x).
-        peak: whether the spectrum had a clear peak (False: ``period`` is the longest
-            measured, half the map's shorter side, a lower bound of the element size; with
-            a ``band``, the band's ring of the largest sqrt(k) P).
+        peak: whether the spectrum had a clear peak (False: ``period`` is the ring of
+            the largest sqrt(k) P over the band measured, or the longest for a flat map).
         cell: (2,) the height map's cell (x, y).
         shape: (ny, nx) of the height map.
     """
@@ -204,8 +207,8 @@ def _scale_of_map(h: np.ndarray, g: np.ndarray, spacing: float, band=None, near=
             elif best is None or score[i] > score[best]:
                 best = i
     peak = best is not None
-    if not peak:  # the longest period; within a given band its strongest ring (no clear peak)
-        best = first if band is None else first + int(np.argmax(score[first:last + 1]))
+    if not peak:  # no clear peak: the strongest ring (a falling spectrum's: the longest period)
+        best = first + int(np.argmax(score[first:last + 1])) if not flat else first
     on_ring = np.flatnonzero(ring == best)
     j = on_ring[int(np.argmax(power.ravel()[on_ring]))]
     angle = math.degrees(math.atan2(ky[j // (PAD * nx)], kx[j % (PAD * nx)])) % 180.0

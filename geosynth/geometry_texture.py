@@ -192,7 +192,7 @@ def choose_patch(texture: PointTexture, resolution: int = 48) -> PatchChoice:
         patch, why = fewest, (f"{want:.2f} ({PATCH_PERIODS:g} periods) raised to {_PATCH_FEWEST_CELLS} field cells at "
                               f"resolution {resolution}: a finer --resolution resolves the elements")
     found = (f"dominant period {rs.period:.4g} ({rs.period / side:.2f} of B's side, wave vector at {rs.angle:.0f} deg)"
-             if rs.peak else f"no dominant period (no spectral peak): at least {rs.period:.4g} ({rs.period / side:.2f} "
+             if rs.peak else f"no clear spectral peak; its strongest period {rs.period:.4g} ({rs.period / side:.2f} "
              "of B's side)")
     line = (f"patch {patch:.2f} of B's shorter side (automatic; --patch overrides): the exemplar's relief has {found}, "
             f"amplitude {rs.amplitude:.4g}; patch = {why}")
