@@ -138,7 +138,7 @@ class PointTextureReport:
 # [_PATCH_FEWEST_CELLS cells, _PATCH_MOST of B's shorter side]. Chosen by measuring the
 # built-ins at 1.25 to 2 periods (bench/RESULTS.md "M2 element size -> patch size"): at 1.5
 # the flowers' patch-field distance came near random pasting's (0.96 of it; 0.76 at 1.25),
-# as at the old default 0.4; at 1.25 every built-in's was at or below its old default's.
+# as at the old default 0.4; at 1.25 every built-in's mean was at or below its old default's.
 PATCH_PERIODS = 1.25
 _PATCH_MOST = 0.5  # a larger patch leaves few candidates in B (and no variation)
 _PATCH_FEWEST_CELLS = 6  # an overlap of 2 cells and an interior of 2
