@@ -213,6 +213,30 @@ def point_texture_beats_random_pasting(seed):
 
 
 @claim
+def point_texture_keeps_element_size(seed):
+    """Issue 32 item 2 (no test: about 20 s a seed): with the default (automatic) patch and
+    resolution, the output's element size and relief amplitude over the exemplar's
+    (geosynth.element_size, printed by every run), and the patch-field distance over random
+    pasting's, on a bumps relief nobody tuned for (tests/test_element_size.py's _relief:
+    domes of radius 0.06 on a jittered 0.2 lattice, a new layout per seed) and on flowers
+    (its sampling seed)."""
+    from test_element_size import _bumps, _relief
+
+    from geosynth.geometry_texture import synthesize_point_texture
+    from geosynth.point_examples import point_texture_example
+
+    out = {}
+    for name, tex in (("bumps", _relief(_bumps(0.06, 0.2, 100 + seed), n=110, seed=seed)),
+                      ("flowers", point_texture_example("flowers", count=20_000, seed=seed))):
+        _, report, _ = synthesize_point_texture(tex, device=ONE_DEVICE, seed=seed, quality=True, quality_samples=8)
+        r, q = report.relief, report.quality
+        out[name + "_period"] = r["output"][0] / r["exemplar"][0]
+        out[name + "_amplitude"] = r["output"][1] / r["exemplar"][1]
+        out[name + "_field"] = q["field_distance"][2] / q["field_distance_baseline"][2]
+    return out
+
+
+@claim
 def point_texture_tileable(seed):
     """tests/test_point_texture.py::test_tileable_output_continues_across_its_borders: the median
     distance of the right border's points, moved one period, to the left border's surface, in spacings."""

@@ -728,7 +728,10 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     from geosynth.point_examples import POINT_EXAMPLES, point_texture_example
     from geosynth.point_textures import read_point_texture
 
-    patch = args.patch or (POINT_EXAMPLES[example].patch if example else 0.4)
+    # before the exemplar exists its element size is unknown: its memory and the options are
+    # checked with a patch of 0.4 (the old default), and again once it is there with the patch
+    # chosen from it (choose_patch)
+    patch = args.patch or 0.4
     if example:
         count = args.count or POINT_EXAMPLES[example].count
         probe = point_texture_example(example, 1000, seed=args.seed)  # B and the share inside it: count's own
@@ -757,9 +760,15 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
         say(f"EXEMPLAR {texture.name}: {texture.merged:,} coincident point(s) merged (same position as an earlier "
             f"point; the first one's normal kept), {len(texture):,} left")
     inside = int(texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum())
+    line = ""
+    if args.patch is None:  # issue 32: the patch from the exemplar's element size, said in one line
+        from geosynth.geometry_texture import choose_patch
+
+        choice = choose_patch(texture, args.resolution)
+        patch, line = choice.patch, choice.line
     _pointtexture_check(args, texture.box_min, texture.box_max, len(texture), inside, count=sampled,
                         z_span=float(np.ptp(texture.points[:, 2])), spacing=texture.spacing, patch=patch)
-    return texture
+    return texture, patch, line
 
 
 def _has_colours(path) -> bool:
@@ -806,14 +815,16 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.render import render_points, side_by_side
 
     say = (lambda *a, **k: None) if args.quiet else print
-    texture = _pointtexture_exemplar(args, exemplar, example, say)
+    texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
     scale = 2.0 if args.scale is None else args.scale
     say(f"geosynth pointtexture: {texture.name} ({len(texture):,} points) -> "
         + (f"{args.size[0]:g} x {args.size[1]:g}" if args.size else f"{scale:g} x the exemplar's box")
-        + f", patch {args.patch or 'default'}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
+        + f", patch {patch:g}{'' if args.patch else ' (automatic)'}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
           f"device {args.device or 'auto'}")
+    if patch_line:
+        say(patch_line)
     points, report, timings = synthesize_point_texture(
-        texture, args.size, scale=scale, patch=args.patch, extra=args.extra, overlap=args.overlap,
+        texture, args.size, scale=scale, patch=patch, extra=args.extra, overlap=args.overlap,
         resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
         quality=not args.no_quality, device=args.device, seed=args.seed, progress=not args.quiet,
     )
@@ -867,8 +878,9 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
     p.add_argument("--size", type=_float_type(0, inclusive=False), nargs=2, default=None, metavar=("W", "H"),
                    help="output extent in x and y, world units (instead of --scale)")
     p.add_argument("--patch", type=_float_type(0, inclusive=False), default=None,
-                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default 0.4; "
-                        "flowers 0.3); the patch plus its extra region must fit in the exemplar box, else refused")
+                   help="patch side, a fraction of the exemplar box's shorter side, in (0, 1] (default: 1.25 "
+                        "periods of the exemplar's relief, measured, within 6 field cells and 0.5; the run says what it "
+                        "measured); the patch plus its extra region must fit in the exemplar box, else refused")
     p.add_argument("--extra", type=_float_type(0, inclusive=False), default=0.2,
                    help="extra region width, a fraction of the patch, in (0, 0.5] (default 0.2): cut with the patch "
                         "and overwritten by the next one; --patch plus --extra must fit in the exemplar box")

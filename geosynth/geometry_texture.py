@@ -25,6 +25,7 @@ the MLS surface of the output).
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -37,7 +38,7 @@ from geosynth.point_grid import PointGrid
 from geosynth.pointmodels import passive_openmp_threads
 from geosynth.point_textures import PointTexture
 
-__all__ = ["PointTextureReport", "check_synthesis", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
+__all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
            "synthesize_point_texture"]
 
 
@@ -51,6 +52,13 @@ class PointTextureReport:
         grid: (nz, ny, nx) of D(T_in); cell: its spacing (world units).
         patch, extra, overlap: patch side, extra-region width and overlap width, cells.
         patches: patches pasted; candidates: mean candidates within (1 + eps) of the best.
+        patch_choice: with ``patch=None``, the line that says what was measured and which
+            patch size was chosen (:func:`choose_patch`); else "".
+        relief: ``{"exemplar": (period, amplitude, peak), "output": (...), "baseline":
+            (...)}``, world units, peak a bool (:func:`geosynth.element_size.relief_scale`;
+            the output and the baseline measured over their extent at the exemplar's
+            height-map cell, at half to twice the exemplar's period; the baseline with
+            ``quality`` only).
         spacing, radius: the exemplar's mean point spacing and the MLS width h.
         arbitrated: field samples the host recomputed for identical codes on every device.
         kept_warp: patches pasted as warped, without the blend and the cut, because blending
@@ -79,10 +87,13 @@ class PointTextureReport:
     kept_warp: int = 0
     quality: dict = dc_field(default_factory=dict)
     baseline: object = None  # the random-pasting output (a PointSet) when quality was asked
+    patch_choice: str = ""  # the automatic patch size's line (patch=None), else ""
+    relief: dict = dc_field(default_factory=dict)  # (period, amplitude) of exemplar, output, baseline
 
     def lines(self) -> list[str]:
         """The report as printable lines."""
-        out = [
+        out = [self.patch_choice] if self.patch_choice else []
+        out += [
             f"exemplar {self.exemplar}: {self.points_in:,} points, spacing {self.spacing:.4g}, MLS width {self.radius:.4g}",
             f"D(T_in): {self.grid[2]} x {self.grid[1]} x {self.grid[0]} samples (x, y, z), cell {self.cell:.4g}; "
             f"patch {self.patch} cells, extra region {self.extra}, overlap {self.overlap}; {self.arbitrated:,} field "
@@ -93,6 +104,16 @@ class PointTextureReport:
             f"blend: kept on {self.patches - self.kept_warp} of {self.patches} patches; {self.kept_warp} pasted as "
             "warped, where blending would have raised the seam error against the neighbourhood",
         ]
+        r = self.relief
+        if r:
+            (pe, ae, ke), (po, ao, ko) = r["exemplar"], r["output"]
+            vague = " (no clear spectral peak)"
+            line = (f"element size / relief amplitude (world units): exemplar {pe:.4g}{'' if ke else vague} / {ae:.4g}, "
+                    f"output {po:.4g}{'' if ko else vague} / {ao:.4g} ({po / pe:.2f}x / {ao / ae:.2f}x)")
+            if "baseline" in r:
+                pb, ab, kb = r["baseline"]
+                line += f"; random pasting {pb:.4g}{'' if kb else vague} / {ab:.4g} ({pb / pe:.2f}x / {ab / ae:.2f}x)"
+            out.append(line)
         q = self.quality
         if q:
             out.append("quality (synthesized vs random pasting without search, warp or blend; lower is better):")
@@ -111,6 +132,71 @@ class PointTextureReport:
 
 
 # ------------------------------------------------------------------ parameters
+
+# The automatic patch size (issue 32; Sec. 3: "large enough to encompass at least a texture
+# element plus some neighborhood"): this many of the relief's dominant periods, within
+# [_PATCH_FEWEST_CELLS cells, _PATCH_MOST of B's shorter side]. Chosen by measuring the
+# built-ins at 1.25 to 2 periods (bench/RESULTS.md "M2 element size -> patch size"): at 1.5
+# the flowers' patch-field distance came near random pasting's (0.96 of it; 0.76 at 1.25),
+# as at the old default 0.4; at 1.25 every built-in's mean was at or below its old default's.
+PATCH_PERIODS = 1.25
+_PATCH_MOST = 0.5  # a larger patch leaves few candidates in B (and no variation)
+_PATCH_FEWEST_CELLS = 6  # an overlap of 2 cells and an interior of 2
+
+
+@dataclass(frozen=True)
+class PatchChoice:
+    """The automatic patch size (:func:`choose_patch`).
+
+    Attributes:
+        patch: the patch side as a fraction of B's shorter side (2 decimals).
+        scale: the exemplar's :class:`geosynth.element_size.ReliefScale`.
+        line: one line: what was measured and what was chosen.
+    """
+
+    patch: float
+    scale: object
+    line: str
+
+
+def choose_patch(texture: PointTexture, resolution: int = 48) -> PatchChoice:
+    """The patch size from the exemplar's element size: ``PATCH_PERIODS`` dominant periods
+    of its relief (:func:`geosynth.element_size.relief_scale`), rounded to 0.01 of B's
+    shorter side, at most ``_PATCH_MOST`` of it and at least ``_PATCH_FEWEST_CELLS`` cells
+    of D(T_in) at ``resolution``. The same for a built-in and a file; CPU-exact (the
+    period is one of a discrete set; see geosynth.element_size).
+
+    Args:
+        texture: the exemplar.
+        resolution: samples of D(T_in) along B's longer side (as
+            :func:`synthesize_point_texture`; a bad value is left to its own check).
+
+    Returns:
+        A :class:`PatchChoice`.
+    """
+    from geosynth.element_size import relief_scale
+
+    rs = relief_scale(texture.points, texture.box_min, texture.box_max, texture.spacing)
+    ext = (texture.box_max - texture.box_min)[:2]
+    side = float(ext.min())
+    want = PATCH_PERIODS * rs.period / side
+    patch = round(want, 2)
+    why = f"{PATCH_PERIODS:g} periods"
+    fewest = 0.0
+    if isinstance(resolution, (int, np.integer)) and not isinstance(resolution, bool) and resolution >= 8:
+        cell = float(ext.max()) / (int(resolution) - 1)
+        fewest = math.ceil(100 * (_PATCH_FEWEST_CELLS - 0.5) * cell / side) / 100  # rounds to >= 6 cells
+    if patch > _PATCH_MOST:
+        patch, why = _PATCH_MOST, f"{want:.2f} ({PATCH_PERIODS:g} periods) capped at {_PATCH_MOST:g}: B holds few elements"
+    elif patch < fewest:
+        patch, why = fewest, (f"{want:.2f} ({PATCH_PERIODS:g} periods) raised to {_PATCH_FEWEST_CELLS} field cells at "
+                              f"resolution {resolution}: a finer --resolution resolves the elements")
+    found = (f"dominant period {rs.period:.4g} ({rs.period / side:.2f} of B's side, wave vector at {rs.angle:.0f} deg)"
+             if rs.peak else f"no clear spectral peak; its strongest period {rs.period:.4g} ({rs.period / side:.2f} "
+             "of B's side)")
+    line = (f"patch {patch:.2f} of B's shorter side (automatic; --patch overrides): the exemplar's relief has {found}, "
+            f"amplitude {rs.amplitude:.4g}; patch = {why}")
+    return PatchChoice(patch, rs, line)
 
 
 def _fraction(name: str, value, lo: float, hi: float) -> float:
@@ -873,8 +959,9 @@ def synthesize_point_texture(
             (heightfield, chainmail, weave, flowers) or a file (PLY point set or mesh).
         size: (2,) output extent in x and y, world units; default ``scale`` times B's.
         scale: output extent in units of the exemplar box B's (when ``size`` is None).
-        patch: patch side as a fraction of B's shorter side, in (0, 1]; default the
-            built-in's own (0.3 for flowers), else 0.4.
+        patch: patch side as a fraction of B's shorter side, in (0, 1]; default (None)
+            chosen from the exemplar's element size (:func:`choose_patch`, the same for a
+            built-in and a file; the report's ``patch_choice`` says what it measured).
         extra: width w_E of the extra region E_k as a fraction of the patch (the paper
             used 1/8 to 1/4), in (0, 0.5].
         overlap: overlap width as a fraction of the patch, in (0, 0.5), leaving the patch an
@@ -917,6 +1004,7 @@ def synthesize_point_texture(
     from geosynth.patch_search import PatchSearch
     from geosynth.host_steps import host_threads
     from geosynth.pointsets import MLS_REACH, PointSet
+    from geosynth.element_size import relief_scale
     from geosynth.warping import WarpWeights, surface_variation
 
     t_start = time.perf_counter()
@@ -933,11 +1021,10 @@ def synthesize_point_texture(
         raise TypeError(f"weights must be a geosynth.warping.WarpWeights, got {type(weights).__name__}.")
     backend = _checks.resolve_backend(device)
     device = backend.name  # the resolved device ("auto" / None made concrete): every stage runs on this one
+    choice = None
     if patch is None:
-        from geosynth.point_examples import POINT_EXAMPLES
-
-        ex = POINT_EXAMPLES.get(texture.name)
-        patch = ex.patch if ex is not None else 0.4
+        choice = choose_patch(texture, resolution)
+        patch = choice.patch
     inside = int(texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum())
     lay = check_synthesis(texture.box_min, texture.box_max, len(texture), inside, size=size, scale=scale, patch=patch,
                           extra=extra, overlap=overlap, resolution=resolution, tileable=tileable, quality=quality)
@@ -967,6 +1054,21 @@ def synthesize_point_texture(
         from geosynth.blending import relax_points
 
         p, n = relax_points(p, n, spacing, device=device)
+    # item 2 of issue 32: the output's element size and relief amplitude beside the exemplar's
+    ex_scale = choice.scale if choice is not None else relief_scale(texture.points, texture.box_min, texture.box_max,
+                                                                    spacing)
+    out_lo = texture.box_min[:2]
+    out_hi = out_lo + np.asarray(lay.size, np.float64)
+    # near the exemplar's period (half to twice it, within what the exemplar's map measures)
+    ex_side = min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])
+    band = (0.5 * ex_scale.period, min(2.0 * ex_scale.period, 0.5 * ex_side))
+
+    def measured(points) -> tuple[float, float, bool]:
+        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], band=band,
+                          near=ex_scale.period)
+        return rs.period, rs.amplitude, rs.peak
+
+    relief = {"exemplar": (ex_scale.period, ex_scale.amplitude, ex_scale.peak), "output": measured(p)}
     timer.add("other", t0)
     timings = dict(timer.t)
     seam_time = timings.pop("quality")  # the seam errors measured during the growth
@@ -978,7 +1080,8 @@ def synthesize_point_texture(
         tileable=tileable, grid=search.shape, cell=lay.cell, patch=lay.patch, extra=lay.extra, overlap=lay.overlap,
         patches=lay.cols * lay.rows, candidates=float(np.mean(stats["candidates"])) if stats["candidates"] else 0.0,
         spacing=spacing, radius=h, arbitrated=search.arbitrated + stats["arbitrated"], device=device,
-        kept_warp=int(stats["kept_warp"]),
+        kept_warp=int(stats["kept_warp"]), patch_choice=choice.line if choice is not None else "",
+        relief=relief,
     )
     if quality:
         tq = time.perf_counter()
@@ -1001,6 +1104,7 @@ def synthesize_point_texture(
         q["stray"] = _stray_share(p, n, spacing, h, device)
         q["stray_baseline"] = _stray_share(bp, bn, spacing, h, device)
         report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32), _source_colors(texture, bsrc))
+        report.relief["baseline"] = measured(bp)
         timings["quality"] = time.perf_counter() - tq + seam_time
     points = PointSet(p.astype(np.float32), n.astype(np.float32), _source_colors(texture, src))
     return points, report, timings

@@ -24,15 +24,14 @@ PAD = 0.25  # geometry beyond B on each side, in units of B's side
 
 @dataclass(frozen=True)
 class PointExample:
-    """A built-in exemplar: its maker, the paper's input point count (Table 1), the key of
-    its warping weights in :data:`geosynth.warping.WARP_PRESETS` and its default patch
-    size (a fraction of B's side: about two elements and their neighbourhood)."""
+    """A built-in exemplar: its maker, the paper's input point count (Table 1) and the key of
+    its warping weights in :data:`geosynth.warping.WARP_PRESETS`. No patch size: a built-in's
+    is measured like a file's (:func:`geosynth.geometry_texture.choose_patch`, issue 32)."""
 
     make: object
     count: int
     preset: str
     description: str
-    patch: float = 0.4
 
 
 def _rng(seed):
@@ -236,8 +235,7 @@ POINT_EXAMPLES: dict[str, PointExample] = {
     "heightfield": PointExample(heightfield, 33_194, "heightfield", "cobblestones, a height field from a grey image"),
     "chainmail": PointExample(chainmail, 71_454, "chainmail", "linked rings with small spheres"),
     "weave": PointExample(weave, 43_592, "weave", "interlaced threads"),
-    "flowers": PointExample(flowers, 37_473, "flowers", "small disconnected flowers on a plane",
-                            patch=0.3),
+    "flowers": PointExample(flowers, 37_473, "flowers", "small disconnected flowers on a plane"),
 }
 
 
