@@ -1,0 +1,281 @@
+"""Feature scale of a volume: how large, high and thick are its elements, and how far
+apart? The numbers a person sees first in an M1 result (issue #32), measured the same
+way on the exemplar's field and the output's, so that their ratios say whether the
+synthesis kept the feature scale. No paper section: our measure for Lagae, Dumont and
+Dutré, "Geometry Synthesis", Sec. 6 (results).
+
+Input: a (Z, Y, X) float signed distance field, negative inside, z up, in any units
+(``spacing`` is the world size of one sample). Every length is measured below one
+sample from the distances (zero crossings interpolated, partial volumes from the
+distance at each sample), so a feature two samples wide is measured to a fraction of a
+sample, not rounded to whole samples.
+
+Two kinds of volume:
+
+- *elements* (balls, rings, tubes, washers: several inside components, or one that
+  does not span the footprint): every 26-connected inside component is an element;
+  ``diameter`` is the median equivalent-sphere diameter and ``height`` the median
+  z-extent of the whole elements (those not touching an x/y border; all when none is
+  whole).
+- *relief* (a plate with rivets, a terrain: one inside component that covers the
+  footprint): the elements are the bumps of the top surface, the connected regions of
+  the top-height map above the midpoint between its low (5th percentile) and high
+  (99.5th percentile) heights; ``diameter`` is their median equivalent-circle
+  diameter, ``height`` the standard deviation of the top surface height.
+
+``thickness`` (median local thickness: twice the distance to the surface at the inside
+ridge samples, the discrete medial axis) and ``period`` (the dominant horizontal
+spacing of the top-height map, from its power spectrum) are measured the same way for
+both kinds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = ["ElementFeatures", "compare_features", "element_features", "format_features"]
+
+# A relief when the largest inside component covers at least this share of the columns.
+RELIEF_COVER = 0.9
+# The power spectrum is zero-padded to this many times the map's side, so the peak's
+# frequency is read to a fraction of one cycle over the map (a 64-sample exemplar with a
+# period of 13 samples has its peak between bins 4 and 5).
+_PAD = 4
+
+
+@dataclass(frozen=True)
+class ElementFeatures:
+    """Feature scale of one volume (see the module docstring for the definitions).
+
+    Attributes:
+        count: elements: connected inside components (relief: bumps of the top surface).
+        whole_fraction: share of the elements not touching an x/y border, in [0, 1]
+            (nan when there is none).
+        diameter: median element diameter, world units (nan when there is none).
+        height: elements: median z-extent; relief: standard deviation of the top
+            surface height; world units.
+        thickness: median local thickness (twice the distance to the surface on the
+            inside medial axis), world units (nan for an empty inside).
+        period: dominant horizontal spacing of the top surface, world units (nan for a
+            flat top).
+        relief: whether the volume was measured as a relief (one component covering
+            the footprint) rather than as separate elements.
+    """
+
+    count: int
+    whole_fraction: float
+    diameter: float
+    height: float
+    thickness: float
+    period: float
+    relief: bool = False
+
+
+def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Top surface z (in samples, sub-sample) of each (y, x) column: the highest inside
+    sample plus the interpolated zero crossing above it; columns with no inside sample
+    get -0.5 (the grid's bottom face). Also the (Y, X) mask of columns with an inside sample."""
+    inside = field < 0
+    z_count = field.shape[0]
+    has = inside.any(axis=0)
+    # highest inside index per column
+    top = z_count - 1 - np.argmax(inside[::-1], axis=0)
+    y, x = np.indices(top.shape)
+    v = field[top, y, x].astype(np.float64)
+    above = np.minimum(top + 1, z_count - 1)
+    va = field[above, y, x].astype(np.float64)
+    # crossing between top (v < 0) and above (va >= 0); at the grid's top face: +0.5
+    frac = np.where(above > top, -v / np.maximum(va - v, 1e-12), 0.5)
+    h = np.where(has, top + np.clip(frac, 0.0, 1.0), -0.5)
+    return h, has
+
+
+def _period(h: np.ndarray) -> float:
+    """Dominant horizontal period (in samples) of a (Y, X) height map: the peak of the
+    radially summed power spectrum (the power in each ring of frequencies) of
+    the Hann-windowed, mean-removed map, zero-padded; periods from 2 samples to half
+    the map's smaller side. nan for a flat map."""
+    ny, nx = h.shape
+    if min(ny, nx) < 8:
+        return math.nan
+    d = h - h.mean()
+    if not np.any(np.abs(d) > 1e-9):
+        return math.nan
+    win = np.outer(np.hanning(ny), np.hanning(nx))
+    n = _PAD * max(ny, nx)
+    power = np.abs(np.fft.rfft2(d * win, s=(n, n))) ** 2
+    fy = np.fft.fftfreq(n)[:, None]
+    fx = np.fft.rfftfreq(n)[None, :]
+    f = np.hypot(fy, fx)  # cycles per sample
+    step = 1.0 / n
+    bins = np.rint(f / step).astype(np.int64)
+    radial = np.bincount(bins.ravel(), weights=power.ravel())
+    k = np.arange(radial.size) * step
+    lo, hi = 2.0 / min(ny, nx), 0.5  # at least two cycles across, at most Nyquist
+    ok = (k >= lo) & (k <= hi)
+    if not ok.any():
+        return math.nan
+    score = np.where(ok, radial, -1.0)
+    i = int(np.argmax(score))
+    if score[i] <= 0:
+        return math.nan
+    # parabolic refinement of the peak on the padded spectrum
+    if 0 < i < radial.size - 1 and ok[i - 1] and ok[i + 1]:
+        a, b, c = score[i - 1], score[i], score[i + 1]
+        den = a - 2 * b + c
+        shift = 0.5 * (a - c) / den if den < 0 else 0.0
+        ki = (i + float(np.clip(shift, -0.5, 0.5))) * step
+    else:
+        ki = k[i]
+    return 1.0 / ki
+
+
+def _thickness(field: np.ndarray) -> float:
+    """Median local thickness in samples: twice the inside distance at the ridge
+    samples (inside samples whose distance to the surface is the largest of their
+    3x3x3 neighbourhood: the discrete medial axis), each corrected by the ridge's
+    sub-sample offset from it."""
+    depth = np.where(field < 0, -field.astype(np.float64), 0.0)
+    if not (depth > 0).any():
+        return math.nan
+    peak = ndimage.maximum_filter(depth, size=3, mode="constant", cval=0.0)
+    ridge = (depth > 0) & (depth >= peak - 1e-9)
+    # Sub-sample ridge: near the medial axis the depth is a tent of slope 1, d(x) =
+    # r - |x - a|, so along each axis (d(+1) - d(-1)) / 2 = a, the ridge's offset from
+    # the sample, and r = d(0) + |a| (a offset of at most half a cell diagonal).
+    offset = np.zeros(depth.shape, np.float64)
+    for ax in range(3):
+        a = (np.roll(depth, -1, axis=ax) - np.roll(depth, 1, axis=ax)) / 2
+        offset += np.where(ridge, a, 0.0) ** 2
+    r = depth[ridge] + np.minimum(np.sqrt(offset[ridge]), 0.5 * math.sqrt(3))
+    return float(2.0 * np.median(r))
+
+
+def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1)) -> np.ndarray:
+    """(n + 1,) bool: which labels touch an x or y border of the grid."""
+    touch = np.zeros(n + 1, bool)
+    for ax in axes_yx:
+        for idx in (0, -1):
+            touch[np.unique(np.take(labels, idx, axis=ax))] = True
+    touch[0] = False
+    return touch
+
+
+def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int):
+    """(count, whole fraction, median diameter, median z-extent) in samples of the 3D components."""
+    idx = np.arange(1, n + 1)
+    # partial volume of each sample from its distance (a plane through the cell): the
+    # inside samples and the outside layer next to them, assigned to the nearest label
+    occupancy = np.clip(0.5 - field.astype(np.float64), 0.0, 1.0)
+    grown = ndimage.grey_dilation(labels, size=(3, 3, 3))
+    owner = np.where(inside, labels, np.where(occupancy > 0, grown, 0))
+    volume = np.asarray(ndimage.sum(occupancy, owner, idx), np.float64)
+    diameter = np.cbrt(6.0 * volume / math.pi)
+    # z-extent: bottom and top crossings of each component, sub-sample
+    zc = field.shape[0]
+    z = np.arange(zc, dtype=np.float64)[:, None, None] * np.ones(field.shape[1:])[None]
+    up = np.concatenate([field[1:], np.full((1,) + field.shape[1:], 1.0, field.dtype)], axis=0).astype(np.float64)
+    dn = np.concatenate([np.full((1,) + field.shape[1:], 1.0, field.dtype), field[:-1]], axis=0).astype(np.float64)
+    v = field.astype(np.float64)
+    top = np.where(inside & (up >= 0), z + np.clip(-v / np.maximum(up - v, 1e-12), 0, 1), -np.inf)
+    bot = np.where(inside & (dn >= 0), z - np.clip(-v / np.maximum(dn - v, 1e-12), 0, 1), np.inf)
+    tops = np.asarray(ndimage.maximum(top, labels, idx), np.float64)
+    bots = np.asarray(ndimage.minimum(bot, labels, idx), np.float64)
+    extent = tops - bots
+    touch = _touching(labels, n)[1:]
+    whole = ~touch
+    pick = whole if whole.any() else np.ones(n, bool)
+    return n, float(whole.mean()), float(np.median(diameter[pick])), float(np.median(extent[pick]))
+
+
+def _bumps(h: np.ndarray):
+    """(count, whole fraction, median equivalent-circle diameter) in samples of the
+    regions of a height map above the midpoint of its 5th and 99.5th percentiles."""
+    lo, hi = np.percentile(h, [5, 99.5])
+    if hi - lo < 1e-6:
+        return 0, math.nan, math.nan
+    labels, n = ndimage.label(h > 0.5 * (lo + hi), structure=np.ones((3, 3), bool))
+    if n == 0:
+        return 0, math.nan, math.nan
+    idx = np.arange(1, n + 1)
+    area = np.asarray(ndimage.sum(np.ones_like(h), labels, idx), np.float64)
+    touch = _touching(labels, n, (0, 1))[1:]
+    whole = ~touch
+    pick = whole if whole.any() else np.ones(n, bool)
+    return n, float(whole.mean()), float(np.median(2.0 * np.sqrt(area[pick] / math.pi)))
+
+
+def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None = None) -> ElementFeatures:
+    """Measure the feature scale of a signed distance field.
+
+    Args:
+        field: (Z, Y, X) float signed distances, negative inside, z up (a
+            :class:`~geosynth.field.Field` is taken too: its values and spacing).
+            The distances are in world units; ``spacing`` converts samples.
+        spacing: world size of one sample.
+        slab: measure as a relief (the top surface's bumps: a plate with rivets, a
+            terrain) when True, as separate elements when False; None: a relief when
+            the largest inside component covers at least 90% of the (y, x) columns.
+
+    Returns:
+        ElementFeatures, lengths in world units.
+    """
+    from geosynth.field import Field
+
+    if isinstance(field, Field):
+        spacing = float(field.spacing[0])
+        field = field.values
+    f = np.asarray(field)
+    if f.ndim != 3 or not np.issubdtype(f.dtype, np.floating):
+        raise ValueError(f"field must be a (Z, Y, X) float array of signed distances, got {f.dtype} {f.shape}.")
+    s = float(spacing)
+    f = f.astype(np.float32) / np.float32(s)  # distances in samples
+    inside = f < 0
+    h, has = _top_height(f)
+    period = _period(h)
+    thickness = _thickness(f)
+    if not inside.any():
+        return ElementFeatures(0, math.nan, math.nan, 0.0, math.nan, math.nan, False)
+    labels, n = ndimage.label(inside, structure=np.ones((3, 3, 3), bool))
+    if slab is None:
+        sizes = np.bincount(labels.ravel())[1:]
+        largest = labels == (1 + int(np.argmax(sizes)))
+        slab = bool(largest.any(axis=0).mean() >= RELIEF_COVER)
+    if slab:
+        count, whole, diameter = _bumps(h)
+        height = float(np.std(h))
+    else:
+        count, whole, diameter, height = _elements(f, inside, labels, n)
+    scale = lambda v: v * s if math.isfinite(v) else v  # noqa: E731
+    return ElementFeatures(int(count), whole, scale(diameter), scale(height), scale(thickness), scale(period),
+                           bool(slab))
+
+
+def _ratio(a: float, b: float) -> float:
+    if not (math.isfinite(a) and math.isfinite(b)) or a == 0:
+        return math.nan
+    return float(b / a)
+
+
+def compare_features(exemplar: ElementFeatures, output: ElementFeatures) -> dict[str, float]:
+    """Ratios output / exemplar of ``diameter``, ``height``, ``thickness``, ``period``
+    and ``whole_fraction`` (1 is kept; nan where the exemplar's is zero or undefined),
+    plus ``whole`` (the output's own whole fraction)."""
+    out = {k: _ratio(getattr(exemplar, k), getattr(output, k))
+           for k in ("diameter", "height", "thickness", "period", "whole_fraction")}
+    out["whole"] = float(output.whole_fraction)
+    return out
+
+
+def format_features(exemplar: ElementFeatures, output: ElementFeatures) -> str:
+    """One line: each feature's exemplar -> output value and their ratio."""
+    r = compare_features(exemplar, output)
+    parts = [f"{'relief' if exemplar.relief else 'elements'} {exemplar.count} -> {output.count}"]
+    for k in ("diameter", "height", "thickness", "period"):
+        parts.append(f"{k} {getattr(exemplar, k):.3g} -> {getattr(output, k):.3g} (x{r[k]:.2f})")
+    parts.append(f"whole {exemplar.whole_fraction:.0%} -> {output.whole_fraction:.0%}")
+    return ", ".join(parts)
