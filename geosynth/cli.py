@@ -440,16 +440,37 @@ def _cmd_volume(args: argparse.Namespace) -> int:
             say("structure (what a person sees; beside random tiling):")
             for k, report in structures.items():
                 say(f"  {k:<14} {format_structure(report)}")
+    if result.features:
+        from geosynth.volume_features import format_features
+
+        say("feature scale (exemplar -> output, world units; x1.00 is kept):")
+        ex = result.features["exemplar"]
+        for k, f in result.features.items():
+            if k != "exemplar":
+                say(f"  {k:<14} {format_features(ex, f)}")
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
-    picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)], labels=["exemplar", "synthesized"])
+    boxes = same_scale_bounds([exemplar_mesh, result.mesh])
+    picture = side_by_side([render_mesh(exemplar_mesh, bounds=boxes[0]), render_mesh(result.mesh, bounds=boxes[1])],
+                           labels=["exemplar", "synthesized"])
     write_image(png, picture, inputs=inputs)
-    say(f"picture: {png} (exemplar left, result right)")
+    say(f"picture: {png} (exemplar left, result right, at the same scale)")
     return 0
 
 
 # The options that only a tiled run reads, with the value that means "not given".
 _TILED_ONLY = (("--workers", "workers", None), ("--scheduler", "scheduler", None), ("--store", "store", None),
                ("--tile-meshes", "tile_meshes", None), ("--resume", "resume", False))
+
+
+def same_scale_bounds(meshes) -> list[np.ndarray]:
+    """One (2, 3) framing box per mesh, each centred on its mesh and as large as the
+    largest extent of all of them per axis: rendered with these bounds, every mesh is
+    drawn at the same world scale (an exemplar beside a larger synthesized piece shows
+    its features at their true relative size)."""
+    lows = [np.asarray(m.bounds[0], np.float64) for m in meshes]
+    highs = [np.asarray(m.bounds[1], np.float64) for m in meshes]
+    half = np.max([(h - lo) / 2 for lo, h in zip(lows, highs)], axis=0)
+    return [np.stack([(lo + h) / 2 - half, (lo + h) / 2 + half]) for lo, h in zip(lows, highs)]
 
 
 def _cmd_volume_any(args: argparse.Namespace) -> int:

@@ -832,6 +832,10 @@ class GeometryResult:
             "synthesis" also has "method".
         method: the method that made the volume (:data:`METHODS`, "auto" resolved).
         timings: seconds per stage.
+        features: the feature scale (:func:`geosynth.volume_features.element_features`)
+            of "exemplar" (its field clamped to the synthesis band, as the output's is)
+            and "synthesis" (and "random tiling" with the quality numbers); empty when
+            quality_samples is 0.
     """
 
     mesh: object
@@ -840,6 +844,7 @@ class GeometryResult:
     quality: dict
     timings: dict
     method: str = "optimize"
+    features: dict = dc_field(default_factory=dict)
 
 
 def synthesize_geometry(
@@ -860,6 +865,7 @@ def synthesize_geometry(
     method: str = DEFAULT_METHOD,
     iterations=None,
     slab: bool | None = None,
+    band: float | None = None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -935,7 +941,7 @@ def synthesize_geometry(
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                             device=device, search=search, spacing=spacing, progress=progress, method=method,
-                            iterations=iterations, slab=slab)
+                            iterations=iterations, slab=slab, band=band)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
     out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
@@ -946,7 +952,7 @@ def synthesize_geometry(
         finest = vol.levels[-1].block  # a slab's: the full thickness along z
         base = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                                  device=device, search=search, spacing=spacing, progress=False, baseline=True,
-                                 slab=vol.slab)
+                                 slab=vol.slab, band=vol.band)
         quality["synthesis"] = bidirectional_block_distance(vol.source, vol.quantized, finest, samples=quality_samples,
                                                             seed=seed, device=device)
         quality["random tiling"] = bidirectional_block_distance(base.source, base.quantized, finest,
@@ -957,8 +963,26 @@ def synthesize_geometry(
         for key, fld in (("synthesis", vol.field), ("random tiling", base.field)):
             quality[key]["structure"] = structure_report(ex_structure, fld, kind, periodic=tileable)
         quality["synthesis"]["method"] = vol.method
+        features = synthesis_features(exemplar_field, vol, base)
         timings["quality numbers"] = time.perf_counter() - t0
-    return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method)
+    return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method, features if quality else {})
+
+
+def synthesis_features(exemplar_field: Field, vol: VolumeResult, base: VolumeResult | None = None) -> dict:
+    """The feature scale of the exemplar (its distances clamped to the synthesis band,
+    as the output's are: the same thickness ceiling on both sides) and of the output
+    (and the random tiling's): {"exemplar", "synthesis"[, "random tiling"]} ->
+    :class:`geosynth.volume_features.ElementFeatures`. Both sides are measured the same
+    way (a relief or elements, decided on the exemplar)."""
+    from geosynth.volume_features import element_features
+
+    spacing = float(exemplar_field.spacing[0])
+    limit = np.float32(vol.band * spacing)
+    ex = element_features(np.clip(exemplar_field.values, -limit, limit), spacing)
+    out = {"exemplar": ex, "synthesis": element_features(vol.field.values, spacing, ex.relief)}
+    if base is not None:
+        out["random tiling"] = element_features(base.field.values, spacing, ex.relief)
+    return out
 
 
 # Marching cubes faces per sample of the synthesized field, per exemplar surface area in

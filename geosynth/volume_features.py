@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["ElementFeatures", "compare_features", "element_features", "format_features"]
+__all__ = ["ElementFeatures", "compare_features", "element_features", "format_features", "kept_whole"]
 
 # A relief when the largest inside component covers at least this share of the columns.
 RELIEF_COVER = 0.9
@@ -64,6 +64,13 @@ class ElementFeatures:
             flat top).
         relief: whether the volume was measured as a relief (one component covering
             the footprint) rather than as separate elements.
+        sizes: the whole elements' sizes, ascending (volumes, world units^3; a
+            relief's bumps: areas, world units^2).
+        eulers: the whole elements' Euler numbers, in the order of ``sizes`` (a ball
+            or a disc 1, a ring 0, a double ring -1).
+        ends: free ends of the inside's skeleton (a broken tube or ring has two)
+            away from the x/y borders, per world unit^2 of footprint (elements only;
+            nan for a relief).
     """
 
     count: int
@@ -73,6 +80,9 @@ class ElementFeatures:
     thickness: float
     period: float
     relief: bool = False
+    sizes: tuple = ()
+    eulers: tuple = ()
+    ends: float = math.nan
 
 
 def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,20 +149,39 @@ def _thickness(field: np.ndarray) -> float:
     samples (inside samples whose distance to the surface is the largest of their
     3x3x3 neighbourhood: the discrete medial axis), each corrected by the ridge's
     sub-sample offset from it."""
-    depth = np.where(field < 0, -field.astype(np.float64), 0.0)
+    depth = np.maximum(-field, np.float32(0.0))
     if not (depth > 0).any():
         return math.nan
     peak = ndimage.maximum_filter(depth, size=3, mode="constant", cval=0.0)
-    ridge = (depth > 0) & (depth >= peak - 1e-9)
+    ridge = np.nonzero((depth > 0) & (depth >= peak))
+    del peak
     # Sub-sample ridge: near the medial axis the depth is a tent of slope 1, d(x) =
     # r - |x - a|, so along each axis (d(+1) - d(-1)) / 2 = a, the ridge's offset from
     # the sample, and r = d(0) + |a| (a offset of at most half a cell diagonal).
-    offset = np.zeros(depth.shape, np.float64)
+    offset = np.zeros(ridge[0].size, np.float64)
     for ax in range(3):
-        a = (np.roll(depth, -1, axis=ax) - np.roll(depth, 1, axis=ax)) / 2
-        offset += np.where(ridge, a, 0.0) ** 2
-    r = depth[ridge] + np.minimum(np.sqrt(offset[ridge]), 0.5 * math.sqrt(3))
+        hi, lo = [list(ridge) for _ in range(2)]
+        hi[ax] = np.minimum(ridge[ax] + 1, depth.shape[ax] - 1)
+        lo[ax] = np.maximum(ridge[ax] - 1, 0)
+        a = (depth[tuple(hi)].astype(np.float64) - depth[tuple(lo)]) / 2
+        offset += a * a
+    r = depth[ridge] + np.minimum(np.sqrt(offset), 0.5 * math.sqrt(3))
     return float(2.0 * np.median(r))
+
+
+def _free_ends(inside: np.ndarray, margin: int = 3) -> float:
+    """Skeleton end points (one 26-neighbour on the skeleton) of the inside, at least
+    ``margin`` samples from the x/y borders, per sample^2 of the footprint within."""
+    from skimage.morphology import skeletonize
+
+    ny, nx = inside.shape[1:]
+    if min(ny, nx) <= 2 * margin:
+        return math.nan
+    skel = skeletonize(inside).astype(bool)
+    neighbours = ndimage.convolve(skel.astype(np.uint8), np.ones((3, 3, 3), np.uint8), mode="constant") - 1
+    ends = skel & (neighbours == 1)
+    count = int(ends[:, margin:ny - margin, margin:nx - margin].sum())
+    return count / float((ny - 2 * margin) * (nx - 2 * margin))
 
 
 def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1)) -> np.ndarray:
@@ -165,48 +194,95 @@ def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1)) -> np.ndarray:
     return touch
 
 
+def _crossings(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int, up: bool) -> np.ndarray:
+    """(n,) the highest (``up``) or lowest sub-sample z of each component's surface
+    along z: at every inside sample whose neighbour above (below) is outside or beyond
+    the grid, the sample's z plus (minus) the interpolated zero crossing. Only those
+    samples are gathered (memory by the surface, not the volume)."""
+    step = 1 if up else -1
+    edge = np.zeros(inside.shape, bool)
+    if up:
+        edge[:-1] = inside[:-1] & ~inside[1:]
+        edge[-1] = inside[-1]
+    else:
+        edge[1:] = inside[1:] & ~inside[:-1]
+        edge[0] = inside[0]
+    z, y, x = np.nonzero(edge)
+    del edge
+    v = field[z, y, x].astype(np.float64)
+    zn = z + step
+    beyond = (zn < 0) | (zn >= field.shape[0])
+    vn = field[np.clip(zn, 0, field.shape[0] - 1), y, x].astype(np.float64)
+    frac = np.where(beyond, 0.5, np.clip(-v / np.maximum(vn - v, 1e-12), 0.0, 1.0))
+    value = z + step * frac
+    out = np.full(n + 1, -np.inf if up else np.inf)
+    (np.maximum if up else np.minimum).at(out, labels[z, y, x], value)
+    return out[1:]
+
+
 def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int):
-    """(count, whole fraction, median diameter, median z-extent) in samples of the 3D components."""
+    """(count, whole fraction, weighted median diameter, median z-extent, whole
+    elements' volumes, their Euler numbers), lengths in samples, of the 3D components."""
     idx = np.arange(1, n + 1)
     # partial volume of each sample from its distance (a plane through the cell): the
     # inside samples and the outside layer next to them, assigned to the nearest label
-    occupancy = np.clip(0.5 - field.astype(np.float64), 0.0, 1.0)
-    grown = ndimage.grey_dilation(labels, size=(3, 3, 3))
-    owner = np.where(inside, labels, np.where(occupancy > 0, grown, 0))
+    occupancy = np.clip(np.float32(0.5) - field, 0.0, 1.0)
+    owner = ndimage.grey_dilation(labels, size=(3, 3, 3))
+    np.copyto(owner, labels, where=inside)
+    owner[occupancy <= 0] = 0
     volume = np.asarray(ndimage.sum(occupancy, owner, idx), np.float64)
+    del occupancy, owner
     diameter = np.cbrt(6.0 * volume / math.pi)
-    # z-extent: bottom and top crossings of each component, sub-sample
-    zc = field.shape[0]
-    z = np.arange(zc, dtype=np.float64)[:, None, None] * np.ones(field.shape[1:])[None]
-    up = np.concatenate([field[1:], np.full((1,) + field.shape[1:], 1.0, field.dtype)], axis=0).astype(np.float64)
-    dn = np.concatenate([np.full((1,) + field.shape[1:], 1.0, field.dtype), field[:-1]], axis=0).astype(np.float64)
-    v = field.astype(np.float64)
-    top = np.where(inside & (up >= 0), z + np.clip(-v / np.maximum(up - v, 1e-12), 0, 1), -np.inf)
-    bot = np.where(inside & (dn >= 0), z - np.clip(-v / np.maximum(dn - v, 1e-12), 0, 1), np.inf)
-    tops = np.asarray(ndimage.maximum(top, labels, idx), np.float64)
-    bots = np.asarray(ndimage.minimum(bot, labels, idx), np.float64)
-    extent = tops - bots
+    extent = _crossings(field, inside, labels, n, True) - _crossings(field, inside, labels, n, False)
     touch = _touching(labels, n)[1:]
     whole = ~touch
     pick = whole if whole.any() else np.ones(n, bool)
-    return n, float(whole.mean()), float(np.median(diameter[pick])), float(np.median(extent[pick]))
+    eulers = _eulers(labels, np.flatnonzero(whole) + 1)
+    return (n, float(whole.mean()), _weighted_median(diameter[pick], volume[pick]), float(np.median(extent[pick])),
+            volume[whole], eulers)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The median of ``values`` weighted by ``weights`` (a speck of debris counts by
+    its size, not as one element)."""
+    if values.size == 0:
+        return math.nan
+    order = np.argsort(values, kind="stable")
+    cum = np.cumsum(weights[order])
+    return float(values[order][min(int(np.searchsorted(cum, 0.5 * cum[-1])), values.size - 1)])
+
+
+def _eulers(labels: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Euler numbers of the labelled components ``which`` (26-connected foreground in
+    3D, 8-connected in 2D): 1 for a ball or disc, 0 for a ring or a torus."""
+    from skimage.measure import euler_number
+
+    slices = ndimage.find_objects(labels)
+    out = []
+    for k in which:
+        sl = tuple(slice(max(0, a.start - 1), a.stop + 1) for a in slices[k - 1])
+        # a 3D solid ball has Euler number 1 in skimage's convention (vertices - edges + faces - cells)
+        out.append(int(euler_number(labels[sl] == k, connectivity=labels.ndim)))
+    return np.asarray(out, np.int64)
 
 
 def _bumps(h: np.ndarray):
     """(count, whole fraction, median equivalent-circle diameter) in samples of the
     regions of a height map above the midpoint of its 5th and 99.5th percentiles."""
     lo, hi = np.percentile(h, [5, 99.5])
+    none = (0, math.nan, math.nan, np.zeros(0), np.zeros(0, np.int64))
     if hi - lo < 1e-6:
-        return 0, math.nan, math.nan
+        return none
     labels, n = ndimage.label(h > 0.5 * (lo + hi), structure=np.ones((3, 3), bool))
     if n == 0:
-        return 0, math.nan, math.nan
+        return none
     idx = np.arange(1, n + 1)
     area = np.asarray(ndimage.sum(np.ones_like(h), labels, idx), np.float64)
     touch = _touching(labels, n, (0, 1))[1:]
     whole = ~touch
     pick = whole if whole.any() else np.ones(n, bool)
-    return n, float(whole.mean()), float(np.median(2.0 * np.sqrt(area[pick] / math.pi)))
+    return (n, float(whole.mean()), _weighted_median(2.0 * np.sqrt(area[pick] / math.pi), area[pick]), area[whole],
+            _eulers(labels, np.flatnonzero(whole) + 1))
 
 
 def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None = None) -> ElementFeatures:
@@ -245,14 +321,19 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
         sizes = np.bincount(labels.ravel())[1:]
         largest = labels == (1 + int(np.argmax(sizes)))
         slab = bool(largest.any(axis=0).mean() >= RELIEF_COVER)
+    ends = math.nan
     if slab:
-        count, whole, diameter = _bumps(h)
-        height = float(np.std(h))
+        count, whole, diameter, sizes, eulers = _bumps(h)
+        height, power = float(np.std(h)), 2
     else:
-        count, whole, diameter, height = _elements(f, inside, labels, n)
+        count, whole, diameter, height, sizes, eulers = _elements(f, inside, labels, n)
+        power = 3
+        ends = _free_ends(inside) / s**2
     scale = lambda v: v * s if math.isfinite(v) else v  # noqa: E731
+    order = np.argsort(sizes, kind="stable")
     return ElementFeatures(int(count), whole, scale(diameter), scale(height), scale(thickness), scale(period),
-                           bool(slab))
+                           bool(slab), tuple(float(v) * s**power for v in np.asarray(sizes)[order]),
+                           tuple(int(v) for v in np.asarray(eulers)[order]), ends)
 
 
 def _ratio(a: float, b: float) -> float:
@@ -261,13 +342,38 @@ def _ratio(a: float, b: float) -> float:
     return float(b / a)
 
 
+# An output element is kept whole when its size is within this factor of a whole exemplar
+# element's and its Euler number is one of theirs (a broken ring is a C, Euler 1; two
+# fused rings are twice the size).
+WHOLE_SIZE_TOLERANCE = 0.35
+
+
+def kept_whole(exemplar: ElementFeatures, output: ElementFeatures) -> float:
+    """Share of the output's whole elements (not touching an x/y border) that are
+    whole copies of the exemplar's: size within :data:`WHOLE_SIZE_TOLERANCE` of a whole
+    exemplar element of the same Euler number. nan when either side has no whole element."""
+    if not exemplar.sizes or not output.sizes:
+        return math.nan
+    ex = {}
+    for v, e in zip(exemplar.sizes, exemplar.eulers):
+        lo, hi = ex.get(e, (math.inf, 0.0))
+        ex[e] = (min(lo, v), max(hi, v))
+    good = 0
+    for v, e in zip(output.sizes, output.eulers):
+        if e in ex and ex[e][0] * (1 - WHOLE_SIZE_TOLERANCE) <= v <= ex[e][1] * (1 + WHOLE_SIZE_TOLERANCE):
+            good += 1
+    return good / len(output.sizes)
+
+
 def compare_features(exemplar: ElementFeatures, output: ElementFeatures) -> dict[str, float]:
     """Ratios output / exemplar of ``diameter``, ``height``, ``thickness``, ``period``
     and ``whole_fraction`` (1 is kept; nan where the exemplar's is zero or undefined),
-    plus ``whole`` (the output's own whole fraction)."""
+    plus ``whole``: the share of the output's whole elements that are whole copies of
+    the exemplar's, neither broken nor fused (:func:`kept_whole`)."""
     out = {k: _ratio(getattr(exemplar, k), getattr(output, k))
            for k in ("diameter", "height", "thickness", "period", "whole_fraction")}
-    out["whole"] = float(output.whole_fraction)
+    out["whole"] = kept_whole(exemplar, output)
+    out["ends"] = _ratio(exemplar.ends, output.ends)
     return out
 
 
@@ -277,5 +383,7 @@ def format_features(exemplar: ElementFeatures, output: ElementFeatures) -> str:
     parts = [f"{'relief' if exemplar.relief else 'elements'} {exemplar.count} -> {output.count}"]
     for k in ("diameter", "height", "thickness", "period"):
         parts.append(f"{k} {getattr(exemplar, k):.3g} -> {getattr(output, k):.3g} (x{r[k]:.2f})")
-    parts.append(f"whole {exemplar.whole_fraction:.0%} -> {output.whole_fraction:.0%}")
+    parts.append(f"elements kept whole {r['whole']:.0%}")
+    if not exemplar.relief:
+        parts.append(f"free ends {exemplar.ends:.3g} -> {output.ends:.3g} per unit^2")
     return ", ".join(parts)
