@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import geosynth
+from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
 from geosynth.examples import EXEMPLARS
 from geosynth.files import IMAGE_SUFFIXES, check_output
 
@@ -171,7 +172,8 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
     Returns:
         (size for synthesize_geometry: one int or (z, y, x); block: one int or a list).
     """
-    sizes, blocks, levels = list(args.size), list(args.block), args.levels
+    given_block = args.block is not None  # None: chosen from the exemplar (geosynth.volume.choose_settings)
+    sizes, blocks, levels = list(args.size), list(args.block or [DEFAULT_BLOCK]), args.levels
     if len(sizes) not in (1, 3):
         raise ValueError(f"--size takes one number (x = y; z follows the exemplar) or three (x y z), "
                          f"got {len(sizes)}: {_typed(sizes)}.")
@@ -201,10 +203,12 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
                                  f"there ({' x '.join(map(str, target))} samples, {' '.join(axes)}); use a smaller "
                                  "block or a larger --size.")
     finest = blocks[-1]
-    if args.source_resolution < finest:
+    if args.source_resolution is not None and args.source_resolution < finest:
         raise ValueError(f"--source-resolution {args.source_resolution} is smaller than the finest block {finest}: "
                          f"the exemplar must hold a whole block; use --source-resolution {max(8, finest)} or more.")
     size = tuple(sizes[::-1]) if len(sizes) == 3 else sizes[0]  # the library's (z, y, x)
+    if not given_block:
+        return size, None
     return size, (blocks if len(blocks) > 1 else blocks[0])
 
 
@@ -402,7 +406,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     shape_text = (f"{args.size[0]} x {args.size[1]} x {args.size[2]}" if len(args.size) == 3
                   else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
     say(f"geosynth volume: {label} -> {shape_text} samples, {args.levels} levels, "
-        f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
+        f"block {'auto' if block is None else block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
+        f"device {args.device or 'auto'}")
     result = synthesize_geometry(
         example or exemplar, size,
         source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
@@ -410,6 +415,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
         slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
     )
+    if result.settings:
+        say(result.settings)
     say(f"method: {result.method}" + (" (auto: graphcut for a slab, optimize otherwise)" if args.method == "auto"
                                       else ""))
     if result.volume.slab:
@@ -512,6 +519,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
                                    f"NAME ({', '.join(EXEMPLARS)})"))
     size, block = _volume_shape(args)
+    block = DEFAULT_BLOCK if block is None else block  # tiles: the defaults (no automatic choice yet)
     out = Path(args.output)
     png, png_what = _picture_path(args)
     outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
@@ -555,7 +563,8 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
                   search=args.search)
 
-    source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
+    source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution or DEFAULT_RESOLUTION,
+                                         args.levels, args.seed,
                                          args.device, check=check_tiling)
     shape = target_size(size, source.shape, args.levels)
     workers = 2 if args.workers is None else args.workers
@@ -1017,10 +1026,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "multiple of 2^(levels-1) (default 128)")
     p.add_argument("--levels", type=_int_type(1, MAX_LEVELS), default=3,
                    help=f"resolution levels, 1 to {MAX_LEVELS} (default 3)")
-    p.add_argument("--block", type=_int_type(2, power_of_two=True, each=True), nargs="+", default=[16], metavar="B",
-                   help="finest block size, or one per level (coarsest first); powers of two >= 2 (default 16)")
-    p.add_argument("--source-resolution", type=_int_type(8), default=64,
-                   help="exemplar samples along its longest side, >= 8 (default 64)")
+    p.add_argument("--block", type=_int_type(2, power_of_two=True, each=True), nargs="+", default=None, metavar="B",
+                   help="finest block size, or one per level (coarsest first); powers of two >= 2 (default: 16, "
+                        "32 where the source resolution was doubled for thin features)")
+    p.add_argument("--source-resolution", type=_int_type(8), default=None,
+                   help="exemplar samples along its longest side, >= 8 (default: 64, or 128 when the exemplar's "
+                        "thinnest features span under 3 samples at 64; the size then doubles too, keeping its world "
+                        "extent)")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
     p.add_argument("--method", choices=["auto", "optimize", "graphcut", "paper"], default="auto",
                    help="auto (default): graphcut for a slab exemplar, optimize otherwise (the best structure "

@@ -14,19 +14,22 @@ Two kinds of volume:
 
 - *elements* (balls, rings, tubes, washers: several inside components, or one that
   does not span the footprint): every 26-connected inside component is an element;
-  ``diameter`` is the median equivalent-sphere diameter and ``height`` the median
-  z-extent of the whole elements (those not touching an x/y border; all when none is
-  whole).
+  ``diameter`` is the volume-weighted median equivalent-sphere diameter and ``height``
+  the median z-extent of the whole elements (those not touching an x/y border; all
+  when none is whole).
 - *relief* (a plate with rivets, a terrain: one inside component that covers the
-  footprint): the elements are the bumps of the top surface, the connected regions of
-  the top-height map above the midpoint between its low (5th percentile) and high
-  (99.5th percentile) heights; ``diameter`` is their median equivalent-circle
-  diameter, ``height`` the standard deviation of the top surface height.
+  footprint): the elements (count, whole share, sizes) are the bumps of the top
+  surface, the connected regions of the top-height map above the midpoint between its
+  low (5th percentile) and high (99.5th percentile) heights; ``diameter`` is the full
+  width at half maximum of the height map's autocorrelation (the typical width of a
+  bump or hill; a bump count of a fractal terrain jumps with the threshold),
+  ``height`` the standard deviation of the top surface height.
 
 ``thickness`` (median local thickness: twice the distance to the surface at the inside
-ridge samples, the discrete medial axis) and ``period`` (the dominant horizontal
-spacing of the top-height map, from its power spectrum) are measured the same way for
-both kinds.
+ridge samples, the discrete medial axis) is measured the same way for both kinds;
+``period``, the horizontal spacing of the top-height map from its power spectrum, is
+the spectrum's peak for elements (their lattice) and 1 / its mean frequency for a
+relief (a terrain's power law has no stable peak).
 """
 
 from __future__ import annotations
@@ -55,13 +58,14 @@ class ElementFeatures:
         count: elements: connected inside components (relief: bumps of the top surface).
         whole_fraction: share of the elements not touching an x/y border, in [0, 1]
             (nan when there is none).
-        diameter: median element diameter, world units (nan when there is none).
+        diameter: median element diameter (relief: autocorrelation width of the top
+            surface), world units (nan when there is none).
         height: elements: median z-extent; relief: standard deviation of the top
             surface height; world units.
         thickness: median local thickness (twice the distance to the surface on the
             inside medial axis), world units (nan for an empty inside).
-        period: dominant horizontal spacing of the top surface, world units (nan for a
-            flat top).
+        period: horizontal spacing of the top surface (elements: the spectrum's
+            peak; relief: 1 / its mean frequency), world units (nan for a flat top).
         relief: whether the volume was measured as a relief (one component covering
             the footprint) rather than as separate elements.
         sizes: the whole elements' sizes, ascending (volumes, world units^3; a
@@ -104,44 +108,82 @@ def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return h, has
 
 
-def _period(h: np.ndarray) -> float:
-    """Dominant horizontal period (in samples) of a (Y, X) height map: the peak of the
-    radially summed power spectrum (the power in each ring of frequencies) of
-    the Hann-windowed, mean-removed map, zero-padded; periods from 2 samples to half
-    the map's smaller side. nan for a flat map."""
+def _radial_power(h: np.ndarray):
+    """(frequencies in cycles per sample, power summed over each ring of frequencies) of
+    the Hann-windowed, mean-removed (Y, X) map, zero-padded to _PAD times its side; None
+    for a flat or tiny map."""
     ny, nx = h.shape
     if min(ny, nx) < 8:
-        return math.nan
+        return None
     d = h - h.mean()
     if not np.any(np.abs(d) > 1e-9):
-        return math.nan
+        return None
     win = np.outer(np.hanning(ny), np.hanning(nx))
     n = _PAD * max(ny, nx)
     power = np.abs(np.fft.rfft2(d * win, s=(n, n))) ** 2
-    fy = np.fft.fftfreq(n)[:, None]
-    fx = np.fft.rfftfreq(n)[None, :]
-    f = np.hypot(fy, fx)  # cycles per sample
-    step = 1.0 / n
-    bins = np.rint(f / step).astype(np.int64)
+    power[:, 1:-1] *= 2  # the half spectrum's mirrored columns
+    f = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.rfftfreq(n)[None, :])
+    bins = np.rint(f * n).astype(np.int64)
     radial = np.bincount(bins.ravel(), weights=power.ravel())
-    k = np.arange(radial.size) * step
-    lo, hi = 2.0 / min(ny, nx), 0.5  # at least two cycles across, at most Nyquist
-    ok = (k >= lo) & (k <= hi)
-    if not ok.any():
+    return np.arange(radial.size) / n, radial
+
+
+def _period(h: np.ndarray, mean: bool) -> float:
+    """Horizontal spacing (in samples) of a (Y, X) height map from its power spectrum
+    (:func:`_radial_power`), over periods from 2 samples to half the map's smaller
+    side: the peak's period (``mean`` False: a lattice of elements, whose fundamental
+    holds the most power), or 1 / the power-weighted mean frequency (``mean`` True: a
+    relief, whose power-law spectrum's peak jumps between bins from seed to seed while
+    its mean frequency moves with the feature scale and stays put). nan for a flat map."""
+    got = _radial_power(h)
+    if got is None:
         return math.nan
+    k, radial = got
+    ok = (k >= 2.0 / min(h.shape)) & (k <= 0.5)
+    total = radial[ok].sum()
+    if not total > 0:
+        return math.nan
+    if mean:
+        return float(total / (radial[ok] * k[ok]).sum())
     score = np.where(ok, radial, -1.0)
     i = int(np.argmax(score))
-    if score[i] <= 0:
-        return math.nan
-    # parabolic refinement of the peak on the padded spectrum
-    if 0 < i < radial.size - 1 and ok[i - 1] and ok[i + 1]:
+    ki = k[i]
+    if 0 < i < radial.size - 1 and ok[i - 1] and ok[i + 1]:  # parabolic refinement on the padded spectrum
         a, b, c = score[i - 1], score[i], score[i + 1]
         den = a - 2 * b + c
-        shift = 0.5 * (a - c) / den if den < 0 else 0.0
-        ki = (i + float(np.clip(shift, -0.5, 0.5))) * step
-    else:
-        ki = k[i]
-    return 1.0 / ki
+        if den < 0:
+            ki = (i + float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))) * (k[1] - k[0])
+    return float(1.0 / ki)
+
+
+def _correlation_width(h: np.ndarray) -> float:
+    """Full width (in samples) at half maximum of the radially averaged autocorrelation
+    of a (Y, X) height map (mean removed, zero-padded: no wrap): the typical width of
+    its bumps and hills. nan for a flat map."""
+    ny, nx = h.shape
+    d = h - h.mean()
+    if min(ny, nx) < 8 or not np.any(np.abs(d) > 1e-9):
+        return math.nan
+    spec = np.abs(np.fft.rfft2(d, s=(2 * ny, 2 * nx))) ** 2
+    acf = np.fft.irfft2(spec, s=(2 * ny, 2 * nx))
+    # unbiased: divide by the overlap count at each lag
+    ones = np.abs(np.fft.rfft2(np.ones_like(d), s=(2 * ny, 2 * nx))) ** 2
+    count = np.maximum(np.fft.irfft2(ones, s=(2 * ny, 2 * nx)), 1.0)
+    acf = acf / count
+    ly = np.fft.fftfreq(2 * ny, 1.0 / (2 * ny))[:, None]
+    lx = np.fft.fftfreq(2 * nx, 1.0 / (2 * nx))[None, :]
+    r = np.hypot(ly, lx)
+    keep = r <= min(ny, nx) / 2
+    bins = np.rint(r[keep]).astype(np.int64)
+    prof = np.bincount(bins, weights=acf[keep]) / np.maximum(np.bincount(bins), 1)
+    prof = prof / prof[0]
+    below = np.flatnonzero(prof < 0.5)
+    if below.size == 0:
+        return math.nan
+    i = int(below[0])
+    # linear interpolation of the half-maximum crossing between lags i - 1 and i
+    x = (i - 1) + (prof[i - 1] - 0.5) / max(prof[i - 1] - prof[i], 1e-12)
+    return float(2.0 * x)
 
 
 def _thickness(field: np.ndarray) -> float:
@@ -312,7 +354,6 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
     f = f.astype(np.float32) / np.float32(s)  # distances in samples
     inside = f < 0
     h, has = _top_height(f)
-    period = _period(h)
     thickness = _thickness(f)
     if not inside.any():
         return ElementFeatures(0, math.nan, math.nan, 0.0, math.nan, math.nan, False)
@@ -322,8 +363,10 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
         largest = labels == (1 + int(np.argmax(sizes)))
         slab = bool(largest.any(axis=0).mean() >= RELIEF_COVER)
     ends = math.nan
+    period = _period(h, mean=bool(slab))
     if slab:
-        count, whole, diameter, sizes, eulers = _bumps(h)
+        count, whole, _, sizes, eulers = _bumps(h)
+        diameter = _correlation_width(h)
         height, power = float(np.std(h)), 2
     else:
         count, whole, diameter, height, sizes, eulers = _elements(f, inside, labels, n)

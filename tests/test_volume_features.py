@@ -10,9 +10,9 @@ from geosynth.volume_features import ElementFeatures, compare_features, element_
 Z, Y, X = np.mgrid[0:24, 0:64, 0:64].astype(np.float32)
 
 
-def spheres(radius: float, spacing: float = 0.1, shift=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """Spheres of ``radius`` samples on a 16-sample grid, off the sample lattice, in world units."""
-    cz, cy, cx = Z - 11.6 - shift[0], (Y - shift[1]) % 16 - 7.7, (X - shift[2]) % 16 - 8.3
+def spheres(radius: float, spacing: float = 0.1, shift=(0.0, 0.0, 0.0), grid: int = 16) -> np.ndarray:
+    """Spheres of ``radius`` samples on a ``grid``-sample lattice, off the sample lattice, in world units."""
+    cz, cy, cx = Z - 11.6 - shift[0], (Y - shift[1]) % grid - grid / 2 + 0.3, (X - shift[2]) % grid - grid / 2 + 0.3
     return (np.sqrt(cz**2 + cy**2 + cx**2) - radius) * np.float32(spacing)
 
 
@@ -24,7 +24,13 @@ def test_spheres_of_known_radius(radius):
     assert f.diameter == pytest.approx(d, rel=0.06)
     assert f.height == pytest.approx(d, rel=0.06)
     assert f.thickness == pytest.approx(d, rel=0.06)
-    assert f.period == pytest.approx(1.6, rel=0.08)  # the 16-sample grid
+
+
+@pytest.mark.parametrize("grid", [12, 16])
+def test_period_of_a_lattice(grid):
+    f = element_features(spheres(3.0, grid=grid), spacing=0.1)
+    assert f.period == pytest.approx(grid * 0.1, rel=0.08)
+    assert f.diameter == pytest.approx(0.6, rel=0.06)
 
 
 @pytest.mark.parametrize("radius", [1.5, 2.5, 4.0])
@@ -42,11 +48,14 @@ def test_cut_spheres_are_not_whole():
 
 def test_relief_bumps_and_height():
     cy, cx = Y % 16 - 7.7, X % 16 - 8.3
+    widths = []
     for r in (3.0, 5.0):
         field = np.minimum(Z - 6.3, np.sqrt(cy**2 + cx**2 + (Z - 6.3) ** 2) - r)
         f = element_features(field)
-        assert f.relief and f.count == 16
-        assert f.diameter == pytest.approx(2 * r * math.sqrt(0.75), rel=0.1)  # circle at half height
+        assert f.relief and f.count == 16 and len(f.sizes) == 16
+        assert f.sizes[0] == pytest.approx(math.pi * 0.75 * r * r, rel=0.2)  # the disc at half height
+        widths.append(f.diameter)
+    assert widths[1] / widths[0] == pytest.approx(5 / 3, rel=0.15)
     low = element_features(np.minimum(Z - 6.3, np.sqrt(cy**2 + cx**2 + (Z - 6.3) ** 2) - 3.0))
     high = element_features(np.minimum(Z - 6.3, np.sqrt(cy**2 + cx**2 + (Z - 6.3) ** 2) - 5.0))
     assert high.height > 1.5 * low.height
