@@ -48,6 +48,8 @@ RELIEF_COVER = 0.9
 # frequency is read to a fraction of one cycle over the map (a 64-sample exemplar with a
 # period of 13 samples has its peak between bins 4 and 5).
 _PAD = 4
+# The side of the tiles whose spectra are averaged (Welch): the default source resolution.
+WELCH_TILE = 64
 
 
 @dataclass(frozen=True)
@@ -109,18 +111,32 @@ def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _radial_power(h: np.ndarray):
-    """(frequencies in cycles per sample, power summed over each ring of frequencies) of
-    the Hann-windowed, mean-removed (Y, X) map, zero-padded to _PAD times its side; None
-    for a flat or tiny map."""
+    """(frequencies in cycles per sample, power summed over each ring of frequencies)
+    of a (Y, X) height map by Welch's method: the mean power spectrum of Hann-windowed,
+    mean-removed square tiles of WELCH_TILE samples (the map's smaller side when
+    smaller) at half-tile steps, each zero-padded to _PAD times its side. Equal tiles
+    give an exemplar and a larger output the same frequency band: a whole-map spectrum
+    would let the larger map's lowest frequencies pull its spacing up. None for a flat
+    or tiny map."""
     ny, nx = h.shape
-    if min(ny, nx) < 8:
+    t = min(ny, nx, WELCH_TILE)
+    if t < 8:
         return None
-    d = h - h.mean()
-    if not np.any(np.abs(d) > 1e-9):
+    win = np.outer(np.hanning(t), np.hanning(t))
+    n = _PAD * t
+    starts_y = sorted(set(list(range(0, ny - t + 1, t // 2)) + [ny - t]))
+    starts_x = sorted(set(list(range(0, nx - t + 1, t // 2)) + [nx - t]))
+    power = np.zeros((n, n // 2 + 1))
+    flat = True
+    for y0 in starts_y:
+        for x0 in starts_x:
+            d = h[y0:y0 + t, x0:x0 + t]
+            d = d - d.mean()
+            if np.any(np.abs(d) > 1e-9):
+                flat = False
+            power += np.abs(np.fft.rfft2(d * win, s=(n, n))) ** 2
+    if flat:
         return None
-    win = np.outer(np.hanning(ny), np.hanning(nx))
-    n = _PAD * max(ny, nx)
-    power = np.abs(np.fft.rfft2(d * win, s=(n, n))) ** 2
     power[:, 1:-1] *= 2  # the half spectrum's mirrored columns
     f = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.rfftfreq(n)[None, :])
     bins = np.rint(f * n).astype(np.int64)
@@ -130,7 +146,7 @@ def _radial_power(h: np.ndarray):
 
 def _period(h: np.ndarray, mean: bool) -> float:
     """Horizontal spacing (in samples) of a (Y, X) height map from its power spectrum
-    (:func:`_radial_power`), over periods from 2 samples to half the map's smaller
+    (:func:`_radial_power`), over periods from 2 samples to half the tile's
     side: the peak's period (``mean`` False: a lattice of elements, whose fundamental
     holds the most power), or 1 / the power-weighted mean frequency (``mean`` True: a
     relief, whose power-law spectrum's peak jumps between bins from seed to seed while
@@ -139,7 +155,7 @@ def _period(h: np.ndarray, mean: bool) -> float:
     if got is None:
         return math.nan
     k, radial = got
-    ok = (k >= 2.0 / min(h.shape)) & (k <= 0.5)
+    ok = (k >= 2.0 / min(min(h.shape), WELCH_TILE)) & (k <= 0.5)
     total = radial[ok].sum()
     if not total > 0:
         return math.nan
