@@ -423,6 +423,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         z, y, x = result.volume.source.shape
         say(f"slab exemplar ({x} x {y} x {z} samples, x y z): blocks span its full thickness along z, "
             f"grown across only" + (" (chosen automatically)" if getattr(args, "slab", "auto") == "auto" else ""))
+    if result.cleanup:
+        say(result.cleanup)
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
     say("\nper level:")

@@ -998,6 +998,7 @@ class GeometryResult:
             "synthesis" also has "method".
         method: the method that made the volume (:data:`METHODS`, "auto" resolved).
         timings: seconds per stage.
+        cleanup: one line on the border slivers removed (:func:`drop_border_slivers`), or "".
         settings: one line: the source resolution, block and size chosen and why
             (:func:`choose_settings`); "" when all were given.
         features: the feature scale (:func:`geosynth.volume_features.element_features`)
@@ -1014,6 +1015,7 @@ class GeometryResult:
     method: str = "optimize"
     features: dict = dc_field(default_factory=dict)
     settings: str = ""
+    cleanup: str = ""
 
 
 def synthesize_geometry(
@@ -1128,6 +1130,15 @@ def synthesize_geometry(
                             iterations=iterations, slab=slab, band=band)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
+    reach = max(BORDER_SLIVER_SAMPLES, 0.5 * settings.thickness / spacing) if math.isfinite(settings.thickness) \
+        else BORDER_SLIVER_SAMPLES
+    cleaned, slivers = drop_border_slivers(vol.quantized, 2 * reach)
+    if slivers:
+        vol.quantized = cleaned
+        vol.field = Field(dequantize_field(cleaned, vol.band) * np.float32(spacing), vol.field.origin,
+                          vol.field.spacing)
+    timings["border slivers"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     out_mesh = field_to_mesh(vol.field, level=0.0, smooth=smooth, close=True)
     timings["marching cubes + smoothing"] = time.perf_counter() - t0
     quality = {}
@@ -1149,8 +1160,53 @@ def synthesize_geometry(
         quality["synthesis"]["method"] = vol.method
         features = synthesis_features(exemplar_field, vol, base)
         timings["quality numbers"] = time.perf_counter() - t0
+    note = (f"dropped {slivers} sliver{'s' if slivers > 1 else ''} of cut elements along the x/y faces (loose "
+            f"pieces reaching at most {reach:.1f} samples "
+            "in)") if slivers else ""
     return GeometryResult(out_mesh, vol, exemplar_field, quality, timings, vol.method, features if quality else {},
-                          settings.text)
+                          settings.text, note)
+
+
+# A piece that touches an x/y face of the output and reaches at most this many samples
+# into it (or half the exemplar's median thickness, if more) is a sliver of an element
+# cut by the face, disconnected from the rest: loose debris along the border (issue #32:
+# the tori lattice left eight 2-sample stubs along x = 0). The exemplar, cut by its own
+# bounding box, has none.
+BORDER_SLIVER_SAMPLES = 2.0
+
+
+def drop_border_slivers(quantized: np.ndarray, thickness_samples: float) -> tuple[np.ndarray, int]:
+    """Remove the inside pieces (26-connected, codes < 128) of a uint8 (Z, Y, X) field that
+    touch an x or y face and reach at most max(BORDER_SLIVER_SAMPLES, thickness / 2)
+    samples into the volume from it (the piece's extent across that face); their
+    samples become code 128 (just outside). Returns (the field, pieces removed); the
+    input is not changed."""
+    from scipy import ndimage
+
+    inside = quantized < 128
+    labels, n = ndimage.label(inside, structure=np.ones((3, 3, 3), bool))
+    if n <= 1:
+        return quantized, 0
+    reach = max(BORDER_SLIVER_SAMPLES, 0.5 * thickness_samples) if math.isfinite(thickness_samples) \
+        else BORDER_SLIVER_SAMPLES
+    drop = []
+    sizes = np.bincount(labels.ravel())
+    largest = int(np.argmax(sizes[1:])) + 1
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None or k == largest:
+            continue
+        _, ys, xs = sl
+        ny, nx = quantized.shape[1:]
+        cut = ((ys.start == 0 or ys.stop == ny) and ys.stop - ys.start <= reach) or \
+              ((xs.start == 0 or xs.stop == nx) and xs.stop - xs.start <= reach)
+        if cut:
+            drop.append(k)
+    if not drop:
+        return quantized, 0
+    out = quantized.copy()
+    mask = np.isin(labels, drop)
+    out[mask] = 128
+    return out, len(drop)
 
 
 def synthesis_features(exemplar_field: Field, vol: VolumeResult, base: VolumeResult | None = None) -> dict:

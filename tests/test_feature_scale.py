@@ -125,3 +125,20 @@ def test_settings_follow_the_thinnest_feature():
     refused = choose_settings(_washers(0.05), 48, 2, fits=lambda size, res, block: False)
     assert (refused.source_resolution, refused.block, refused.size) == (64, 16, 48)
     assert "would not fit" in refused.text
+
+
+def test_border_slivers_dropped():
+    """Loose pieces reaching at most 2 samples in from an x/y face go; the main piece,
+    pieces reaching further in and pieces away from the faces stay."""
+    from geosynth.volume import drop_border_slivers, quantize_field
+
+    z, y, x = np.mgrid[0:8, 0:32, 0:32].astype(np.float32)
+    tube = np.sqrt((z - 3.6) ** 2 + (y - 16.3) ** 2) - 2.0  # across the whole field: the main piece
+    stub = np.maximum(np.sqrt((z - 3.6) ** 2 + (y - 5.2) ** 2) - 1.5, x - 1.4)  # x < 1.4: a sliver
+    long = np.maximum(np.sqrt((z - 3.6) ** 2 + (y - 26.2) ** 2) - 1.5, x - 6.4)  # reaches 6 samples in
+    ball = np.sqrt((z - 3.6) ** 2 + (y - 9.0) ** 2 + (x - 20.0) ** 2) - 2.0  # inside, away from the faces
+    codes = quantize_field(np.minimum.reduce([tube, stub, long, ball]), 4.0)
+    out, n = drop_border_slivers(codes, 2.0)
+    assert n == 1
+    assert (out[:, :9, :4] >= 128).all() and (codes[:, :9, :4] < 128).any()
+    assert np.array_equal(out[:, 10:, :], codes[:, 10:, :])
