@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import geosynth
+from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK
 from geosynth.examples import EXEMPLARS
 from geosynth.files import IMAGE_SUFFIXES, check_output
 
@@ -171,7 +172,8 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
     Returns:
         (size for synthesize_geometry: one int or (z, y, x); block: one int or a list).
     """
-    sizes, blocks, levels = list(args.size), list(args.block), args.levels
+    given_block = args.block is not None  # None: chosen from the exemplar (geosynth.volume.choose_settings)
+    sizes, blocks, levels = list(args.size), list(args.block or [DEFAULT_BLOCK]), args.levels
     if len(sizes) not in (1, 3):
         raise ValueError(f"--size takes one number (x = y; z follows the exemplar) or three (x y z), "
                          f"got {len(sizes)}: {_typed(sizes)}.")
@@ -201,10 +203,12 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
                                  f"there ({' x '.join(map(str, target))} samples, {' '.join(axes)}); use a smaller "
                                  "block or a larger --size.")
     finest = blocks[-1]
-    if args.source_resolution < finest:
+    if args.source_resolution is not None and args.source_resolution < finest:
         raise ValueError(f"--source-resolution {args.source_resolution} is smaller than the finest block {finest}: "
                          f"the exemplar must hold a whole block; use --source-resolution {max(8, finest)} or more.")
     size = tuple(sizes[::-1]) if len(sizes) == 3 else sizes[0]  # the library's (z, y, x)
+    if not given_block:
+        return size, None
     return size, (blocks if len(blocks) > 1 else blocks[0])
 
 
@@ -402,7 +406,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     shape_text = (f"{args.size[0]} x {args.size[1]} x {args.size[2]}" if len(args.size) == 3
                   else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
     say(f"geosynth volume: {label} -> {shape_text} samples, {args.levels} levels, "
-        f"block {block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, device {args.device or 'auto'}")
+        f"block {'auto' if block is None else block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
+        f"device {args.device or 'auto'}")
     _m1_colour_note(exemplar, say)
     result = synthesize_geometry(
         example or exemplar, size,
@@ -411,8 +416,12 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
         slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
     )
+    if result.settings:
+        say(result.settings)
     for line in result.volume.settings.lines(result.volume.source.shape):  # the tiled run prints the same
         say(line)
+    if result.cleanup:
+        say(result.cleanup)
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces")
     say("\nper level:")
@@ -437,16 +446,37 @@ def _cmd_volume(args: argparse.Namespace) -> int:
             say("structure (what a person sees; beside random tiling):")
             for k, report in structures.items():
                 say(f"  {k:<14} {format_structure(report)}")
+    if result.features:
+        from geosynth.volume_features import format_features
+
+        say("feature scale (exemplar -> output, world units; x1.00 is kept):")
+        ex = result.features["exemplar"]
+        for k, f in result.features.items():
+            if k != "exemplar":
+                say(f"  {k:<14} {format_features(ex, f)}")
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
-    picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)], labels=["exemplar", "synthesized"])
+    boxes = same_scale_bounds([exemplar_mesh, result.mesh])
+    picture = side_by_side([render_mesh(exemplar_mesh, bounds=boxes[0]), render_mesh(result.mesh, bounds=boxes[1])],
+                           labels=["exemplar", "synthesized"])
     write_image(png, picture, inputs=inputs)
-    say(f"picture: {png} (exemplar left, result right)")
+    say(f"picture: {png} (exemplar left, result right, at the same scale)")
     return 0
 
 
 # The options that only a tiled run reads, with the value that means "not given".
 _TILED_ONLY = (("--workers", "workers", None), ("--scheduler", "scheduler", None), ("--store", "store", None),
                ("--tile-meshes", "tile_meshes", None), ("--resume", "resume", False))
+
+
+def same_scale_bounds(meshes) -> list[np.ndarray]:
+    """One (2, 3) framing box per mesh, each centred on its mesh and as large as the
+    largest extent of all of them per axis: rendered with these bounds, every mesh is
+    drawn at the same world scale (an exemplar beside a larger synthesized piece shows
+    its features at their true relative size)."""
+    lows = [np.asarray(m.bounds[0], np.float64) for m in meshes]
+    highs = [np.asarray(m.bounds[1], np.float64) for m in meshes]
+    half = np.max([(h - lo) / 2 for lo, h in zip(lows, highs)], axis=0)
+    return [np.stack([(lo + h) / 2 - half, (lo + h) / 2 + half]) for lo, h in zip(lows, highs)]
 
 
 def _cmd_volume_any(args: argparse.Namespace) -> int:
@@ -486,6 +516,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
                                    f"NAME ({', '.join(EXEMPLARS)})"))
     size, block = _volume_shape(args)
+    block = DEFAULT_BLOCK if block is None else block  # the parse-time checks; the exemplar may choose another
     out = Path(args.output)
     png, png_what = _picture_path(args)
     outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
@@ -523,6 +554,18 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
     _m1_colour_note(exemplar, say)
+    # the untiled run's automatic source resolution, block and size (geosynth.volume.choose_settings)
+    from geosynth.meshes import check_mesh
+    from geosynth.volume import choose_settings
+
+    exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
+    check_mesh(exemplar_mesh, "exemplar", drop_degenerate=args.drop_degenerate)
+    settings = choose_settings(exemplar_mesh, size, args.levels, args.source_resolution,
+                               None if args.block is None else block, device=args.device,
+                               drop_degenerate=args.drop_degenerate)
+    size, block = settings.size, settings.block
+    if settings.text:
+        say(settings.text)
 
     slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
 
@@ -530,8 +573,9 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
                   search=args.search, method=args.method)
 
-    source, spacing, _ = exemplar_source(example or exemplar, args.source_resolution, args.levels, args.seed,
-                                         args.device, check=check_tiling, drop_degenerate=args.drop_degenerate)
+    source, spacing, _ = exemplar_source(exemplar_mesh, settings.source_resolution, args.levels, args.seed,
+                                         args.device, check=check_tiling, drop_degenerate=args.drop_degenerate,
+                                         field=settings.field)
     shape = target_size(size, source.shape, args.levels)
     workers = 2 if args.workers is None else args.workers
     engine = args.scheduler or f"a LocalCluster of {workers} workers"
@@ -1039,10 +1083,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "multiple of 2^(levels-1) (default 128)")
     p.add_argument("--levels", type=_int_type(1, MAX_LEVELS), default=3,
                    help=f"resolution levels, 1 to {MAX_LEVELS} (default 3)")
-    p.add_argument("--block", type=_int_type(2, power_of_two=True, each=True), nargs="+", default=[16], metavar="B",
-                   help="finest block size, or one per level (coarsest first); powers of two >= 2 (default 16)")
-    p.add_argument("--source-resolution", type=_int_type(8), default=64,
-                   help="exemplar samples along its longest side, >= 8 (default 64)")
+    p.add_argument("--block", type=_int_type(2, power_of_two=True, each=True), nargs="+", default=None, metavar="B",
+                   help="finest block size, or one per level (coarsest first); powers of two >= 2 (default: 16, "
+                        "32 where the source resolution was doubled for thin features)")
+    p.add_argument("--source-resolution", type=_int_type(8), default=None,
+                   help="exemplar samples along its longest side, >= 8 (default: 64, or 128 when the exemplar's "
+                        "thinnest features span under 3 samples at 64; the size then doubles too, keeping its world "
+                        "extent)")
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
     p.add_argument("--method", choices=["auto", "optimize", "graphcut", "paper"], default="auto",
                    help="auto (default): graphcut for a slab exemplar, optimize otherwise (the best structure "

@@ -22,3 +22,15 @@ class Tolerance:
 
 
 tol = Tolerance()
+
+# M1's default source resolution (exemplar samples along its longest side) and finest
+# block: the paper's (Sec. 5.2: source 64^3, block 16 at the finest level). A run that
+# chooses its own settings (geosynth.volume.choose_settings) doubles both when the
+# exemplar's thinnest features span fewer than M1_MIN_FEATURE_SAMPLES samples at 64.
+M1_DEFAULT_RESOLUTION = 64
+M1_DEFAULT_BLOCK = 16
+# A feature thinner than this many samples does not survive the synthesis: at 64 the
+# washers of issue #32 (0.08 thick, 1.5 samples) came out broken or fused in the mesh
+# (18% of the whole ones changed), at 128 with block 32 they were kept (2%). The built-ins'
+# thinnest (median ridge thickness at 64): rings 3.2, domes 3.2, fibers 3.6, chainmail 3.8.
+M1_MIN_FEATURE_SAMPLES = 3.0

@@ -1215,7 +1215,7 @@ def _merge(pieces, smooth: int):
 
 
 def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed: int | None = 0,
-                    device: str | None = None, check=None, drop_degenerate: bool = False):
+                    device: str | None = None, check=None, drop_degenerate: bool = False, field=None):
     """An exemplar mesh (a trimesh, a file or a built-in name) as the source of a
     synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it
     (:func:`geosynth.volume.exemplar_distance`): its exact signed distance on
@@ -1223,7 +1223,8 @@ def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed
     source's (Z, Y, X) shape, called before the distance is computed (so that a tiling
     that cannot be is refused before the field's seconds: see :func:`tile_grid`).
     ``drop_degenerate``: drop the exemplar's zero-area faces instead of refusing it.
-    Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
+    ``field``: None, or the distance already computed on that grid (see
+    :func:`geosynth.volume.choose_settings`). Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
     the exemplar Field)."""
     from geosynth.examples import resolve_exemplar_mesh
     from geosynth.meshes import check_mesh
@@ -1232,7 +1233,7 @@ def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed
     m = resolve_exemplar_mesh(exemplar, seed)
     check_mesh(m, "exemplar", drop_degenerate=drop_degenerate)
     return exemplar_distance(m, source_resolution, levels, device=device, drop_degenerate=drop_degenerate,
-                             before=check)
+                             before=check, field=field)
 
 
 def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block=None, *, stride: int = 2,

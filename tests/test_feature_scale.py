@@ -1,0 +1,144 @@
+"""M1 keeps the exemplar's feature scale (issue #32): settings chosen from the exemplar's
+thinnest feature, histogram matching after texture optimization's coarse levels, and
+element size, height and wholeness measured over seeds on small generated inputs."""
+
+import math
+
+import numpy as np
+import pytest
+
+import geosynth.volume as volume
+from geosynth.volume import choose_settings, match_histogram, synthesize_volume
+from geosynth.volume_features import compare_features, element_features
+
+SEEDS = (0, 1, 2)
+
+
+def _discs(n: int = 40, thickness: float = 4.0, radius: float = 3.5, zs: int = 10, seed: int = 0) -> np.ndarray:
+    """(zs, n, n) signed distances (samples) of one layer of separate flat discs on a
+    jittered 10-sample lattice (a slab of elements, like washers or coins)."""
+    rng = np.random.default_rng(seed)
+    z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
+    f = np.full((zs, n, n), 9.0, np.float32)
+    for cy in np.arange(5, n, 10.0):
+        for cx in np.arange(5, n, 10.0):
+            oy, ox = rng.uniform(-1, 1, 2)
+            d = np.maximum(np.hypot(y - cy - oy, x - cx - ox) - radius, np.abs(z - zs / 2 + 0.4) - thickness / 2)
+            f = np.minimum(f, d)
+    return f
+
+
+def _terrain(n: int = 48, zs: int = 16, seed: int = 0) -> np.ndarray:
+    """(zs, n, n) signed distances (samples, along z) of a terrain of six cosine waves
+    of 12-32 samples at random angles, height std 2.2 samples."""
+    rng = np.random.default_rng(seed)
+    z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
+    h = np.zeros((n, n))
+    for _ in range(6):
+        f, a, ph = rng.uniform(1.5, 4.0) / n, rng.uniform(0, np.pi), rng.uniform(0, 2 * np.pi)
+        h += np.cos(2 * np.pi * f * (np.cos(a) * x[0] + np.sin(a) * y[0]) + ph)
+    h = 7 + 2.2 * h / h.std()
+    return z - h[None].astype(np.float32)
+
+
+def test_separate_elements_kept_whole_over_seeds():
+    """A slab of discs 4 samples thick: >= 80% of the output's whole discs are whole
+    copies (not broken, not fused), diameter and height within 15%, on every seed."""
+    src = _discs()
+    ex = element_features(src)
+    assert ex.count == 16 and not ex.relief
+    for seed in SEEDS:
+        out = synthesize_volume(src, (10, 48, 48), levels=2, block=16, seed=seed, progress=False)
+        assert out.slab
+        r = compare_features(ex, element_features(out.field.values, 1.0, False))
+        assert r["whole"] >= 0.8, (seed, r)
+        assert abs(r["diameter"] - 1) <= 0.15 and abs(r["height"] - 1) <= 0.15, (seed, r)
+
+
+def test_relief_height_kept_by_histogram_matching(monkeypatch):
+    """Texture optimization's votes (and the upsampling between levels) lower a
+    terrain's relief; matching the code histogram after the coarse levels and the
+    upsampling keeps its height within 15% on every seed, and higher than without."""
+    src = _terrain()
+    ex = element_features(src)
+    assert ex.relief
+
+    def heights(mode):
+        monkeypatch.setattr(volume, "HISTOGRAM_MATCH", mode)
+        out = []
+        for seed in SEEDS:
+            v = synthesize_volume(src, (16, 48, 48), levels=2, block=8, seed=seed, progress=False, method="optimize",
+                                  iterations=[3, 1])
+            out.append(compare_features(ex, element_features(v.field.values, 1.0, True))["height"])
+        return np.array(out)
+
+    matched = heights("coarse+init")
+    assert (np.abs(matched - 1) <= 0.15).all(), matched
+    assert matched.mean() > heights(None).mean()
+
+
+def test_match_histogram():
+    rng = np.random.default_rng(0)
+    src = rng.integers(0, 256, (4, 16, 16)).astype(np.uint8)
+    assert np.array_equal(match_histogram(src, src, True), src)
+    # a target pulled toward the middle (a vote's average) regains each slice's inside share
+    field = _terrain(32, 12)
+    codes = volume.quantize_field(field, 4.0)
+    blurred = ((codes.astype(np.int32) + 128) // 2).astype(np.uint8)
+    out = match_histogram(blurred, codes, True)
+    for z in range(codes.shape[0]):
+        assert abs(int((out[z] < 128).sum()) - int((codes[z] < 128).sum())) <= 0.02 * codes[z].size
+    # per slice, a monotone map of the codes: one code keeps one code (no tie artifacts)
+    for z in range(codes.shape[0]):
+        b, o = blurred[z].ravel(), out[z].ravel()
+        order = np.argsort(b, kind="stable")
+        assert (np.diff(o[order].astype(int)) >= 0).all()
+        assert all(len(np.unique(o[b == c])) == 1 for c in np.unique(b))
+
+
+def _washers(height: float):
+    import trimesh
+
+    parts = []
+    for i in range(4):
+        for j in range(4):
+            w = trimesh.creation.annulus(r_min=0.15, r_max=0.3, height=height)
+            w.apply_translation([0.8 * i, 0.8 * j, 0])
+            parts.append(w)
+    return trimesh.util.concatenate(parts)
+
+
+def test_settings_follow_the_thinnest_feature():
+    """Washers 0.05 thick over a 2.9-unit layer are 1.1 samples at 64: the resolution
+    and block double, the size doubles (the same world extent); 0.3 thick ones keep the
+    defaults and the measuring field is the synthesis's. Given values are kept."""
+    thin = choose_settings(_washers(0.05), 48, 2)
+    assert (thin.source_resolution, thin.block, thin.size) == (128, 32, 96)
+    assert thin.thickness == pytest.approx(0.05, rel=0.35) and thin.field is None
+    assert "source resolution 128" in thin.text and "block 32" in thin.text
+    thick = choose_settings(_washers(0.3), (8, 40, 48), 2)
+    assert (thick.source_resolution, thick.block, thick.size) == (64, 16, (8, 40, 48))
+    assert thick.field is not None and thick.field.values.shape[2] == 64
+    given = choose_settings(_washers(0.05), 48, 2, source_resolution=64, block=8)
+    assert (given.source_resolution, given.block, given.size, given.text) == (64, 8, 48, "")
+    assert math.isnan(given.thickness)
+    refused = choose_settings(_washers(0.05), 48, 2, fits=lambda size, res, block: False)
+    assert (refused.source_resolution, refused.block, refused.size) == (64, 16, 48)
+    assert "would not fit" in refused.text
+
+
+def test_border_slivers_dropped():
+    """Loose pieces reaching at most 2 samples in from an x/y face go; the main piece,
+    pieces reaching further in and pieces away from the faces stay."""
+    from geosynth.volume import drop_border_slivers, quantize_field
+
+    z, y, x = np.mgrid[0:8, 0:32, 0:32].astype(np.float32)
+    tube = np.sqrt((z - 3.6) ** 2 + (y - 16.3) ** 2) - 2.0  # across the whole field: the main piece
+    stub = np.maximum(np.sqrt((z - 3.6) ** 2 + (y - 5.2) ** 2) - 1.5, x - 1.4)  # x < 1.4: a sliver
+    long = np.maximum(np.sqrt((z - 3.6) ** 2 + (y - 26.2) ** 2) - 1.5, x - 6.4)  # reaches 6 samples in
+    ball = np.sqrt((z - 3.6) ** 2 + (y - 9.0) ** 2 + (x - 20.0) ** 2) - 2.0  # inside, away from the faces
+    codes = quantize_field(np.minimum.reduce([tube, stub, long, ball]), 4.0)
+    out, n = drop_border_slivers(codes, 2.0)
+    assert n == 1
+    assert (out[:, :9, :4] >= 128).all() and (codes[:, :9, :4] < 128).any()
+    assert np.array_equal(out[:, 10:, :], codes[:, 10:, :])
