@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import geosynth
-from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK
+from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
 from geosynth.examples import EXEMPLARS
 from geosynth.files import IMAGE_SUFFIXES, check_output
 
@@ -554,24 +554,27 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
     _m1_colour_note(exemplar, say)
-    # the untiled run's automatic source resolution, block and size (geosynth.volume.choose_settings)
+    slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
+
+    def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
+        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
+                  search=args.search, method=args.method)
+
+    # the untiled run's automatic source resolution, block and size (geosynth.volume.choose_settings),
+    # after the tiling is checked on the default grid's shape (no distance computed yet)
     from geosynth.meshes import check_mesh
-    from geosynth.volume import choose_settings
+    from geosynth.volume import choose_settings, exemplar_grid
 
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
     check_mesh(exemplar_mesh, "exemplar", drop_degenerate=args.drop_degenerate)
+    check_tiling(exemplar_grid(exemplar_mesh, args.source_resolution or DEFAULT_RESOLUTION,
+                               multiple=2 ** (args.levels - 1)).values.shape)
     settings = choose_settings(exemplar_mesh, size, args.levels, args.source_resolution,
                                None if args.block is None else block, device=args.device,
                                drop_degenerate=args.drop_degenerate)
     size, block = settings.size, settings.block
     if settings.text:
         say(settings.text)
-
-    slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
-
-    def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
-        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
-                  search=args.search, method=args.method)
 
     source, spacing, _ = exemplar_source(exemplar_mesh, settings.source_resolution, args.levels, args.seed,
                                          args.device, check=check_tiling, drop_degenerate=args.drop_degenerate,
@@ -583,7 +586,8 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         f"{engine}, {args.levels} levels, block {block}, seed {args.seed}, device {args.device or 'auto'}")
     if tiles == (1, 1):
         say("1x1 tiles: the whole target is one tile, run as one Dask task: the untiled synthesis's result "
-            "(--store and --tile-meshes write it in one chunk and one file)")
+            "(but for a height field's histogram matching, which tiles do not do yet; --store and --tile-meshes "
+            "write it in one chunk and one file)")
     elif args.scheduler is None and workers > tiles[0] * tiles[1]:
         say(f"--workers {workers}: at most {tiles[0] * tiles[1]} tiles run at once; the other workers wait")
 
