@@ -72,6 +72,22 @@ def _field(mesh, spacing: float):
 RELIEF_FAMILIES = ("bumps", "cobbles", "terrain")  # one connected slab with a relief on top
 
 
+def same_scale_picture(exemplar, output, path: Path) -> None:
+    """Exemplar beside a piece of the output of the exemplar's own footprint (faces whose
+    centre lies in the window around the output's centre), so that both render at one
+    scale: the command's own picture frames a larger output smaller, which makes every
+    feature look shrunk."""
+    from geosynth.files import write_image
+    from geosynth.render import render_mesh, side_by_side
+
+    half = (exemplar.bounds[1] - exemplar.bounds[0])[:2] / 2
+    centre = output.bounds.mean(axis=0)[:2]
+    inside = np.all(np.abs(output.triangles_center[:, :2] - centre) <= half, axis=1)
+    piece = output.submesh([np.nonzero(inside)[0]], append=True) if inside.any() else output
+    write_image(path, side_by_side([render_mesh(exemplar), render_mesh(piece)],
+                                   labels=["exemplar", "output: a piece of the exemplar's size"]))
+
+
 def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -> dict:
     """Feature ratios output / exemplar (measured as a relief for the slab families, as
     separate elements for the others) and the block distance against random."""
@@ -79,6 +95,7 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
     from geosynth.volume_features import compare_features, element_features
 
     a, b = load_mesh(exemplar), load_mesh(output)
+    same_scale_picture(a, b, output.parent.parent / "pictures" / f"{member.name}-same-scale.png")
     # the output is in the exemplar's units (same spacing as the source field)
     spacing = float(np.max(a.bounds[1] - a.bounds[0])) / 96
     fa, fb = _field(a, spacing), _field(b, spacing)
@@ -94,9 +111,22 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
 
 
 def _grid(uv: np.ndarray, h: np.ndarray, spacing: float):
+    """The heights on a grid (:func:`geosynth.relief_spectrum.heights_on_grid`), cropped to
+    the largest connected piece: a capture in two strips (a plane missing a band) has a
+    spectrum whose peaks are split by the gap's own (lobes at 1 / the strips' distance)."""
+    from scipy import ndimage
+
     from geosynth.relief_spectrum import heights_on_grid
 
-    return heights_on_grid(uv - uv.min(0), h, spacing)
+    grid, mask = heights_on_grid(uv - uv.min(0), h, spacing)
+    labels, n = ndimage.label(mask)
+    if n > 1:
+        largest = 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
+        rows, cols = np.nonzero(labels == largest)
+        box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+        keep = labels[box] == largest
+        grid, mask = np.where(keep, grid[box], np.nan), keep
+    return grid, mask
 
 
 def _split_scales(grid: np.ndarray, mask: np.ndarray, spacing: float, sigma: float):
@@ -212,12 +242,17 @@ def measure_complete(member: Member, output: Path) -> dict:
     pos = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
     done = v["completed"].astype(bool) if "completed" in v.dtype.names else np.zeros(len(pos), bool)
     uv, h, usable = _surface_uv(member, pos)
-    spacing = member.params["spacing"]
-    grids = []
-    for key, sel in (("captured", ~done & usable), ("completed", done & usable)):
+    parts = [("captured", ~done & usable), ("completed", done & usable)]
+    for key, sel in parts:
         if sel.sum() < 50:
             return {"error": f"{key}: {int(sel.sum())} usable vertices"}
-        grids.append(_grid(uv[sel], h[sel], spacing))
+    # one grid no finer than either part's samples: a grid finer than the completion's targets
+    # (spaced by the automatic choice) reads the interpolation's dimples as the relief's period
+    from scipy.spatial import cKDTree
+
+    spacing = max([member.params["spacing"]] + [float(np.median(cKDTree(uv[sel]).query(uv[sel], k=2)[0][:, 1]))
+                                                for _, sel in parts])
+    grids = [_grid(uv[sel], h[sel], spacing) for _, sel in parts]
     out = compare_reliefs(grids[0], grids[1], spacing)
     if member.params["relief"] != "ridges":
         out["angle_diff"] = math.nan
@@ -251,6 +286,7 @@ def run_member(member: Member, folder: Path, device: str, quick: bool, timeout: 
     try:
         if member.method == "volume":
             row.update(measure_volume(member, src, out, text))
+            png = png.with_name(f"{member.name}-same-scale.png")
         elif member.method == "pointtexture":
             row.update(measure_points(member, src, out, text))
         else:
