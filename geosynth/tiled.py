@@ -136,9 +136,9 @@ def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, f
 
     source, b, matcher = ex.sources[level], ex.blocks[level], _matcher(ex, level)
     if ex.method != "optimize":
-        from geosynth.volume import _synthesize_level
+        from geosynth.volume import synthesize_level
 
-        count, mean = _synthesize_level(source, target, b, matcher, False, None, False, "", False,
+        count, mean = synthesize_level(source, target, b, matcher, False, None, False, "", False,
                                         cut=ex.method == "graphcut", fixed=fixed)
         return {"matches": count, "iterations": 1, "mean_distance": mean, "stopped": "scan"}
     finest = level == grid.levels - 1
@@ -833,7 +833,7 @@ def synthesize_volume_tiled(
         method: as synthesize_volume (:data:`geosynth.volume.METHODS` or "auto": graphcut
             for a slab, optimize otherwise). The scans (graphcut, paper) run each phase-B
             tile and corner window with its neighbours' samples given
-            (``geosynth.volume._synthesize_level``'s ``fixed``).
+            (``geosynth.volume.synthesize_level``'s ``fixed``).
         tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
             tiled level's cores must hold its block plus the margin.
         workers: workers of the LocalCluster started when ``scheduler`` is None (or

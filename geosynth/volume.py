@@ -468,7 +468,7 @@ class Matcher:
         return self.origins[best], int(scores.numpy()[best])
 
 
-def _synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False,
+def synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False,
                       fixed=None):
     """One level of the scan (the paper's copying, or graphcut with ``cut``), in place on
     ``target``; returns (blocks matched, mean SSD per sample). ``fixed``: None, or a
@@ -935,7 +935,7 @@ def synthesize_volume(
                 target = match_histogram(target, s, per_slice=True)
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
-            count, mean_dist = _synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
+            count, mean_dist = synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
                                                  cut=method == "graphcut" and not baseline)
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
