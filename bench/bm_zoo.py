@@ -303,12 +303,14 @@ def _within(x) -> bool:
 
 def verdict(row: dict) -> bool:
     """The issue's per-member target: size and height within 15%, better than random (where
-    printed), colour kept; M4 ridges' orientation within 10 degrees."""
+    printed), separate elements >= 80% whole, colour kept; ridges' orientation within 10 degrees."""
     if "error" in row:
         return False
     ok = _within(row.get("size")) and _within(row.get("height"))
     if math.isfinite(row.get("vs_random", math.nan)):
         ok &= row["vs_random"] < 1
+    if row.get("kind") == "elements":  # separate elements: >= 80% of the output's are whole copies
+        ok &= row.get("whole", 0) >= 0.8
     if row.get("colour_in"):
         ok &= bool(row.get("colour_out")) and row.get("colour_hist", 0) >= 0.8
     if math.isfinite(row.get("angle_diff", math.nan)):
