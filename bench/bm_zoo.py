@@ -70,20 +70,30 @@ def _field(mesh, spacing: float):
 
 
 RELIEF_FAMILIES = ("bumps", "cobbles", "terrain")  # one connected slab with a relief on top
+TUBE_FAMILIES = ("tubes",)  # elements that run across the footprint: none is whole, so their size is the thickness
+SPANNING_KEPT = 0.9  # tubes stay connected: the output's volume share in tubes across >= this x the exemplar's
 
 
 def same_scale_picture(exemplar, output, path: Path) -> None:
-    """Exemplar beside a piece of the output of the exemplar's own footprint (faces whose
-    centre lies in the window around the output's centre), so that both render at one
+    """Exemplar beside a piece of the output of the exemplar's own footprint (the elements,
+    or for one connected relief the faces, whose centre lies in the window around the
+    output's centre), so that both render at one
     scale: the command's own picture frames a larger output smaller, which makes every
     feature look shrunk."""
+    import trimesh
+
     from geosynth.files import write_image
     from geosynth.render import render_mesh, side_by_side
 
     half = (exemplar.bounds[1] - exemplar.bounds[0])[:2] / 2
     centre = output.bounds.mean(axis=0)[:2]
-    inside = np.all(np.abs(output.triangles_center[:, :2] - centre) <= half, axis=1)
-    piece = output.submesh([np.nonzero(inside)[0]], append=True) if inside.any() else output
+    parts = output.split(only_watertight=False)
+    if len(parts) > 1:  # separate elements: the whole ones whose centre is in the window (a cut would read as broken)
+        keep = [p for p in parts if np.all(np.abs(p.bounds.mean(axis=0)[:2] - centre) <= half)]
+        piece = trimesh.util.concatenate(keep) if keep else output
+    else:
+        inside = np.all(np.abs(output.triangles_center[:, :2] - centre) <= half, axis=1)
+        piece = output.submesh([np.nonzero(inside)[0]], append=True) if inside.any() else output
     write_image(path, side_by_side([render_mesh(exemplar), render_mesh(piece)],
                                    labels=["exemplar", "output: a piece of the exemplar's size"]))
 
@@ -105,9 +115,11 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
     r = compare_features(ea, eb)
     synth = _float(r"\n\s*synthesis\s.*?mean\s+([\d.]+)", printed)
     rand = _float(r"\n\s*random tiling\s.*?mean\s+([\d.]+)", printed)
-    return {"kind": "relief" if ea.relief else "elements", "size": r["diameter"] if not ea.relief else r["period"],
-            "height": r["height"], "thickness": r["thickness"], "whole": r["whole"],
-            "whole_exemplar": ea.whole_fraction, "vs_random": synth / rand if rand else math.nan}
+    kind = "relief" if ea.relief else "tubes" if member.family in TUBE_FAMILIES else "elements"
+    size = {"relief": r["period"], "tubes": r["thickness"], "elements": r["diameter"]}[kind]
+    return {"kind": kind, "size": size, "height": r["height"], "thickness": r["thickness"], "whole": r["whole"],
+            "spanning": r["spanning"], "whole_exemplar": ea.whole_fraction,
+            "vs_random": synth / rand if rand else math.nan}
 
 
 def _grid(uv: np.ndarray, h: np.ndarray, spacing: float):
@@ -267,7 +279,12 @@ def measure_complete(member: Member, output: Path) -> dict:
 # ------------------------------------------------------------------ runs
 
 
-def run_member(member: Member, folder: Path, device: str, quick: bool, timeout: float) -> dict:
+def run_member(member: Member, folder: Path, device: str, quick: bool, timeout: float,
+               measure_only: bool = False) -> dict:
+    """Run one member's command (``measure_only``: take the output, log and time a previous
+    run left in ``folder``) and measure its result; the row of the table."""
+    if measure_only:
+        return measure_member(member, folder)
     src = member.write(folder / "inputs")
     out = folder / "outputs" / f"{member.name}.ply"
     png = folder / "pictures" / f"{member.name}.png"
@@ -280,8 +297,25 @@ def run_member(member: Member, folder: Path, device: str, quick: bool, timeout: 
            "seconds": seconds, "command": "geosynth " + " ".join(args)}
     (folder / "logs").mkdir(parents=True, exist_ok=True)
     (folder / "logs" / f"{member.name}.txt").write_text(text)
-    if rc != 0:
-        row["error"] = text.strip().splitlines()[-1] if text.strip() else f"exit {rc}"
+    (folder / "logs" / f"{member.name}.json").write_text(json.dumps(row))
+    return measure_member(member, folder, row, text)
+
+
+def measure_member(member: Member, folder: Path, row: dict | None = None, text: str | None = None) -> dict:
+    """The row of a run whose files are in ``folder`` (its log's json when ``row`` is None)."""
+    src = member.write(folder / "inputs")
+    out = folder / "outputs" / f"{member.name}.ply"
+    png = folder / "pictures" / f"{member.name}.png"
+    if row is None:
+        log = folder / "logs" / f"{member.name}.json"
+        if not log.exists():
+            return {"member": member.name, "family": member.family, "writer": member.params["writer"], "rc": -1,
+                    "seconds": math.nan, "error": f"no previous run in {folder}"}
+        row = json.loads(log.read_text())
+        text = (folder / "logs" / f"{member.name}.txt").read_text()
+    row = dict(row)
+    if row["rc"] != 0:
+        row["error"] = text.strip().splitlines()[-1] if text.strip() else f"exit {row['rc']}"
         return row
     try:
         if member.method == "volume":
@@ -303,7 +337,8 @@ def _within(x) -> bool:
 
 def verdict(row: dict) -> bool:
     """The issue's per-member target: size and height within 15%, better than random (where
-    printed), separate elements >= 80% whole, colour kept; ridges' orientation within 10 degrees."""
+    printed), separate elements >= 80% whole, tubes as connected as the exemplar's, colour kept;
+    ridges' orientation within 10 degrees."""
     if "error" in row:
         return False
     ok = _within(row.get("size")) and _within(row.get("height"))
@@ -311,6 +346,8 @@ def verdict(row: dict) -> bool:
         ok &= row["vs_random"] < 1
     if row.get("kind") == "elements":  # separate elements: >= 80% of the output's are whole copies
         ok &= row.get("whole", 0) >= 0.8
+    if row.get("kind") == "tubes":  # tubes stay connected: as much of the volume runs across as in the exemplar
+        ok &= row.get("spanning", 0) >= SPANNING_KEPT
     if row.get("colour_in"):
         ok &= bool(row.get("colour_out")) and row.get("colour_hist", 0) >= 0.8
     if math.isfinite(row.get("angle_diff", math.nan)):
@@ -353,7 +390,7 @@ def _fmt(x, spec=".2f") -> str:
 
 
 def table(method: str, rows: list[dict]) -> list[str]:
-    cols = {"volume": ["kind", "size", "height", "thickness", "whole", "vs_random"],
+    cols = {"volume": ["kind", "size", "height", "thickness", "whole", "spanning", "vs_random"],
             "pointtexture": ["size", "height", "base", "angle_diff", "vs_random"],
             "complete": ["size", "height", "base", "angle_diff", "colour_in", "colour_out", "colour_hist"]}[method]
     lines = [f"| member | writer | {' | '.join(cols)} | time s | target met |",
@@ -375,6 +412,8 @@ def _options(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="the zoo's seed (default 0)")
     parser.add_argument("--timeout", type=float, default=900, help="seconds per run (default 900)")
     parser.add_argument("--folder", default="bench/out/zoo", help="inputs, outputs, pictures, logs, contact sheets")
+    parser.add_argument("--measure-only", action="store_true",
+                        help="measure the outputs a previous run left in --folder again (a changed measure)")
 
 
 def options(argv=None):
@@ -394,7 +433,7 @@ def main(argv=None) -> int:
     for method in args.methods.split(","):
         rows = []
         for member in zoo(method, args.first + count, args.seed)[args.first:]:
-            row = run_member(member, folder, device, args.quick, args.timeout)
+            row = run_member(member, folder, device, args.quick, args.timeout, args.measure_only)
             rows.append(row)
             print(json.dumps({k: v for k, v in row.items() if k not in ("command", "png")}), flush=True)
         report += [f"## {method}", ""] + table(method, rows) + [""]

@@ -77,6 +77,9 @@ class ElementFeatures:
         ends: free ends of the inside's skeleton (a broken tube or ring has two)
             away from the x/y borders, per world unit^2 of footprint (elements only;
             nan for a relief).
+        spanning: share of the inside volume in elements that reach two opposite x or
+            y sides of the material's bounding box (tubes across the footprint; a tube
+            broken into pieces lowers it; elements only, nan for a relief).
     """
 
     count: int
@@ -89,6 +92,7 @@ class ElementFeatures:
     sizes: tuple = ()
     eulers: tuple = ()
     ends: float = math.nan
+    spanning: float = math.nan
 
 
 def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -108,6 +112,28 @@ def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     frac = np.where(above > top, -v / np.maximum(va - v, 1e-12), 0.5)
     h = np.where(has, top + np.clip(frac, 0.0, 1.0), -0.5)
     return h, has
+
+
+def _footprint(h: np.ndarray, has: np.ndarray) -> np.ndarray:
+    """The height map cropped to the box of rows and columns that are (nearly) all
+    material, less one sample each side: the grid's padding columns hold no surface
+    (-0.5, the grid's bottom) and a field with more padding below the plate would
+    otherwise read as a higher, wider relief. The whole map when no such box exists."""
+    rows, cols = np.flatnonzero(has.any(axis=1)), np.flatnonzero(has.any(axis=0))
+    if rows.size < 10 or cols.size < 10:
+        return h
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    for _ in range(2):  # the material's bounding box, then its nearly full rows, then columns
+        r = np.flatnonzero(has[y0:y1, x0:x1].mean(axis=1) >= 0.98)
+        if r.size < 10:
+            return h
+        y0, y1 = y0 + r[0], y0 + r[-1] + 1
+        c = np.flatnonzero(has[y0:y1, x0:x1].mean(axis=0) >= 0.98)
+        if c.size < 10:
+            return h
+        x0, x1 = x0 + c[0], x0 + c[-1] + 1
+    box = h[y0 + 1:y1 - 1, x0 + 1:x1 - 1]
+    return box if min(box.shape) >= 8 else h
 
 
 def _radial_power(h: np.ndarray):
@@ -229,27 +255,49 @@ def _thickness(field: np.ndarray) -> float:
 
 def _free_ends(inside: np.ndarray, margin: int = 3) -> float:
     """Skeleton end points (one 26-neighbour on the skeleton) of the inside, at least
-    ``margin`` samples from the x/y borders, per sample^2 of the footprint within."""
+    ``margin`` samples inside the x/y sides of the material's bounding box (where the
+    material was cut, not broken), per sample^2 of the footprint within."""
     from skimage.morphology import skeletonize
 
-    ny, nx = inside.shape[1:]
-    if min(ny, nx) <= 2 * margin:
+    cols = inside.any(axis=0)
+    ys, xs = np.flatnonzero(cols.any(axis=1)), np.flatnonzero(cols.any(axis=0))
+    if ys.size <= 2 * margin or xs.size <= 2 * margin:
         return math.nan
+    y0, y1, x0, x1 = ys[0] + margin, ys[-1] + 1 - margin, xs[0] + margin, xs[-1] + 1 - margin
     skel = skeletonize(inside).astype(bool)
     neighbours = ndimage.convolve(skel.astype(np.uint8), np.ones((3, 3, 3), np.uint8), mode="constant") - 1
     ends = skel & (neighbours == 1)
-    count = int(ends[:, margin:ny - margin, margin:nx - margin].sum())
-    return count / float((ny - 2 * margin) * (nx - 2 * margin))
+    count = int(ends[:, y0:y1, x0:x1].sum())
+    return count / float((y1 - y0) * (x1 - x0))
 
 
 def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1)) -> np.ndarray:
-    """(n + 1,) bool: which labels touch an x or y border of the grid."""
+    """(n + 1,) bool: which labels reach an x or y side of the material's bounding box
+    (the grid's border when the material fills it; an element cut by the side of an
+    output padded inside its grid is cut all the same)."""
     touch = np.zeros(n + 1, bool)
+    boxes = ndimage.find_objects(labels, max_label=n)
     for ax in axes_yx:
-        for idx in (0, -1):
-            touch[np.unique(np.take(labels, idx, axis=ax))] = True
-    touch[0] = False
+        ax = ax % labels.ndim
+        lo = min(b[ax].start for b in boxes if b is not None)
+        hi = max(b[ax].stop for b in boxes if b is not None)
+        for k, b in enumerate(boxes, start=1):
+            if b is not None and (b[ax].start <= lo or b[ax].stop >= hi):
+                touch[k] = True
     return touch
+
+
+def _spanning(labels: np.ndarray, n: int, volume: np.ndarray) -> float:
+    """Share of ``volume`` (per label 1..n) in labels that reach both x sides or both
+    y sides of the material's bounding box."""
+    boxes = ndimage.find_objects(labels, max_label=n)
+    span = np.zeros(n, bool)
+    for ax in (1, 2):
+        lo = min(b[ax].start for b in boxes if b is not None)
+        hi = max(b[ax].stop for b in boxes if b is not None)
+        span |= np.array([b is not None and b[ax].start <= lo and b[ax].stop >= hi for b in boxes])
+    total = float(volume.sum())
+    return float(volume[span].sum() / total) if total > 0 else math.nan
 
 
 def _crossings(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int, up: bool) -> np.ndarray:
@@ -280,7 +328,8 @@ def _crossings(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int
 
 def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int):
     """(count, whole fraction, weighted median diameter, median z-extent, whole
-    elements' volumes, their Euler numbers), lengths in samples, of the 3D components."""
+    elements' volumes, their Euler numbers, the spanning volume share), lengths in
+    samples, of the 3D components."""
     idx = np.arange(1, n + 1)
     # partial volume of each sample from its distance (a plane through the cell): the
     # inside samples and the outside layer next to them, assigned to the nearest label
@@ -297,7 +346,7 @@ def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int)
     pick = whole if whole.any() else np.ones(n, bool)
     eulers = _eulers(labels, np.flatnonzero(whole) + 1)
     return (n, float(whole.mean()), _weighted_median(diameter[pick], volume[pick]), float(np.median(extent[pick])),
-            volume[whole], eulers)
+            volume[whole], eulers, _spanning(labels, n, volume))
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
@@ -378,21 +427,23 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
         sizes = np.bincount(labels.ravel())[1:]
         largest = labels == (1 + int(np.argmax(sizes)))
         slab = bool(largest.any(axis=0).mean() >= RELIEF_COVER)
-    ends = math.nan
+    ends = spanning = math.nan
+    if slab:
+        h = _footprint(h, has)
     period = _period(h, mean=bool(slab))
     if slab:
         count, whole, _, sizes, eulers = _bumps(h)
         diameter = _correlation_width(h)
         height, power = float(np.std(h)), 2
     else:
-        count, whole, diameter, height, sizes, eulers = _elements(f, inside, labels, n)
+        count, whole, diameter, height, sizes, eulers, spanning = _elements(f, inside, labels, n)
         power = 3
         ends = _free_ends(inside) / s**2
     scale = lambda v: v * s if math.isfinite(v) else v  # noqa: E731
     order = np.argsort(sizes, kind="stable")
     return ElementFeatures(int(count), whole, scale(diameter), scale(height), scale(thickness), scale(period),
                            bool(slab), tuple(float(v) * s**power for v in np.asarray(sizes)[order]),
-                           tuple(int(v) for v in np.asarray(eulers)[order]), ends)
+                           tuple(int(v) for v in np.asarray(eulers)[order]), ends, spanning)
 
 
 def _ratio(a: float, b: float) -> float:
@@ -433,6 +484,7 @@ def compare_features(exemplar: ElementFeatures, output: ElementFeatures) -> dict
            for k in ("diameter", "height", "thickness", "period", "whole_fraction")}
     out["whole"] = kept_whole(exemplar, output)
     out["ends"] = _ratio(exemplar.ends, output.ends)
+    out["spanning"] = _ratio(exemplar.spanning, output.spanning)
     return out
 
 
@@ -443,6 +495,8 @@ def format_features(exemplar: ElementFeatures, output: ElementFeatures) -> str:
     for k in ("diameter", "height", "thickness", "period"):
         parts.append(f"{k} {getattr(exemplar, k):.3g} -> {getattr(output, k):.3g} (x{r[k]:.2f})")
     parts.append(f"elements kept whole {r['whole']:.0%}")
+    if not exemplar.relief:
+        parts.append(f"volume in elements across {exemplar.spanning:.0%} -> {output.spanning:.0%}")
     if not exemplar.relief:
         parts.append(f"free ends {exemplar.ends:.3g} -> {output.ends:.3g} per unit^2")
     return ", ".join(parts)

@@ -142,3 +142,35 @@ def test_border_slivers_dropped():
     assert n == 1
     assert (out[:, :9, :4] >= 128).all() and (codes[:, :9, :4] < 128).any()
     assert np.array_equal(out[:, 10:, :], codes[:, 10:, :])
+
+
+def _padded(f: np.ndarray, pad: int) -> np.ndarray:
+    """``f`` inside a grid ``pad`` samples larger on every x/y side and above (empty space),
+    as a mesh's field padded around its bounds is."""
+    out = np.full((f.shape[0] + pad, f.shape[1] + 2 * pad, f.shape[2] + 2 * pad), 9.0, np.float32)
+    out[:f.shape[0], pad:pad + f.shape[1], pad:pad + f.shape[2]] = f
+    return out
+
+
+def test_measures_ignore_the_grids_empty_padding():
+    """A relief and a slab of elements measure the same inside a padded grid: the padding's
+    empty columns are not read as a low relief, and an element cut by the material's side
+    is not whole (the grid's border is not where the material ends): at most the 3 x 3
+    discs away from the cut sides are."""
+    terrain = _terrain()
+    a, b = element_features(terrain, slab=True), element_features(_padded(terrain, 6), slab=True)
+    assert abs(b.height / a.height - 1) < 0.05 and abs(b.diameter / a.diameter - 1) < 0.1, (a, b)
+    discs = _discs()
+    cut = discs[:, 5:, 5:]  # the first row and column of discs cut in half by the material's side
+    e, p = element_features(cut, slab=False), element_features(_padded(cut, 6), slab=False)
+    assert e.count == p.count == 16 and e.whole_fraction == p.whole_fraction <= 9 / 16, (e, p)
+
+
+def test_spanning_share_of_tubes():
+    """Tubes across the footprint: all the volume spans it; cut into pieces it does not."""
+    n, zs = 40, 8
+    z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
+    tubes = np.min([np.hypot(y - c, z - 4) - 2.0 for c in (5.0, 15.0, 25.0, 35.0)], axis=0)
+    assert element_features(_padded(tubes, 4), slab=False).spanning == 1.0
+    broken = np.maximum(tubes, -(np.abs(x - 20) - 1.5))  # a gap across every tube at x = 20
+    assert element_features(_padded(broken, 4), slab=False).spanning == 0.0
