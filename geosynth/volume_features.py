@@ -118,7 +118,8 @@ def _footprint(h: np.ndarray, has: np.ndarray) -> np.ndarray:
     """The height map cropped to the box of rows and columns that are (nearly) all
     material, less one sample each side: the grid's padding columns hold no surface
     (-0.5, the grid's bottom) and a field with more padding below the plate would
-    otherwise read as a higher, wider relief. The whole map when no such box exists."""
+    otherwise read as a higher, wider relief. The whole map when the material fills the
+    grid or no such box exists."""
     rows, cols = np.flatnonzero(has.any(axis=1)), np.flatnonzero(has.any(axis=0))
     if rows.size < 10 or cols.size < 10:
         return h
@@ -132,6 +133,8 @@ def _footprint(h: np.ndarray, has: np.ndarray) -> np.ndarray:
         if c.size < 10:
             return h
         x0, x1 = x0 + c[0], x0 + c[-1] + 1
+    if (y0, y1, x0, x1) == (0, h.shape[0], 0, h.shape[1]):
+        return h  # the material fills the grid
     box = h[y0 + 1:y1 - 1, x0 + 1:x1 - 1]
     return box if min(box.shape) >= 8 else h
 
@@ -271,16 +274,17 @@ def _free_ends(inside: np.ndarray, margin: int = 3) -> float:
     return count / float((y1 - y0) * (x1 - x0))
 
 
-def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1)) -> np.ndarray:
+def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1), material: bool = True) -> np.ndarray:
     """(n + 1,) bool: which labels reach an x or y side of the material's bounding box
-    (the grid's border when the material fills it; an element cut by the side of an
-    output padded inside its grid is cut all the same)."""
+    (``material``; the grid's border when the material fills it: an element cut by the
+    side of an output padded inside its grid is cut all the same, and an exemplar's
+    elements along its sides are not counted whole either) or of the grid."""
     touch = np.zeros(n + 1, bool)
     boxes = ndimage.find_objects(labels, max_label=n)
     for ax in axes_yx:
         ax = ax % labels.ndim
-        lo = min(b[ax].start for b in boxes if b is not None)
-        hi = max(b[ax].stop for b in boxes if b is not None)
+        lo = min(b[ax].start for b in boxes if b is not None) if material else 0
+        hi = max(b[ax].stop for b in boxes if b is not None) if material else labels.shape[ax]
         for k, b in enumerate(boxes, start=1):
             if b is not None and (b[ax].start <= lo or b[ax].stop >= hi):
                 touch[k] = True
@@ -385,7 +389,7 @@ def _bumps(h: np.ndarray):
         return none
     idx = np.arange(1, n + 1)
     area = np.asarray(ndimage.sum(np.ones_like(h), labels, idx), np.float64)
-    touch = _touching(labels, n, (0, 1))[1:]
+    touch = _touching(labels, n, (0, 1), material=False)[1:]  # the map is the footprint already
     whole = ~touch
     pick = whole if whole.any() else np.ones(n, bool)
     return (n, float(whole.mean()), _weighted_median(2.0 * np.sqrt(area[pick] / math.pi), area[pick]), area[whole],

@@ -20,7 +20,8 @@ def spheres(radius: float, spacing: float = 0.1, shift=(0.0, 0.0, 0.0), grid: in
 def test_spheres_of_known_radius(radius):
     f = element_features(spheres(radius), spacing=0.1)
     d = 2 * radius * 0.1
-    assert f.count == 16 and f.whole_fraction == 1.0 and not f.relief
+    # the 2 x 2 inside ones are whole: the others reach the material's sides, where an output is cut
+    assert f.count == 16 and f.whole_fraction == 0.25 and not f.relief
     assert f.diameter == pytest.approx(d, rel=0.06)
     assert f.height == pytest.approx(d, rel=0.06)
     assert f.thickness == pytest.approx(d, rel=0.06)
