@@ -80,6 +80,10 @@ class ElementFeatures:
         spanning: share of the inside volume in elements that reach two opposite x or
             y sides of the material's bounding box (tubes across the footprint; a tube
             broken into pieces lowers it; elements only, nan for a relief).
+        span: the whole elements' volume-weighted median horizontal extent (the larger
+            of their x and y bounding-box sides, in whole inside samples), world units:
+            the side a block across must have to hold a whole element (elements only;
+            nan for a relief or when no element is whole).
     """
 
     count: int
@@ -93,6 +97,7 @@ class ElementFeatures:
     eulers: tuple = ()
     ends: float = math.nan
     spanning: float = math.nan
+    span: float = math.nan
 
 
 def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -332,8 +337,8 @@ def _crossings(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int
 
 def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int):
     """(count, whole fraction, weighted median diameter, median z-extent, whole
-    elements' volumes, their Euler numbers, the spanning volume share), lengths in
-    samples, of the 3D components."""
+    elements' volumes, their Euler numbers, the spanning volume share, weighted median
+    horizontal span of the whole elements), lengths in samples, of the 3D components."""
     idx = np.arange(1, n + 1)
     # partial volume of each sample from its distance (a plane through the cell): the
     # inside samples and the outside layer next to them, assigned to the nearest label
@@ -349,8 +354,13 @@ def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int)
     whole = ~touch
     pick = whole if whole.any() else np.ones(n, bool)
     eulers = _eulers(labels, np.flatnonzero(whole) + 1)
+    # the larger horizontal side of each bounding box (whole elements only: an element cut by
+    # the box, or a network crossing it, has no size a block could hold)
+    boxes = ndimage.find_objects(labels, n)
+    span = np.array([max(b[1].stop - b[1].start, b[2].stop - b[2].start) if b is not None else 0 for b in boxes],
+                    np.float64)
     return (n, float(whole.mean()), _weighted_median(diameter[pick], volume[pick]), float(np.median(extent[pick])),
-            volume[whole], eulers, _spanning(labels, n, volume))
+            volume[whole], eulers, _spanning(labels, n, volume), _weighted_median(span[whole], volume[whole]))
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
@@ -431,7 +441,7 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
         sizes = np.bincount(labels.ravel())[1:]
         largest = labels == (1 + int(np.argmax(sizes)))
         slab = bool(largest.any(axis=0).mean() >= RELIEF_COVER)
-    ends = spanning = math.nan
+    ends = spanning = span = math.nan
     if slab:
         h = _footprint(h, has)
     period = _period(h, mean=bool(slab))
@@ -440,14 +450,14 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
         diameter = _correlation_width(h)
         height, power = float(np.std(h)), 2
     else:
-        count, whole, diameter, height, sizes, eulers, spanning = _elements(f, inside, labels, n)
+        count, whole, diameter, height, sizes, eulers, spanning, span = _elements(f, inside, labels, n)
         power = 3
         ends = _free_ends(inside) / s**2
     scale = lambda v: v * s if math.isfinite(v) else v  # noqa: E731
     order = np.argsort(sizes, kind="stable")
     return ElementFeatures(int(count), whole, scale(diameter), scale(height), scale(thickness), scale(period),
                            bool(slab), tuple(float(v) * s**power for v in np.asarray(sizes)[order]),
-                           tuple(int(v) for v in np.asarray(eulers)[order]), ends, spanning)
+                           tuple(int(v) for v in np.asarray(eulers)[order]), ends, spanning, scale(span))
 
 
 def _ratio(a: float, b: float) -> float:

@@ -55,6 +55,16 @@ def test_separate_elements_kept_whole_over_seeds():
         assert abs(r["diameter"] - 1) <= 0.15 and abs(r["height"] - 1) <= 0.15, (seed, r)
 
 
+def test_element_span():
+    """The whole elements' horizontal span is their diameter to a sample; a relief and a
+    tube crossing the box (no whole element) have none."""
+    for radius in (2.5, 3.5):
+        assert abs(element_features(_discs(radius=radius)).span - 2 * radius) <= 1.0
+    assert math.isnan(element_features(_terrain()).span)
+    z, y, x = np.mgrid[0:8, 0:32, 0:32].astype(np.float32)
+    assert math.isnan(element_features(np.sqrt((z - 3.6) ** 2 + (y - 16.3) ** 2) - 2.0).span)
+
+
 def test_relief_height_kept_by_histogram_matching(monkeypatch):
     """Texture optimization's votes (and the upsampling between levels) lower a
     terrain's relief; matching the code histogram after the coarse levels and the
