@@ -71,6 +71,7 @@ def _field(mesh, spacing: float):
 
 RELIEF_FAMILIES = ("bumps", "cobbles", "terrain")  # one connected slab with a relief on top
 TUBE_FAMILIES = ("tubes",)  # elements that run across the footprint: none is whole, so their size is the thickness
+MEASURE_SAMPLES = 160  # samples across the exemplar's longest side where a volume is measured
 SPANNING_KEPT = 0.9  # tubes stay connected: the output's volume share in tubes across >= this x the exemplar's
 
 
@@ -106,8 +107,9 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
 
     a, b = load_mesh(exemplar), load_mesh(output)
     same_scale_picture(a, b, output.parent.parent / "pictures" / f"{member.name}-same-scale.png")
-    # the output is in the exemplar's units (same spacing as the source field)
-    spacing = float(np.max(a.bounds[1] - a.bounds[0])) / 96
+    # one world spacing for both, fine enough that tilted rings nearly touching stay apart
+    # (at 96 samples across, the knit's tori fused in the measure and read as broken)
+    spacing = float(np.max(a.bounds[1] - a.bounds[0])) / MEASURE_SAMPLES
     fa, fb = _field(a, spacing), _field(b, spacing)
     relief = member.family in RELIEF_FAMILIES
     ea = element_features(fa.values, float(fa.spacing[0]), slab=relief)

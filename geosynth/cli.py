@@ -1089,7 +1089,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"resolution levels, 1 to {MAX_LEVELS} (default 3)")
     p.add_argument("--block", type=_int_type(2, power_of_two=True, each=True), nargs="+", default=None, metavar="B",
                    help="finest block size, or one per level (coarsest first); powers of two >= 2 (default: 16, "
-                        "32 where the source resolution was doubled for thin features)")
+                        "32 where the source resolution was doubled for thin features, or larger to hold a whole "
+                        "separate element)")
     p.add_argument("--source-resolution", type=_int_type(8), default=None,
                    help="exemplar samples along its longest side, >= 8 (default: 64, or 128 when the exemplar's "
                         "thinnest features span under 3 samples at 64; the size then doubles too, keeping its world "

@@ -34,3 +34,8 @@ M1_DEFAULT_BLOCK = 16
 # (18% of the whole ones changed), at 128 with block 32 they were kept (2%). The built-ins'
 # thinnest (median ridge thickness at 64): rings 3.2, domes 3.2, fibers 3.6, chainmail 3.8.
 M1_MIN_FEATURE_SAMPLES = 3.0
+# A block must hold a whole element and this margin (samples) to copy it whole: separate
+# elements wider than the block come out as arcs. geosynth.volume.choose_settings raises the
+# finest block to the power of two that holds the exemplar's whole elements' span plus it,
+# where the source still holds two such blocks across.
+M1_ELEMENT_MARGIN_SAMPLES = 2.0

@@ -45,7 +45,8 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
-from geosynth.constants import M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION, M1_MIN_FEATURE_SAMPLES
+from geosynth.constants import (M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION, M1_ELEMENT_MARGIN_SAMPLES,
+                                M1_MIN_FEATURE_SAMPLES)
 from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
@@ -1002,8 +1003,12 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
     matching and marching cubes; a thinner exemplar gets twice the resolution, the
     block twice the samples (the same world span: the layout it copies is the one that
     worked at 64) and a size given as samples twice the samples (the world extent the
-    size meant at the default resolution). Given values are kept: a given resolution
-    is not measured; a given block is kept whatever the resolution.
+    size meant at the default resolution). Separate elements (rings, washers: whole
+    ones, :attr:`~geosynth.volume_features.ElementFeatures.span`) wider than that block
+    less ``M1_ELEMENT_MARGIN_SAMPLES`` get the power of two that holds one with the
+    margin, where the source still holds two such blocks across (and the target one):
+    a block narrower than an element copies arcs of it. Given values are kept: a given
+    resolution is not measured; a given block is kept whatever the resolution.
 
     Args:
         mesh: the exemplar (trimesh.Trimesh, checked).
@@ -1029,26 +1034,53 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
     grid = exemplar_grid(mesh, base, multiple=2 ** (levels - 1))
     field = mesh_distance(mesh, field=grid, drop_degenerate=drop_degenerate, device=device)
     spacing = float(field.spacing[0])
-    thickness = element_features(field.values, spacing).thickness
+    features = element_features(field.values, spacing)
+    thickness = features.thickness
     samples = thickness / spacing if math.isfinite(thickness) else math.inf
     factor = 2 if samples < M1_MIN_FEATURE_SAMPLES else 1
     why = (f"thinnest feature {thickness:.3g} = {samples:.1f} samples at source resolution {base} "
            f"({'under' if factor > 1 else 'at least'} {M1_MIN_FEATURE_SAMPLES:g})")
     chosen_block = M1_DEFAULT_BLOCK * factor if block is None else block
+    span_note = ""
+    if block is None and math.isfinite(features.span):
+        need, cap = _element_block(mesh, features.span / spacing * factor, base * factor, _scaled_size(size, factor),
+                                   levels)
+        if chosen_block < need <= cap:  # an element the source cannot hold twice across gains nothing
+            chosen_block = need
+            span_note = (f"; whole elements {features.span / spacing * factor:.0f} samples across at "
+                         f"{base * factor} -> block {need} (holds one and {M1_ELEMENT_MARGIN_SAMPLES:g} samples)")
     note = ""
-    if factor > 1 and fits is not None and not fits(_scaled_size(size, factor), base * factor, chosen_block):
-        factor, chosen_block = 1, (M1_DEFAULT_BLOCK if block is None else block)
-        note = f"; {base * 2} would not fit in memory, so {base} (thin features may break)"
+    if (factor > 1 or span_note) and fits is not None and not fits(_scaled_size(size, factor), base * factor,
+                                                                   chosen_block):
+        if span_note:
+            note = f"; block {chosen_block} would not fit in memory, so {M1_DEFAULT_BLOCK * factor}"
+            chosen_block, span_note = M1_DEFAULT_BLOCK * factor, ""
+        if factor > 1 and not fits(_scaled_size(size, factor), base * factor, chosen_block):
+            factor, chosen_block = 1, (M1_DEFAULT_BLOCK if block is None else block)
+            note = f"; {base * 2} would not fit in memory, so {base} (thin features may break)"
     resolution = base * factor
     new_size = _scaled_size(size, factor)
     parts = [f"source resolution {resolution}"]
-    parts.append(f"block {chosen_block}" + (" (given)" if block is not None else
+    parts.append(f"block {chosen_block}" + (" (given)" if block is not None else "" if span_note else
                                            " (the same world span as 16 at 64)" if factor > 1 else ""))
     if factor > 1:
         shown = new_size if np.ndim(new_size) == 0 else " x ".join(str(v) for v in tuple(new_size)[::-1])
         parts.append(f"size {shown} samples (the world extent of the size given, at resolution {base})")
-    text = f"settings: {why} -> " + ", ".join(parts) + note
+    text = f"settings: {why}{span_note} -> " + ", ".join(parts) + note
     return Settings(resolution, chosen_block, new_size, float(thickness), text, field if factor == 1 else None)
+
+
+def _element_block(mesh, span: float, resolution: int, size, levels: int) -> tuple[int, int]:
+    """(the power of two that holds an element ``span`` samples across plus
+    M1_ELEMENT_MARGIN_SAMPLES, the largest block the synthesis can use: a power of two
+    at most half the source across, so that the finest level keeps candidates, and at most
+    the target across; for an exemplar that is not a slab, along z too)."""
+    need = 1 << int(math.ceil(math.log2(max(1.0, span + M1_ELEMENT_MARGIN_SAMPLES))))
+    shape, _, _ = _exemplar_grid_geometry(mesh, resolution, multiple=2 ** (levels - 1))
+    target = target_size(size, shape, levels)
+    axes = slice(1, None) if is_slab(shape, target) else slice(None)
+    room = min(min(v // 2 for v in shape[axes]), min(target[axes]))
+    return need, 1 << max(0, room.bit_length() - 1)
 
 
 def _fits_geometry(mesh, size, resolution, levels, block, search, smooth, quality_samples, method, slab) -> bool:
@@ -1143,7 +1175,8 @@ def synthesize_geometry(
             ``block`` and the size by :func:`choose_settings` (64, or 128 for thin
             features, the size then doubled to keep its world extent).
         block: as in :func:`synthesize_volume`; None (default): 16, or 32 where the
-            source resolution was doubled (the same world span).
+            source resolution was doubled (the same world span), or larger where the
+            exemplar's separate elements need it (:func:`choose_settings`).
         band: the quantization band in samples (None: half the finest block).
         smooth: Taubin smoothing iterations of the output mesh (0: none).
         quality_samples: blocks sampled each way for the quality numbers.

@@ -106,14 +106,14 @@ def test_match_histogram():
         assert all(len(np.unique(o[b == c])) == 1 for c in np.unique(b))
 
 
-def _washers(height: float):
+def _washers(height: float, cells: int = 4, spacing: float = 0.8):
     import trimesh
 
     parts = []
-    for i in range(4):
-        for j in range(4):
+    for i in range(cells):
+        for j in range(cells):
             w = trimesh.creation.annulus(r_min=0.15, r_max=0.3, height=height)
-            w.apply_translation([0.8 * i, 0.8 * j, 0])
+            w.apply_translation([spacing * i, spacing * j, 0])
             parts.append(w)
     return trimesh.util.concatenate(parts)
 
@@ -135,6 +135,10 @@ def test_settings_follow_the_thinnest_feature():
     refused = choose_settings(_washers(0.05), 48, 2, fits=lambda size, res, block: False)
     assert (refused.source_resolution, refused.block, refused.size) == (64, 16, 48)
     assert "would not fit" in refused.text
+    # 3 x 3 washers 0.6 across on a 2-unit layer: 19 samples at 64, wider than block 16 with a margin
+    big = choose_settings(_washers(0.15, 3, 0.7), 64, 3)
+    assert (big.source_resolution, big.block, big.size) == (64, 32, 64) and "whole elements" in big.text
+    assert choose_settings(_washers(0.15, 3, 0.7), 64, 3, fits=lambda size, res, block: block < 32).block == 16
 
 
 def test_border_slivers_dropped():
