@@ -76,8 +76,8 @@ SPANNING_KEPT = 0.9  # tubes stay connected: the output's volume share in tubes 
 
 
 def same_scale_picture(exemplar, output, path: Path) -> None:
-    """Exemplar beside a piece of the output of the exemplar's own footprint (the elements,
-    or for one connected relief the faces, whose centre lies in the window around the
+    """Exemplar beside a piece of the output of the exemplar's own footprint (the elements
+    when they are smaller than half the window, else the faces, whose centre lies in the window around the
     output's centre), so that both render at one
     scale: the command's own picture frames a larger output smaller, which makes every
     feature look shrunk."""
@@ -89,7 +89,8 @@ def same_scale_picture(exemplar, output, path: Path) -> None:
     half = (exemplar.bounds[1] - exemplar.bounds[0])[:2] / 2
     centre = output.bounds.mean(axis=0)[:2]
     parts = output.split(only_watertight=False)
-    if len(parts) > 1:  # separate elements: the whole ones whose centre is in the window (a cut would read as broken)
+    small = len(parts) > 1 and np.median([np.max(p.extents[:2]) for p in parts]) <= np.min(half)
+    if small:  # separate elements: the whole ones whose centre is in the window (a cut would read as broken)
         keep = [p for p in parts if np.all(np.abs(p.bounds.mean(axis=0)[:2] - centre) <= half)]
         piece = trimesh.util.concatenate(keep) if keep else output
     else:
