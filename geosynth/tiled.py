@@ -696,14 +696,14 @@ def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int
 
 
 def _settings_and_grid(source_shape, target_shape, tiles, levels: int, block, margin, coarse_whole: bool, slab,
-                       search: str, method: str, band=None, iterations=None):
+                       search: str, method: str, band=None, iterations=None, terrain: bool = False):
     """(:class:`geosynth.volume.VolumeSettings` of a tiled run, its :class:`TileGrid`)."""
     from geosynth.volume import choose_volume_settings
 
     source_shape = tuple(int(v) for v in source_shape)
     target_shape = tuple(int(v) for v in target_shape)
     settings = choose_volume_settings(source_shape, target_shape, levels, block, slab=slab, method=method, band=band,
-                                      iterations=iterations, tiled=True)
+                                      iterations=iterations, tiled=True, terrain=terrain)
     if settings.slab and search == "tree":  # each tile's Matcher would refuse it on a worker, the cluster started
         raise ValueError("search='tree' takes cubic blocks only; this slab exemplar's blocks span its full thickness: "
                          "use search='cascade' or 'linear' (or slab=False).")
@@ -886,7 +886,7 @@ def synthesize_volume_tiled(
     """
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
+    from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample, is_terrain,
                                  level_blocks, max_levels, quantize_field)
 
     t_start = time.perf_counter()
@@ -912,7 +912,7 @@ def synthesize_volume_tiled(
     _, target_shape = check_source_and_size(src, size, levels)
     # the untiled synthesis's choices (slab, blocks, method, band, iterations), made by the same function
     settings, grid = _settings_and_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab,
-                                        search, method, band, iterations)
+                                        search, method, band, iterations, terrain=method == "auto" and is_terrain(src))
     blocks, band, caps = list(grid.blocks), settings.band, list(settings.iterations)
     if gather is None:
         gather = store is None

@@ -65,6 +65,7 @@ __all__ = [
     "block_text",
     "choose_volume_settings",
     "downsample",
+    "is_terrain",
     "is_slab",
     "max_levels",
     "resolve_method",
@@ -79,19 +80,59 @@ __all__ = [
 METHODS = ("paper", "graphcut", "optimize")
 # The default, "auto": the method that scores best on the built-in exemplars' structure
 # metrics for the kind of run (bench/bm_volume.py --part quality; opencl, 64 -> 128, 3
-# levels): "graphcut" for a slab (elements: chainmail 0.99 against optimize's 0.74,
+# levels; the zoo, bench/bm_zoo.py): "graphcut" for a slab (elements: chainmail 0.99 against optimize's 0.74,
 # rings 1.00 against 0.91; domes alike), "optimize" otherwise (balls 0.86 against
 # graphcut's 0.58, fibers 0.48 against 0.43, terrain's debris 0.0% against 0.5% and no
-# overhangs against 10.7%).
+# overhangs against 10.7%), a slab that is a terrain included (:func:`is_terrain`: the
+# zoo's terrain slab kept its hills' spacing, 1.01 against graphcut's 0.80).
 DEFAULT_METHOD = "auto"
 
 
-def resolve_method(method: str, slab: bool) -> str:
+def resolve_method(method: str, slab: bool, terrain: bool = False) -> str:
     """The method a run uses: ``method``, or for "auto" "graphcut" on a slab and
-    "optimize" otherwise (see DEFAULT_METHOD)."""
+    "optimize" otherwise, a slab that is a terrain (:func:`is_terrain`) included (see
+    DEFAULT_METHOD)."""
     if method == "auto":
-        return "graphcut" if slab else "optimize"
+        return "graphcut" if slab and not terrain else "optimize"
     return method
+
+
+# A source is a terrain when its largest inside component covers at least TERRAIN_COVER
+# of its (y, x) columns (as geosynth.volume_features measures a relief) and fewer than
+# TERRAIN_FLAT of them top out at its commonest whole-sample height (no flat ground). On
+# the zoo and the built-ins, plates with rivets, domes or cobbles have 0.47-0.79 of their
+# columns on the plate, terrains 0.07-0.12.
+TERRAIN_COVER = 0.9
+TERRAIN_FLAT = 0.25
+
+
+def is_terrain(values: np.ndarray) -> bool:
+    """Whether a (Z, Y, X) source (uint8 codes, inside < 128, or float signed
+    distances, inside < 0) is a terrain: a height field (:func:`is_height_field`) whose
+    largest 26-connected inside component covers TERRAIN_COVER of the columns and has no
+    flat ground (TERRAIN_FLAT). Graphcut's seams cross such a surface as creases and steps:
+    the zoo's terrain slab came out with its hills 0.80x their spacing under graphcut,
+    1.01x under texture optimization, whose histogram matching keeps the height
+    (bench/RESULTS.md, the zoo); on a plate the seams run over the flat ground, and the
+    domes' slopes score 0.98 under graphcut against 0.93."""
+    from scipy import ndimage
+
+    from geosynth.volume_features import top_height
+
+    v = np.asarray(values)
+    codes = v if v.dtype == np.uint8 else np.where(v < 0, 0, 255).astype(np.uint8)
+    if not is_height_field(codes):
+        return False
+    labels, n = ndimage.label(codes < 128, structure=np.ones((3, 3, 3), bool))
+    if n == 0:
+        return False
+    largest = labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
+    if largest.any(axis=0).mean() < TERRAIN_COVER:
+        return False
+    distance = v.astype(np.float32) if v.dtype != np.uint8 else v.astype(np.float32) - np.float32(127.5)
+    h, has = top_height(distance)
+    top = np.floor(h[has]).astype(np.int64)
+    return bool(np.bincount(top).max() < TERRAIN_FLAT * top.size)
 # A source is a slab when its across sides are at least this many times its thickness.
 # The built-in sources at 64 samples across: domes 5.3, rings 8 and chainmail 2.7 (one
 # layer of linked rings) are slabs; fibers 2.3 (tubes in every direction), terrain 2,
@@ -747,7 +788,7 @@ class VolumeSettings:
     def lines(self, source_shape) -> list[str]:
         """What was chosen, one line each: the method, and for a slab (source (Z, Y, X)) the
         slab line. The untiled and the tiled CLI print these."""
-        out = [f"method: {self.method}" + (" (auto: graphcut for a slab, optimize otherwise)" if self.method_auto
+        out = [f"method: {self.method}" + (" (auto: graphcut for a slab, optimize otherwise and for a terrain)" if self.method_auto
                                             else "")]
         if self.slab:
             z, y, x = (int(v) for v in source_shape)
@@ -758,14 +799,15 @@ class VolumeSettings:
 
 def choose_volume_settings(source_shape, target_shape, levels: int, block, *, slab: bool | None = None,
                            method: str = "auto", band: float | None = None, iterations=None,
-                           tiled: bool = False) -> VolumeSettings:
+                           tiled: bool = False, terrain: bool = False) -> VolumeSettings:
     """The choices of an M1 synthesis from a (Z, Y, X) source to a (Z, Y, X) target, made
     in one place for :func:`synthesize_volume` and :func:`geosynth.tiled.synthesize_volume_tiled`:
     slab or not (:func:`is_slab` when ``slab`` is None), each level's block (:func:`level_blocks`,
     shrunk to fit by :func:`plan_blocks`), the method ("auto": :func:`resolve_method`), the
     band and the iteration caps (``tiled`` is recorded only: a tiled run chooses the same).
-    Only shapes are used: nothing is allocated, so a tiling can be refused before any field
-    is computed.
+    Only shapes are used, and ``terrain`` (:func:`is_terrain` of the source, which the caller
+    measures where it has one): nothing is allocated, so a tiling can be refused before any
+    field is computed.
 
     Raises:
         ValueError: blocks that do not fit (:func:`plan_blocks`), an unknown method, bad
@@ -784,7 +826,7 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
     if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
                                   for c in caps):
         raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
-    return VolumeSettings(flat, slab is None, resolve_method(method, flat), method == "auto",
+    return VolumeSettings(flat, slab is None, resolve_method(method, flat, terrain), method == "auto",
                           tuple(int(b) for b in blocks),
                           tuple(shapes), float(blocks[-1] / 2 if band is None else band),
                           tuple(int(c) for c in caps), bool(tiled))
@@ -885,7 +927,7 @@ def synthesize_volume(
     level_blocks(levels, block)  # the block's own errors before the source's
     float_source, target_shape = check_source_and_size(src, size, levels)
     settings = choose_volume_settings(src.shape, target_shape, levels, block, slab=slab, method=method, band=band,
-                                      iterations=iterations)
+                                      iterations=iterations, terrain=method == "auto" and is_terrain(src))
     slab, method, band, caps = settings.slab, settings.method, settings.band, list(settings.iterations)
     blocks, shapes = list(settings.blocks), list(settings.block_shapes)
     optimizing = method == "optimize" and not baseline
@@ -1415,7 +1457,11 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
         except ValueError:  # blocks that do not fit a small trial: as given (ValueErrors come later)
             flat = is_slab(shape, target) if slab is None else bool(slab)
             blocks, runs = level_block_shapes(target, levels, base_blocks, flat), resolve_method(method, flat)
-        return geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, runs, structure)
+        need = geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples, runs, structure)
+        if method == "auto" and runs == "graphcut":  # a slab that turns out a terrain runs optimize (is_terrain)
+            need = max(need, geometry_bytes(shape, spacing, area, target, blocks, search, smooth, quality_samples,
+                                            "optimize", structure))
+        return need
 
     shape, _, _ = _exemplar_grid_geometry(mesh, source_resolution, multiple=factor)
     target = target_size(size, shape, levels)

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["ElementFeatures", "compare_features", "element_features", "format_features", "kept_whole"]
+__all__ = ["ElementFeatures", "compare_features", "element_features", "format_features", "kept_whole", "top_height"]
 
 # A relief when the largest inside component covers at least this share of the columns.
 RELIEF_COVER = 0.9
@@ -100,7 +100,7 @@ class ElementFeatures:
     span: float = math.nan
 
 
-def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Top surface z (in samples, sub-sample) of each (y, x) column: the highest inside
     sample plus the interpolated zero crossing above it; columns with no inside sample
     get -0.5 (the grid's bottom face). Also the (Y, X) mask of columns with an inside sample."""
@@ -432,7 +432,7 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
     s = float(spacing)
     f = f.astype(np.float32) / np.float32(s)  # distances in samples
     inside = f < 0
-    h, has = _top_height(f)
+    h, has = top_height(f)
     thickness = _thickness(f)
     if not inside.any():
         return ElementFeatures(0, math.nan, math.nan, 0.0, math.nan, math.nan, False)

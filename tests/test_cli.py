@@ -432,7 +432,9 @@ def test_sigint_at_any_moment_leaves_every_old_output_or_every_new_one(tmp_path,
         state = "old" if all(v == b"old" for v in got.values()) else "new" if got == new else "mixed"
         seen.append((round(moment, 2), sent, proc.returncode, state))
         assert state != "mixed", seen
-        if state == "old":
+        if state == "old" and proc.returncode == 1 and "init_import_site" in err:
+            pass  # so early (a loaded machine) that CPython's own start-up stopped, before any geosynth code
+        elif state == "old":
             assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (seen, err)
         elif sent:  # the signal came after the commit: the run had finished, its outputs are whole
             assert proc.returncode in (0, 130, -signal.SIGINT), seen

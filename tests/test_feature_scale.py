@@ -188,3 +188,18 @@ def test_spanning_share_of_tubes():
     assert element_features(_padded(tubes, 4), slab=False).spanning == 1.0
     broken = np.maximum(tubes, -(np.abs(x - 20) - 1.5))  # a gap across every tube at x = 20
     assert element_features(_padded(broken, 4), slab=False).spanning == 0.0
+
+
+def test_auto_method_optimizes_a_terrain_slab_and_cuts_a_plate():
+    """is_terrain: a relief with no flat ground (graphcut's seams crease it) -> texture
+    optimization under "auto"; a plate with bumps and a layer of discs stay graphcut slabs."""
+    from geosynth.volume import choose_volume_settings, is_terrain
+
+    terrain = _terrain(n=48, zs=12)
+    z, y, x = np.mgrid[0:12, 0:48, 0:48].astype(np.float32)
+    plate = np.minimum(z - 4, np.hypot(np.hypot(y % 12 - 6, x % 12 - 6), z - 4) - 3.5)
+    assert is_terrain(terrain) and is_terrain(np.where(terrain < 0, 0, 255).astype(np.uint8))
+    assert not is_terrain(plate) and not is_terrain(_discs())
+    for field, method in ((terrain, "optimize"), (plate, "graphcut")):
+        s = choose_volume_settings(field.shape, (12, 96, 96), 2, 8, terrain=is_terrain(field))
+        assert s.slab and s.method == method, (s.slab, s.method)
