@@ -39,3 +39,8 @@ M1_MIN_FEATURE_SAMPLES = 3.0
 # finest block to the power of two that holds the exemplar's whole elements' span plus it,
 # where the source still holds two such blocks across.
 M1_ELEMENT_MARGIN_SAMPLES = 2.0
+# Separate elements with at least this share of their volume in elements across the
+# footprint (tubes: geosynth.volume_features' ``spanning``) get the largest finest block the
+# source holds twice across (geosynth.volume.choose_settings): the zoo's wavy tubes at block
+# 16 fused and wobbled where blocks were stitched (block distance 51.9), at 32 ran on (17.6).
+M1_ACROSS_SHARE = 0.5

@@ -45,8 +45,8 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
-from geosynth.constants import (M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION, M1_ELEMENT_MARGIN_SAMPLES,
-                                M1_MIN_FEATURE_SAMPLES)
+from geosynth.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION,
+                                M1_ELEMENT_MARGIN_SAMPLES, M1_MIN_FEATURE_SAMPLES)
 from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.field import Field
 from geosynth.interpolate import lerp_axis, linear_taps
@@ -1084,7 +1084,16 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
            f"({'under' if factor > 1 else 'at least'} {M1_MIN_FEATURE_SAMPLES:g})")
     chosen_block = M1_DEFAULT_BLOCK * factor if block is None else block
     span_note = ""
-    if block is None and math.isfinite(features.span):
+    across = not features.relief and features.count >= 2 and features.spanning >= M1_ACROSS_SHARE
+    if block is None and across:
+        # separate tubes across the footprint have no size a block could hold: every stitch between
+        # two blocks is where a tube may break or fuse, so the fewest stitches the source allows
+        _, cap = _element_block(mesh, 0.0, base * factor, _scaled_size(size, factor), levels)
+        if chosen_block < cap:
+            chosen_block = cap
+            span_note = (f"; {features.count} separate elements, {features.spanning:.0%} of the volume across the "
+                         f"footprint (tubes) -> block {cap}, the largest the source holds twice across")
+    elif block is None and math.isfinite(features.span):
         need, cap = _element_block(mesh, features.span / spacing * factor, base * factor, _scaled_size(size, factor),
                                    levels)
         if chosen_block < need <= cap:  # an element the source cannot hold twice across gains nothing
@@ -1116,13 +1125,18 @@ def _element_block(mesh, span: float, resolution: int, size, levels: int) -> tup
     """(the power of two that holds an element ``span`` samples across plus
     M1_ELEMENT_MARGIN_SAMPLES, the largest block the synthesis can use: a power of two
     at most half the source across, so that the finest level keeps candidates, and at most
-    the target across; for an exemplar that is not a slab, along z too)."""
+    the target across; for an exemplar that is not a slab, along z too; and whose block's
+    uint8 score, samples x 255^2, stays within uint32, the matching kernels' range)."""
     need = 1 << int(math.ceil(math.log2(max(1.0, span + M1_ELEMENT_MARGIN_SAMPLES))))
     shape, _, _ = _exemplar_grid_geometry(mesh, resolution, multiple=2 ** (levels - 1))
     target = target_size(size, shape, levels)
-    axes = slice(1, None) if is_slab(shape, target) else slice(None)
+    slab = is_slab(shape, target)
+    axes = slice(1, None) if slab else slice(None)
     room = min(min(v // 2 for v in shape[axes]), min(target[axes]))
-    return need, 1 << max(0, room.bit_length() - 1)
+    cap = 1 << max(0, room.bit_length() - 1)
+    while cap > 1 and cap * cap * (shape[0] if slab else cap) * 255**2 > np.iinfo(np.uint32).max:
+        cap //= 2
+    return need, cap
 
 
 def _fits_geometry(mesh, size, resolution, levels, block, search, smooth, quality_samples, method, slab) -> bool:

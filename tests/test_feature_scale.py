@@ -203,3 +203,21 @@ def test_auto_method_optimizes_a_terrain_slab_and_cuts_a_plate():
     for field, method in ((terrain, "optimize"), (plate, "graphcut")):
         s = choose_volume_settings(field.shape, (12, 96, 96), 2, 8, terrain=is_terrain(field))
         assert s.slab and s.method == method, (s.slab, s.method)
+
+
+def test_tubes_across_get_the_largest_block_the_source_holds_twice():
+    """Seven separate tubes across a square layer 3.84 units wide (4 samples thick at 64):
+    no element size a block could hold, so the fewest stitches: block 32 (half the source
+    across); given, the block is kept."""
+    import trimesh
+
+    tubes = []
+    for i in range(7):
+        t = trimesh.creation.cylinder(radius=0.12, height=3.84, sections=24)
+        t.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+        t.apply_translation([0.0, 0.6 * i, 0.0])
+        tubes.append(t)
+    mesh = trimesh.util.concatenate(tubes)
+    s = choose_settings(mesh, 128, 3)
+    assert (s.source_resolution, s.block) == (64, 32) and "(tubes) -> block 32" in s.text, s.text
+    assert choose_settings(mesh, 128, 3, block=16).block == 16
