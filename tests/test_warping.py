@@ -600,3 +600,37 @@ def test_compiled_nearest_neighbours_are_pykdtrees(rng, monkeypatch):
     # within a row: by distance, then index (pykdtree orders exact ties otherwise)
     assert all(np.array_equal(np.lexsort((got_i[r], got_d[r])), np.arange(9)) for r in range(len(got_d)))
     assert (got_d[:, 1:] == got_d[:, :-1]).sum() > 50  # ties were there to order
+
+
+def _interior_height_scale(vertical_step):
+    """The slope of the warped heights on the source's heights inside the patch (away from
+    the overlap) when the neighbourhood in the -x and -y overlap is the source's relief at
+    half its height (a neighbour that matches only approximately)."""
+    p, n = bumpy_patch()
+    strip = (p[:, 0] < 0.25) | (p[:, 1] < 0.25)
+    t = p[strip] * [1.0, 1.0, 0.5]
+    res = warp_patch(p, n, t, n[strip], *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0),
+                     vertical_step=vertical_step)
+    inner = (p[:, :2] > 0.4).all(axis=1)
+    z0 = p[inner, 2] - p[inner, 2].mean()
+    z1 = res.points[inner, 2] - res.points[inner, 2].mean()
+    return float(z0 @ z1 / (z0 @ z0)), res
+
+
+def test_warp_keeps_the_interior_relief_height():
+    # The pairs lie on a thin sheet: the paper's spline (the default) reads the neighbour's
+    # lower relief as a vertical scaling and squashes the patch also where it has no
+    # neighbour; a second centre a step above each pair keeps the heights' scale.
+    paper, _ = _interior_height_scale(0.0)
+    kept, res = _interior_height_scale(1.0)
+    assert paper < 0.9, paper
+    assert kept > 0.94, kept
+    assert len(res.pairs) > 20  # the overlap was paired (else nothing was tested)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), True, "1"])
+def test_vertical_step_is_checked(bad):
+    p, n = bumpy_patch()
+    with pytest.raises(ValueError, match="vertical_step"):
+        warp_patch(p, n, p[:10], n[:10], *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0),
+                   vertical_step=bad)
