@@ -73,7 +73,7 @@ import numpy as np
 
 from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
-                                  ring_neighbourhoods)
+                                  ring_neighbourhoods, target_spacing)
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
@@ -110,6 +110,7 @@ AUTO_DIRECTED = 0.2  # anisotropy at or above this: a directed relief, copied un
 AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above this: sharp features,
 AUTO_REFINE = 2  # ... refined this many passes when directed but not stripes (one-sided growth breaks them)
 AUTO_STRIPES = 0.5  # anisotropy at or above this: stripes (R 4 in the paper's frames, no refinement)
+AUTO_SPHERE_FRAMES = AUTO_STRIPES  # anisotropy at or above this on a sphere with a period: the latitude frames
 AUTO_REGULAR = 0.9  # 10th percentile / median nearest-neighbour spacing at or above this: a regular lattice
 
 
@@ -379,8 +380,14 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       capture's own sampling: its median edge on the fit when the fit is curved and the sampling
       regular (10th percentile of the spacings >= 0.9x the median: relief recesses below a
       curved fit shorten the 3-D edges, so the minimum edge measures the relief, not the
-      sampling), else the paper's minimum edge (Sec. 4);
-    - window: W = round(0.75 x samples on T), in [3, 5]: the window spans about 1.5 periods
+      sampling), else the paper's minimum edge (Sec. 4), unless that edge is under 0.9x the
+      capture's median spacing (an irregular sampling, e.g. latitude-longitude rows closing up
+      towards a sphere's poles: the minimum edge, floored at half the median, put 2.6x the
+      targets on a zoo sphere, each window reaching half as far, for no detail the capture
+      holds), which takes the median edge on the fit too. Both samplings are weighed: the
+      coarser targets above are taken when either the capture or the rule's targets hold more
+      than 12 on T;
+    - window: W = round(0.75 x targets on T), in [3, 5]: the window spans about 1.5 periods
       (bark, T ~ 5 samples: W 3 left the completion 8.7% flat, W 4 kept it); then, in
       :func:`complete_surface`, lowered (not below 3) until most of the capture's vertices
       hold a whole window (two thirds; a small capture's candidates are otherwise mostly its border's: the
@@ -389,8 +396,11 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       columns of features, a tower's arches) on a plane or cylinder is copied unturned in the
       fit's own frames (R = 1): a turned copy is something the capture never shows (the tower at
       R = 4 copied rows into vertical bands). Stripes (anisotropy >= 0.5: a sine, ridges, a
-      knurl), isotropic and flat reliefs and spheres (no tangent field): the paper's R = 4 in
-      its frames. Stripes are their own half turn and a quarter turn scores badly, so the extra
+      knurl), isotropic and flat reliefs and spheres: the paper's R = 4 in its frames, except
+      stripes on a sphere, which get R = 4 in the latitude frames about the fit's axis
+      (:func:`geosynth.surface_fit.fit_frames`; the paper's frames turn against stripes over a
+      sphere, where no tangent field is without a singular point: these turn only at the
+      poles). Stripes are their own half turn and a quarter turn scores badly, so the extra
       rotations only add candidates: the wave at R = 1 lost histogram (0.029-0.034 against
       0.020-0.021 at R = 4);
     - refine: such a directed relief with sharp features (>= 5% of its power below 4 samples a wavelength) gets
@@ -409,32 +419,50 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     spec, fine, s_c, regular, _, band = _capture_relief(fit, cap.positions)
     period = spec.period
     lo, hi = AUTO_WINDOW_RANGE
+    rule = "median" if fit.kind != "plane" and regular >= AUTO_REGULAR else "minimum"
+    s_t = target_spacing(cap, fit, rule)
+    denser = rule == "minimum" and s_t < AUTO_REGULAR * s_c
+    if denser:  # an irregular sampling's minimum edge (a latitude-longitude sphere's rows close up towards
+        # its poles) puts the targets up to 2x denser than the capture's own median sampling: 4x the targets,
+        # each window's reach cut in half, no detail the capture holds
+        rule = "median"
+        s_t = target_spacing(cap, fit, rule)
     if not math.isfinite(period):
-        per = float("nan")
+        per = per_rule = float("nan")
         coarse = False
     else:
-        per = period / s_c
-        coarse = per > AUTO_COARSEN and band < AUTO_BAND
+        per, per_rule = period / s_c, period / s_t
+        coarse = max(per, per_rule) > AUTO_COARSEN and band < AUTO_BAND
     if coarse:
         spacing: str | float = period / AUTO_PER_PERIOD
         per_t = AUTO_PER_PERIOD
         why_s = (f"targets at T/{AUTO_PER_PERIOD:g} = {spacing:.4g} (a band-limited relief, {band:.1%} of its power "
-                 f"below T/2, and the capture holds {per:.1f} samples on T; "
+                 f"below T/2, and the capture holds {per:.1f} samples on T, its {rule} edge {per_rule:.1f}; "
                  f"no oversampling, candidates thinned to the target spacing)")
     else:
-        spacing = "median" if fit.kind != "plane" and regular >= AUTO_REGULAR else "minimum"
-        per_t = per
-        why_s = (f"targets at the capture's {spacing} edge ({'a regular sampling on a curved fit' if spacing == 'median' else 'the paper'}"
-                 + ("" if not math.isfinite(per) else f"; {per:.1f} samples on T") + ")")
+        spacing = rule
+        per_t = per_rule
+        why_s = (f"targets at the capture's {spacing} edge ("
+                 + ("its minimum edge is under 0.9x its median spacing" if denser else
+                    "a regular sampling on a curved fit" if spacing == "median" else "the paper")
+                 + ("" if not math.isfinite(per) else f"; {per:.1f} capture samples on T, {per_rule:.1f} targets") + ")")
     window = lo if not math.isfinite(per_t) else int(min(hi, max(lo, math.floor(AUTO_WINDOW_PERIODS * per_t + 0.5))))
     stripes = math.isfinite(period) and spec.anisotropy >= AUTO_STRIPES
     directed = (fit.kind != "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
                 and not stripes)
-    rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "paper")
+    # a sphere: the paper's frames turn continuously against the latitudes over it, so stripes find no
+    # rotation of R that lines a candidate up with the target; the latitude frames (about the fit's
+    # axis, :func:`fit_frames`) turn only at the poles. A weakly directed relief keeps the paper's: the
+    # golf ball's dimples (anisotropy 0.09) came out 1.24x their period in the latitude frames, 0.96x
+    # in the paper's
+    latitudes = fit.kind == "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_SPHERE_FRAMES
+    rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "fit" if latitudes else "paper")
     # a relief directed both ways (rows and columns of features) with sharp features breaks them
     # under one-sided growth (a tower's ledges); stripes run on
     refine = AUTO_REFINE if directed and fine >= AUTO_FINE else 0
     why_r = ("R 1 in the fit's frames (a directed relief, not stripes)" if directed else
+             "R 4 in the sphere's latitude frames (stripes: the paper's frames turn against them over a sphere)"
+             if latitudes else
              "R 4 in the paper's frames (" + ("a sphere" if fit.kind == "sphere" else
                                                "stripes: a half turn is a symmetry, a quarter turn the "
                                                "matching rejects" if stripes else "an isotropic relief"
@@ -1022,7 +1050,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         frames: the tangent frames the R rotations start from: "paper" (default, Sec. 3:
             per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
             own orientation, on a cylinder u around it and v along its axis, on a plane its
-            u and v axes, :func:`geosynth.surface_fit.fit_frames`; not for a sphere). With
+            u and v axes, on a sphere along its latitudes, :func:`geosynth.surface_fit.fit_frames`). With
             "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
             turn is a symmetry of the relief).
         refine: refinement passes after the growth (our extension; 0, the default, is
@@ -1075,8 +1103,6 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         sf = fit_surface(cap.positions, fit, normals=cap.normals)
     else:
         raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
-    if frames == "fit" and sf.kind == "sphere":
-        fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
     auto = None
     window_auto = window is None
     if None in (window, rotations, frames, refine, spacing):
@@ -1085,8 +1111,6 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         window = auto.window if window is None else window
         rotations = auto.rotations if rotations is None else rotations
         frames = auto.frames if frames is None else frames
-        if frames == "fit" and sf.kind == "sphere":  # an explicit R with an automatic frame
-            frames = "paper"
         refine = auto.refine if refine is None else refine
         spacing = auto.spacing if spacing is None else spacing
         need = 3 * window * (window + 1) + 1

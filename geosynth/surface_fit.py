@@ -67,25 +67,28 @@ def fit_frames(fit: "SurfaceFit", normals: np.ndarray) -> tuple[np.ndarray, np.n
     vertices and turns the frame by 90 degrees there): on a cylinder u = axis x n (around
     the circumference) and v = n x u = the axis (up); on a plane u = basis[0], v = n x u.
     A relief with a preferred direction (rows of arches, vertical ridges) keeps it under
-    these frames, so that R = 1 (or 2 for a half-turn symmetric relief) suffices. A sphere
-    has no tangent field without a singular point (the hairy ball theorem): refused.
+    these frames, so that R = 1 (or 2 for a half-turn symmetric relief) suffices. On a sphere
+    u = axis x n (along the latitudes about the fit's polar axis) and v = n x u (along the
+    meridians): no tangent field is without a singular point (the hairy ball theorem), this
+    one's are the two poles, where u falls back to basis[0] projected on the tangent plane
+    (issue 32: the paper's frames turn continuously against the latitudes over a sphere, so
+    that no one of R rotations matches a directed relief there).
 
     Args:
-        fit: a plane or cylinder :class:`SurfaceFit`.
+        fit: a plane, cylinder or sphere :class:`SurfaceFit`.
         normals: (N, 3) unit normals of the fit.
 
     Returns:
         (u, v): two (N, 3) float64 arrays, unit, orthogonal to n and to each other.
-
-    Raises:
-        ValueError: a sphere fit.
     """
     n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    if fit.kind == "sphere":
-        raise ValueError("frames='fit' needs a plane or cylinder fit (a sphere has no tangent field without a "
-                         "singular point); use frames='paper'.")
-    if fit.kind == "cylinder":
+    if fit.kind in ("cylinder", "sphere"):
         u = np.cross(np.asarray(fit.axis, np.float64)[None, :], n)
+        if fit.kind == "sphere":  # the poles: any tangent direction (basis[0] projected)
+            pole = norm3(u) < 1e-6
+            if pole.any():
+                e0 = np.asarray(fit.basis[0], np.float64)[None, :]
+                u[pole] = e0 - dot3(n[pole], fit.basis[0])[:, None] * n[pole]
     else:
         u = np.broadcast_to(np.asarray(fit.basis[0], np.float64), n.shape).copy()
         u = u - dot3(n, fit.basis[0])[:, None] * n
