@@ -74,7 +74,7 @@ import numpy as np
 from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods, target_spacing)
-from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
+from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
            "complete_surface", "completion_picture", "write_completion"]
@@ -111,6 +111,7 @@ AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above 
 AUTO_REFINE = 2  # ... refined this many passes when directed but not stripes (one-sided growth breaks them)
 AUTO_STRIPES = 0.5  # anisotropy at or above this: stripes (R 4 in the paper's frames, no refinement)
 AUTO_SPHERE_FRAMES = AUTO_STRIPES  # anisotropy at or above this on a sphere with a period: the latitude frames
+LATITUDE_SHARE = 0.1  # latitude_axis's least-eigenvalue share under this: stripes about that axis
 AUTO_REGULAR = 0.9  # 10th percentile / median nearest-neighbour spacing at or above this: a regular lattice
 
 
@@ -190,6 +191,8 @@ class CompletionReport:
             many of the samples are the capture's own vertices.
         auto: the automatic settings' one-line reason (:func:`choose_settings`; "" when every
             setting was given); n_candidates: how many samples are candidates.
+        frame_axis: a sphere's latitude frames' axis (:func:`geosynth.surface_fit.latitude_axis`)
+            and its least-eigenvalue share, or None.
         The quality also holds the relief's scale, captured part against completed part, both
         measured in the fit's unrolled frame at the target spacing
         (:mod:`geosynth.relief_spectrum`): ``relief_captured`` and ``relief_completed``
@@ -222,6 +225,7 @@ class CompletionReport:
     whole_windows: int = -1
     auto: str = ""
     n_candidates: int = 0
+    frame_axis: tuple | None = None
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
@@ -231,7 +235,12 @@ class CompletionReport:
                + (f", {self.n_candidates:,} of them candidates" if 0 < self.n_candidates < self.n_original else "")
                + f"), targets {self.targets:,} at spacing {self.spacing:.4g} "
                + (f"(the capture's {self.spacing_rule} edge)" if self.spacing_rule in ("minimum", "median") else
-                  "(chosen from the relief's period)") + f"; window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
+                  "(chosen from the relief's period)") + f"; window {self.window}, rotations {self.rotations}, frames {self.frames}"
+               + ("" if self.frame_axis is None else
+                  f" (latitudes about ({', '.join(f'{x:.3f}' for x in self.frame_axis[0])}), "
+                  + ("the stripes' axis" if self.frame_axis[1] < LATITUDE_SHARE else "the fit's axis: the relief has "
+                     "no stripes' axis") + f", share {self.frame_axis[1]:.3f})")
+               + f", mu {self.mu:g}, device "
                f"{self.device}"
                + ("" if self.whole_windows < 0 else
                   f"; {self.whole_windows:,} of the capture's {self.n_original:,} vertices "
@@ -1050,7 +1059,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         frames: the tangent frames the R rotations start from: "paper" (default, Sec. 3:
             per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
             own orientation, on a cylinder u around it and v along its axis, on a plane its
-            u and v axes, on a sphere along its latitudes, :func:`geosynth.surface_fit.fit_frames`). With
+            u and v axes, on a sphere along its latitudes about the stripes' axis when the relief has one
+            (:func:`geosynth.surface_fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
+            the fit's polar axis, :func:`geosynth.surface_fit.fit_frames`). With
             "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
             turn is a symmetry of the relief).
         refine: refinement passes after the growth (our extension; 0, the default, is
@@ -1149,8 +1160,15 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     if candidates not in ("capture", "samples"):
         raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
     frame_rows = None
+    frame_axis = None
     if frames == "fit":
-        fu, fv = fit_frames(sf, rs.normals)
+        axis = None
+        if sf.kind == "sphere":  # latitudes about the stripes' own axis when the relief has one
+            axis, share = latitude_axis(sf, cap.positions)
+            if share >= LATITUDE_SHARE:
+                axis = np.asarray(sf.axis, np.float64)
+            frame_axis = (tuple(float(x) for x in axis), share)
+        fu, fv = fit_frames(sf, rs.normals, axis)
         frame_rows = np.stack([fu, fv, rs.normals / norm3(rs.normals)[:, None]], axis=1)
     partners = np.arange(rs.n_samples, dtype=np.int64)
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
@@ -1195,7 +1213,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
         spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
-        auto=auto_line, n_candidates=len(samples),
+        auto=auto_line, n_candidates=len(samples), frame_axis=frame_axis,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

@@ -731,4 +731,27 @@ def test_latitude_frames_complete_a_sphere():
                                     frames="fit", device=ONE_DEVICE, seed=1)
     q = report.quality
     assert report.frames == "fit" and report.unreached == 0
+    assert report.frame_axis[1] < 0.01 and "the stripes' axis" in report.lines()[1], report.lines()[1]
     assert abs(q["period_ratio"] - 1) < 0.1 and q["angle_diff_deg"] < 10, q
+
+
+def test_latitude_axis_follows_the_stripes_not_the_world():
+    """The latitude frames' axis is measured from the relief: the same striped capture turned
+    by 0.7 rad about x gives the turned axis (share ~0: stripes), a relief without stripes a
+    share near 1/3; the frames then run along the turned stripes."""
+    from geosynth.surface_fit import fit_frames, fit_surface, latitude_axis
+
+    cap = _latitude_sphere()
+    turn = np.array([[1, 0, 0], [0, np.cos(0.7), -np.sin(0.7)], [0, np.sin(0.7), np.cos(0.7)]])
+    for rot in (np.eye(3), turn):
+        p = cap.positions @ rot.T
+        sf = fit_surface(p, "sphere")
+        axis, share = latitude_axis(sf, p)
+        assert share < 0.01 and abs(axis @ (rot @ [0.0, 0.0, 1.0])) > 0.999, (axis, share)
+        n = (p - sf.center) / np.linalg.norm(p - sf.center, axis=1, keepdims=True)
+        u, _ = fit_frames(sf, n, axis)
+        assert np.allclose(u @ axis, 0, atol=1e-9)
+    d = np.random.default_rng(2).normal(size=(1500, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    bumpy = d * (1 + 0.01 * np.random.default_rng(3).normal(size=(1500, 1)))
+    assert latitude_axis(fit_surface(bumpy, "sphere"), bumpy)[1] > 0.2
