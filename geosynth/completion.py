@@ -110,8 +110,7 @@ AUTO_DIRECTED = 0.2  # anisotropy at or above this: a directed relief, copied un
 AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above this: sharp features,
 AUTO_REFINE = 2  # ... refined this many passes when directed but not stripes (one-sided growth breaks them)
 AUTO_STRIPES = 0.5  # anisotropy at or above this: stripes (R 4 in the paper's frames, no refinement)
-AUTO_SPHERE_FRAMES = AUTO_STRIPES  # anisotropy at or above this on a sphere with a period: the latitude frames
-LATITUDE_SHARE = 0.1  # latitude_axis's least-eigenvalue share under this: stripes about that axis
+LATITUDE_SHARE = 0.25  # latitude_axis's least-eigenvalue share under this (1/3: no axis): slopes about that axis
 AUTO_REGULAR = 0.9  # 10th percentile / median nearest-neighbour spacing at or above this: a regular lattice
 
 
@@ -238,8 +237,8 @@ class CompletionReport:
                   "(chosen from the relief's period)") + f"; window {self.window}, rotations {self.rotations}, frames {self.frames}"
                + ("" if self.frame_axis is None else
                   f" (latitudes about ({', '.join(f'{x:.3f}' for x in self.frame_axis[0])}), "
-                  + ("the stripes' axis" if self.frame_axis[1] < LATITUDE_SHARE else "the fit's axis: the relief has "
-                     "no stripes' axis") + f", share {self.frame_axis[1]:.3f})")
+                  + ("the relief's axis" if self.frame_axis[1] < LATITUDE_SHARE else "the fit's axis: the relief has "
+                     "none") + f", share {self.frame_axis[1]:.3f})")
                + f", mu {self.mu:g}, device "
                f"{self.device}"
                + ("" if self.whole_windows < 0 else
@@ -406,10 +405,12 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       fit's own frames (R = 1): a turned copy is something the capture never shows (the tower at
       R = 4 copied rows into vertical bands). Stripes (anisotropy >= 0.5: a sine, ridges, a
       knurl), isotropic and flat reliefs and spheres: the paper's R = 4 in its frames, except
-      stripes on a sphere, which get R = 4 in the latitude frames about the fit's axis
-      (:func:`geosynth.surface_fit.fit_frames`; the paper's frames turn against stripes over a
-      sphere, where no tangent field is without a singular point: these turn only at the
-      poles). Stripes are their own half turn and a quarter turn scores badly, so the extra
+      a sphere whose relief's slopes run about one axis (stripes, a knurl:
+      :func:`geosynth.surface_fit.latitude_axis` share under ``LATITUDE_SHARE``, 1/3 meaning
+      no axis), which gets R = 4 in the latitude frames about that axis
+      (:func:`geosynth.surface_fit.fit_frames`; the paper's frames turn against such a relief
+      over a sphere, where no tangent field is without a singular point: these turn only at
+      the axis' poles). Stripes are their own half turn and a quarter turn scores badly, so the extra
       rotations only add candidates: the wave at R = 1 lost histogram (0.029-0.034 against
       0.020-0.021 at R = 4);
     - refine: such a directed relief with sharp features (>= 5% of its power below 4 samples a wavelength) gets
@@ -459,19 +460,20 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     stripes = math.isfinite(period) and spec.anisotropy >= AUTO_STRIPES
     directed = (fit.kind != "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
                 and not stripes)
-    # a sphere: the paper's frames turn continuously against the latitudes over it, so stripes find no
-    # rotation of R that lines a candidate up with the target; the latitude frames (about the fit's
-    # axis, :func:`fit_frames`) turn only at the poles. A weakly directed relief keeps the paper's: the
-    # golf ball's dimples (anisotropy 0.09) came out 1.24x their period in the latitude frames, 0.96x
-    # in the paper's
-    latitudes = fit.kind == "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_SPHERE_FRAMES
+    # a sphere: the paper's frames turn continuously over it, against a relief whose slopes run about one
+    # axis (stripes, a knurl), so that no rotation of R lines a candidate up with the target; the
+    # latitude frames about that axis (:func:`fit_frames`) turn only at its poles. A relief without
+    # such an axis keeps the paper's: the golf ball's dimples (share 0.32) came out 1.24x their period
+    # in latitude frames, 0.96x in the paper's; a zoo knurl (share 0.19) 0.87x its size against 0.70x
+    share = latitude_axis(fit, cap.positions)[1] if fit.kind == "sphere" and math.isfinite(period) else 1.0
+    latitudes = share < LATITUDE_SHARE
     rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "fit" if latitudes else "paper")
     # a relief directed both ways (rows and columns of features) with sharp features breaks them
     # under one-sided growth (a tower's ledges); stripes run on
     refine = AUTO_REFINE if directed and fine >= AUTO_FINE else 0
     why_r = ("R 1 in the fit's frames (a directed relief, not stripes)" if directed else
-             "R 4 in the sphere's latitude frames (stripes: the paper's frames turn against them over a sphere)"
-             if latitudes else
+             f"R 4 in the sphere's latitude frames (its slopes run about one axis, share {share:.2f}: the "
+             "paper's frames turn against them over a sphere)" if latitudes else
              "R 4 in the paper's frames (" + ("a sphere" if fit.kind == "sphere" else
                                                "stripes: a half turn is a symmetry, a quarter turn the "
                                                "matching rejects" if stripes else "an isotropic relief"
@@ -1059,7 +1061,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         frames: the tangent frames the R rotations start from: "paper" (default, Sec. 3:
             per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
             own orientation, on a cylinder u around it and v along its axis, on a plane its
-            u and v axes, on a sphere along its latitudes about the stripes' axis when the relief has one
+            u and v axes, on a sphere along its latitudes about the relief's axis when it has one
             (:func:`geosynth.surface_fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
             the fit's polar axis, :func:`geosynth.surface_fit.fit_frames`). With
             "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
@@ -1163,7 +1165,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     frame_axis = None
     if frames == "fit":
         axis = None
-        if sf.kind == "sphere":  # latitudes about the stripes' own axis when the relief has one
+        if sf.kind == "sphere":  # latitudes about the relief's own axis when it has one
             axis, share = latitude_axis(sf, cap.positions)
             if share >= LATITUDE_SHARE:
                 axis = np.asarray(sf.axis, np.float64)

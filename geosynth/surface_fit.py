@@ -101,9 +101,9 @@ def fit_frames(fit: "SurfaceFit", normals: np.ndarray, axis=None) -> tuple[np.nd
 
 
 def latitude_axis(fit: "SurfaceFit", points: np.ndarray, neighbours: int = 12) -> tuple[np.ndarray, float]:
-    """The axis a sphere's striped relief runs around, measured from the points (issue 32:
-    the latitude frames of :func:`fit_frames` follow stripes only about their own axis, which
-    a capture's file need not put along the fit's polar axis, world z).
+    """The axis a sphere's relief runs around, measured from the points (issue 32: the
+    latitude frames of :func:`fit_frames` follow stripes, or a knurl, only about their own
+    axis, which a capture's file need not put along the fit's polar axis, world z).
 
     Stripes along the latitudes about an axis a have their height gradient along the
     meridians, so t = n x grad h (along the stripe) is orthogonal to a at every point: a is

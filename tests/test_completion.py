@@ -731,7 +731,7 @@ def test_latitude_frames_complete_a_sphere():
                                     frames="fit", device=ONE_DEVICE, seed=1)
     q = report.quality
     assert report.frames == "fit" and report.unreached == 0
-    assert report.frame_axis[1] < 0.01 and "the stripes' axis" in report.lines()[1], report.lines()[1]
+    assert report.frame_axis[1] < 0.01 and "the relief's axis" in report.lines()[1], report.lines()[1]
     assert abs(q["period_ratio"] - 1) < 0.1 and q["angle_diff_deg"] < 10, q
 
 
