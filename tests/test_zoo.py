@@ -109,3 +109,19 @@ def test_colour_measure_compares_with_the_capture_files_own_colours(tmp_path):
     plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex")]).write(str(out))
     assert bm_zoo.measure_complete(member, out, src)["colour_hist"] > 0.9
     assert bm_zoo.measure_complete(member, out)["colour_hist"] < 0.85
+
+
+def test_random_bumps_on_a_cylinder_are_not_a_directed_relief():
+    """The zoo's bumped cylinder: its spectrum's anisotropy reads 0.22 (a handful of bumps),
+    above the directed threshold, but its slopes point every way (slope order ~0.06, the
+    tower's arches 0.54): R 4 in the paper's frames, not one unturned copy (1.18x its size)."""
+    from geosynth.completion import choose_settings
+    from geosynth.relief_prep import Capture
+    from geosynth.surface_fit import fit_surface
+
+    member = zoo.zoo("complete", 5)[4]
+    verts, faces, _, _ = zoo.capture_surface(member)
+    cap = Capture(verts, faces=faces)
+    a = choose_settings(cap, fit_surface(verts, "cylinder"))
+    assert a.spectrum.anisotropy >= 0.2 and (a.rotations, a.frames) == (4, "paper"), a.reason
+    assert "slopes in every direction" in a.reason, a.reason
