@@ -1027,9 +1027,6 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         capture, label, fit = read_geometry(args.input), args.input, args.fit
     # unset options (None) are chosen from the capture's relief; the report's "automatic settings" line says how
     window, rotations, frames, refine, spacing = args.window, args.rotations, args.frames, args.refine, args.spacing
-    if frames == "fit" and fit == "sphere":  # known before any fit or preparation: refused now
-        raise ValueError("--frames fit needs a plane or cylinder fit (a sphere has no tangent field without a "
-                         "singular point); use --frames paper or another --fit.")
     mu = args.mu if args.mu is not None else 0.5
 
     def shown(v):
@@ -1208,7 +1205,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "cylinder, else 4; the run says why)")
     p.add_argument("--frames", choices=["paper", "fit"], default=None,
                    help="tangent frames the rotations start from: the paper's per-normal ones, or the fit's own "
-                        "orientation (cylinder: around and along the axis; plane: its axes; not for a sphere) "
+                        "orientation (cylinder: around and along the axis; plane: its axes; sphere: along its "
+                        "latitudes and meridians) "
                         "(default: fit with 1 rotation for a directed relief, else paper)")
     p.add_argument("--mu", type=_float_type(0, inclusive=True), default=None,
                    help="weight of shape against colour, 0 to 1 (1: relief only; default 0.5)")

@@ -73,8 +73,8 @@ import numpy as np
 
 from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
-                                  ring_neighbourhoods)
-from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface
+                                  ring_neighbourhoods, target_spacing)
+from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
            "complete_surface", "completion_picture", "write_completion"]
@@ -107,9 +107,11 @@ AUTO_WINDOW_PERIODS = 0.75  # window W = round(this x samples a period): (2W + 1
 AUTO_WINDOW_RANGE = (3, 5)  # the paper's W = 3 at least; 5 at most (a 5-ring query holds ~91 vertices)
 AUTO_WHOLE = 2 / 3  # ... and no larger than two thirds of the capture's vertices can hold whole (3 at least)
 AUTO_DIRECTED = 0.2  # anisotropy at or above this: a directed relief, copied unturned in the fit's frames
+AUTO_SLOPE_ORDER = 0.3  # ... and its slopes keep to one direction or two at right angles at least this much
 AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above this: sharp features,
 AUTO_REFINE = 2  # ... refined this many passes when directed but not stripes (one-sided growth breaks them)
 AUTO_STRIPES = 0.5  # anisotropy at or above this: stripes (R 4 in the paper's frames, no refinement)
+LATITUDE_SHARE = 0.25  # latitude_axis's least-eigenvalue share under this (1/3: no axis): slopes about that axis
 AUTO_REGULAR = 0.9  # 10th percentile / median nearest-neighbour spacing at or above this: a regular lattice
 
 
@@ -189,6 +191,8 @@ class CompletionReport:
             many of the samples are the capture's own vertices.
         auto: the automatic settings' one-line reason (:func:`choose_settings`; "" when every
             setting was given); n_candidates: how many samples are candidates.
+        frame_axis: a sphere's latitude frames' axis (:func:`geosynth.surface_fit.latitude_axis`)
+            and its least-eigenvalue share, or None.
         The quality also holds the relief's scale, captured part against completed part, both
         measured in the fit's unrolled frame at the target spacing
         (:mod:`geosynth.relief_spectrum`): ``relief_captured`` and ``relief_completed``
@@ -221,6 +225,7 @@ class CompletionReport:
     whole_windows: int = -1
     auto: str = ""
     n_candidates: int = 0
+    frame_axis: tuple | None = None
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
@@ -230,7 +235,12 @@ class CompletionReport:
                + (f", {self.n_candidates:,} of them candidates" if 0 < self.n_candidates < self.n_original else "")
                + f"), targets {self.targets:,} at spacing {self.spacing:.4g} "
                + (f"(the capture's {self.spacing_rule} edge)" if self.spacing_rule in ("minimum", "median") else
-                  "(chosen from the relief's period)") + f"; window {self.window}, rotations {self.rotations}, frames {self.frames}, mu {self.mu:g}, device "
+                  "(chosen from the relief's period)") + f"; window {self.window}, rotations {self.rotations}, frames {self.frames}"
+               + ("" if self.frame_axis is None else
+                  f" (latitudes about ({', '.join(f'{x:.3f}' for x in self.frame_axis[0])}), "
+                  + ("the relief's axis" if self.frame_axis[1] < LATITUDE_SHARE else "the fit's axis: the relief has "
+                     "none") + f", share {self.frame_axis[1]:.3f})")
+               + f", mu {self.mu:g}, device "
                f"{self.device}"
                + ("" if self.whole_windows < 0 else
                   f"; {self.whole_windows:,} of the capture's {self.n_original:,} vertices "
@@ -359,7 +369,30 @@ def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None =
     # power below half the dominant period: ~0 for a band-limited relief (a sine, a knurl), a few % and
     # more for broadband ones (bumps of many sizes), which keep the capture's own sampling
     band = fine_share(grid, step, spec.period / 2, mask) if math.isfinite(spec.period) else 1.0
-    return spec, fine_share(grid, step, 4 * step, mask), med, regular, cut, band
+    return spec, fine_share(grid, step, 4 * step, mask), med, regular, cut, band, _slope_order(grid, mask)
+
+
+def _slope_order(grid: np.ndarray, mask: np.ndarray) -> float:
+    """How much the relief's slopes keep to one direction (|sum w e^(2i phi)| / sum w) or to
+    two at right angles (the same with e^(4i phi): rows and columns of features), the larger,
+    over the grid's slope vectors g with phi their angle and w = |g|^2, in [0, 1]. Random
+    bumps score ~0 (the zoo's bumped cylinder: 0.06, where its spectrum's anisotropy read
+    0.22 from a handful of bumps), a tower's arches 0.54, ridges 1. Elementwise arithmetic
+    and NumPy sums: the same bits on every device."""
+    z = np.where(mask, grid, np.nan)
+    gy, gx = np.gradient(z)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    gx, gy = gx[ok], gy[ok]
+    w = gx * gx + gy * gy
+    total = float(np.sum(w))
+    if not total > 0:
+        return 0.0
+    c2, s2 = gx * gx - gy * gy, 2.0 * gx * gy  # w e^(2i phi)
+    safe = np.where(w > 0, w, 1.0)
+    c4, s4 = (c2 * c2 - s2 * s2) / safe, 2.0 * c2 * s2 / safe  # w e^(4i phi)
+    a2 = math.hypot(float(np.sum(c2)), float(np.sum(s2))) / total
+    a4 = math.hypot(float(np.sum(c4)), float(np.sum(s4))) / total
+    return max(a2, a4)
 
 
 def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
@@ -379,18 +412,32 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       capture's own sampling: its median edge on the fit when the fit is curved and the sampling
       regular (10th percentile of the spacings >= 0.9x the median: relief recesses below a
       curved fit shorten the 3-D edges, so the minimum edge measures the relief, not the
-      sampling), else the paper's minimum edge (Sec. 4);
-    - window: W = round(0.75 x samples on T), in [3, 5]: the window spans about 1.5 periods
+      sampling), else the paper's minimum edge (Sec. 4), unless that edge is under 0.9x the
+      capture's median spacing (an irregular sampling, e.g. latitude-longitude rows closing up
+      towards a sphere's poles: the minimum edge, floored at half the median, put 2.6x the
+      targets on a zoo sphere, each window reaching half as far, for no detail the capture
+      holds), which takes the median edge on the fit too. Both samplings are weighed: the
+      coarser targets above are taken when either the capture or the rule's targets hold more
+      than 12 on T;
+    - window: W = round(0.75 x targets on T), in [3, 5]: the window spans about 1.5 periods
       (bark, T ~ 5 samples: W 3 left the completion 8.7% flat, W 4 kept it); then, in
       :func:`complete_surface`, lowered (not below 3) until most of the capture's vertices
       hold a whole window (two thirds; a small capture's candidates are otherwise mostly its border's: the
       noise plane at W 5 held 32%, and missed the volume and histogram targets);
     - rotations and frames: a relief directed but not stripes (anisotropy 0.2 to 0.5: rows and
-      columns of features, a tower's arches) on a plane or cylinder is copied unturned in the
+      columns of features, a tower's arches), whose slopes keep to one direction or two at
+      right angles (:func:`_slope_order` >= ``AUTO_SLOPE_ORDER``: a spectrum of a few random
+      bumps can read 0.2 too; the zoo's bumped cylinder copied unturned came out 1.18x its
+      size, 1.08x at R = 4), on a plane or cylinder is copied unturned in the
       fit's own frames (R = 1): a turned copy is something the capture never shows (the tower at
       R = 4 copied rows into vertical bands). Stripes (anisotropy >= 0.5: a sine, ridges, a
-      knurl), isotropic and flat reliefs and spheres (no tangent field): the paper's R = 4 in
-      its frames. Stripes are their own half turn and a quarter turn scores badly, so the extra
+      knurl), isotropic and flat reliefs and spheres: the paper's R = 4 in its frames, except
+      a sphere whose relief's slopes run about one axis (stripes, a knurl:
+      :func:`geosynth.surface_fit.latitude_axis` share under ``LATITUDE_SHARE``, 1/3 meaning
+      no axis), which gets R = 4 in the latitude frames about that axis
+      (:func:`geosynth.surface_fit.fit_frames`; the paper's frames turn against such a relief
+      over a sphere, where no tangent field is without a singular point: these turn only at
+      the axis' poles). Stripes are their own half turn and a quarter turn scores badly, so the extra
       rotations only add candidates: the wave at R = 1 lost histogram (0.029-0.034 against
       0.020-0.021 at R = 4);
     - refine: such a directed relief with sharp features (>= 5% of its power below 4 samples a wavelength) gets
@@ -406,39 +453,61 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
         :class:`AutoSettings` with the one-line ``reason``.
     """
     cap = as_capture(capture)
-    spec, fine, s_c, regular, _, band = _capture_relief(fit, cap.positions)
+    spec, fine, s_c, regular, _, band, order = _capture_relief(fit, cap.positions)
     period = spec.period
     lo, hi = AUTO_WINDOW_RANGE
+    rule = "median" if fit.kind != "plane" and regular >= AUTO_REGULAR else "minimum"
+    s_t = target_spacing(cap, fit, rule)
+    denser = rule == "minimum" and s_t < AUTO_REGULAR * s_c
+    if denser:  # an irregular sampling's minimum edge (a latitude-longitude sphere's rows close up towards
+        # its poles) puts the targets up to 2x denser than the capture's own median sampling: 4x the targets,
+        # each window's reach cut in half, no detail the capture holds
+        rule = "median"
+        s_t = target_spacing(cap, fit, rule)
     if not math.isfinite(period):
-        per = float("nan")
+        per = per_rule = float("nan")
         coarse = False
     else:
-        per = period / s_c
-        coarse = per > AUTO_COARSEN and band < AUTO_BAND
+        per, per_rule = period / s_c, period / s_t
+        coarse = max(per, per_rule) > AUTO_COARSEN and band < AUTO_BAND
     if coarse:
         spacing: str | float = period / AUTO_PER_PERIOD
         per_t = AUTO_PER_PERIOD
         why_s = (f"targets at T/{AUTO_PER_PERIOD:g} = {spacing:.4g} (a band-limited relief, {band:.1%} of its power "
-                 f"below T/2, and the capture holds {per:.1f} samples on T; "
+                 f"below T/2, and the capture holds {per:.1f} samples on T, its {rule} edge {per_rule:.1f}; "
                  f"no oversampling, candidates thinned to the target spacing)")
     else:
-        spacing = "median" if fit.kind != "plane" and regular >= AUTO_REGULAR else "minimum"
-        per_t = per
-        why_s = (f"targets at the capture's {spacing} edge ({'a regular sampling on a curved fit' if spacing == 'median' else 'the paper'}"
-                 + ("" if not math.isfinite(per) else f"; {per:.1f} samples on T") + ")")
+        spacing = rule
+        per_t = per_rule
+        why_s = (f"targets at the capture's {spacing} edge ("
+                 + ("its minimum edge is under 0.9x its median spacing" if denser else
+                    "a regular sampling on a curved fit" if spacing == "median" else "the paper")
+                 + ("" if not math.isfinite(per) else f"; {per:.1f} capture samples on T, {per_rule:.1f} targets") + ")")
     window = lo if not math.isfinite(per_t) else int(min(hi, max(lo, math.floor(AUTO_WINDOW_PERIODS * per_t + 0.5))))
     stripes = math.isfinite(period) and spec.anisotropy >= AUTO_STRIPES
     directed = (fit.kind != "sphere" and math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
-                and not stripes)
-    rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "paper")
+                and not stripes and order >= AUTO_SLOPE_ORDER)
+    # a sphere: the paper's frames turn continuously over it, against a relief whose slopes run about one
+    # axis (stripes, a knurl), so that no rotation of R lines a candidate up with the target; the
+    # latitude frames about that axis (:func:`fit_frames`) turn only at its poles. A relief without
+    # such an axis keeps the paper's: the golf ball's dimples (share 0.32) came out 1.24x their period
+    # in latitude frames, 0.96x in the paper's; a zoo knurl (share 0.19) 0.87x its size against 0.70x
+    share = latitude_axis(fit, cap.positions)[1] if fit.kind == "sphere" and math.isfinite(period) else 1.0
+    latitudes = share < LATITUDE_SHARE
+    rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "fit" if latitudes else "paper")
     # a relief directed both ways (rows and columns of features) with sharp features breaks them
     # under one-sided growth (a tower's ledges); stripes run on
     refine = AUTO_REFINE if directed and fine >= AUTO_FINE else 0
-    why_r = ("R 1 in the fit's frames (a directed relief, not stripes)" if directed else
+    why_r = (f"R 1 in the fit's frames (a directed relief, not stripes; slope order {order:.2f})" if directed else
+             f"R 4 in the sphere's latitude frames (its slopes run about one axis, share {share:.2f}: the "
+             "paper's frames turn against them over a sphere)" if latitudes else
              "R 4 in the paper's frames (" + ("a sphere" if fit.kind == "sphere" else
                                                "stripes: a half turn is a symmetry, a quarter turn the "
-                                               "matching rejects" if stripes else "an isotropic relief"
-                                               if math.isfinite(period) else "a flat relief") + ")")
+                                               "matching rejects" if stripes else
+                                               f"slopes in every direction, slope order {order:.2f}"
+                                               if math.isfinite(period) and spec.anisotropy >= AUTO_DIRECTED
+                                               else "an isotropic relief" if math.isfinite(period)
+                                               else "a flat relief") + ")")
     reason = (f"automatic settings: relief {spec.describe()}, sharp-feature share {fine:.3f}, capture spacing "
               f"{s_c:.4g} -> {why_s}; window {window}"
               + ("" if not math.isfinite(per_t) else f" (~{(2 * window + 1) / per_t:.1f} periods)")
@@ -1022,7 +1091,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         frames: the tangent frames the R rotations start from: "paper" (default, Sec. 3:
             per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
             own orientation, on a cylinder u around it and v along its axis, on a plane its
-            u and v axes, :func:`geosynth.surface_fit.fit_frames`; not for a sphere). With
+            u and v axes, on a sphere along its latitudes about the relief's axis when it has one
+            (:func:`geosynth.surface_fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
+            the fit's polar axis, :func:`geosynth.surface_fit.fit_frames`). With
             "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
             turn is a symmetry of the relief).
         refine: refinement passes after the growth (our extension; 0, the default, is
@@ -1075,8 +1146,6 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         sf = fit_surface(cap.positions, fit, normals=cap.normals)
     else:
         raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
-    if frames == "fit" and sf.kind == "sphere":
-        fit_frames(sf, np.zeros((0, 3)))  # raises its one-line error before the preparation
     auto = None
     window_auto = window is None
     if None in (window, rotations, frames, refine, spacing):
@@ -1085,8 +1154,6 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         window = auto.window if window is None else window
         rotations = auto.rotations if rotations is None else rotations
         frames = auto.frames if frames is None else frames
-        if frames == "fit" and sf.kind == "sphere":  # an explicit R with an automatic frame
-            frames = "paper"
         refine = auto.refine if refine is None else refine
         spacing = auto.spacing if spacing is None else spacing
         need = 3 * window * (window + 1) + 1
@@ -1125,8 +1192,15 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     if candidates not in ("capture", "samples"):
         raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
     frame_rows = None
+    frame_axis = None
     if frames == "fit":
-        fu, fv = fit_frames(sf, rs.normals)
+        axis = None
+        if sf.kind == "sphere":  # latitudes about the relief's own axis when it has one
+            axis, share = latitude_axis(sf, cap.positions)
+            if share >= LATITUDE_SHARE:
+                axis = np.asarray(sf.axis, np.float64)
+            frame_axis = (tuple(float(x) for x in axis), share)
+        fu, fv = fit_frames(sf, rs.normals, axis)
         frame_rows = np.stack([fu, fv, rs.normals / norm3(rs.normals)[:, None]], axis=1)
     partners = np.arange(rs.n_samples, dtype=np.int64)
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
@@ -1171,7 +1245,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
         spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
-        auto=auto_line, n_candidates=len(samples),
+        auto=auto_line, n_candidates=len(samples), frame_axis=frame_axis,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

@@ -32,7 +32,7 @@ from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
 __all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",
-           "prepare_relief", "ring_neighbourhoods"]
+           "prepare_relief", "ring_neighbourhoods", "target_spacing"]
 
 TARGET_SPACINGS = ("minimum", "median")  # prepare_relief(spacing=): the paper's minimum edge, or the median on the fit
 
@@ -424,6 +424,45 @@ def check_spacing_rule(spacing) -> str:
     return spacing
 
 
+def _sampling(capture: Capture, fit: SurfaceFit, spacing: str | float):
+    """(base, param, faces, edges, median, delta): the capture's positions on the fit, their
+    parameters, its triangles (over-long ones dropped), their edges, the median 3-D edge
+    length (over every triangle) and the target spacing the rule ``spacing`` gives."""
+    base0 = fit.project(capture.positions)
+    param0 = fit.to_param(capture.positions)
+    faces0 = _capture_faces(capture, fit, base0, param0)
+    e = _edges(faces0)
+    lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
+    if len(lengths) == 0:
+        raise ValueError("the capture has no triangle to measure its sampling; give more points.")
+    med = float(np.median(lengths))
+    faces0 = _drop_long(faces0, capture.positions, _LONG_EDGE * med)
+    e = _edges(faces0)
+    lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
+    if not isinstance(spacing, str):
+        delta = max(float(spacing), _FLOOR * med)
+    elif spacing == "minimum":
+        delta = max(float(lengths.min()), _FLOOR * med)  # Sec. 4: targets at the minimum edge length
+    else:
+        # as dense as the capture's own sampling where the targets lie: its edges on the fit (the
+        # 3-D lengths grow with the relief's slope and would space the targets wider than the capture)
+        delta = float(np.median(norm3(base0[e[:, 0]] - base0[e[:, 1]])))
+    return base0, param0, faces0, e, med, delta
+
+
+def target_spacing(capture: Capture, fit: SurfaceFit, spacing: str | float = "minimum") -> float:
+    """The target spacing :func:`prepare_relief` gives a capture under the rule ``spacing``
+    ("minimum", "median" or a length; see there), before any target is made: what the
+    automatic settings weigh the relief's period against (the targets' count, and so the
+    cost, goes with the inverse square of it).
+
+    Raises:
+        ValueError: a bad rule; the capture has no triangle.
+    """
+    check_spacing_rule(spacing)
+    return _sampling(as_capture(capture), fit, spacing)[-1]
+
+
 def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: int | None = None,
                    oversample: str = "butterfly", spacing: str | float = "minimum") -> ReliefSurface:
     """Samples, targets and their triangulation for a capture over its fit (Sec. 3, 4, 6).
@@ -473,25 +512,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     if oversample not in ("butterfly", "midpoint", "none"):
         raise ValueError(f"oversample must be 'butterfly', 'midpoint' or 'none', got {oversample!r}.")
     check_spacing_rule(spacing)
-    base0 = fit.project(capture.positions)
-    param0 = fit.to_param(capture.positions)
-    faces0 = _capture_faces(capture, fit, base0, param0)
-    e = _edges(faces0)
-    lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
-    if len(lengths) == 0:
-        raise ValueError("the capture has no triangle to measure its sampling; give more points.")
-    med = float(np.median(lengths))
-    faces0 = _drop_long(faces0, capture.positions, _LONG_EDGE * med)
-    e = _edges(faces0)
-    lengths = norm3(capture.positions[e[:, 0]] - capture.positions[e[:, 1]])
-    if not isinstance(spacing, str):
-        delta = max(float(spacing), _FLOOR * med)
-    elif spacing == "minimum":
-        delta = max(float(lengths.min()), _FLOOR * med)  # Sec. 4: targets at the minimum edge length
-    else:
-        # as dense as the capture's own sampling where the targets lie: its edges on the fit (the
-        # 3-D lengths grow with the relief's slope and would space the targets wider than the capture)
-        delta = float(np.median(norm3(base0[e[:, 0]] - base0[e[:, 1]])))
+    base0, param0, faces0, e, med, delta = _sampling(capture, fit, spacing)
 
     # Sec. 4: oversample the capture once, 1-to-4 (a new vertex at each edge's midpoint).
     n0 = len(capture.positions)

@@ -28,7 +28,7 @@ import numpy as np
 
 from geosynth.cpu_exact import dot3, eigh3_fixed, gram_fixed, lstsq_fixed, norm3, unit_fixed, vdot_fixed
 
-__all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "relief_frame", "tangent_frames"]
+__all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "latitude_axis", "relief_frame", "tangent_frames"]
 
 FIT_KINDS = ("plane", "sphere", "cylinder")
 _CHOICE_SLACK = 1.25  # a simpler model within 25% of the best residual is preferred
@@ -61,37 +61,97 @@ def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
-def fit_frames(fit: "SurfaceFit", normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fit_frames(fit: "SurfaceFit", normals: np.ndarray, axis=None) -> tuple[np.ndarray, np.ndarray]:
     """Frames that follow the fit's own orientation, one tangent field without turns (our
     alternative to the paper's per-normal construct, whose choice of axis switches between
     vertices and turns the frame by 90 degrees there): on a cylinder u = axis x n (around
     the circumference) and v = n x u = the axis (up); on a plane u = basis[0], v = n x u.
     A relief with a preferred direction (rows of arches, vertical ridges) keeps it under
-    these frames, so that R = 1 (or 2 for a half-turn symmetric relief) suffices. A sphere
-    has no tangent field without a singular point (the hairy ball theorem): refused.
+    these frames, so that R = 1 (or 2 for a half-turn symmetric relief) suffices. On a sphere
+    u = axis x n (along the latitudes about the fit's polar axis) and v = n x u (along the
+    meridians): no tangent field is without a singular point (the hairy ball theorem), this
+    one's are the two poles, where u falls back to basis[0] projected on the tangent plane
+    (issue 32: the paper's frames turn continuously against the latitudes over a sphere, so
+    that no one of R rotations matches a directed relief there).
 
     Args:
-        fit: a plane or cylinder :class:`SurfaceFit`.
+        fit: a plane, cylinder or sphere :class:`SurfaceFit`.
         normals: (N, 3) unit normals of the fit.
+        axis: a sphere's latitudes are taken about this unit (3,) axis (None: the fit's
+            polar axis; :func:`latitude_axis` measures the one a striped relief runs around).
 
     Returns:
         (u, v): two (N, 3) float64 arrays, unit, orthogonal to n and to each other.
-
-    Raises:
-        ValueError: a sphere fit.
     """
     n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    if fit.kind == "sphere":
-        raise ValueError("frames='fit' needs a plane or cylinder fit (a sphere has no tangent field without a "
-                         "singular point); use frames='paper'.")
-    if fit.kind == "cylinder":
-        u = np.cross(np.asarray(fit.axis, np.float64)[None, :], n)
+    if fit.kind in ("cylinder", "sphere"):
+        a = np.asarray(fit.axis if axis is None or fit.kind != "sphere" else axis, np.float64)
+        u = np.cross(a[None, :], n)
+        if fit.kind == "sphere":  # the poles: any tangent direction (a direction across the axis, projected)
+            pole = norm3(u) < 1e-6
+            if pole.any():
+                e0 = _orthonormal(a)[0][None, :]
+                u[pole] = e0 - dot3(n[pole], e0[0])[:, None] * n[pole]
     else:
         u = np.broadcast_to(np.asarray(fit.basis[0], np.float64), n.shape).copy()
         u = u - dot3(n, fit.basis[0])[:, None] * n
     u /= np.maximum(norm3(u)[:, None], 1e-300)
     v = np.cross(n, u)
     return u, v
+
+
+def latitude_axis(fit: "SurfaceFit", points: np.ndarray, neighbours: int = 12) -> tuple[np.ndarray, float]:
+    """The axis a sphere's relief runs around, measured from the points (issue 32: the
+    latitude frames of :func:`fit_frames` follow stripes, or a knurl, only about their own
+    axis, which a capture's file need not put along the fit's polar axis, world z).
+
+    Stripes along the latitudes about an axis a have their height gradient along the
+    meridians, so t = n x grad h (along the stripe) is orthogonal to a at every point: a is
+    the eigenvector of the least eigenvalue of sum t t^T. The gradient is each point's
+    least-squares slope of h over its ``neighbours`` nearest points in its tangent plane
+    (the paper's frames), every sum in a fixed order: the same bits on every CPU.
+
+    Args:
+        fit: a sphere :class:`SurfaceFit`.
+        points: (N, 3) float positions (N > neighbours).
+
+    Returns:
+        (axis (3,) float64 unit, its hemisphere that of the fit's axis; share: the least
+        eigenvalue over their sum, 0 for perfect stripes about the axis, 1/3 for a relief
+        with no such axis).
+    """
+    from scipy.spatial import cKDTree
+
+    from geosynth.cpu_exact import eigh3_fixed, gram_fixed
+
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    d0 = p - np.asarray(fit.center, np.float64)[None, :]
+    r = norm3(d0)
+    n = d0 / np.maximum(r, 1e-300)[:, None]
+    u, v = tangent_frames(n)
+    k = min(int(neighbours), len(p) - 1)
+    nb = cKDTree(p).query(p, k + 1)[1][:, 1:]
+    suu = np.zeros(len(p))
+    suv, svv, sub, svb = suu.copy(), suu.copy(), suu.copy(), suu.copy()
+    for j in range(k):  # the 2x2 normal equations of the slope, summed neighbour by neighbour
+        d = p[nb[:, j]] - p
+        du = (d[:, 0] * u[:, 0] + d[:, 1] * u[:, 1]) + d[:, 2] * u[:, 2]
+        dv = (d[:, 0] * v[:, 0] + d[:, 1] * v[:, 1]) + d[:, 2] * v[:, 2]
+        b = r[nb[:, j]] - r
+        suu, suv, svv, sub, svb = suu + du * du, suv + du * dv, svv + dv * dv, sub + du * b, svb + dv * b
+    det = suu * svv - suv * suv
+    ok = det > 1e-300
+    det = np.where(ok, det, 1.0)
+    gu = np.where(ok, (svv * sub - suv * svb) / det, 0.0)
+    gv = np.where(ok, (suu * svb - suv * sub) / det, 0.0)
+    g = gu[:, None] * u + gv[:, None] * v
+    t = np.cross(n, g)
+    w, vec = eigh3_fixed(gram_fixed(t))
+    a = vec[:, 0] / math.sqrt(float(vec[0, 0] ** 2 + vec[1, 0] ** 2 + vec[2, 0] ** 2))
+    if (a[0] * fit.axis[0] + a[1] * fit.axis[1]) + a[2] * fit.axis[2] < 0:
+        a = -a
+    total = float(w[0] + w[1] + w[2])
+    return a, (float(w[0]) / total if total > 0 else 1.0 / 3.0)
 
 
 def relief_frame(fit: "SurfaceFit", points: np.ndarray, cut: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:

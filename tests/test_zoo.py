@@ -79,3 +79,49 @@ def test_relief_measures_find_the_ground_truth():
     worse = bm_zoo.compare_reliefs(bm_zoo._grid(uv[cap & usable], h[cap & usable], spacing),
                                    bm_zoo._grid(stretched, 0.5 * h[~cap & usable], spacing), spacing)
     assert worse["size"] > 1.2 and worse["height"] < 0.6
+
+
+def test_colour_measure_compares_with_the_capture_files_own_colours(tmp_path):
+    """The output's uncompleted part also holds the oversampling's new vertices, coloured by
+    averaging their neighbours (colours between the stripes'); a completion that copies the
+    capture's colours exactly scores as such against the capture file, not against those."""
+    import plyfile
+
+    bm_zoo = _load("bm_zoo")
+    member = zoo.zoo("complete", 3)[2]  # ridges on a sphere, coloured
+    src = member.write(tmp_path)
+    whole, _, colours, _ = zoo.capture_surface(member, whole=True)
+    captured, _, cap_colours, _ = zoo.capture_surface(member)
+    from scipy.spatial import cKDTree
+
+    done = cKDTree(captured).query(whole)[0] > 1e-9
+    mixed = ((cap_colours.astype(np.int64) + np.roll(cap_colours, 3, axis=0)) // 2).astype(np.uint8)
+    pos = np.concatenate([whole, captured])
+    col = np.concatenate([colours, mixed])
+    flag = np.concatenate([done, np.zeros(len(captured), bool)])
+    v = np.empty(len(pos), [(k, "f4") for k in "xyz"] + [(k, "u1") for k in ("red", "green", "blue", "completed")])
+    for i, k in enumerate("xyz"):
+        v[k] = pos[:, i]
+    for i, k in enumerate(("red", "green", "blue")):
+        v[k] = col[:, i]
+    v["completed"] = flag
+    out = tmp_path / "out.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex")]).write(str(out))
+    assert bm_zoo.measure_complete(member, out, src)["colour_hist"] > 0.9
+    assert bm_zoo.measure_complete(member, out)["colour_hist"] < 0.85
+
+
+def test_random_bumps_on_a_cylinder_are_not_a_directed_relief():
+    """The zoo's bumped cylinder: its spectrum's anisotropy reads 0.22 (a handful of bumps),
+    above the directed threshold, but its slopes point every way (slope order ~0.06, the
+    tower's arches 0.54): R 4 in the paper's frames, not one unturned copy (1.18x its size)."""
+    from geosynth.completion import choose_settings
+    from geosynth.relief_prep import Capture
+    from geosynth.surface_fit import fit_surface
+
+    member = zoo.zoo("complete", 5)[4]
+    verts, faces, _, _ = zoo.capture_surface(member)
+    cap = Capture(verts, faces=faces)
+    a = choose_settings(cap, fit_surface(verts, "cylinder"))
+    assert a.spectrum.anisotropy >= 0.2 and (a.rotations, a.frames) == (4, "paper"), a.reason
+    assert "slopes in every direction" in a.reason, a.reason
