@@ -239,7 +239,10 @@ def _surface_uv(member: Member, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray
     r = np.linalg.norm(pos, axis=1)
     polar = np.arccos(np.clip(pos[:, 2] / r, -1, 1))
     lon = np.mod(np.arctan2(pos[:, 1], pos[:, 0]), 2 * np.pi)
-    return np.column_stack([lon * np.sin(polar), polar]), r - 1, np.abs(polar - np.pi / 2) < 0.6
+    # azimuth and polar angle (arc lengths at the equator) in a band about it: their scale
+    # depends on the latitude only, alike for the captured and the completed side (azimuth x
+    # sin(polar) would shear features more the further they lie from azimuth 0)
+    return np.column_stack([lon, polar]), r - 1, np.abs(polar - np.pi / 2) < 0.45
 
 
 def _histogram(c: np.ndarray) -> np.ndarray:

@@ -387,6 +387,35 @@ def _draw_complete(rng, surface: str, relief: str, i: int) -> dict:
     return p
 
 
+def _dome(dist: np.ndarray, period: float) -> np.ndarray:
+    """A bump's profile in [-1, 1] at ``dist`` from its centre (radius 0.35 periods)."""
+    return np.clip(1 - (dist / (0.35 * period)) ** 2, 0, None) ** 0.5 * 2 - 1
+
+
+def _sphere_relief(p: dict, u: np.ndarray, v: np.ndarray, k: float, a: float, rng) -> np.ndarray:
+    """A relief in [-1, 1] on the unit sphere at azimuth ``u`` and polar angle ``v``, of
+    wavenumber ``k`` (arc length), the same size everywhere rather than sheared: ridges of
+    a whole number of turns around the axis (at angle ``a`` from the meridians at the
+    equator: spirals; along the latitudes at 90 degrees); a knurl whose bands between the
+    latitude ridges' zeros each take the whole number of cycles closest to their own
+    circumference (continuous: it changes where the bands' factor is zero); bumps around
+    centres drawn uniformly on the sphere, at their arc distance."""
+    if p["relief"] == "ridges":
+        return np.sin(round(k * math.cos(a)) * u + k * math.sin(a) * v)
+    if p["relief"] == "knurl":
+        band = np.floor(v * k / np.pi)
+        cycles = np.maximum(1, np.rint(k * np.sin((band + 0.5) * np.pi / k)))
+        return np.sin(k * v) * np.sin(cycles * u)
+    count = int(4 * np.pi / p["period"] ** 2 * 1.5) + 4
+    c = rng.normal(size=(count, 3))
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+    from scipy.spatial import cKDTree
+
+    x = np.stack([np.sin(v) * np.cos(u), np.sin(v) * np.sin(u), np.cos(v)], -1).reshape(-1, 3)
+    chord, _ = cKDTree(c).query(x)
+    return _dome(2 * np.arcsin(np.clip(chord / 2, 0, 1)).reshape(u.shape), p["period"])
+
+
 def capture_surface(member: Member, whole: bool = False):
     """(vertices (N, 3) float64, faces (F, 3) int64, colours (N, 3) uint8 or None, uv (N, 2)) of a
     complete member's captured part (``whole``: the entire surface, the ground truth)."""
@@ -404,20 +433,21 @@ def capture_surface(member: Member, whole: bool = False):
         nu, nv = int(2 * np.pi / d) + 1, int(np.pi / d) + 1
         u, v = np.meshgrid(np.linspace(0, 2 * np.pi, nu), np.linspace(0.15, np.pi - 0.15, nv), indexing="ij")
         keep_u = 2 * np.pi * p["fraction"]
-    # relief in arc-length units (sphere: u scaled by sin of the polar angle)
-    su = u * (np.sin(v) if p["surface"] == "sphere" else 1.0)
     a = math.radians(p["angle_deg"])
     k = 2 * np.pi / p["period"]
-    if p["relief"] == "ridges":
-        h = np.sin(k * (su * math.cos(a) + v * math.sin(a)))
-    elif p["relief"] == "knurl":
-        h = np.sin(k * su) * np.sin(k * v)
-    else:
-        c = rng.uniform(0, [su.max() + 0.01, v.max() + 0.01], (int(su.max() * v.max() / p["period"] ** 2 * 1.5) + 4, 2))
-        from scipy.spatial import cKDTree
+    if p["surface"] == "sphere":
+        h = _sphere_relief(p, u, v, k, a, rng)
+    else:  # u and v are arc lengths
+        if p["relief"] == "ridges":
+            h = np.sin(k * (u * math.cos(a) + v * math.sin(a)))
+        elif p["relief"] == "knurl":
+            h = np.sin(k * u) * np.sin(k * v)
+        else:
+            c = rng.uniform(0, [u.max() + 0.01, v.max() + 0.01], (int(u.max() * v.max() / p["period"] ** 2 * 1.5) + 4, 2))
+            from scipy.spatial import cKDTree
 
-        dist, _ = cKDTree(c).query(np.column_stack([su.ravel(), v.ravel()]))
-        h = np.clip(1 - (dist.reshape(su.shape) / (0.35 * p["period"])) ** 2, 0, None) ** 0.5 * 2 - 1
+            dist, _ = cKDTree(c).query(np.column_stack([u.ravel(), v.ravel()]))
+            h = _dome(dist.reshape(u.shape), p["period"])
     h = p["amplitude"] * h
     if p["surface"] == "plane":
         pos = np.stack([u, v, h], -1)
@@ -445,7 +475,7 @@ def capture_surface(member: Member, whole: bool = False):
     faces = faces[keep[faces].all(1)]
     new_index = np.cumsum(keep) - 1
     verts = pos.reshape(-1, 3)[keep]
-    uv = np.column_stack([su.ravel(), v.ravel()])[keep]
+    uv = np.column_stack([u.ravel(), v.ravel()])[keep]
     cols = None if colours is None else colours.reshape(-1, 3)[keep]
     return verts, new_index[faces].astype(np.int64), cols, uv
 
