@@ -437,16 +437,22 @@ def capture_surface(member: Member, whole: bool = False):
     k = 2 * np.pi / p["period"]
     if p["surface"] == "sphere":
         h = _sphere_relief(p, u, v, k, a, rng)
-    else:  # u and v are arc lengths
+    else:  # u and v are arc lengths; around a cylinder (radius 1) a whole number of cycles, so that it closes
+        ku = k * math.cos(a) if p["surface"] == "plane" else round(k * math.cos(a))
         if p["relief"] == "ridges":
-            h = np.sin(k * (u * math.cos(a) + v * math.sin(a)))
+            h = np.sin(ku * u + k * math.sin(a) * v)
         elif p["relief"] == "knurl":
-            h = np.sin(k * u) * np.sin(k * v)
+            h = np.sin(ku * u) * np.sin(k * v)
         else:
             c = rng.uniform(0, [u.max() + 0.01, v.max() + 0.01], (int(u.max() * v.max() / p["period"] ** 2 * 1.5) + 4, 2))
             from scipy.spatial import cKDTree
 
-            dist, _ = cKDTree(c).query(np.column_stack([u.ravel(), v.ravel()]))
+            # around a cylinder the bumps' distances wrap (u in [0, 2 pi])
+            box = None if p["surface"] == "plane" else [2 * np.pi, 4 * (v.max() + 1)]
+            if box is not None:
+                c[:, 0] = np.mod(c[:, 0], 2 * np.pi)
+            dist, _ = cKDTree(c, boxsize=box).query(np.column_stack([np.mod(u.ravel(), 2 * np.pi) if box else
+                                                                     u.ravel(), v.ravel()]))
             h = _dome(dist.reshape(u.shape), p["period"])
     h = p["amplitude"] * h
     if p["surface"] == "plane":
