@@ -125,3 +125,26 @@ def test_random_bumps_on_a_cylinder_are_not_a_directed_relief():
     a = choose_settings(cap, fit_surface(verts, "cylinder"))
     assert a.spectrum.anisotropy >= 0.2 and (a.rotations, a.frames) == (4, "paper"), a.reason
     assert "slopes in every direction" in a.reason, a.reason
+
+
+def test_a_slice_of_the_zoo_meets_the_target_on_every_device(tmp_path, capsys, device):
+    """Two members through the command line with the defaults, measured as bench/bm_zoo.py
+    does, on every device: a plate with rivets grown by M1 (at --size 64, the exemplar's own
+    extent) and a ridged plane completed by M4 keep their size and height within 15%, beat
+    random tiling, and keep the ridges' direction."""
+    from geosynth.cli import main
+
+    bm = _load("bm_zoo")
+    plate = zoo.zoo("volume", 1)[0]
+    src = plate.write(tmp_path / "inputs")
+    out = tmp_path / "outputs" / "plate.ply"
+    out.parent.mkdir()
+    assert main(["volume", str(src), "-o", str(out), "--size", "64", "--device", device, "--seed", "1"]) == 0
+    row = bm.measure_volume(plate, src, out, capsys.readouterr().out)
+    assert row["kind"] == "relief" and bm.verdict(row), row
+    ridges = zoo.zoo("complete", 10)[9]  # a ridged plane without colour, missing a band across its middle
+    cap = ridges.write(tmp_path / "inputs")
+    done = tmp_path / "outputs" / "ridges.ply"
+    assert main(["complete", str(cap), "-o", str(done), "--device", device, "--seed", "1", "--quiet"]) == 0
+    row = bm.measure_complete(ridges, done, cap)
+    assert bm.verdict(row) and row["angle_diff"] <= 10, row
