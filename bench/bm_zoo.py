@@ -323,8 +323,11 @@ def run_member(member: Member, folder: Path, device: str, quick: bool, timeout: 
 
 
 def measure_member(member: Member, folder: Path, row: dict | None = None, text: str | None = None) -> dict:
-    """The row of a run whose files are in ``folder`` (its log's json when ``row`` is None)."""
-    src = member.write(folder / "inputs")
+    """The row of a run whose files are in ``folder`` (its log's json when ``row`` is None),
+    measured against the input file the run read (written when the folder has none)."""
+    src = folder / "inputs" / f"{member.name}{member.suffix}"
+    if not src.exists():
+        src = member.write(folder / "inputs")
     out = folder / "outputs" / f"{member.name}.ply"
     png = folder / "pictures" / f"{member.name}.png"
     if row is None:

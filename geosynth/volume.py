@@ -97,41 +97,36 @@ def resolve_method(method: str, slab: bool, terrain: bool = False) -> str:
     return method
 
 
-# A source is a terrain when its largest inside component covers at least TERRAIN_COVER
-# of its (y, x) columns (as geosynth.volume_features measures a relief) and fewer than
-# TERRAIN_FLAT of them top out at its commonest whole-sample height (no flat ground). On
-# the zoo and the built-ins, plates with rivets, domes or cobbles have 0.47-0.79 of their
-# columns on the plate, terrains 0.07-0.12.
-TERRAIN_COVER = 0.9
+# A source is a terrain when it is one relief (geosynth.volume_features.covers_footprint)
+# and fewer than TERRAIN_FLAT of its columns top out at its commonest height (no flat
+# ground). On the zoo and the built-ins, plates with rivets, domes or cobbles have
+# 0.47-0.79 of their columns on the plate, terrains 0.07-0.12.
 TERRAIN_FLAT = 0.25
 
 
 def is_terrain(values: np.ndarray) -> bool:
     """Whether a (Z, Y, X) source (uint8 codes, inside < 128, or float signed
-    distances, inside < 0) is a terrain: a height field (:func:`is_height_field`) whose
-    largest 26-connected inside component covers TERRAIN_COVER of the columns and has no
-    flat ground (TERRAIN_FLAT). Graphcut's seams cross such a surface as creases and steps:
-    the zoo's terrain slab came out with its hills 0.80x their spacing under graphcut,
-    1.01x under texture optimization, whose histogram matching keeps the height
-    (bench/RESULTS.md, the zoo); on a plate the seams run over the flat ground, and the
-    domes' slopes score 0.98 under graphcut against 0.93."""
+    distances, inside < 0) is a terrain: a height field (:func:`is_height_field`) that is
+    one relief (:func:`geosynth.volume_features.covers_footprint`) with no flat ground
+    (TERRAIN_FLAT). Graphcut's seams cross such a surface as creases and steps: the zoo's
+    terrain slab came out with its hills 0.80x their spacing under graphcut, 1.01x under
+    texture optimization, whose histogram matching keeps the height (bench/RESULTS.md, the
+    zoo); on a plate the seams run over the flat ground, and the domes' slopes score 0.98
+    under graphcut against 0.93. Decided from the inside mask alone (the quantized codes'
+    sign, the same on every device)."""
     from scipy import ndimage
+
+    from geosynth.volume_features import covers_footprint
 
     v = np.asarray(values)
     codes = v if v.dtype == np.uint8 else np.where(v < 0, 0, 255).astype(np.uint8)
     if not is_height_field(codes):
         return False
-    labels, n = ndimage.label(codes < 128, structure=np.ones((3, 3, 3), bool))
-    if n == 0:
-        return False
-    largest = labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
-    if largest.any(axis=0).mean() < TERRAIN_COVER:
-        return False
-    # each column's highest inside sample, from the inside mask alone (the quantized codes'
-    # sign, the same on every device), so that the decision is too
     inside = codes < 128
+    if not covers_footprint(ndimage.label(inside, structure=np.ones((3, 3, 3), bool))[0]):
+        return False
     has = inside.any(axis=0)
-    top = (inside.shape[0] - 1 - np.argmax(inside[::-1], axis=0))[has]
+    top = (inside.shape[0] - 1 - np.argmax(inside[::-1], axis=0))[has]  # each column's highest inside sample
     return bool(np.bincount(top).max() < TERRAIN_FLAT * top.size)
 
 
@@ -1090,14 +1085,15 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
     if block is None and across:
         # separate tubes across the footprint have no size a block could hold: every stitch between
         # two blocks is where a tube may break or fuse, so the fewest stitches the source allows
-        _, cap = _element_block(mesh, 0.0, base * factor, _scaled_size(size, factor), levels)
+        cap = _largest_block(mesh, base * factor, _scaled_size(size, factor), levels)
         if chosen_block < cap:
             chosen_block = cap
             span_note = (f"; {features.count} separate elements, {features.spanning:.0%} of the volume across the "
                          f"footprint (tubes) -> block {cap}, the largest the source holds twice across")
     elif block is None and math.isfinite(features.span):
-        need, cap = _element_block(mesh, features.span / spacing * factor, base * factor, _scaled_size(size, factor),
-                                   levels)
+        # the power of two that holds a whole element and the margin
+        need = 1 << int(math.ceil(math.log2(max(1.0, features.span / spacing * factor + M1_ELEMENT_MARGIN_SAMPLES))))
+        cap = _largest_block(mesh, base * factor, _scaled_size(size, factor), levels)
         if chosen_block < need <= cap:  # an element the source cannot hold twice across gains nothing
             chosen_block = need
             span_note = (f"; whole elements {features.span / spacing * factor:.0f} samples across at "
@@ -1123,13 +1119,11 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
     return Settings(resolution, chosen_block, new_size, float(thickness), text, field if factor == 1 else None)
 
 
-def _element_block(mesh, span: float, resolution: int, size, levels: int) -> tuple[int, int]:
-    """(the power of two that holds an element ``span`` samples across plus
-    M1_ELEMENT_MARGIN_SAMPLES, the largest block the synthesis can use: a power of two
-    at most half the source across, so that the finest level keeps candidates, and at most
-    the target across; for an exemplar that is not a slab, along z too; and whose block's
-    uint8 score, samples x 255^2, stays within uint32, the matching kernels' range)."""
-    need = 1 << int(math.ceil(math.log2(max(1.0, span + M1_ELEMENT_MARGIN_SAMPLES))))
+def _largest_block(mesh, resolution: int, size, levels: int) -> int:
+    """The largest finest block the synthesis can use: a power of two at most half the
+    source across, so that the finest level keeps candidates, and at most the target across
+    (for an exemplar that is not a slab, along z too), whose uint8 score, samples x 255^2,
+    stays within uint32, the matching kernels' range."""
     shape, _, _ = _exemplar_grid_geometry(mesh, resolution, multiple=2 ** (levels - 1))
     target = target_size(size, shape, levels)
     slab = is_slab(shape, target)
@@ -1138,7 +1132,7 @@ def _element_block(mesh, span: float, resolution: int, size, levels: int) -> tup
     cap = 1 << max(0, room.bit_length() - 1)
     while cap > 1 and cap * cap * (shape[0] if slab else cap) * 255**2 > np.iinfo(np.uint32).max:
         cap //= 2
-    return need, cap
+    return cap
 
 
 def _fits_geometry(mesh, size, resolution, levels, block, search, smooth, quality_samples, method, slab) -> bool:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["ElementFeatures", "compare_features", "element_features", "format_features", "kept_whole", "top_height"]
+__all__ = ["ElementFeatures", "compare_features", "covers_footprint", "element_features", "format_features", "kept_whole"]
 
 # A relief when the largest inside component covers at least this share of the columns.
 RELIEF_COVER = 0.9
@@ -100,7 +100,7 @@ class ElementFeatures:
     span: float = math.nan
 
 
-def top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _top_height(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Top surface z (in samples, sub-sample) of each (y, x) column: the highest inside
     sample plus the interpolated zero crossing above it; columns with no inside sample
     get -0.5 (the grid's bottom face). Also the (Y, X) mask of columns with an inside sample."""
@@ -279,34 +279,49 @@ def _free_ends(inside: np.ndarray, margin: int = 3) -> float:
     return count / float((y1 - y0) * (x1 - x0))
 
 
-def _touching(labels: np.ndarray, n: int, axes_yx=(-2, -1), material: bool = True) -> np.ndarray:
-    """(n + 1,) bool: which labels reach an x or y side of the material's bounding box
-    (``material``; the grid's border when the material fills it: an element cut by the
-    side of an output padded inside its grid is cut all the same, and an exemplar's
-    elements along its sides are not counted whole either) or of the grid."""
-    touch = np.zeros(n + 1, bool)
-    boxes = ndimage.find_objects(labels, max_label=n)
-    for ax in axes_yx:
+def _box_sides(labels: np.ndarray, boxes: list, material: bool = True, axes=(-2, -1)) -> list:
+    """Per axis of ``axes`` (y, x), the (n,) bool pairs (starts at the low side, stops at
+    the high side) of the labels' bounding ``boxes`` (:func:`scipy.ndimage.find_objects`)
+    against the material's bounding box (``material``: an element cut by the side of an
+    output padded inside its grid is cut all the same) or the grid's border."""
+    out = []
+    for ax in axes:
         ax = ax % labels.ndim
-        lo = min(b[ax].start for b in boxes if b is not None) if material else 0
-        hi = max(b[ax].stop for b in boxes if b is not None) if material else labels.shape[ax]
-        for k, b in enumerate(boxes, start=1):
-            if b is not None and (b[ax].start <= lo or b[ax].stop >= hi):
-                touch[k] = True
+        here = [b for b in boxes if b is not None]
+        lo = min(b[ax].start for b in here) if material else 0
+        hi = max(b[ax].stop for b in here) if material else labels.shape[ax]
+        out.append((np.array([b is not None and b[ax].start <= lo for b in boxes], bool),
+                    np.array([b is not None and b[ax].stop >= hi for b in boxes], bool)))
+    return out
+
+
+def _touching(labels: np.ndarray, boxes: list, material: bool = True, axes=(-2, -1)) -> np.ndarray:
+    """(n,) bool: which labels reach an x or y side of the material's bounding box (an
+    exemplar's elements along its sides are not counted whole either) or of the grid
+    (:func:`_box_sides`)."""
+    touch = np.zeros(len(boxes), bool)
+    for low, high in _box_sides(labels, boxes, material, axes):
+        touch |= low | high
     return touch
 
 
-def _spanning(labels: np.ndarray, n: int, volume: np.ndarray) -> float:
+def _spanning(labels: np.ndarray, boxes: list, volume: np.ndarray) -> float:
     """Share of ``volume`` (per label 1..n) in labels that reach both x sides or both
     y sides of the material's bounding box."""
-    boxes = ndimage.find_objects(labels, max_label=n)
-    span = np.zeros(n, bool)
-    for ax in (1, 2):
-        lo = min(b[ax].start for b in boxes if b is not None)
-        hi = max(b[ax].stop for b in boxes if b is not None)
-        span |= np.array([b is not None and b[ax].start <= lo and b[ax].stop >= hi for b in boxes])
+    span = np.zeros(len(boxes), bool)
+    for low, high in _box_sides(labels, boxes):
+        span |= low & high
     total = float(volume.sum())
     return float(volume[span].sum() / total) if total > 0 else math.nan
+
+
+def covers_footprint(labels: np.ndarray) -> bool:
+    """Whether the largest labelled (Z, Y, X) component covers RELIEF_COVER of the (y, x)
+    columns: one relief (a plate with rivets, a terrain) rather than separate elements."""
+    sizes = np.bincount(labels.ravel())[1:]
+    if not sizes.size:
+        return False
+    return bool((labels == 1 + int(np.argmax(sizes))).any(axis=0).mean() >= RELIEF_COVER)
 
 
 def _crossings(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int, up: bool) -> np.ndarray:
@@ -350,17 +365,16 @@ def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int)
     del occupancy, owner
     diameter = np.cbrt(6.0 * volume / math.pi)
     extent = _crossings(field, inside, labels, n, True) - _crossings(field, inside, labels, n, False)
-    touch = _touching(labels, n)[1:]
-    whole = ~touch
+    boxes = ndimage.find_objects(labels, n)
+    whole = ~_touching(labels, boxes)
     pick = whole if whole.any() else np.ones(n, bool)
     eulers = _eulers(labels, np.flatnonzero(whole) + 1)
     # the larger horizontal side of each bounding box (whole elements only: an element cut by
     # the box, or a network crossing it, has no size a block could hold)
-    boxes = ndimage.find_objects(labels, n)
     span = np.array([max(b[1].stop - b[1].start, b[2].stop - b[2].start) if b is not None else 0 for b in boxes],
                     np.float64)
     return (n, float(whole.mean()), _weighted_median(diameter[pick], volume[pick]), float(np.median(extent[pick])),
-            volume[whole], eulers, _spanning(labels, n, volume), _weighted_median(span[whole], volume[whole]))
+            volume[whole], eulers, _spanning(labels, boxes, volume), _weighted_median(span[whole], volume[whole]))
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
@@ -399,8 +413,8 @@ def _bumps(h: np.ndarray):
         return none
     idx = np.arange(1, n + 1)
     area = np.asarray(ndimage.sum(np.ones_like(h), labels, idx), np.float64)
-    touch = _touching(labels, n, (0, 1), material=False)[1:]  # the map is the footprint already
-    whole = ~touch
+    # the map is the footprint already: its grid's border is the material's side
+    whole = ~_touching(labels, ndimage.find_objects(labels, n), material=False, axes=(0, 1))
     pick = whole if whole.any() else np.ones(n, bool)
     return (n, float(whole.mean()), _weighted_median(2.0 * np.sqrt(area[pick] / math.pi), area[pick]), area[whole],
             _eulers(labels, np.flatnonzero(whole) + 1))
@@ -432,15 +446,13 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
     s = float(spacing)
     f = f.astype(np.float32) / np.float32(s)  # distances in samples
     inside = f < 0
-    h, has = top_height(f)
+    h, has = _top_height(f)
     thickness = _thickness(f)
     if not inside.any():
         return ElementFeatures(0, math.nan, math.nan, 0.0, math.nan, math.nan, False)
     labels, n = ndimage.label(inside, structure=np.ones((3, 3, 3), bool))
     if slab is None:
-        sizes = np.bincount(labels.ravel())[1:]
-        largest = labels == (1 + int(np.argmax(sizes)))
-        slab = bool(largest.any(axis=0).mean() >= RELIEF_COVER)
+        slab = covers_footprint(labels)
     ends = spanning = span = math.nan
     if slab:
         h = _footprint(h, has)
