@@ -335,6 +335,8 @@ class AutoSettings:
         fine: the share of its power below 4 capture spacings a wavelength.
         regular: 10th percentile / median of the nearest-neighbour spacings.
         reason: the one-line report.
+        latitude: a sphere's :func:`geosynth.surface_fit.latitude_axis` (axis, share) when it
+            was measured (a relief with a period), else None.
     """
 
     window: int
@@ -348,6 +350,7 @@ class AutoSettings:
     fine: float
     regular: float
     reason: str
+    latitude: tuple | None = None
 
 
 def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
@@ -492,7 +495,8 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     # latitude frames about that axis (:func:`fit_frames`) turn only at its poles. A relief without
     # such an axis keeps the paper's: the golf ball's dimples (share 0.32) came out 1.24x their period
     # in latitude frames, 0.96x in the paper's; a zoo knurl (share 0.19) 0.87x its size against 0.70x
-    share = latitude_axis(fit, cap.positions)[1] if fit.kind == "sphere" and math.isfinite(period) else 1.0
+    latitude = latitude_axis(fit, cap.positions) if fit.kind == "sphere" and math.isfinite(period) else None
+    share = 1.0 if latitude is None else latitude[1]
     latitudes = share < LATITUDE_SHARE
     rotations, frames = (1, "fit") if directed else (DEFAULT_ROTATIONS, "fit" if latitudes else "paper")
     # a relief directed both ways (rows and columns of features) with sharp features breaks them
@@ -513,7 +517,8 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
               + ("" if not math.isfinite(per_t) else f" (~{(2 * window + 1) / per_t:.1f} periods)")
               + f"; {why_r}; refine {refine}")
     return AutoSettings(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing,
-                        coarse=coarse, capture_spacing=s_c, spectrum=spec, fine=fine, regular=regular, reason=reason)
+                        coarse=coarse, capture_spacing=s_c, spectrum=spec, fine=fine, regular=regular, reason=reason,
+                        latitude=latitude)
 
 
 def _thin(fit: SurfaceFit, points: np.ndarray, delta: float) -> np.ndarray:
@@ -1196,7 +1201,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     if frames == "fit":
         axis = None
         if sf.kind == "sphere":  # latitudes about the relief's own axis when it has one
-            axis, share = latitude_axis(sf, cap.positions)
+            measured = auto.latitude if auto is not None else None  # choose_settings measured it already
+            axis, share = measured if measured is not None else latitude_axis(sf, cap.positions)
             if share >= LATITUDE_SHARE:
                 axis = np.asarray(sf.axis, np.float64)
             frame_axis = (tuple(float(x) for x in axis), share)

@@ -129,22 +129,26 @@ def test_random_bumps_on_a_cylinder_are_not_a_directed_relief():
 
 def test_a_slice_of_the_zoo_meets_the_target_on_every_device(tmp_path, capsys, device):
     """Two members through the command line with the defaults, measured as bench/bm_zoo.py
-    does, on every device: a plate with rivets grown by M1 (at --size 64, the exemplar's own
-    extent) and a ridged plane completed by M4 keep their size and height within 15%, beat
-    random tiling, and keep the ridges' direction."""
+    does, on every device and over seeds: a plate with rivets grown by M1 (at --size 64, the
+    exemplar's own extent) and a ridged plane completed by M4 keep their size and height
+    within 15%, beat random tiling, and keep the ridges' direction. Measured over seeds 1-6
+    (opencl; bench/RESULTS.md, the zoo): M1 size 1.03-1.11, height 0.94-1.05, 0.10-0.16 of
+    random; M4 size 0.93, height 1.00, 0.26 degrees on every seed."""
     from geosynth.cli import main
 
     bm = _load("bm_zoo")
     plate = zoo.zoo("volume", 1)[0]
     src = plate.write(tmp_path / "inputs")
-    out = tmp_path / "outputs" / "plate.ply"
-    out.parent.mkdir()
-    assert main(["volume", str(src), "-o", str(out), "--size", "64", "--device", device, "--seed", "1"]) == 0
-    row = bm.measure_volume(plate, src, out, capsys.readouterr().out)
-    assert row["kind"] == "relief" and bm.verdict(row), row
+    (tmp_path / "outputs").mkdir()
+    for seed in (1, 2, 3):
+        out = tmp_path / "outputs" / f"plate-{seed}.ply"
+        assert main(["volume", str(src), "-o", str(out), "--size", "64", "--device", device, "--seed", str(seed)]) == 0
+        row = bm.measure_volume(plate, src, out, capsys.readouterr().out)
+        assert row["kind"] == "relief" and bm.verdict(row), (seed, row)
     ridges = zoo.zoo("complete", 10)[9]  # a ridged plane without colour, missing a band across its middle
     cap = ridges.write(tmp_path / "inputs")
-    done = tmp_path / "outputs" / "ridges.ply"
-    assert main(["complete", str(cap), "-o", str(done), "--device", device, "--seed", "1", "--quiet"]) == 0
-    row = bm.measure_complete(ridges, done, cap)
-    assert bm.verdict(row) and row["angle_diff"] <= 10, row
+    for seed in (1, 2):
+        done = tmp_path / "outputs" / f"ridges-{seed}.ply"
+        assert main(["complete", str(cap), "-o", str(done), "--device", device, "--seed", str(seed), "--quiet"]) == 0
+        row = bm.measure_complete(ridges, done, cap)
+        assert bm.verdict(row) and row["angle_diff"] <= 10, (seed, row)
