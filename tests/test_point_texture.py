@@ -189,12 +189,12 @@ def test_no_device_given_runs_on_auto(small_weave):
     np.testing.assert_array_equal(a.positions, b.positions)
 
 
-# Weave over 3 seeds: (worst, mean) bounds of each ratio. Measured over seeds 0-9, mean / worst
-# (sd) as native and AVX2 | as SSE4 (bench/RESULTS.md): field distance / random pasting's
-# 0.626 / 0.752 (0.090) | 0.589 / 0.679 (0.067); seam after / before blending 0.621 / 0.692
-# (0.040) | 0.603 / 0.677 (0.053); seam before / random pasting's 0.455 / 0.527 (0.042) |
-# 0.429 / 0.535 (0.051); stray points 0.035 / 0.045 (0.005) | 0.033 / 0.039 (0.004).
-WEAVE_BEATS = {"field": (0.9, 0.75), "seam_after_before": (0.85, 0.72), "seam_before_baseline": (0.7, 0.55),
+# Weave over 3 seeds: (worst, mean) bounds of each ratio. Measured over seeds 0-5 with the
+# smoothed, height-keeping warp (issue 32; the same bits on every device and CPU), mean / worst:
+# field distance / random pasting's 0.392 / 0.518; seam after / before blending 0.739 / 0.772
+# (the warp leaves a smaller seam to blend: before / random pasting's 0.274 / 0.340, the
+# paper's interpolating spline 0.449 / 0.534); stray points 0.029 / 0.031.
+WEAVE_BEATS = {"field": (0.7, 0.5), "seam_after_before": (0.85, 0.8), "seam_before_baseline": (0.5, 0.4),
                "stray": (0.1, 0.06)}
 
 

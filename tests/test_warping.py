@@ -84,7 +84,7 @@ def test_larger_rotation_lands_on_the_surface():
     assert off_before > 0.3
     assert off.mean() < 0.02 and off.max() < 0.1, (off.mean(), off.max())
     nerr = angle_deg(res.normals, normal(w[:, :2]))[inner]
-    assert nerr.mean() < 0.5 and nerr.max() < 3.0, (nerr.mean(), nerr.max())
+    assert nerr.mean() < 0.75 and nerr.max() < 3.0, (nerr.mean(), nerr.max())  # (smoothed spline: 0.52)
 
 
 def test_spline_interpolates_its_pairs(rng):
@@ -157,7 +157,9 @@ def test_corner_pairs_stay_fixed():
     res = warp_patch(src, nsrc, p[t_sel], n[t_sel], *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0))
     assert len(res.fixed) == 4
     assert {tuple(np.round(f, 9)) for f in res.fixed} == {tuple(c) for c in corners}
-    np.testing.assert_allclose(res.points[-4:], corners, atol=1e-9)
+    # (within a hundredth of a spacing: the spline is smoothed and keeps the height scale,
+    # so the fixed pairs are no longer interpolated exactly; 0.004 spacings here)
+    np.testing.assert_allclose(res.points[-4:], corners, atol=0.01 * SP)
     # The overlap is pulled onto the targets; the far side moves less.
     moved = res.points[:-4] - s
     near, far = p[:, 0] < 0.2, p[:, 0] > 0.8
@@ -602,7 +604,7 @@ def test_compiled_nearest_neighbours_are_pykdtrees(rng, monkeypatch):
     assert (got_d[:, 1:] == got_d[:, :-1]).sum() > 50  # ties were there to order
 
 
-def _interior_height_scale(vertical_step):
+def _interior_height_scale(keep_height_scale, smoothing):
     """The slope of the warped heights on the source's heights inside the patch (away from
     the overlap) when the neighbourhood in the -x and -y overlap is the source's relief at
     half its height (a neighbour that matches only approximately)."""
@@ -610,7 +612,7 @@ def _interior_height_scale(vertical_step):
     strip = (p[:, 0] < 0.25) | (p[:, 1] < 0.25)
     t = p[strip] * [1.0, 1.0, 0.5]
     res = warp_patch(p, n, t, n[strip], *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0),
-                     vertical_step=vertical_step)
+                     keep_height_scale=keep_height_scale, smoothing=smoothing)
     inner = (p[:, :2] > 0.4).all(axis=1)
     z0 = p[inner, 2] - p[inner, 2].mean()
     z1 = res.points[inner, 2] - res.points[inner, 2].mean()
@@ -618,19 +620,19 @@ def _interior_height_scale(vertical_step):
 
 
 def test_warp_keeps_the_interior_relief_height():
-    # The pairs lie on a thin sheet: the paper's spline (the default) reads the neighbour's
-    # lower relief as a vertical scaling and squashes the patch also where it has no
-    # neighbour; a second centre a step above each pair keeps the heights' scale.
-    paper, _ = _interior_height_scale(0.0)
-    kept, res = _interior_height_scale(1.0)
+    # The pairs lie on a thin sheet: the paper's spline reads the neighbour's lower relief
+    # as a vertical scaling and squashes the patch also where it has no neighbour; the
+    # default drops the spline's vertical scaling and keeps the heights' scale.
+    paper, _ = _interior_height_scale(False, 0.0)
+    kept, res = _interior_height_scale(True, 0.1)
     assert paper < 0.9, paper
     assert kept > 0.94, kept
     assert len(res.pairs) > 20  # the overlap was paired (else nothing was tested)
 
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), True, "1"])
-def test_vertical_step_is_checked(bad):
+def test_smoothing_is_checked(bad):
     p, n = bumpy_patch()
-    with pytest.raises(ValueError, match="vertical_step"):
+    with pytest.raises(ValueError, match="smoothing"):
         warp_patch(p, n, p[:10], n[:10], *BOX, WARP_PRESETS["heightfield"], SP, np.random.default_rng(0),
-                   vertical_step=bad)
+                   smoothing=bad)
