@@ -886,8 +886,8 @@ def synthesize_volume_tiled(
     """
     from geosynth import _checks
     from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample, is_terrain,
-                                 level_blocks, max_levels, quantize_field)
+    from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
+                                 level_blocks, max_levels, optimizes_better, quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
@@ -912,7 +912,7 @@ def synthesize_volume_tiled(
     _, target_shape = check_source_and_size(src, size, levels)
     # the untiled synthesis's choices (slab, blocks, method, band, iterations), made by the same function
     settings, grid = _settings_and_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab,
-                                        search, method, band, iterations, terrain=method == "auto" and is_terrain(src))
+                                        search, method, band, iterations, terrain=method == "auto" and optimizes_better(src))
     blocks, band, caps = list(grid.blocks), settings.band, list(settings.iterations)
     if gather is None:
         gather = store is None

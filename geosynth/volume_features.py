@@ -315,6 +315,17 @@ def _spanning(labels: np.ndarray, boxes: list, volume: np.ndarray) -> float:
     return float(volume[span].sum() / total) if total > 0 else math.nan
 
 
+def across_share(labels: np.ndarray) -> float:
+    """Share of the inside samples of labelled (Z, Y, X) components that reach both x sides
+    or both y sides of the material's bounding box (:func:`_spanning` by sample count: the
+    inside mask alone, so the same for quantized codes on every device)."""
+    n = int(labels.max()) if labels.size else 0
+    if n == 0:
+        return math.nan
+    volume = np.bincount(labels.ravel(), minlength=n + 1)[1:].astype(np.float64)
+    return _spanning(labels, ndimage.find_objects(labels, n), volume)
+
+
 def covers_footprint(labels: np.ndarray) -> bool:
     """Whether the largest labelled (Z, Y, X) component covers RELIEF_COVER of the (y, x)
     columns: one relief (a plate with rivets, a terrain) rather than separate elements."""

@@ -205,6 +205,24 @@ def test_auto_method_optimizes_a_terrain_slab_and_cuts_a_plate():
         assert s.slab and s.method == method, (s.slab, s.method)
 
 
+def test_auto_method_optimizes_tubes_across_and_cuts_discs_and_broken_tubes():
+    """is_tubes_across: separate tubes over the footprint (graphcut's stitches break or fuse
+    them) -> texture optimization under "auto", from quantized codes too; a layer of discs,
+    tubes cut in two and one tube stay graphcut slabs."""
+    from geosynth.volume import choose_volume_settings, is_tubes_across, optimizes_better, quantize_field
+
+    n, zs = 40, 8
+    z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
+    tubes = np.min([np.hypot(y - c, z - 4) - 2.0 for c in (5.0, 15.0, 25.0, 35.0)], axis=0)
+    broken = np.maximum(tubes, -(np.abs(x - 20) - 1.5))
+    one = np.hypot(y - 20, z - 4) - 2.0
+    assert is_tubes_across(tubes) and is_tubes_across(quantize_field(tubes, 4.0)) and optimizes_better(tubes)
+    assert not is_tubes_across(broken) and not is_tubes_across(one) and not is_tubes_across(_discs())
+    for field, method in ((tubes, "optimize"), (broken, "graphcut")):
+        s = choose_volume_settings(field.shape, (8, 80, 80), 2, 8, terrain=optimizes_better(field))
+        assert s.slab and s.method == method, (s.slab, s.method)
+
+
 def test_tubes_across_get_the_largest_block_the_source_holds_twice():
     """Seven separate tubes across a square layer 3.84 units wide (4 samples thick at 64):
     no element size a block could hold, so the fewest stitches: block 32 (half the source
