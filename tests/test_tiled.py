@@ -571,7 +571,7 @@ def test_cli_plate_file_tiled_says_the_untiled_choices(tmp_path, capsys):
     assert main(argv) == 0
     out = capsys.readouterr().out
     lines = [ln for ln in out.splitlines() if ln.startswith(("method:", "slab exemplar"))]
-    assert lines == ["method: graphcut (auto: graphcut for a slab, optimize otherwise and for a terrain)",
+    assert lines == ["method: graphcut (auto: graphcut for a slab, optimize otherwise and for a terrain or tubes across)",
                      "slab exemplar (32 x 32 x 8 samples, x y z): blocks span its full thickness along z, grown "
                      "across only (chosen automatically)"], lines
     assert "seams (block distance" in out and (tmp_path / "t.ply").read_bytes().startswith(b"ply")
