@@ -320,3 +320,26 @@ def test_fuzzed_point_sets_read_into_a_texture_or_one_line_error(tmp_path, ops, 
         assert len(np.unique(tex.points, axis=0)) == len(tex)  # no coincident points left
         assert tex.merged == len(p) - len(tex)
         assert tex.spacing > 0
+
+
+def test_a_files_padding_is_what_the_border_needs_and_the_rest_is_texture(tmp_path):
+    """read_point_texture's default box: 8 mean point spacings a side (the MLS support and
+    the warp's reach), at most 20%; a mesh by the spacing of its uniform sample; a given
+    padding is kept."""
+    import trimesh
+
+    from geosynth.point_textures import FILE_PADDING_SPACINGS, file_padding, read_point_texture
+
+    g = np.stack(np.meshgrid(np.arange(200.0), np.arange(100.0), indexing="ij"), -1).reshape(-1, 2) * 0.01
+    pts = np.c_[g, 0.02 * np.sin(9 * g[:, 0])]
+    pad = file_padding(pts)  # spacing 0.01 over the smaller extent 0.99
+    assert abs(pad - FILE_PADDING_SPACINGS * 0.01 / 0.99) < 1e-3
+    assert file_padding(pts.reshape(200, 100, 3)[::10, ::10].reshape(-1, 3)) == 0.2  # spacing 0.1: the cap
+    path = tmp_path / "grid.ply"
+    trimesh.PointCloud(pts).export(path)
+    tex = read_point_texture(path)
+    lo, hi = pts[:, :2].min(0), pts[:, :2].max(0)
+    np.testing.assert_allclose(tex.box_min[:2], lo + pad * (hi - lo), atol=1e-6)
+    assert np.allclose(read_point_texture(path, padding=0.2).box_min[:2], lo + 0.2 * (hi - lo), atol=1e-6)
+    plane = trimesh.creation.box([2.0, 1.0, 0.01])
+    assert abs(file_padding(plane.vertices, 40_000, plane.area) - FILE_PADDING_SPACINGS * 0.5 * np.sqrt(plane.area / 40_000)) < 1e-9
