@@ -303,7 +303,8 @@ def file_padding(points: np.ndarray, count: int | None = None, area: float | Non
     FILE_PADDING_SPACINGS mean point spacings over the smaller of the x and y extents. The
     spacing of a point set is measured (mean nearest-neighbour distance over up to 20,000 of
     its points); a mesh about to be sampled with ``count`` points over its ``area`` has
-    0.5 sqrt(area / count), the mean nearest-neighbour distance of a uniform sample."""
+    0.5 sqrt(area / count), the mean nearest-neighbour distance of a uniform sample. Sums by
+    ``math.fsum`` (NumPy's reductions round by the CPU's SIMD width; the box decides the output)."""
     p = np.asarray(points, np.float64)
     if count is not None and area is not None:
         spacing = 0.5 * math.sqrt(float(area) / int(count))
@@ -311,11 +312,25 @@ def file_padding(points: np.ndarray, count: int | None = None, area: float | Non
         from scipy.spatial import cKDTree
 
         pick = p[np.linspace(0, len(p) - 1, min(len(p), 20_000)).astype(np.int64)]
-        spacing = float(cKDTree(p).query(pick, k=2)[0][:, 1].mean())
+        d = cKDTree(p).query(pick, k=2)[0][:, 1]
+        spacing = math.fsum(d.tolist()) / len(d)
     ext = float(np.min(p[:, :2].max(axis=0) - p[:, :2].min(axis=0)))
     if not ext > 0:
         return MAX_PADDING
     return float(min(MAX_PADDING, FILE_PADDING_SPACINGS * spacing / ext))
+
+
+def _area_fixed(mesh) -> float:
+    """A mesh's surface area, the same bits on every CPU: each triangle's by elementwise
+    arithmetic (:func:`geosynth.cpu_exact.norm3` of its cross product), summed by ``math.fsum``
+    (trimesh's ``area`` sums with NumPy's SIMD reduction)."""
+    from geosynth.cpu_exact import norm3
+
+    t = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces, np.int64)]
+    a, b = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    cross = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                      a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+    return 0.5 * math.fsum(norm3(cross).tolist())
 
 
 def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | None = None, count: int = 40_000,
@@ -346,7 +361,7 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | No
         if isinstance(g, PointSet):
             padding = file_padding(g.positions)
         else:
-            padding = file_padding(np.asarray(g.vertices, np.float64), count, float(g.area))
+            padding = file_padding(np.asarray(g.vertices, np.float64), count, _area_fixed(g))
     padding = 0.2 if padding is None else padding
     if before_sampling is not None and not isinstance(g, PointSet):
         try:

@@ -328,7 +328,7 @@ def test_a_files_padding_is_what_the_border_needs_and_the_rest_is_texture(tmp_pa
     padding is kept."""
     import trimesh
 
-    from geosynth.point_textures import FILE_PADDING_SPACINGS, file_padding, read_point_texture
+    from geosynth.point_textures import FILE_PADDING_SPACINGS, _area_fixed, file_padding, read_point_texture
 
     g = np.stack(np.meshgrid(np.arange(200.0), np.arange(100.0), indexing="ij"), -1).reshape(-1, 2) * 0.01
     pts = np.c_[g, 0.02 * np.sin(9 * g[:, 0])]
@@ -342,4 +342,5 @@ def test_a_files_padding_is_what_the_border_needs_and_the_rest_is_texture(tmp_pa
     np.testing.assert_allclose(tex.box_min[:2], lo + pad * (hi - lo), atol=1e-6)
     assert np.allclose(read_point_texture(path, padding=0.2).box_min[:2], lo + 0.2 * (hi - lo), atol=1e-6)
     plane = trimesh.creation.box([2.0, 1.0, 0.01])
+    assert abs(_area_fixed(plane) - plane.area) < 1e-12 * plane.area  # (summed in a fixed order)
     assert abs(file_padding(plane.vertices, 40_000, plane.area) - FILE_PADDING_SPACINGS * 0.5 * np.sqrt(plane.area / 40_000)) < 1e-9
