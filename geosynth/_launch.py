@@ -10,7 +10,9 @@ that was interrupted while it loaded (exit 130 or 143), before anything is writt
 
 from __future__ import annotations
 
-import signal
+# The C module, not ``signal``: importing ``signal`` builds its enum classes first (a few ms on
+# a loaded machine, in which a Ctrl-C still raised KeyboardInterrupt with a traceback).
+import _signal
 
 _EARLY: list[int] = []  # the signals that arrived while the command line loaded
 
@@ -21,8 +23,8 @@ def _record(signum, frame) -> None:  # pragma: no cover - exercised through a su
 
 def main() -> int:
     """Run the ``geosynth`` command line; returns its exit code (see :func:`geosynth.cli.main`)."""
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _record)
+    for sig in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(sig, _record)
     from geosynth.cli import main as cli_main  # the heavy imports: an interrupt here is recorded
 
     return cli_main(early=_EARLY)

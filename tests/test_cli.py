@@ -435,7 +435,10 @@ def test_sigint_at_any_moment_leaves_every_old_output_or_every_new_one(tmp_path,
         if state == "old" and proc.returncode == 1 and "init_import_site" in err:
             pass  # so early (a loaded machine) that CPython's own start-up stopped, before any geosynth code
         elif state == "old":
-            assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in err, (seen, err)
+            # (CPython prints "Exception ignored in" when the handler's KeyboardInterrupt lands in an
+            # import lock's weakref callback; the run still stops at once with 130, outputs old)
+            shown = err.split("Exception ignored in:")[0] if proc.returncode == 130 else err
+            assert proc.returncode in (130, -signal.SIGINT) and "Traceback" not in shown, (seen, err)
         elif sent:  # the signal came after the commit: the run had finished, its outputs are whole
             assert proc.returncode in (0, 130, -signal.SIGINT), seen
         assert not [p.name for p in tmp_path.iterdir() if ".geosynth-" in p.name], seen
