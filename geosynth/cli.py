@@ -1095,7 +1095,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tileable", action="store_true", help="make the output periodic (copies tile without seams)")
     p.add_argument("--method", choices=["auto", "optimize", "graphcut", "paper"], default="auto",
                    help="auto (default): graphcut for a slab, optimize otherwise and for a terrain (a relief "
-                        "without flat ground) (the best structure measured); optimize: texture optimization per level; graphcut: the paper's scan with "
+                        "without flat ground) or tubes across the slab (the best structure measured); optimize: "
+                        "texture optimization per level; graphcut: the paper's scan with "
                         "minimum-error cuts; paper: the paper's scan-order copying")
     p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")

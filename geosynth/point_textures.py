@@ -124,16 +124,20 @@ class PointTexture:
     @property
     def spacing(self) -> float:
         """The mean nearest-neighbour distance of the points (world units)."""
-        from scipy.spatial import cKDTree
-
-        pick = self.points[np.linspace(0, len(self) - 1, min(len(self), 20_000)).astype(np.int64)]
-        d, _ = cKDTree(self.points).query(pick, k=2)
-        return float(d[:, 1].mean())
+        return float(_nearest_distances(self.points).mean())
 
     def padding(self) -> np.ndarray:
         """(2,) how far (x, y) the geometry extends beyond B on its narrower side, >= 0."""
         lo, hi = self.points[:, :2].min(axis=0), self.points[:, :2].max(axis=0)
         return np.maximum(0.0, np.minimum(self.box_min[:2] - lo, hi - self.box_max[:2]))
+
+
+def _nearest_distances(points: np.ndarray) -> np.ndarray:
+    """The nearest-neighbour distances ((k,) float64) of up to 20,000 evenly picked points."""
+    from scipy.spatial import cKDTree
+
+    pick = points[np.linspace(0, len(points) - 1, min(len(points), 20_000)).astype(np.int64)]
+    return cKDTree(points).query(pick, k=2)[0][:, 1]
 
 
 def _first_of_each_position(points: np.ndarray) -> np.ndarray | None:
@@ -309,10 +313,7 @@ def file_padding(points: np.ndarray, count: int | None = None, area: float | Non
     if count is not None and area is not None:
         spacing = 0.5 * math.sqrt(float(area) / int(count))
     else:
-        from scipy.spatial import cKDTree
-
-        pick = p[np.linspace(0, len(p) - 1, min(len(p), 20_000)).astype(np.int64)]
-        d = cKDTree(p).query(pick, k=2)[0][:, 1]
+        d = _nearest_distances(p)
         spacing = math.fsum(d.tolist()) / len(d)
     ext = float(np.min(p[:, :2].max(axis=0) - p[:, :2].min(axis=0)))
     if not ext > 0:
@@ -362,7 +363,7 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | No
             padding = file_padding(g.positions)
         else:
             padding = file_padding(np.asarray(g.vertices, np.float64), count, _area_fixed(g))
-    padding = 0.2 if padding is None else padding
+    padding = MAX_PADDING if padding is None else padding
     if before_sampling is not None and not isinstance(g, PointSet):
         try:
             lo, hi = _box(np.asarray(g.vertices, np.float64), box, padding)

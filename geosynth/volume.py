@@ -118,8 +118,11 @@ def is_terrain(values: np.ndarray) -> bool:
     zoo); on a plate the seams run over the flat ground, and the domes' slopes score 0.98
     under graphcut against 0.93. Decided from the inside mask alone (the quantized codes'
     sign, the same on every device)."""
-    from scipy import ndimage
+    return _terrain(values)
 
+
+def _terrain(values: np.ndarray, labels: np.ndarray | None = None) -> bool:
+    """:func:`is_terrain`, with the inside's components (:func:`_inside_labels`) when known."""
     from geosynth.volume_features import covers_footprint
 
     v = np.asarray(values)
@@ -127,7 +130,7 @@ def is_terrain(values: np.ndarray) -> bool:
     if not is_height_field(codes):
         return False
     inside = codes < 128
-    if not covers_footprint(ndimage.label(inside, structure=np.ones((3, 3, 3), bool))[0]):
+    if not covers_footprint(_inside_labels(codes) if labels is None else labels):
         return False
     has = inside.any(axis=0)
     top = (inside.shape[0] - 1 - np.argmax(inside[::-1], axis=0))[has]  # each column's highest inside sample
@@ -141,22 +144,32 @@ def is_tubes_across(values: np.ndarray) -> bool:
     tubes break or fuse them; texture optimization blends them on (the zoo's wavy tubes:
     block distance 0.11 of random tiling's against 0.25, their height 1.00 against 0.94;
     straight tubes 0.05 against 0.06). From the inside mask alone, as :func:`is_terrain`."""
-    from scipy import ndimage
+    return _tubes_across(_inside_labels(values))
 
-    from geosynth.volume_features import across_share, covers_footprint
+
+def _inside_labels(values: np.ndarray) -> np.ndarray:
+    """The 26-connected components of a source's inside (uint8 codes < 128, or float < 0)."""
+    from scipy import ndimage
 
     v = np.asarray(values)
     inside = v < 128 if v.dtype == np.uint8 else v < 0
-    labels, n = ndimage.label(inside, structure=np.ones((3, 3, 3), bool))
-    if n < 2 or covers_footprint(labels):
+    return ndimage.label(inside, structure=np.ones((3, 3, 3), bool))[0]
+
+
+def _tubes_across(labels: np.ndarray) -> bool:
+    from geosynth.volume_features import across_share, covers_footprint
+
+    if int(labels.max()) < 2 or covers_footprint(labels):
         return False
     return bool(across_share(labels) >= M1_ACROSS_SHARE)
 
 
 def optimizes_better(values: np.ndarray) -> bool:
     """Whether "auto" runs texture optimization on a slab source: a terrain
-    (:func:`is_terrain`) or tubes across its footprint (:func:`is_tubes_across`)."""
-    return is_terrain(values) or is_tubes_across(values)
+    (:func:`is_terrain`) or tubes across its footprint (:func:`is_tubes_across`); the inside
+    is labelled once for both."""
+    labels = _inside_labels(values)
+    return _terrain(values, labels) or _tubes_across(labels)
 
 
 # A source is a slab when its across sides are at least this many times its thickness.
