@@ -793,11 +793,11 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
         count = args.count or 40_000
         sampled = False
 
-        def before_sampling(lo, hi):  # a mesh: count points spread by area, (1 - 2 x 0.2)^2 of them inside B
+        def before_sampling(lo, hi, share):  # a mesh: count points spread by area, about ``share`` inside B
             nonlocal sampled
             sampled = True
-            area = float(np.prod((hi - lo)[:2])) / 0.36
-            _pointtexture_check(args, lo, hi, count, round(0.36 * count), count=True, z_span=float(hi[2] - lo[2]),
+            area = float(np.prod((hi - lo)[:2])) / share
+            _pointtexture_check(args, lo, hi, count, round(share * count), count=True, z_span=float(hi[2] - lo[2]),
                                 spacing=math.sqrt(area / count), patch=patch)
 
         texture = read_point_texture(exemplar, count=count, seed=args.seed, before_sampling=before_sampling)

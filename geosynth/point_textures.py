@@ -346,9 +346,10 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | No
             file's sampling (:func:`file_padding`: what B's border needs, the rest is texture).
         count: points sampled from a mesh.
         seed: seed of the mesh sampling.
-        before_sampling: called as ``before_sampling(box_min, box_max)`` (B as the
-            sampled points will give it, from the mesh's vertices) before a mesh is
-            sampled, e.g. to refuse a ``count`` that cannot fit; it may raise.
+        before_sampling: called as ``before_sampling(box_min, box_max, share)`` (B as the
+            sampled points will give it, from the mesh's vertices, and B's share of the
+            mesh's x/y bounds) before a mesh is sampled, e.g. to refuse a ``count`` that
+            cannot fit; it may raise.
 
     Raises:
         FileNotFoundError, ValueError: as :func:`geosynth.pointsets.read_geometry`, and as
@@ -369,7 +370,9 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | No
             lo, hi = _box(np.asarray(g.vertices, np.float64), box, padding)
         except ValueError as exc:
             raise ValueError(f"{str(path)!r}: {exc}") from None
-        before_sampling(lo, hi)  # its refusals are about the options, not the file
+        ext = np.ptp(np.asarray(g.vertices, np.float64)[:, :2], axis=0)
+        share = float(np.prod((hi - lo)[:2]) / np.prod(ext)) if (ext > 0).all() else 1.0
+        before_sampling(lo, hi, min(1.0, share))  # its refusals are about the options, not the file
     try:
         if isinstance(g, PointSet):
             return texture_from_points(g.positions, g.normals, box=box, padding=padding, name=name, colors=g.colors)

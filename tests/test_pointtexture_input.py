@@ -343,4 +343,10 @@ def test_a_files_padding_is_what_the_border_needs_and_the_rest_is_texture(tmp_pa
     assert np.allclose(read_point_texture(path, padding=0.2).box_min[:2], lo + 0.2 * (hi - lo), atol=1e-6)
     plane = trimesh.creation.box([2.0, 1.0, 0.01])
     assert abs(_area_fixed(plane) - plane.area) < 1e-12 * plane.area  # (summed in a fixed order)
+    # a mesh's B is told to the pre-sampling check with its share of the mesh (no longer 0.36)
+    plane.export(tmp_path / "plane.ply")
+    seen = []
+    tex = read_point_texture(tmp_path / "plane.ply", before_sampling=lambda lo, hi, share: seen.append(share))
+    pad = file_padding(plane.vertices, 40_000, _area_fixed(plane))
+    assert len(seen) == 1 and abs(seen[0] - (1 - 2 * pad) ** 2) < 1e-9 and seen[0] > 0.36
     assert abs(file_padding(plane.vertices, 40_000, plane.area) - FILE_PADDING_SPACINGS * 0.5 * np.sqrt(plane.area / 40_000)) < 1e-9
