@@ -13,9 +13,16 @@ completion using non-parametric techniques"): speed and quality.
    baseline's numbers are the mean over 5 seeded random-copy draws, shown with the draws'
    min-max (one draw is a noisy yardstick). ``--seeds 0,1,2``: a row per completion seed.
 
+3. ``--scaling``: issue 32's target, 20,000 captured vertices completed in <= 60 s on 2 cores
+   (opencl): the issue's knurled half cylinder (180 x 120 vertices) and zoo members 02, 05, 08,
+   11 (the spheres, the slowest family) resampled to about 20,000 captured vertices, each with the
+   exhaustive and the coherent search (``geosynth.completion.SEARCHES``) on the first device,
+   defaults otherwise: time and the relief's period and amplitude ratios.
+
 With ``--quick``: the Fig. 9 case at a tenth of its size and the wave and flat examples.
 
-Usage: python bench/bm_completion.py [--quick] [--devices cpu,opencl:0:0] [--out FILE]
+Usage: python bench/bm_completion.py [--quick] [--devices cpu,opencl:0:0] [--search auto|exhaustive|coherent]
+       [--scaling] [--out FILE]
 """
 
 from __future__ import annotations
@@ -39,6 +46,11 @@ BUILTINS = ["golf", "bark", "wave", "noise", "tower", "flat"]
 def _options(parser) -> None:
     parser.add_argument("--examples", default=None, help="comma-separated built-ins for the quality table")
     parser.add_argument("--no-speed", action="store_true", help="skip the Fig. 9 speed case")
+    parser.add_argument("--search", default="auto", choices=["auto", "exhaustive", "coherent"],
+                        help="FindMatches' search in the quality table (default auto)")
+    parser.add_argument("--scaling", action="store_true", help="the 20,000-vertex scaling part instead of the rest")
+    parser.add_argument("--scaling-searches", default="exhaustive,coherent",
+                        help="comma-separated searches of the scaling part (default both)")
     parser.add_argument("--seeds", default="0", help="comma-separated completion seeds for the quality table "
                         "(default 0; the built-ins themselves are generated with seed 0)")
 
@@ -59,12 +71,83 @@ def fig9_capture(scale: float = 1.0):
     return bark_example(seed=0, delta=0.05, height=3.47 * scale, fraction=0.323)
 
 
+SCALING_VERTICES = 20_000
+
+
+def knurled_half_cylinder(n_theta: int = 180, n_z: int = 120):
+    """Issue 32's capture: a unit half cylinder (theta in [0, pi], height 2), the knurl
+    0.04 sin(12 theta) sin(2 pi z) along the normal, brown and dark stripes following
+    sin(12 theta), as a ``trimesh.Trimesh`` with vertex colours (21,600 vertices)."""
+    import numpy as np
+    import trimesh
+
+    th, z = np.meshgrid(np.linspace(0, np.pi, n_theta), np.linspace(0, 2, n_z), indexing="ij")
+    r = 1 + 0.04 * np.sin(12 * th) * np.sin(2 * np.pi * z)
+    pos = np.stack([r * np.cos(th), r * np.sin(th), z], -1).reshape(-1, 3)
+    s = ((np.sin(12 * th) + 1) / 2).ravel()
+    col = np.stack([90 + 80 * s, 60 + 50 * s, 30 + 30 * s, np.full_like(s, 255)], 1).astype(np.uint8)
+    idx = np.arange(n_theta * n_z).reshape(n_theta, n_z)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    return trimesh.Trimesh(pos, faces, vertex_colors=col, process=False)
+
+
+def zoo_capture(index: int, vertices: int = SCALING_VERTICES):
+    """Zoo complete member ``index`` resampled to about ``vertices`` captured vertices (its
+    spacing scaled; everything else as drawn), as a ``trimesh.Trimesh`` with vertex colours."""
+    import dataclasses
+
+    import numpy as np
+    import trimesh
+    from zoo import capture_surface, zoo
+
+    member = zoo("complete", index + 1)[index]
+    n = len(capture_surface(member)[0])
+    params = dict(member.params, spacing=member.params["spacing"] * math.sqrt(n / vertices))
+    verts, faces, colours, _ = capture_surface(dataclasses.replace(member, params=params))
+    kw = {} if colours is None else {"vertex_colors": np.column_stack([colours, np.full(len(colours), 255, np.uint8)])}
+    return member.name, trimesh.Trimesh(verts, faces, process=False, **kw)
+
+
+def scaling(args, dev) -> list[str]:
+    """The scaling part (module docstring, 3)."""
+    from geosynth.completion import complete_surface
+
+    cases = [("issue 32 knurled half cylinder", knurled_half_cylinder())]
+    cases += [zoo_capture(i) for i in (2, 5, 8, 11)]
+    searches = [x.strip() for x in args.scaling_searches.split(",") if x.strip()]
+    lines = [f"## Scaling: about {SCALING_VERTICES:,} captured vertices (device {dev}, seed 1, defaults)", "",
+             "| capture | captured | targets | candidates | search | grow s | total s | CPU s | period ratio | "
+             "amplitude ratio | angle diff deg | volume diff % | <= 60 s |",
+             "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for name, mesh in cases:
+        for search in searches:
+            c0 = time.process_time()
+            _, rep, tm = complete_surface(mesh, device=dev, seed=1, search=search)
+            cpu = time.process_time() - c0
+            q = rep.quality
+            rel = (f"{q['period_ratio']:.3f} | {q['amplitude_ratio']:.3f} | {q['angle_diff_deg']:.1f}"
+                   if q.get("relief_completed") is not None else "- | - | -")
+            row = (f"| {name} | {len(mesh.vertices):,} | {rep.targets:,} | {rep.n_candidates:,} | {rep.search} | "
+                   f"{tm['grow']:.1f} | {tm['total']:.1f} | {cpu:.1f} | {rel} | {q['volume_diff_pct']:.2f} | "
+                   f"{'yes' if tm['total'] <= 60 else 'no'} |")
+            print(row, flush=True)
+            lines.append(row)
+    lines += ["", "Ratios: completed / captured relief, measured in the fit's unrolled frame "
+              "(geosynth.relief_spectrum); the issue's targets: period within 10%, orientation within 10 degrees, "
+              "20,000 captured vertices in <= 60 s on 2 cores (opencl)."]
+    return lines
+
+
 def main(argv=None) -> int:
     args = options(argv)
     devices = start(args)
     from geosynth.completion import complete_surface
     from geosynth.completion_examples import completion_example
 
+    if args.scaling:
+        return finish("\n".join(scaling(args, devices[0])), args,
+                      title="# bm_completion: M4 scaling to 20,000 captured vertices")
     lines = []
     if not args.no_speed:
         scale = 0.1 if args.quick else 1.0
@@ -98,7 +181,7 @@ def main(argv=None) -> int:
     dev = devices[0]
     seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
     lines += [f"## Quality of the built-ins (device {dev}, seeds {', '.join(map(str, seeds))})", "",
-              "| example | seed | window, R, frames, refine, spacing (automatic) | samples | targets | volume orig | volume completed | diff % | "
+              "| example | seed | window, R, frames, refine, spacing, search (automatic) | samples | targets | volume orig | volume completed | diff % | "
               "baseline diff %, mean (min-max) | slope diff % | baseline slope % | RGB hist | "
               "baseline hist, mean (min-max) | colour step diff % | baseline step % | "
               "halves diff % | halves hist | period, amplitude ratio, angle diff deg | grow s | CPU s | issue's targets met |",
@@ -106,8 +189,8 @@ def main(argv=None) -> int:
     for name, seed in [(n, sd) for n in names for sd in seeds]:
         ex = completion_example(name)
         c0 = time.process_time()
-        surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, device=dev,
-                                            seed=seed)  # every setting chosen from the capture (issue 32)
+        surface, rep, tm = complete_surface(ex.capture, fit=ex.fit, region=ex.region, device=dev, seed=seed,
+                                            search=args.search)  # every setting chosen from the capture (issue 32)
         cpu = time.process_time() - c0
         q = rep.quality
         flat = q["volume_original"] == 0
@@ -126,7 +209,7 @@ def main(argv=None) -> int:
         sp = rep.spacing_rule if rep.spacing_rule != "chosen" else f"{rep.spacing:.4g}"
         rel = (f"{q['period_ratio']:.3f}, {q['amplitude_ratio']:.3f}, {q['angle_diff_deg']:.1f}"
                if q.get("relief_completed") is not None else "-")
-        row = (f"| {name} | {seed} | {rep.window}, {rep.rotations}, {rep.frames}, {rep.refine}, {sp} | {rep.samples:,} | {rep.targets:,} | {q['volume_original']:.5f} | "
+        row = (f"| {name} | {seed} | {rep.window}, {rep.rotations}, {rep.frames}, {rep.refine}, {sp}, {rep.search} | {rep.samples:,} | {rep.targets:,} | {q['volume_original']:.5f} | "
                f"{q['volume_completed']:.5f} | {q['volume_diff_pct']:.2f} | {q['volume_baseline_diff_pct']:.2f} "
                f"({vlo:.2f}-{vhi:.2f}) | "
                f"{q['slope_diff_pct']:.1f} | {q['slope_baseline_diff_pct']:.1f} | {hist} | {hb} | {cs} | {cbs} | "

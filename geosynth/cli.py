@@ -1035,12 +1035,12 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     say(f"geosynth complete: {label}, {len(capture.vertices if hasattr(capture, 'vertices') else capture.positions):,} "
         f"captured points ({_capture_colours(capture)}), fit {fit or 'by residual'}, window {shown(window)}, "
         f"rotations {shown(rotations)}, frames {shown(frames)}, mu {mu:g}, refine {shown(refine)}, "
-        f"spacing {shown(spacing)}, seed {args.seed}, device {args.device or 'auto'}")
+        f"spacing {shown(spacing)}, search {args.search}, seed {args.seed}, device {args.device or 'auto'}")
     surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
                                                 rotations=rotations, mu=mu, max_error=args.max_error,
                                                 device=args.device, seed=args.seed, progress=not args.quiet,
                                                 balance=not args.no_balance, frames=frames, refine=refine,
-                                                spacing=spacing)
+                                                spacing=spacing, search=args.search)
     for line in report.lines():
         say(line)
     say("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items() if k != "targets_per_s")
@@ -1224,6 +1224,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the fit (our option: targets as dense as the capture) (default: chosen from the capture: the median "
                         "for a regular sampling on a curved fit, else the minimum; period / 6 for a capture with over "
                         "12 samples on its relief's period)")
+    p.add_argument("--search", choices=["auto", "exhaustive", "coherent"], default="auto",
+                   help="FindMatches' candidates: every one (exhaustive, the paper; cost targets x candidates) or the "
+                        "targets' neighbours' sources, 128 spread over the capture and those around the best (coherent, our option; linear in "
+                        "the targets) (default auto: exhaustive while targets x candidates x rotations is under 4e7)")
     p.add_argument("--no-balance", action="store_true",
                    help="the paper's uniform pick among the matches within 1.1x the best (default: the "
                         "histogram-aware pick, our extension; see geosynth.completion._Balance)")

@@ -95,6 +95,15 @@ _MAX_BATCH = 64
 _BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
 HINT_RINGS = 3  # coherence hints: the candidates within 3 edge rings of the samples that textured the neighbours
 HINT_PROBES: tuple[int, ...] | None = ()  # stride probes after the hints (None: find_matches' default)
+SEARCHES = ("exhaustive", "coherent")
+# FindMatches' search (issue 32: 20,000 captured vertices in 60 s). "exhaustive" is the paper's
+# (every candidate; exact pruning keeps it the paper's selection) and costs targets x candidates;
+# "coherent" picks among the coherence hints, COHERENT_PROBES candidates evenly spread over the
+# capture and the candidates around the best of those (coarse to fine), linear in the targets.
+# "auto" takes the exhaustive search while targets x candidates x R stays under AUTO_EXHAUSTIVE_WORK.
+COHERENT_PROBES = 128
+COHERENT_AROUND = 4  # ... then the candidates within HINT_RINGS rings of each target's 4 best found so far
+AUTO_EXHAUSTIVE_WORK = 4e7  # ~20 s of the full pass on 2 cores (measured 2e6 candidate-rotations/s, opencl)
 BALANCE_STRENGTH = 4.0  # the histogram-aware draw: weights exp(strength x deficit score), score in [-1, 1]
 BALANCE_PENALTY = 0.5  # codes x (1 + penalty x (1 - score) / 2) before the 1.1x rule (find_matches at 1.1 x 1.5)
 BASELINE_DRAWS = 5  # the random-copy baseline: mean (and min, max) over this many seeded draws
@@ -193,6 +202,7 @@ class CompletionReport:
             setting was given); n_candidates: how many samples are candidates.
         frame_axis: a sphere's latitude frames' axis (:func:`geosynth.surface_fit.latitude_axis`)
             and its least-eigenvalue share, or None.
+        search: FindMatches' search, one of ``SEARCHES`` (:func:`choose_search`).
         The quality also holds the relief's scale, captured part against completed part, both
         measured in the fit's unrolled frame at the target spacing
         (:mod:`geosynth.relief_spectrum`): ``relief_captured`` and ``relief_completed``
@@ -226,6 +236,7 @@ class CompletionReport:
     auto: str = ""
     n_candidates: int = 0
     frame_axis: tuple | None = None
+    search: str = "exhaustive"
 
     def lines(self) -> list[str]:
         """The report as printed by the CLI."""
@@ -240,7 +251,7 @@ class CompletionReport:
                   f" (latitudes about ({', '.join(f'{x:.3f}' for x in self.frame_axis[0])}), "
                   + ("the relief's axis" if self.frame_axis[1] < LATITUDE_SHARE else "the fit's axis: the relief has "
                      "none") + f", share {self.frame_axis[1]:.3f})")
-               + f", mu {self.mu:g}, device "
+               + f", mu {self.mu:g}, search {self.search}, device "
                f"{self.device}"
                + ("" if self.whole_windows < 0 else
                   f"; {self.whole_windows:,} of the capture's {self.n_original:,} vertices "
@@ -521,6 +532,22 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
                         latitude=latitude)
 
 
+def choose_search(search: str, n_targets: int, n_candidates: int, rotations: int) -> tuple[str, str]:
+    """FindMatches' search for a completion: ``search`` itself unless "auto", else
+    "exhaustive" (the paper) while n_targets x n_candidates x rotations stays under
+    ``AUTO_EXHAUSTIVE_WORK`` and "coherent" above it. Returns (search, the reason to print, ""
+    when the search was given)."""
+    if search != "auto":
+        return search, ""
+    work = float(n_targets) * n_candidates * rotations
+    if work <= AUTO_EXHAUSTIVE_WORK:
+        return "exhaustive", (f"search exhaustive ({n_targets:,} targets x {n_candidates:,} candidates x R {rotations} "
+                              f"= {work:.2g}, within {AUTO_EXHAUSTIVE_WORK:.0e})")
+    return "coherent", (f"search coherent ({n_targets:,} targets x {n_candidates:,} candidates x R {rotations} = "
+                        f"{work:.2g}, over {AUTO_EXHAUSTIVE_WORK:.0e}: each target scored against its neighbours' "
+                        f"sources, {COHERENT_PROBES} candidates spread over the capture and those around its {COHERENT_AROUND} best)")
+
+
 def _thin(fit: SurfaceFit, points: np.ndarray, delta: float) -> np.ndarray:
     """(k,) int64 ids of ``points`` one per cell of a ``delta`` grid in the fit's unrolled
     frame: the point nearest its cell's centre (lowest id on ties), sorted."""
@@ -564,7 +591,7 @@ def _classes(members: np.ndarray, w_t: np.ndarray, ring_ptr, ring_idx, ring_d, s
 
 
 def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, max_error: float,
-          rng: np.random.Generator, progress: bool, balance: "_Balance | None" = None):
+          rng: np.random.Generator, progress: bool, balance: "_Balance | None" = None, search: str = "exhaustive"):
     """GrowSurface (Appendix A); returns (textured (V,) bool, stats dict). Updates rs in place.
 
     ``balance``: None picks uniformly among the matches (the paper); a :class:`_Balance`
@@ -620,7 +647,8 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                         chunk = cls[start:start + per_launch]
                         got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
                                            rotations, mu, err, hints, picked, textured,
-                                           TOLERANCE if balance is None else TOLERANCE * (1.0 + balance.penalty))
+                                           TOLERANCE if balance is None else TOLERANCE * (1.0 + balance.penalty),
+                                           search)
                         accepted_t, accepted_s, accepted_r = [], [], []
                         for t, m in zip(chunk, got):  # picks in list order (one draw per non-empty match set)
                             k = slot_of[t]
@@ -660,7 +688,8 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
 
 
 def _refine(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, rng: np.random.Generator,
-            picked: np.ndarray, textured: np.ndarray, passes: int, balance: "_Balance | None" = None) -> int:
+            picked: np.ndarray, textured: np.ndarray, passes: int, balance: "_Balance | None" = None,
+            search: str = "exhaustive") -> int:
     """Refinement passes after GrowSurface (our extension, not the paper's; the two-pass idea
     of Wei and Levoy 2000, "Fast texture synthesis using tree-structured vector quantization",
     Sec. 3.4): every completed target is matched again against its whole W-ring, which is
@@ -690,7 +719,7 @@ def _refine(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float
             for start in range(0, len(cls), per_launch):
                 chunk = cls[start:start + per_launch]
                 got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
-                                   rotations, mu, accept_all, hints, picked, textured, tolerance)
+                                   rotations, mu, accept_all, hints, picked, textured, tolerance, search)
                 at, src, rot = [], [], []
                 for t, m in zip(chunk, got):  # picks in list order, one draw each
                     if len(m.sample) == 0:
@@ -858,10 +887,29 @@ class _HintTable:
         grid[pairs[:, 0], col] = pairs[:, 1]
         return grid
 
+    def around(self, index, slots: np.ndarray) -> np.ndarray:
+        """(Q, k) int64 candidate slots within HINT_RINGS edge rings of each row's ``slots``
+        ((Q, m) positions in index.samples, -1: none), padded with -1."""
+        q, m = slots.shape
+        row = np.repeat(np.arange(q), m)
+        v = np.where(slots.reshape(-1) >= 0, index.samples[np.maximum(slots.reshape(-1), 0)], -1)
+        row, v = row[v >= 0], v[v >= 0]
+        if len(v) == 0:
+            return np.full((q, 0), -1, np.int64)
+        n = self.ptr[v + 1] - self.ptr[v]
+        at = np.repeat(self.ptr[v] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+        pairs = np.unique(np.stack([np.repeat(row, n), self.slots[at]], 1), axis=0)
+        counts = np.bincount(pairs[:, 0], minlength=q)
+        col = np.arange(len(pairs)) - np.repeat(np.cumsum(counts) - counts, counts)
+        grid = np.full((q, int(counts.max())), -1, np.int64)
+        grid[pairs[:, 0], col] = pairs[:, 1]
+        return grid
+
 
 def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err,
-                 hints=None, picked=None, textured=None, tolerance=TOLERANCE):
-    """find_matches for a chunk of one class, one launch per window size; in chunk order."""
+                 hints=None, picked=None, textured=None, tolerance=TOLERANCE, search="exhaustive"):
+    """find_matches for a chunk of one class, one launch per window size; in chunk order.
+    ``search``: one of SEARCHES."""
     out = [None] * len(chunk)
     hint_slots = None if hints is None else hints.for_targets(chunk, picked, textured)
     ks = slot_of[chunk]
@@ -878,9 +926,14 @@ def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d,
                                            np.concatenate(lists).astype(np.int64), sigmas[int(w)],
                                            rotations=rotations, mu=mu)
         hint_rows = None if hint_slots is None else hint_slots[pos]
-        probes = HINT_PROBES if hint_rows is not None and (hint_rows >= 0).any() else None
+        if search == "coherent":
+            probes = (max(1, -(-len(index.samples) // COHERENT_PROBES)),)
+        else:
+            probes = HINT_PROBES if hint_rows is not None and (hint_rows >= 0).any() else None
+        around = None if hints is None or search != "coherent" else (lambda best: hints.around(index, best))
         for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=tolerance, probes=probes,
-                                             hints=hint_rows)):
+                                             hints=hint_rows, exhaustive=search == "exhaustive", around=around,
+                                             around_best=COHERENT_AROUND)):
             out[p] = m
     return out
 
@@ -1059,7 +1112,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                      device: str | None = None, seed: int = 0, progress: bool = False,
                      max_targets: int | None = 200_000, oversample: str | None = None,
                      candidates: str = "capture", balance: bool | float = True, frames: str | None = None,
-                     refine: int | None = None, spacing: str | float | None = None):
+                     refine: int | None = None, spacing: str | float | None = None, search: str = "auto"):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -1111,6 +1164,12 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             length (world units). When the automatic choice coarsens the targets (a capture
             with over 12 samples on its relief's period), the candidates are thinned to one a
             target spacing in the fit's frame.
+        search: FindMatches' candidates: "exhaustive" (the paper: every candidate, cost
+            targets x candidates), "coherent" (our option: the coherence hints and
+            ``COHERENT_PROBES`` candidates spread evenly over the capture, then the candidates
+            around each target's ``COHERENT_AROUND`` best of those; linear in the targets, the
+            same selection rule among them), or "auto" (default): exhaustive while targets x
+            candidates x R is under ``AUTO_EXHAUSTIVE_WORK``, else coherent.
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -1138,6 +1197,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         raise ValueError(f"refine must be an integer from 0 to 8 (refinement passes), got {refine!r}.")
     if spacing is not None:
         check_spacing_rule(spacing)  # before the fit's work
+    if not isinstance(search, str) or search not in SEARCHES + ("auto",):
+        raise ValueError(f"search must be one of {', '.join(SEARCHES + ('auto',))}, got {search!r}.")
     cap = as_capture(capture)
     need = 3 * DEFAULT_WINDOW * (DEFAULT_WINDOW + 1) + 1 if window is None else 3 * window * (window + 1) + 1
     if len(cap) < need:  # vertices of one W-ring neighbourhood of a regular triangulation
@@ -1212,6 +1273,9 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
     if coarse:  # targets coarser than the capture: one candidate a target spacing is enough
         samples = samples[_thin(sf, rs.base[samples], rs.spacing)]
+    search, why = choose_search(search, rs.n_targets, len(samples), int(rotations))
+    if why:
+        auto_line = f"{auto_line}; {why}" if auto_line else f"automatic settings: {why}"
     textured0 = np.zeros(rs.n_vertices, dtype=bool)
     textured0[: rs.n_samples] = True
     colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
@@ -1222,9 +1286,10 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     rng = np.random.default_rng(seed)
     strength = BALANCE_STRENGTH if balance is True else float(balance) if balance is not False else 0.0
     bal = _Balance(rs, strength, BALANCE_PENALTY) if strength > 0 else None
-    textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress, bal)
+    textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress, bal,
+                            search)
     refined = _refine(rs, index, rm, int(window), int(rotations), use_mu, rng, stats["picked"], textured,
-                      int(refine), bal) if refine else 0
+                      int(refine), bal, search) if refine else 0
     t4 = time.perf_counter()
     quality = _quality(rs, textured, int(seed), samples)
     t5 = time.perf_counter()
@@ -1251,7 +1316,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
         quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
         spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
-        auto=auto_line, n_candidates=len(samples), frame_axis=frame_axis,
+        auto=auto_line, n_candidates=len(samples), frame_axis=frame_axis, search=search,
         picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
         if textured[rs.n_samples:].any() else float("nan"))
     timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,

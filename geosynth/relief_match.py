@@ -687,7 +687,8 @@ def _hint_pass(hints, n_query: int, n_samples: int) -> np.ndarray | None:
 
 
 def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tolerance: float = 1.1,
-                 probes: tuple[int, ...] | None = None, hints=None) -> list[Matches]:
+                 probes: tuple[int, ...] | None = None, hints=None, exhaustive: bool = True,
+                 around=None, around_best: int = 8) -> list[Matches]:
     """The paper's BestMatches of each query: every (sample, rotation) whose ssd is within
     ``tolerance`` x the best (Breckon and Fisher, Appendix A), found with limits that
     prune nothing that could be selected or accepted.
@@ -711,6 +712,15 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         hints: None, (k,) int slots (positions in index.samples) scored on every query
             of the batch before the probes, or (Q, k) int slots a row per query (-1:
             none; each query scored against its own row only).
+        exhaustive: True (the paper): the full pass over every sample decides. False (our
+            option for large captures, :data:`geosynth.completion.SEARCHES`): the
+            selection is made among the hints and the probe strides only, with the same
+            rules; no full pass. Needs hints or probes.
+        around: with ``exhaustive=False``, None or a function from (Q, m) int64 slots (-1:
+            none) to (Q, k) int64 slot rows (-1: none): the candidates near each query's
+            ``around_best`` best slots found by the hints and probes, scored in one more pass
+            before the selection (a coarse-to-fine search: the probes find the right region,
+            this pass the best candidate in it).
 
     Returns:
         One :class:`Matches` per query; empty arrays when nothing can be accepted.
@@ -729,33 +739,65 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     passes = []
     hinted = _hint_pass(hints, nq, n_s)
     if hinted is not None:
-        passes.append((hinted.shape[-1], index.backend.to_device(hinted.astype(np.int32).reshape(-1)), hinted.ndim == 2))
+        passes.append((hinted, index.backend.to_device(hinted.astype(np.int32).reshape(-1)), hinted.ndim == 2))
     for stride in probes:
         slots, cand = index.candidates(stride)
-        passes.append((len(slots), cand, False))
+        passes.append((slots, cand, False))
+    if not exhaustive and not passes:
+        _fail("exhaustive", "False without hints or probes", "pass hints or probe strides, or exhaustive=True")
     slots, cand = index.candidates(1)
-    from geosynth.memory import require  # one memory check, for the full pass (the largest)
+    from geosynth.memory import require  # one memory check, for the largest pass
 
-    per_query = 3 * len(slots) * queries.rotations * 4
+    widest = len(slots) if exhaustive else max(p[0].shape[-1] for p in passes)
+    per_query = 3 * widest * queries.rotations * 4
     require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
-            what=f"FindMatches codes of {nq} queries x {len(slots)} samples x {queries.rotations}")
+            what=f"FindMatches codes of {nq} queries x {widest} samples x {queries.rotations}")
     qa = None
-    for n_cand, pcand, by_row in passes:
-        pc, qa = _launch(index, queries, pcand, n_cand, lim, uploaded=qa, checked=True, rows=by_row)
+    scored = []  # (slots, codes) of every pass, for the selection without a full pass
+    for pslots, pcand, by_row in passes:
+        pc, qa = _launch(index, queries, pcand, pslots.shape[-1], lim, uploaded=qa, checked=True, rows=by_row)
+        scored.append((pslots, pc))
         best = _best(pc)
         lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
-    codes, _ = _launch(index, queries, cand, len(slots), lim, uploaded=qa, checked=True)
-    best = _best(codes)
+    if exhaustive:
+        codes, _ = _launch(index, queries, cand, len(slots), lim, uploaded=qa, checked=True)
+        rows = [(slots, codes[i]) for i in range(nq)]
+    else:
+        rows = [_scored_row(scored, i) for i in range(nq)]
+        if around is not None and around_best > 0:
+            best_slots = np.full((nq, around_best), -1, np.int64)
+            for i, (sl, cs) in enumerate(rows):
+                per_slot = cs.min(axis=1) if cs.size else cs.reshape(0)
+                real = np.flatnonzero(per_slot < OVER)
+                top = real[np.argsort(per_slot[real], kind="stable")[:around_best]]
+                best_slots[i, :len(top)] = sl[top]
+            near = _slot_rows("around's rows", np.asarray(around(best_slots)), nq, n_s)
+            if near.shape[1] and (near >= 0).any():
+                pc, qa = _launch(index, queries, index.backend.to_device(near.astype(np.int32).reshape(-1)),
+                                 near.shape[1], lim, uploaded=qa, rows=True)
+                scored.append((near, pc))
+                rows = [_scored_row(scored, i) for i in range(nq)]
     out = []
-    for i in range(nq):
-        bi = int(best[i])
+    for i, (row_slots, codes) in enumerate(rows):
+        bi = int(_best(codes[None])[0])
         if bi < 0 or bi >= accept:
             e = np.zeros(0, np.int64)
             out.append(Matches(e, e, e, np.zeros(0, np.uint32), np.zeros(0), np.zeros(0, bool),
                                bi / SCORE_ONE if bi >= 0 else math.inf))
             continue
-        sel_s, sel_r = np.nonzero(codes[i] <= math.floor(tolerance * bi))
-        code = codes[i, sel_s, sel_r]
-        out.append(Matches(index.samples[sel_s], sel_s.astype(np.int64), sel_r.astype(np.int64), code,
+        sel_s, sel_r = np.nonzero(codes <= math.floor(tolerance * bi))
+        code = codes[sel_s, sel_r]
+        sel = row_slots[sel_s].astype(np.int64)
+        out.append(Matches(index.samples[sel], sel, sel_r.astype(np.int64), code,
                            code / SCORE_ONE, code < accept, bi / SCORE_ONE))
     return out
+
+
+def _scored_row(scored: list, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Query i's (slots (k,), codes (k, R)) over the passes made, each slot once, in slot order
+    (a slot both hinted and probed has the same code in both; -1 slots dropped)."""
+    sl = np.concatenate([s[i] if s.ndim == 2 else s for s, _ in scored])
+    cs = np.concatenate([c[i] for _, c in scored])
+    keep = sl >= 0
+    sl, first = np.unique(sl[keep], return_index=True)
+    return sl, cs[keep][first]

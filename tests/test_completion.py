@@ -293,6 +293,31 @@ def test_coherence_hints_change_nothing(one_device, monkeypatch):
         assert r.failed_matches == runs[0][1].failed_matches
 
 
+def test_search_option_coherent_and_auto(one_device, monkeypatch):
+    """search="coherent" completes every target from the hints and the spread probes (its
+    own bits, the same on a second run) and says so; "auto" is the exhaustive search under
+    AUTO_EXHAUSTIVE_WORK (the same bits as "exhaustive") and the coherent one above it."""
+    import geosynth.completion as completion
+
+    cap, region = _small(5), ((0.0, 0.9), (0.0, 0.45))
+    kw = dict(fit="plane", region=region, window=2, device=one_device, seed=3)
+    ex, rex, _ = complete_surface(cap, search="exhaustive", **kw)
+    co, rco, _ = complete_surface(cap, search="coherent", **kw)
+    co2, _, _ = complete_surface(cap, search="coherent", **kw)
+    au, rau, _ = complete_surface(cap, **kw)
+    assert rex.search == "exhaustive" and rco.search == "coherent" and rau.search == "exhaustive"
+    assert rco.unreached == 0 and rco.targets > 20
+    assert np.array_equal(co.positions, co2.positions)
+    assert np.array_equal(au.positions, ex.positions)
+    assert "search exhaustive" in rau.auto and "search coherent" in "\n".join(rco.lines())
+    monkeypatch.setattr(completion, "AUTO_EXHAUSTIVE_WORK", 1.0)
+    au2, rau2, _ = complete_surface(cap, **kw)
+    assert rau2.search == "coherent" and "over 1e+00" in rau2.auto
+    assert np.array_equal(au2.positions, co.positions)
+    with pytest.raises(ValueError, match="search must be one of"):
+        complete_surface(cap, search="fast", **kw)
+
+
 def _balance_case(n0=400, seed=0):
     """A _Balance over a fake flat surface: n0 captured vertices whose colours and heights
     fall in skewed bins (60% in one bin)."""

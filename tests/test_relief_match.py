@@ -265,6 +265,65 @@ def test_find_matches_is_the_unpruned_selection(device, tolerance):
     assert any(len(m.sample) for m in rm.find_matches(index, q, 0.5))
 
 
+@pytest.mark.parametrize("tolerance", [1.1, 1.65])
+def test_find_matches_without_a_full_pass_selects_among_the_scored(device, tolerance):
+    """exhaustive=False (the completion's coherent search): the selection is the unpruned
+    selection restricted to the hinted and probed slots (each once, in slot order), with
+    the same 1.1x rule and MaxErrThreshold."""
+    kw = _plane(n=17)
+    index = rm.ReliefIndex.build(**kw, device=device)
+    q = _queries(index, kw, count=5, mu=0.6)
+    full = rm.score(index, q).codes
+    n_s = len(index.samples)
+    rows = np.full((5, 4), -1, np.int64)
+    rows[:, 0] = np.arange(5) * 11 % n_s
+    rows[:, 1] = (np.arange(5) * 11 + 3) % n_s
+    rows[2, 2] = 0  # also probed (stride 6): scored once
+    for max_err, kw2 in [(e, v) for e in (0.5, 0.004) for v in (dict(probes=(6,), hints=rows),
+                                                                   dict(probes=(), hints=rows),
+                                                                   dict(probes=(5,)))]:
+        got = rm.find_matches(index, q, max_err, tolerance=tolerance, exhaustive=False, **kw2)
+        for i, m in enumerate(got):
+            seen = set(np.arange(0, n_s, kw2["probes"][0]).tolist()) if kw2["probes"] else set()
+            if "hints" in kw2:
+                seen |= {int(x) for x in kw2["hints"][i] if x >= 0}
+            seen = np.array(sorted(seen))
+            sub = full[i, seen]
+            real = sub[sub < rm.OVER].astype(np.int64)
+            if len(real) == 0 or real.min() >= np.ceil(max_err * rm.SCORE_ONE):
+                assert len(m.sample) == 0
+                continue
+            s, r = np.nonzero(sub <= np.floor(tolerance * real.min()))
+            np.testing.assert_array_equal(m.slot, seen[s])
+            np.testing.assert_array_equal(m.rotation, r)
+            np.testing.assert_array_equal(m.code, sub[s, r])
+            np.testing.assert_array_equal(m.sample, index.samples[seen[s]])
+    assert any(len(m.sample) for m in rm.find_matches(index, q, 0.5, exhaustive=False, probes=(5,)))
+    # around: one more pass over the slots next to each query's 2 best found (here: slot +- 1)
+    asked = []
+
+    def around(best):
+        asked.append(best.copy())
+        near = np.concatenate([best - 1, best + 1], axis=1)
+        return np.where((best.repeat(2, axis=1) >= 0) & (near >= 0) & (near < n_s), near, -1)
+
+    got = rm.find_matches(index, q, 0.5, tolerance=tolerance, exhaustive=False, probes=(7,), around=around,
+                          around_best=2)
+    probed = np.arange(0, n_s, 7)
+    for i, m in enumerate(got):
+        per_slot = np.where(full[i, probed] < rm.OVER, full[i, probed], rm.OVER).min(axis=1)
+        best2 = probed[np.argsort(per_slot, kind="stable")[:2]]
+        np.testing.assert_array_equal(asked[0][i], best2)
+        seen = np.union1d(probed, [x for b in best2 for x in (b - 1, b + 1) if 0 <= x < n_s])
+        sub = full[i, seen]
+        real = sub[sub < rm.OVER].astype(np.int64)
+        s, r = np.nonzero(sub <= np.floor(tolerance * real.min()))
+        np.testing.assert_array_equal(m.slot, seen[s])
+        np.testing.assert_array_equal(m.code, sub[s, r])
+    with pytest.raises(ValueError, match="exhaustive"):
+        rm.find_matches(index, q, 0.5, exhaustive=False, probes=())
+
+
 def test_transfer_inverts_the_query_rotation(one_device):
     kw = _plane()
     kw["displacements"][kw["samples"]] = [0.3, -0.1, 0.2]  # tangential parts too
