@@ -876,32 +876,27 @@ class _HintTable:
         row, nb = row[keep], nb[keep]
         src = np.where(nb < self.n_samples, nb, picked[nb])
         row, src = row[src >= 0], src[src >= 0]
-        if len(src) == 0:
-            return None
-        n = self.ptr[src + 1] - self.ptr[src]
-        at = np.repeat(self.ptr[src] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
-        pairs = np.unique(np.stack([np.repeat(row, n), self.slots[at]], 1), axis=0)  # sorted by row, then slot
-        counts = np.bincount(pairs[:, 0], minlength=len(chunk))
-        col = np.arange(len(pairs)) - np.repeat(np.cumsum(counts) - counts, counts)
-        grid = np.full((len(chunk), int(counts.max())), -1, np.int64)
-        grid[pairs[:, 0], col] = pairs[:, 1]
-        return grid
+        return None if len(src) == 0 else self._near(row, src, len(chunk))
 
     def around(self, index, slots: np.ndarray) -> np.ndarray:
         """(Q, k) int64 candidate slots within HINT_RINGS edge rings of each row's ``slots``
         ((Q, m) positions in index.samples, -1: none), padded with -1."""
         q, m = slots.shape
         row = np.repeat(np.arange(q), m)
-        v = np.where(slots.reshape(-1) >= 0, index.samples[np.maximum(slots.reshape(-1), 0)], -1)
+        flat = slots.reshape(-1)
+        v = np.where(flat >= 0, index.samples[np.maximum(flat, 0)], -1)
         row, v = row[v >= 0], v[v >= 0]
-        if len(v) == 0:
-            return np.full((q, 0), -1, np.int64)
-        n = self.ptr[v + 1] - self.ptr[v]
-        at = np.repeat(self.ptr[v] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
-        pairs = np.unique(np.stack([np.repeat(row, n), self.slots[at]], 1), axis=0)
-        counts = np.bincount(pairs[:, 0], minlength=q)
+        return np.full((q, 0), -1, np.int64) if len(v) == 0 else self._near(row, v, q)
+
+    def _near(self, row: np.ndarray, src: np.ndarray, n_rows: int) -> np.ndarray:
+        """(n_rows, k) int64: row r holds the candidate slots within HINT_RINGS rings of every
+        sample vertex src[i] with row[i] == r, each once, ascending, padded with -1."""
+        n = self.ptr[src + 1] - self.ptr[src]
+        at = np.repeat(self.ptr[src] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+        pairs = np.unique(np.stack([np.repeat(row, n), self.slots[at]], 1), axis=0)  # sorted by row, then slot
+        counts = np.bincount(pairs[:, 0], minlength=n_rows)
         col = np.arange(len(pairs)) - np.repeat(np.cumsum(counts) - counts, counts)
-        grid = np.full((q, int(counts.max())), -1, np.int64)
+        grid = np.full((n_rows, int(counts.max())), -1, np.int64)
         grid[pairs[:, 0], col] = pairs[:, 1]
         return grid
 
