@@ -540,12 +540,12 @@ def choose_search(search: str, n_targets: int, n_candidates: int, rotations: int
     if search != "auto":
         return search, ""
     work = float(n_targets) * n_candidates * rotations
-    if work <= AUTO_EXHAUSTIVE_WORK:
-        return "exhaustive", (f"search exhaustive ({n_targets:,} targets x {n_candidates:,} candidates x R {rotations} "
-                              f"= {work:.2g}, within {AUTO_EXHAUSTIVE_WORK:.0e})")
-    return "coherent", (f"search coherent ({n_targets:,} targets x {n_candidates:,} candidates x R {rotations} = "
-                        f"{work:.2g}, over {AUTO_EXHAUSTIVE_WORK:.0e}: each target scored against its neighbours' "
-                        f"sources, {COHERENT_PROBES} candidates spread over the capture and those around its {COHERENT_AROUND} best)")
+    chosen = "exhaustive" if work <= AUTO_EXHAUSTIVE_WORK else "coherent"
+    return chosen, (f"search {chosen} ({n_targets:,} targets x {n_candidates:,} candidates x R {rotations} = "
+                    f"{work:.2g}, " + (f"within {AUTO_EXHAUSTIVE_WORK:.0e})" if chosen == "exhaustive" else
+                                       f"over {AUTO_EXHAUSTIVE_WORK:.0e}: each target scored against its neighbours' "
+                                       f"sources, {COHERENT_PROBES} candidates spread over the capture and those "
+                                       f"around its {COHERENT_AROUND} best)"))
 
 
 def _thin(fit: SurfaceFit, points: np.ndarray, delta: float) -> np.ndarray:

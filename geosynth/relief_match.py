@@ -745,10 +745,9 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         passes.append((slots, cand, False))
     if not exhaustive and not passes:
         _fail("exhaustive", "False without hints or probes", "pass hints or probe strides, or exhaustive=True")
-    slots, cand = index.candidates(1)
     from geosynth.memory import require  # one memory check, for the largest pass
 
-    widest = len(slots) if exhaustive else max(p[0].shape[-1] for p in passes)
+    widest = len(index.samples) if exhaustive else max(p[0].shape[-1] for p in passes)
     per_query = 3 * widest * queries.rotations * 4
     require(nq * per_query, option="queries", value=nq, largest_fn=lambda k: k * per_query,
             what=f"FindMatches codes of {nq} queries x {widest} samples x {queries.rotations}")
@@ -760,10 +759,11 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         best = _best(pc)
         lim = np.where(best >= 0, np.minimum(lim, np.floor(tolerance * np.maximum(best, 0)).astype(np.int64)), lim)
     if exhaustive:
+        slots, cand = index.candidates(1)
         codes, _ = _launch(index, queries, cand, len(slots), lim, uploaded=qa, checked=True)
         rows = [(slots, codes[i]) for i in range(nq)]
     else:
-        rows = [_scored_row(scored, i) for i in range(nq)]
+        rows = [_merged_row([(s[i] if s.ndim == 2 else s, c[i]) for s, c in scored]) for i in range(nq)]
         if around is not None and around_best > 0:
             best_slots = np.full((nq, around_best), -1, np.int64)
             for i, (sl, cs) in enumerate(rows):
@@ -775,8 +775,7 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
             if near.shape[1] and (near >= 0).any():
                 pc, qa = _launch(index, queries, index.backend.to_device(near.astype(np.int32).reshape(-1)),
                                  near.shape[1], lim, uploaded=qa, rows=True)
-                scored.append((near, pc))
-                rows = [_scored_row(scored, i) for i in range(nq)]
+                rows = [_merged_row([rows[i], (near[i], pc[i])]) for i in range(nq)]
     out = []
     for i, (row_slots, codes) in enumerate(rows):
         bi = int(_best(codes[None])[0])
@@ -793,11 +792,12 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
     return out
 
 
-def _scored_row(scored: list, i: int) -> tuple[np.ndarray, np.ndarray]:
-    """Query i's (slots (k,), codes (k, R)) over the passes made, each slot once, in slot order
-    (a slot both hinted and probed has the same code in both; -1 slots dropped)."""
-    sl = np.concatenate([s[i] if s.ndim == 2 else s for s, _ in scored])
-    cs = np.concatenate([c[i] for _, c in scored])
+def _merged_row(parts: list) -> tuple[np.ndarray, np.ndarray]:
+    """One query's (slots (k,), codes (k, R)) from its passes' (slots, codes) parts, each slot
+    once, in slot order (a slot scored in two passes has the same code in both; -1 slots
+    dropped)."""
+    sl = np.concatenate([s for s, _ in parts])
+    cs = np.concatenate([c for _, c in parts])
     keep = sl >= 0
     sl, first = np.unique(sl[keep], return_index=True)
     return sl, cs[keep][first]
