@@ -112,6 +112,9 @@ BASELINE_DRAWS = 5  # the random-copy baseline: mean (and min, max) over this ma
 AUTO_COARSEN = 12.0  # a capture with more samples on its dominant period than this is resampled ...
 AUTO_PER_PERIOD = 6.0  # ... to targets this many to a period (the built-ins grow well at 5-10) ...
 AUTO_BAND = 0.02  # ... when under this share of its power lies below half that period (band-limited)
+AUTO_FEATURE_COARSEN = 4.0  # a relief that is not band-limited whose correlation length spans more targets
+# than this (the zoo's drawn captures and the built-ins: 1.2-3.0) ...
+AUTO_PER_FEATURE = 3.0  # ... is resampled to targets at that length / this
 AUTO_WINDOW_PERIODS = 0.75  # window W = round(this x samples a period): (2W + 1) spacings ~ 1.5 periods
 AUTO_WINDOW_RANGE = (3, 5)  # the paper's W = 3 at least; 5 at most (a 5-ring query holds ~91 vertices)
 AUTO_WHOLE = 2 / 3  # ... and no larger than two thirds of the capture's vertices can hold whole (3 at least)
@@ -365,10 +368,11 @@ class AutoSettings:
 
 
 def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
-    """(spectrum, fine share, nn spacing, regularity, cut) of points' relief in the fit's frame."""
+    """(spectrum, fine share, nn spacing, regularity, cut, share of power below half the period,
+    slope order, correlation length) of points' relief in the fit's frame."""
     from scipy.spatial import cKDTree
 
-    from geosynth.relief_spectrum import fine_share, heights_on_grid, relief_spectrum
+    from geosynth.relief_spectrum import correlation_length, fine_share, heights_on_grid, relief_spectrum
     from geosynth.surface_fit import relief_frame
 
     uv, h, cut = relief_frame(fit, points, cut)
@@ -383,7 +387,8 @@ def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None =
     # power below half the dominant period: ~0 for a band-limited relief (a sine, a knurl), a few % and
     # more for broadband ones (bumps of many sizes), which keep the capture's own sampling
     band = fine_share(grid, step, spec.period / 2, mask) if math.isfinite(spec.period) else 1.0
-    return spec, fine_share(grid, step, 4 * step, mask), med, regular, cut, band, _slope_order(grid, mask)
+    return (spec, fine_share(grid, step, 4 * step, mask), med, regular, cut, band, _slope_order(grid, mask),
+            correlation_length(grid, step, mask))
 
 
 def _slope_order(grid: np.ndarray, mask: np.ndarray) -> float:
@@ -409,6 +414,13 @@ def _slope_order(grid: np.ndarray, mask: np.ndarray) -> float:
     return max(a2, a4)
 
 
+def _decided(length: float) -> float:
+    """A measured length that sets a choice (a target spacing), rounded to 3 significant digits:
+    the spectrum's and the autocorrelation's last bits may differ between CPUs' SIMD paths; the
+    rounded value differs only at an exact rounding boundary."""
+    return float(f"{length:.3g}")
+
+
 def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     """Measure a capture's relief and choose M4's settings from it (issue 32), the same for a
     built-in and a user's file.
@@ -432,7 +444,13 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       targets on a zoo sphere, each window reaching half as far, for no detail the capture
       holds), which takes the median edge on the fit too. Both samplings are weighed: the
       coarser targets above are taken when either the capture or the rule's targets hold more
-      than 12 on T;
+      than 12 on T. A relief that is not band-limited is coarsened by its elements' size instead:
+      when its correlation length L (:func:`geosynth.relief_spectrum.correlation_length`, about a
+      bump's radius) spans more than ``AUTO_FEATURE_COARSEN`` (4) of the rule's targets, targets at
+      L / ``AUTO_PER_FEATURE`` (3). Sparse bumps' spectral period is their spacing, not their size:
+      a zoo bumps sphere resampled to 20,000 vertices held 30 samples on T and 7 on L, and its
+      5-ring window, under half a bump, grew worms (the zoo's drawn captures and the built-ins
+      hold 1.2-3.0 on L and are unchanged). The chosen length is rounded to 3 significant digits;
     - window: W = round(0.75 x targets on T), in [3, 5]: the window spans about 1.5 periods
       (bark, T ~ 5 samples: W 3 left the completion 8.7% flat, W 4 kept it); then, in
       :func:`complete_surface`, lowered (not below 3) until most of the capture's vertices
@@ -467,7 +485,7 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
         :class:`AutoSettings` with the one-line ``reason``.
     """
     cap = as_capture(capture)
-    spec, fine, s_c, regular, _, band, order = _capture_relief(fit, cap.positions)
+    spec, fine, s_c, regular, _, band, order, feature = _capture_relief(fit, cap.positions)
     period = spec.period
     lo, hi = AUTO_WINDOW_RANGE
     rule = "median" if fit.kind != "plane" and regular >= AUTO_REGULAR else "minimum"
@@ -484,12 +502,24 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     else:
         per, per_rule = period / s_c, period / s_t
         coarse = max(per, per_rule) > AUTO_COARSEN and band < AUTO_BAND
+    # elements (correlation length L) spanning many targets: a relief that is not band-limited (sparse bumps,
+    # whose spectral "period" is their spacing, not their size) sampled far denser than its elements need;
+    # the window (at most 5 rings) then spans under half an element and grows worms from bumps
+    on_feature = feature / s_t if math.isfinite(feature) else float("nan")
+    elements = not coarse and on_feature > AUTO_FEATURE_COARSEN
     if coarse:
-        spacing: str | float = period / AUTO_PER_PERIOD
-        per_t = AUTO_PER_PERIOD
+        spacing: str | float = _decided(period / AUTO_PER_PERIOD)
+        per_t = period / spacing
         why_s = (f"targets at T/{AUTO_PER_PERIOD:g} = {spacing:.4g} (a band-limited relief, {band:.1%} of its power "
                  f"below T/2, and the capture holds {per:.1f} samples on T, its {rule} edge {per_rule:.1f}; "
                  f"no oversampling, candidates thinned to the target spacing)")
+    elif elements:
+        coarse = True
+        spacing = _decided(feature / AUTO_PER_FEATURE)
+        per_t = period / spacing
+        why_s = (f"targets at L/{AUTO_PER_FEATURE:g} = {spacing:.4g} (its elements' correlation length L = "
+                 f"{feature:.4g} spans {on_feature:.1f} targets at its {rule} edge, over {AUTO_FEATURE_COARSEN:g}: "
+                 f"no oversampling, candidates thinned to the target spacing; {per:.1f} capture samples on T)")
     else:
         spacing = rule
         per_t = per_rule

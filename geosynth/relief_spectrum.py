@@ -30,7 +30,7 @@ import numpy as np
 
 from .cpu_exact import lstsq_fixed
 
-__all__ = ["ReliefSpectrum", "fine_share", "heights_on_grid", "relief_spectrum"]
+__all__ = ["ReliefSpectrum", "correlation_length", "fine_share", "heights_on_grid", "relief_spectrum"]
 
 _MIN_CYCLES = 1.5  # a peak needs this many cycles across the grid: longer waves are trend, not relief
 _TIE = 0.7  # peaks at >= 70% of the strongest are ties (a cross-hatch's two diagonals)
@@ -205,6 +205,42 @@ def fine_share(heights: np.ndarray, spacing: float | tuple[float, float], wavele
         return 0.0
     pk, fx, fy, total = power
     return float(np.sum(np.where(fx * fx + fy * fy > 1.0 / (wavelength * wavelength), pk, 0.0))) / total
+
+
+def correlation_length(heights: np.ndarray, spacing: float, mask: np.ndarray | None = None) -> float:
+    """The lag (world units) at which a gridded relief's radially averaged autocorrelation falls
+    to 1/2: the size of its elements (about a bump's radius), which the spectrum's peak does not
+    give when the spectrum is broad (sparse random bumps: the peak is their spacing). nan for a
+    flat relief.
+
+    heights: (H, W) float heights on square cells of ``spacing`` (world units); ``mask`` (H, W)
+    bool (None: the finite cells) marks the measured ones. The autocorrelation of the
+    mean-removed masked heights, zero-padded (no wrap), is divided by the masks' own overlap at
+    each lag (unbiased), over the lags where that overlap holds at least a quarter of the cells;
+    the 1/2 crossing is interpolated linearly between whole-cell lags.
+    """
+    z = np.asarray(heights, np.float64)
+    valid = np.isfinite(z) if mask is None else np.isfinite(z) & np.asarray(mask, bool)
+    if valid.sum() < 16:
+        return math.nan
+    z = np.where(valid, z - float(np.sum(z[valid])) / int(valid.sum()), 0.0)
+    if not np.any(np.abs(z) > 0):
+        return math.nan
+    m = valid.astype(np.float64)
+    shape = (2 * z.shape[0], 2 * z.shape[1])
+    acf = np.fft.irfft2(np.abs(np.fft.rfft2(z, shape)) ** 2, shape)
+    overlap = np.fft.irfft2(np.abs(np.fft.rfft2(m, shape)) ** 2, shape)
+    ok = overlap > 0.25 * overlap[0, 0]
+    acf = np.where(ok, acf / np.maximum(overlap, 1e-9), 0.0) / (acf[0, 0] / overlap[0, 0])
+    dy = np.fft.fftfreq(shape[0], 1 / shape[0])[:, None]
+    dx = np.fft.fftfreq(shape[1], 1 / shape[1])[None, :]
+    ring = np.rint(np.hypot(dy, dx)).astype(np.int64)[ok]
+    profile = np.bincount(ring, acf[ok]) / np.maximum(np.bincount(ring), 1)
+    below = np.nonzero(profile < 0.5)[0]
+    if not len(below):
+        return math.nan
+    i = int(below[0])
+    return float(spacing) * (i - 1 + (profile[i - 1] - 0.5) / (profile[i - 1] - profile[i]))
 
 
 def heights_on_grid(uv: np.ndarray, h: np.ndarray, spacing: float | tuple[float, float]

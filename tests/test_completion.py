@@ -782,3 +782,42 @@ def test_latitude_axis_follows_the_stripes_not_the_world():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     bumpy = d * (1 + 0.01 * np.random.default_rng(3).normal(size=(1500, 1)))
     assert latitude_axis(fit_surface(bumpy, "sphere"), bumpy)[1] > 0.2
+
+
+def _bumps_plane(step: float, seed: int, side: float = 2.0, sigma: float = 0.06, count: int = 18) -> Capture:
+    """A square plane capture on a regular grid of ``step`` with ``count`` sparse Gaussian bumps
+    of ``sigma`` (correlation length 2 sqrt(ln 2) sigma ~ 0.0999), no colour."""
+    rng = np.random.default_rng(seed)
+    n = int(round(side / step)) + 1
+    y, x = np.mgrid[0:n, 0:n] * step
+    z = np.zeros_like(x)
+    for (cx, cy), hgt in zip(rng.uniform(0, side, (count, 2)), rng.uniform(0.03, 0.06, count)):
+        z += hgt * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * sigma**2))
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    return Capture(np.stack([x, y, z], -1).reshape(-1, 3), None, faces=faces)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sparse_bumps_sampled_densely_get_targets_by_their_size(seed):
+    """Sparse bumps are not band-limited (their spectrum's peak is their spacing), so the
+    period rule keeps a dense capture's sampling, and a 5-ring window spans under half a bump
+    (a zoo sphere at 20,000 vertices grew worms). Their correlation length L sets the targets
+    instead once it spans more than 4 of them: L / 3, the same whatever the capture's density;
+    a capture already near that keeps its own edge."""
+    from geosynth.completion import AUTO_PER_FEATURE, choose_settings
+    from geosynth.surface_fit import fit_surface
+
+    size = 2 * math.sqrt(math.log(2)) * 0.06
+    spacings = []
+    for step in (0.015, 0.02):
+        cap = _bumps_plane(step, seed)
+        a = choose_settings(cap, fit_surface(cap.positions, "plane"))
+        assert a.coarse and isinstance(a.spacing, float) and "correlation length" in a.reason, a.reason
+        assert abs(a.spacing * AUTO_PER_FEATURE / size - 1) < 0.1, a.spacing
+        spacings.append(a.spacing)
+    assert abs(spacings[0] / spacings[1] - 1) < 0.05
+    cap = _bumps_plane(0.05, seed)
+    a = choose_settings(cap, fit_surface(cap.positions, "plane"))
+    assert not a.coarse and a.spacing == "minimum", a.reason

@@ -61,3 +61,34 @@ def test_scattered_knurl_on_grid():
     assert abs(r.period / expect - 1) < 0.03
     assert abs(math.degrees(r.angle) - math.degrees(math.atan2(1, 12 / (2 * np.pi)))) < 3
     assert abs(r.amplitude - 0.02) < 0.002 and 0.4 < r.anisotropy < 0.7
+
+
+def _gaussian_bumps(n: int, sigma: float, count: int, seed: int) -> np.ndarray:
+    """(n, n) heights: ``count`` Gaussian bumps of ``sigma`` cells at random places and heights."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = np.zeros((n, n))
+    for (cx, cy), hgt in zip(rng.uniform(0, n, (count, 2)), rng.uniform(0.5, 1.0, count)):
+        z += hgt * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * sigma**2))
+    return z
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_correlation_length_is_the_bumps_size_not_their_spacing(seed):
+    """Sparse Gaussian bumps of sigma: their autocorrelation is a Gaussian of variance 2 sigma^2,
+    1/2 at 2 sqrt(ln 2) sigma, whatever their spacing (which the spectrum's peak reports)."""
+    from geosynth.relief_spectrum import correlation_length
+
+    sigma = 4.0
+    expected = 2 * math.sqrt(math.log(2)) * sigma
+    sparse = _gaussian_bumps(160, sigma, 30, seed)
+    assert abs(correlation_length(sparse, 1.0) / expected - 1) < 0.12
+    assert abs(correlation_length(sparse, 0.05) / (0.05 * expected) - 1) < 0.12  # world units
+    denser = _gaussian_bumps(160, sigma, 90, seed)
+    assert abs(correlation_length(denser, 1.0) / correlation_length(sparse, 1.0) - 1) < 0.15
+    assert relief_spectrum(sparse, 1.0).period > 3 * expected  # the spectrum's peak reads the bumps' spacing
+    mask = np.ones_like(sparse, bool)
+    mask[:, 100:] = False
+    half = correlation_length(np.where(mask, sparse, 1e3), 1.0, mask)  # the masked garbage is not read
+    assert abs(half / expected - 1) < 0.2
+    assert math.isnan(correlation_length(np.zeros((32, 32)), 1.0))
