@@ -74,9 +74,12 @@ class ElementFeatures:
             relief's bumps: areas, world units^2).
         eulers: the whole elements' Euler numbers, in the order of ``sizes`` (a ball
             or a disc 1, a ring 0, a double ring -1).
-        ends: free ends of the inside's skeleton (a broken tube or ring has two)
-            away from the x/y borders, per world unit^2 of footprint (elements only;
-            nan for a relief).
+        run: the inside skeleton's length per break, world units: a break is two free ends
+            of the skeleton farther than a tube's thickness from the material's sides in their
+            layer (:func:`_tube_run`); inf when nothing is broken (elements only; nan for a
+            relief).
+        extent: the material's longest horizontal side, world units (elements only; nan for a
+            relief): how far the exemplar's tubes run at the most.
         spanning: share of the inside volume in elements that reach two opposite x or
             y sides of the material's bounding box (tubes across the footprint; a tube
             broken into pieces lowers it; elements only, nan for a relief).
@@ -95,7 +98,8 @@ class ElementFeatures:
     relief: bool = False
     sizes: tuple = ()
     eulers: tuple = ()
-    ends: float = math.nan
+    run: float = math.nan
+    extent: float = math.nan
     spanning: float = math.nan
     span: float = math.nan
 
@@ -261,22 +265,36 @@ def _thickness(field: np.ndarray) -> float:
     return float(2.0 * np.median(r))
 
 
-def _free_ends(inside: np.ndarray, margin: int = 3) -> float:
-    """Skeleton end points (one 26-neighbour on the skeleton) of the inside, at least
-    ``margin`` samples inside the x/y sides of the material's bounding box (where the
-    material was cut, not broken), per sample^2 of the footprint within."""
+def _tube_run(inside: np.ndarray, thickness: float, margin: int = 3) -> tuple[float, float]:
+    """(skeleton length per break, in samples; the material's longest (y, x) side, samples).
+
+    A tube or a ring broken apart has two free ends (skeleton samples with one 26-neighbour);
+    a tube cut by the piece's side has them too, within about its radius of the side. So an end
+    counts as a break's only when it lies farther than ``thickness`` + ``margin`` samples from
+    the sides of the material *in its own layer* (the inside samples within ``thickness`` of its
+    z): in a woodpile each layer's rods may stop short of the layer across them, and those are
+    cut, not broken. The run is the skeleton's length (its sample count) per break (two such
+    ends), inf when there is none. Unlike the volume share across the footprint, a run does not
+    fall as the output grows (a longer output has more places to break, and more skeleton) and
+    does not reward tubes fused into a network. nan for an empty inside."""
     from skimage.morphology import skeletonize
 
     cols = inside.any(axis=0)
+    if not cols.any():
+        return math.nan, math.nan
     ys, xs = np.flatnonzero(cols.any(axis=1)), np.flatnonzero(cols.any(axis=0))
-    if ys.size <= 2 * margin or xs.size <= 2 * margin:
-        return math.nan
-    y0, y1, x0, x1 = ys[0] + margin, ys[-1] + 1 - margin, xs[0] + margin, xs[-1] + 1 - margin
+    extent = float(max(ys[-1] + 1 - ys[0], xs[-1] + 1 - xs[0]))
     skel = skeletonize(inside).astype(bool)
     neighbours = ndimage.convolve(skel.astype(np.uint8), np.ones((3, 3, 3), np.uint8), mode="constant") - 1
-    ends = skel & (neighbours == 1)
-    count = int(ends[:, y0:y1, x0:x1].sum())
-    return count / float((y1 - y0) * (x1 - x0))
+    reach = (thickness if math.isfinite(thickness) else 0.0) + margin
+    layer = int(math.ceil(thickness)) if math.isfinite(thickness) else 1
+    breaks = 0
+    for z, y, x in np.argwhere(skel & (neighbours == 1)):
+        cols = inside[max(0, z - layer):z + layer + 1].any(axis=0)
+        ys, xs = np.flatnonzero(cols.any(axis=1)), np.flatnonzero(cols.any(axis=0))
+        breaks += min(y - ys[0], ys[-1] - y, x - xs[0], xs[-1] - x) > reach
+    length = float(skel.sum())
+    return (length / (breaks / 2) if breaks else math.inf), extent
 
 
 def _box_sides(labels: np.ndarray, boxes: list, material: bool = True, axes=(-2, -1)) -> list:
@@ -464,7 +482,7 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
     labels, n = ndimage.label(inside, structure=np.ones((3, 3, 3), bool))
     if slab is None:
         slab = covers_footprint(labels)
-    ends = spanning = span = math.nan
+    run = extent = spanning = span = math.nan
     if slab:
         h = _footprint(h, has)
     period = _period(h, mean=bool(slab))
@@ -475,12 +493,13 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
     else:
         count, whole, diameter, height, sizes, eulers, spanning, span = _elements(f, inside, labels, n)
         power = 3
-        ends = _free_ends(inside) / s**2
+        run, extent = _tube_run(inside, thickness)
     scale = lambda v: v * s if math.isfinite(v) else v  # noqa: E731
     order = np.argsort(sizes, kind="stable")
     return ElementFeatures(int(count), whole, scale(diameter), scale(height), scale(thickness), scale(period),
                            bool(slab), tuple(float(v) * s**power for v in np.asarray(sizes)[order]),
-                           tuple(int(v) for v in np.asarray(eulers)[order]), ends, spanning, scale(span))
+                           tuple(int(v) for v in np.asarray(eulers)[order]), scale(run), scale(extent), spanning,
+                           scale(span))
 
 
 def _ratio(a: float, b: float) -> float:
@@ -512,15 +531,28 @@ def kept_whole(exemplar: ElementFeatures, output: ElementFeatures) -> float:
     return good / len(output.sizes)
 
 
+def tube_connection(exemplar: ElementFeatures, output: ElementFeatures) -> float:
+    """How far the output's tubes run between breaks against how far the exemplar's do: the
+    output's :attr:`~ElementFeatures.run` over the exemplar's run or, when it has no break, its
+    extent (its tubes run across it), at most 1: 1 when the output's tubes break no more often
+    than once an exemplar's length (issue 32, "tubes stay connected"); nan for reliefs and
+    empty insides."""
+    need = min(exemplar.run, exemplar.extent)
+    if not (math.isfinite(need) and need > 0) or math.isnan(output.run):
+        return math.nan
+    return float(min(1.0, output.run / need))
+
+
 def compare_features(exemplar: ElementFeatures, output: ElementFeatures) -> dict[str, float]:
     """Ratios output / exemplar of ``diameter``, ``height``, ``thickness``, ``period``
     and ``whole_fraction`` (1 is kept; nan where the exemplar's is zero or undefined),
     plus ``whole``: the share of the output's whole elements that are whole copies of
-    the exemplar's, neither broken nor fused (:func:`kept_whole`)."""
+    the exemplar's, neither broken nor fused (:func:`kept_whole`), ``connected``
+    (:func:`tube_connection`) and ``spanning`` (the ratio of the volume shares across)."""
     out = {k: _ratio(getattr(exemplar, k), getattr(output, k))
            for k in ("diameter", "height", "thickness", "period", "whole_fraction")}
     out["whole"] = kept_whole(exemplar, output)
-    out["ends"] = _ratio(exemplar.ends, output.ends)
+    out["connected"] = tube_connection(exemplar, output)
     out["spanning"] = _ratio(exemplar.spanning, output.spanning)
     return out
 
@@ -535,5 +567,5 @@ def format_features(exemplar: ElementFeatures, output: ElementFeatures) -> str:
     if not exemplar.relief:
         parts.append(f"volume in elements across {exemplar.spanning:.0%} -> {output.spanning:.0%}")
     if not exemplar.relief:
-        parts.append(f"free ends {exemplar.ends:.3g} -> {output.ends:.3g} per unit^2")
+        parts.append(f"run between breaks {exemplar.run:.3g} -> {output.run:.3g} (connected x{r['connected']:.2f})")
     return ", ".join(parts)

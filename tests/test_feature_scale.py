@@ -239,3 +239,27 @@ def test_tubes_across_get_the_largest_block_the_source_holds_twice():
     s = choose_settings(mesh, 128, 3)
     assert (s.source_resolution, s.block) == (64, 32) and "(tubes) -> block 32" in s.text, s.text
     assert choose_settings(mesh, 128, 3, block=16).block == 16
+
+
+def test_tubes_run_between_breaks():
+    """A woodpile of tubes (two layers across each other, the upper one reaching further than
+    the lower): whole, no end counts as a break (the lower rods stop short of the upper layer:
+    cut, not broken); a gap across one rod is one break; the connection to the exemplar falls
+    below 1 only when the breaks come more often than once an exemplar's length."""
+    from geosynth.volume_features import tube_connection
+
+    n, zs = 64, 16
+    z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
+    lower = np.min([np.hypot(y - c, z - 5) - 2.0 for c in (12.0, 24.0, 36.0, 48.0)], axis=0)
+    lower = np.maximum(lower, np.maximum(6 - x, x - 57))  # x in [6, 57]: shorter than the upper layer
+    upper = np.min([np.hypot(x - c, z - 10) - 2.0 for c in (6.0, 18.0, 30.0, 42.0, 54.0)], axis=0)
+    whole = np.minimum(lower, upper)
+    e = element_features(_padded(whole, 4), slab=False)
+    assert math.isinf(e.run) and e.extent == pytest.approx(n, abs=2), e
+    one = np.minimum(np.maximum(lower, -(np.abs(x - 30) - 1.5) * (np.abs(y - 24) < 4)), upper)
+    b = element_features(_padded(one, 4), slab=False)
+    assert math.isfinite(b.run) and b.run > n, b  # one break in ~9 rods of ~55 samples
+    assert tube_connection(e, b) == 1.0 and tube_connection(e, e) == 1.0
+    many = np.minimum(np.maximum(lower, -(np.abs(x % 8 - 4) - 1.5)), upper)  # every lower rod cut 6 times
+    m = element_features(_padded(many, 4), slab=False)
+    assert m.run < b.run and tube_connection(e, m) < 0.8, (m.run, tube_connection(e, m))
