@@ -62,7 +62,9 @@ class ElementFeatures:
             (nan when there is none).
         diameter: median element diameter (relief: autocorrelation width of the top
             surface), world units (nan when there is none).
-        height: elements: median z-extent; relief: standard deviation of the top
+        height: elements: volume-weighted median z-extent of all of them (a speck of debris
+            counts by its volume, as for the diameter; an element cut by the side keeps its
+            height, so tubes across the footprint count too); relief: standard deviation of the top
             surface height; world units.
         thickness: median local thickness (twice the distance to the surface on the
             inside medial axis), world units (nan for an empty inside).
@@ -380,7 +382,7 @@ def _crossings(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int
 
 
 def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int):
-    """(count, whole fraction, weighted median diameter, median z-extent, whole
+    """(count, whole fraction, weighted median diameter, weighted median z-extent, whole
     elements' volumes, their Euler numbers, the spanning volume share, weighted median
     horizontal span of the whole elements), lengths in samples, of the 3D components."""
     idx = np.arange(1, n + 1)
@@ -402,7 +404,7 @@ def _elements(field: np.ndarray, inside: np.ndarray, labels: np.ndarray, n: int)
     # the box, or a network crossing it, has no size a block could hold)
     span = np.array([max(b[1].stop - b[1].start, b[2].stop - b[2].start) if b is not None else 0 for b in boxes],
                     np.float64)
-    return (n, float(whole.mean()), _weighted_median(diameter[pick], volume[pick]), float(np.median(extent[pick])),
+    return (n, float(whole.mean()), _weighted_median(diameter[pick], volume[pick]), _weighted_median(extent, volume),
             volume[whole], eulers, _spanning(labels, boxes, volume), _weighted_median(span[whole], volume[whole]))
 
 

@@ -263,3 +263,22 @@ def test_tubes_run_between_breaks():
     many = np.minimum(np.maximum(lower, -(np.abs(x % 8 - 4) - 1.5)), upper)  # every lower rod cut 6 times
     m = element_features(_padded(many, 4), slab=False)
     assert m.run < b.run and tube_connection(e, m) < 0.8, (m.run, tube_connection(e, m))
+
+
+def test_element_height_is_not_read_from_debris():
+    """Specks of debris (many, tiny) do not lower the elements' height: it is weighted by volume,
+    as the diameter is, and taken over every element (an element cut by the side keeps its
+    height, so a layer of tubes across the footprint, none whole, is measured by its tubes)."""
+    discs = _discs()
+    clean = element_features(_padded(discs, 4), slab=False)
+    z, y, x = np.mgrid[0:discs.shape[0], 0:discs.shape[1], 0:discs.shape[2]].astype(np.float32)
+    specks = discs.copy()
+    for cy, cx in [(10, 10), (10, 20), (20, 10), (20, 30), (30, 20), (30, 30), (10, 30), (30, 10), (20, 20), (5, 25)]:
+        specks = np.minimum(specks, np.hypot(np.hypot(y - cy, x - cx), z - 2.0) - 0.8)
+    dirty = element_features(_padded(specks, 4), slab=False)
+    assert dirty.count > clean.count and abs(dirty.height / clean.height - 1) < 0.05, (clean.height, dirty.height)
+    n, zs = 40, 8
+    z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
+    tubes = np.min([np.hypot(y - c, z - 4) - 2.0 for c in (5.0, 15.0, 25.0, 35.0)], axis=0)
+    speck = np.minimum(tubes, np.hypot(np.hypot(y - 10, x - 20), z - 4) - 0.8)  # the one whole element
+    assert abs(element_features(_padded(speck, 4), slab=False).height - 4.0) < 0.6
