@@ -317,19 +317,25 @@ def test_import_stays_light():
     assert out.stdout.split() == []
 
 
-def test_readme_uses_public_names():
-    """The README's Python examples import only ``geosynth`` and use names it exports."""
+DOC_FILES = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
+
+
+@pytest.mark.parametrize("doc", DOC_FILES)
+def test_readme_uses_public_names(doc):
+    """The Python examples of the README and of every docs/*.md page (its ```python blocks)
+    import only ``geosynth`` and use names it exports."""
     import geosynth
 
-    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
-    assert blocks
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / doc).read_text(), re.S)
+    if doc == "README.md":
+        assert blocks
     for block in blocks:
         tree = ast.parse(block)
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom):
-                assert not (node.module or "").startswith("geosynth"), f"README: from {node.module} import ..."
+                assert not (node.module or "").startswith("geosynth"), f"{doc}: from {node.module} import ..."
             if isinstance(node, ast.Import):
                 for alias in node.names:
-                    assert not alias.name.startswith("geosynth."), f"README: import {alias.name}"
+                    assert not alias.name.startswith("geosynth."), f"{doc}: import {alias.name}"
             if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "geosynth":
-                assert node.attr in geosynth.__all__, f"README uses geosynth.{node.attr}, which is not exported"
+                assert node.attr in geosynth.__all__, f"{doc} uses geosynth.{node.attr}, which is not exported"
