@@ -40,6 +40,8 @@ import tempfile
 from dataclasses import dataclass
 from typing import Any
 
+from geosynth.config import cache_root, default_pocl_environment, pocl_settings, verbose
+
 __all__ = ["devices", "get_backend", "parse_device"]
 
 _DEVICE_RE = re.compile(r"^(auto|cpu|cuda(?::(\d+))?|opencl(?::(\d+):(\d+))?)$")
@@ -87,12 +89,6 @@ def parse_device(device: str) -> DeviceSpec:
 
 # ----------------------------------------------------------------------------------
 # Optional runtimes, imported lazily; their import errors surface only when asked for.
-
-
-def verbose() -> bool:
-    """Whether the environment asks for the runtimes' own messages (``GEOSYNTH_VERBOSE=1``;
-    the CLI sets it for ``--verbose``)."""
-    return os.environ.get("GEOSYNTH_VERBOSE", "").strip().lower() not in ("", "0", "false", "no")
 
 
 # Lines that Warp's native init wrote to stderr and that were held back (the missing CUDA
@@ -157,39 +153,10 @@ def warp_module():
     return wp
 
 
-def _pin_pocl_threads() -> None:
-    """Ask PoCL's CPU driver to pin its worker threads, one per core (``POCL_AFFINITY``),
-    unless the user chose otherwise or this process may not run on every core (PoCL pins
-    thread i to CPU i). Read once, when PoCL starts; a no-op for other OpenCL drivers.
-
-    Measured on the 2-vCPU CI machine (PoCL 3.1): M1's fused search, one ~0.1 ms launch
-    per query, 0.17-0.18 ms a match pinned against 0.26-0.34 ms unpinned (the threads'
-    wake-ups and migrations between launches cost more than the kernel).
-    """
-    try:
-        every_core = os.sched_getaffinity(0) == set(range(os.cpu_count() or 0))
-    except (AttributeError, OSError):  # not Linux
-        return
-    if every_core:
-        os.environ.setdefault("POCL_AFFINITY", "1")
-
-
-def _quiet_pocl_cache() -> None:
-    """Keep PoCL from leaving a file in its kernel cache on every start, unless the user
-    chose otherwise. PoCL 3.0/3.1 install a SIGFPE handler (it skips integer divisions by
-    zero in kernels) and, to order LLVM's signal handlers first, create an empty
-    ``tempfile_XXXXXX`` in the cache folder that is never removed: one per PoCL library
-    per process. geosynth's kernels only divide by sizes the API has checked (>= 1), and
-    Warp's CPU kernels run without such a handler too, so ``POCL_SIGFPE_HANDLER=0``.
-    """
-    os.environ.setdefault("POCL_SIGFPE_HANDLER", "0")
-
-
 @functools.lru_cache(maxsize=1)
 def _opencl_status() -> tuple[Any, Exception | None]:
     try:
-        _pin_pocl_threads()
-        _quiet_pocl_cache()
+        default_pocl_environment()
         import pyopencl as cl
 
         cl.get_platforms()
@@ -205,12 +172,8 @@ def _warp_device_names() -> list[str]:
     return [str(d) for d in wp.get_devices()]
 
 
-def _cache_dir() -> str:
-    return os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geosynth")
-
-
 def _probe_memo_path() -> str:
-    return os.path.join(_cache_dir(), "opencl-devices.json")
+    return os.path.join(cache_root(), "opencl-devices.json")
 
 
 def _probe_key(platform, dev, programs: str) -> str:
@@ -225,8 +188,7 @@ def _probe_key(platform, dev, programs: str) -> str:
                ("vendor_id", "cpu family", "model", "model name", "flags")]
     except OSError:
         pass
-    unrelated = ("POCL_CACHE_DIR", "POCL_AFFINITY", "POCL_SIGFPE_HANDLER")  # where it caches, how it runs
-    env = sorted((k, v) for k, v in os.environ.items() if k.startswith("POCL_") and k not in unrelated)
+    env = pocl_settings()
     parts = [platform.name, platform.version, dev.name, dev.version, dev.driver_version, _platform.machine(), cpu, env,
              programs]
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()[:32]
@@ -244,7 +206,7 @@ def _read_probe_memo() -> dict[str, str]:
 def _write_probe_memo(memo: dict[str, str]) -> None:
     """Best effort: a cache that cannot be written only means building again next run."""
     try:
-        os.makedirs(_cache_dir(), exist_ok=True)
+        os.makedirs(cache_root(), exist_ok=True)
         tmp = f"{_probe_memo_path()}.{os.getpid()}.tmp"
         with open(tmp, "w") as fh:
             json.dump(memo, fh)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import geosynth
+from geosynth.config import set_verbose
 from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
 from geosynth.examples import EXEMPLARS
 from geosynth.files import IMAGE_SUFFIXES, check_output
@@ -1342,8 +1343,9 @@ def _main(argv, early: list[int]) -> int:
         return 130
     args = build_parser().parse_args(argv)
     debug = args.debug or args.global_debug
-    if args.verbose or args.global_verbose:
-        os.environ["GEOSYNTH_VERBOSE"] = "1"  # read when the backends load
+    loud = bool(args.verbose or args.global_verbose)
+    if loud:
+        set_verbose(True)  # the runtimes' own messages (geosynth.config); read when they load
     name = f"geosynth {args.command}"
     line = None
     try:
@@ -1368,6 +1370,9 @@ def _main(argv, early: list[int]) -> int:
         else:
             code, line = 1, (f"{name}: unexpected {type(exc).__name__}: {_message(exc, args.command)} "
                              "(rerun with --debug for the traceback, and please report it)")
+    finally:
+        if loud:  # an in-process caller (a test, a notebook) gets its own setting back
+            set_verbose(None)
     _close_progress_bars(interrupted=code == 130)
     sys.stdout.flush()
     print(line, file=sys.stderr)

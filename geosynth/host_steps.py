@@ -29,6 +29,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from geosynth.config import host_threads_setting
+
 _DTYPES: dict[np.dtype, Any] = {}
 _STATE: dict[str, Any] = {}  # Warp's module and its cpu device, once loaded
 _POOL: dict[int, ThreadPoolExecutor] = {}  # the helper threads, by their count
@@ -127,15 +129,8 @@ def host_threads() -> int:
     """How many parts :func:`host_launch` (``split=True``) and :func:`run_parts` cut work
     into: the cores this process may use (``GEOSYNTH_HOST_THREADS`` overrides; at most 16),
     divided among the busy threads of the calling thread's :class:`CoreShare`."""
-    env = os.environ.get("GEOSYNTH_HOST_THREADS", "").strip()
-    if env:
-        try:
-            count = int(env)
-        except ValueError:
-            raise ValueError(f"GEOSYNTH_HOST_THREADS must be a whole number >= 1, got {env!r}.") from None
-        if count < 1:
-            raise ValueError(f"GEOSYNTH_HOST_THREADS must be a whole number >= 1, got {env!r}.")
-    else:
+    count = host_threads_setting()
+    if count is None:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     group = getattr(_SHARE, "group", None)
     return max(1, min(16, count) // max(1, group.threads if group is not None else 1))

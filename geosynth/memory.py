@@ -19,10 +19,12 @@ import os
 import resource
 from collections.abc import Callable
 
+from geosynth.config import ENV_MEMORY_LIMIT, memory_limit_setting
+
 __all__ = ["ENV_LIMIT", "MemoryBudgetError", "available_memory", "format_bytes", "largest_fitting", "parse_bytes",
            "peak_resident_bytes", "require"]
 
-ENV_LIMIT = "GEOSYNTH_MEMORY_LIMIT"
+ENV_LIMIT = ENV_MEMORY_LIMIT
 _UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 _NO_LIMIT = 1 << 62  # nothing known: do not refuse
 
@@ -138,7 +140,7 @@ def available_memory() -> int:
         ValueError: ``GEOSYNTH_MEMORY_LIMIT`` is not a number of bytes.
     """
     found = []
-    env = os.environ.get(ENV_LIMIT, "").strip()
+    env = memory_limit_setting()
     if env:
         found.append(parse_bytes(env))
     system = _meminfo_available()

@@ -25,6 +25,7 @@ from typing import Callable
 
 import numpy as np
 
+from geosynth.config import passive_openmp_threads
 from geosynth.memory import available_memory, require
 from geosynth.pointsets import PointSet, estimate_normals, read_geometry
 
@@ -298,17 +299,6 @@ def spatial_order(positions: np.ndarray) -> np.ndarray:
     code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
     key = (code << np.uint64(index_bits)) | np.arange(len(p), dtype=np.uint64)
     return np.argsort(key)  # unique keys: any sort algorithm gives this order
-
-
-def passive_openmp_threads() -> None:
-    """``OMP_WAIT_POLICY=PASSIVE`` unless the user set it: the kNN query's OpenMP threads
-    (pykdtree's own libgomp reads it once, when it loads, which is at the first
-    :func:`knn_table`) then sleep when the query ends instead of spinning on, which took a
-    core from the one-work-item kernels that follow. Measured on the 2-vCPU CI machine,
-    16k-point sphere: the growth right after the kNN 9.0 ms median against 14.5 ms; the
-    whole parameterization row 27-29 ms against 32-37 ms in alternating runs; the kNN
-    itself and the larger models' rows unchanged."""
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 KNN_LEAF_SIZE = 32  # measured on the M3 models: 8 -> 32 is 10% faster, beyond that flat

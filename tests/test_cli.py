@@ -311,21 +311,26 @@ def test_keyboard_interrupt_exits_130(files, capsys, monkeypatch):
     assert rc == 130 and err.strip() == "geosynth volume: interrupted"
 
 
-def test_verbose_sets_the_variable(files, capsys, monkeypatch):
+def test_verbose_is_passed_to_the_library_not_the_environment(files, capsys, monkeypatch):
+    """--verbose reaches geosynth.config for the run (the runtimes read it when they load) and
+    is taken back after it; the environment is not touched."""
+    from geosynth import config
+
     seen = {}
 
     def record(args):
-        seen["v"] = os.environ.get("GEOSYNTH_VERBOSE")
+        seen["v"] = config.verbose()
+        seen["env"] = os.environ.get("GEOSYNTH_VERBOSE")
         return 0
 
     monkeypatch.delenv("GEOSYNTH_VERBOSE", raising=False)
     monkeypatch.setattr(cli, "_cmd_devices", record)
-    assert main(["devices"]) == 0 and seen["v"] is None
-    seen.clear()
-    assert main(["devices", "--verbose"]) == 0 and seen["v"] == "1"
-    seen.clear()
-    monkeypatch.delenv("GEOSYNTH_VERBOSE")
-    assert main(["--verbose", "devices"]) == 0 and seen["v"] == "1"
+    assert main(["devices"]) == 0 and seen == {"v": False, "env": None}
+    assert main(["devices", "--verbose"]) == 0 and seen == {"v": True, "env": None}
+    assert not config.verbose()  # taken back
+    assert main(["--verbose", "devices"]) == 0 and seen == {"v": True, "env": None}
+    monkeypatch.setenv("GEOSYNTH_VERBOSE", "1")
+    assert main(["devices"]) == 0 and seen["v"] is True  # the variable still works for every process
     for command in ("volume", "texture", "field", "demo", "devices"):
         assert "--verbose" in cli.build_parser()._subparsers._group_actions[0].choices[command].format_help()
 

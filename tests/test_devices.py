@@ -190,19 +190,19 @@ def test_pocl_threads_pinned_only_when_every_core_is_ours(monkeypatch):
     may not run on every core (PoCL would pin its threads to CPUs 0..n-1)."""
     import os
 
-    from geosynth import backend
+    from geosynth import config
 
     monkeypatch.delenv("POCL_AFFINITY", raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 4)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
-    backend._pin_pocl_threads()
+    config.default_pocl_environment()
     assert os.environ["POCL_AFFINITY"] == "1"
     monkeypatch.setenv("POCL_AFFINITY", "0")
-    backend._pin_pocl_threads()
+    config.default_pocl_environment()
     assert os.environ["POCL_AFFINITY"] == "0"
     monkeypatch.delenv("POCL_AFFINITY")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {2, 3})
-    backend._pin_pocl_threads()
+    config.default_pocl_environment()
     assert "POCL_AFFINITY" not in os.environ
 
 

@@ -25,6 +25,7 @@ from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
 from geosynth._backends.opencl_relief import OpenCLReliefOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
 from geosynth.arrays import DeviceArray
+from geosynth.config import verbose
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
 # Work-group sizes are always given: with none, PoCL picks the largest divisor of the
@@ -120,8 +121,6 @@ def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
     Raises:
         ProgramBuildError: the compiler failed.
     """
-    from geosynth.backend import verbose  # here: geosynth.backend imports this module
-
     try:
         with warnings.catch_warnings():
             # A build that succeeds may still log (PoCL on CPUs without AVX-512 warns that
