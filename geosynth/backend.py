@@ -40,7 +40,7 @@ import tempfile
 from dataclasses import dataclass
 from typing import Any
 
-from geosynth.config import cache_root, default_pocl_environment, pocl_settings, verbose
+from geosynth.config import WARP_INIT_NOTES, cache_root, default_pocl_environment, pocl_settings, verbose
 
 __all__ = ["devices", "get_backend", "parse_device"]
 
@@ -93,7 +93,7 @@ def parse_device(device: str) -> DeviceSpec:
 
 # Lines that Warp's native init wrote to stderr and that were held back (the missing CUDA
 # driver on a machine without a GPU); asking for a CUDA device shows them in its error.
-_warp_init_notes: list[str] = []
+_warp_init_notes = WARP_INIT_NOTES  # geosynth.config
 
 
 def _capture_native_stderr(fn) -> str:

@@ -46,12 +46,12 @@ point has no counterpart (N_k lacks its geometry there) and is left where the wa
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Iterable
 
 import numpy as np
 
 from geosynth._checks import as_points3, as_unit_vectors, check_positive
+from geosynth.config import BLEND_TABLES
 
 __all__ = [
     "NO_SURFACE",
@@ -311,7 +311,7 @@ _CELL_REACHES = 0.5  # the kernels' cell grid: cells half a reach (1.5 h) wide (
 # Launch width of the host_blend kernels: each worker thread does every _WORKERS-th point with one
 # scratch slot, hot in the cache (one slot per point made every point's lists cold memory).
 _WORKERS = 4
-_held = threading.local()  # per thread: the gauss table, wrapped for Warp once
+_held = BLEND_TABLES  # per thread: the gauss table, wrapped for Warp once (geosynth.config)
 
 
 def _list_room(k: int) -> int:

@@ -17,11 +17,35 @@ can all import it without a cycle.
 | ``OMP_WAIT_POLICY`` | set (default ``PASSIVE``) | :func:`passive_openmp_threads` | pykdtree's OpenMP threads sleep after a query |
 
 "Set" means set only when the user has not: a value in the environment always wins.
+
+Process-wide state: every module-level cache and lock is made here and named in this table
+(the modules that use one import it from here; ``tests/test_config.py`` finds any other).
+
+| object | used by | what it holds |
+|---|---|---|
+| ``OPENCL_CONTEXTS`` | ``geosynth._backends.opencl_backend`` | (platform, device) -> (device, context, built programs), one context per device per process |
+| ``WARP_INIT_NOTES`` | ``geosynth.backend`` | what Warp's start-up said and was held back (the missing CUDA driver), shown when a cuda device is asked for |
+| ``HOST_WARP_DTYPES``, ``HOST_WARP_STATE`` | ``geosynth.host_steps`` | NumPy -> Warp dtypes; Warp's module and its cpu device, once loaded |
+| ``HOST_POOLS``, ``HOST_POOL_LOCK`` | ``geosynth.host_steps`` | the helper threads of the compiled host steps, by count, and the lock that makes them |
+| ``HOST_LOAD_LOCK``, ``HOST_LAUNCHED`` | ``geosynth.host_steps`` | Warp's module loading, one thread at a time; the kernels launched once (later launches may run in parallel) |
+| ``HOST_SHARE`` | ``geosynth.host_steps`` | per thread: the ``CoreShare`` it counts in |
+| ``BLEND_TABLES`` | ``geosynth.blending`` | per thread: the Gauss table, wrapped for Warp once |
+| ``PATCH_SEARCH_LOCK`` | ``geosynth.patch_search`` | one patch search on a device at a time (the device queues are not shared) |
+| ``TILE_MATCHERS``, ``TILE_LOCK`` | ``geosynth.tiled`` | per worker process: (key, level) -> M1 matcher; one tile at a time per process |
+| ``INPUT_PATHS`` | ``geosynth.files`` | the input files this process read (an output may never replace one) |
+
+Not here, on purpose: the memoized functions (``functools.lru_cache``: the runtimes' loading and
+the OpenCL device inventory in ``geosynth.backend``, ``geosynth.render``'s and
+``geosynth.warping``'s tables), each a cache of its own function's result; ``geosynth.files``'
+current output stage (rebound per ``staged_outputs`` block); the CLI's signal lists
+(``geosynth.cli``, ``geosynth._launch``), which belong to the command line's process only.
 """
 
 from __future__ import annotations
 
 import os
+import threading
+from typing import Any
 
 __all__ = ["ENV_HOST_THREADS", "ENV_MEMORY_LIMIT", "ENV_VERBOSE", "cache_root", "default_pocl_environment",
            "host_threads_setting", "memory_limit_setting", "passive_openmp_threads", "pocl_settings", "set_verbose",
@@ -121,3 +145,21 @@ def passive_openmp_threads() -> None:
     parameterization row 27-29 ms against 32-37 ms in alternating runs; the kNN itself and the
     larger models' rows unchanged."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+# ---------------------------------------------------------------- process-wide state (table above)
+
+OPENCL_CONTEXTS: dict[tuple[int, int], tuple[Any, Any, dict]] = {}
+WARP_INIT_NOTES: list[str] = []
+HOST_WARP_DTYPES: dict[Any, Any] = {}
+HOST_WARP_STATE: dict[str, Any] = {}
+HOST_POOLS: dict[int, Any] = {}
+HOST_POOL_LOCK = threading.Lock()
+HOST_LOAD_LOCK = threading.RLock()
+HOST_LAUNCHED: set = set()
+HOST_SHARE = threading.local()
+BLEND_TABLES = threading.local()
+PATCH_SEARCH_LOCK = threading.Lock()
+TILE_MATCHERS: dict = {}
+TILE_LOCK = threading.Lock()
+INPUT_PATHS: set[str] = set()

@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from geosynth.config import INPUT_PATHS
+
 __all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_finite_output", "check_input", "check_output", "defer", "note_input", "noted_inputs",
            "remove_stale_temporaries", "staged_outputs",
            "temporary_path", "write_image"]
@@ -48,7 +50,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 # Every file a reader of this process opened, by resolved path: writers refuse them.
-_INPUTS: set[str] = set()
+_INPUTS = INPUT_PATHS  # geosynth.config
 
 
 def _resolved(path: str | os.PathLike) -> str:

@@ -29,14 +29,16 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from geosynth import config
 from geosynth.config import host_threads_setting
 
-_DTYPES: dict[np.dtype, Any] = {}
-_STATE: dict[str, Any] = {}  # Warp's module and its cpu device, once loaded
-_POOL: dict[int, ThreadPoolExecutor] = {}  # the helper threads, by their count
-_POOL_LOCK = threading.Lock()
-_LOAD_LOCK = threading.RLock()  # Warp's module loading, one thread at a time
-_LAUNCHED: set = set()  # kernels launched once (module loaded): later launches may run in parallel
+# process-wide, made in geosynth.config (its table says what each holds)
+_DTYPES = config.HOST_WARP_DTYPES
+_STATE = config.HOST_WARP_STATE  # Warp's module and its cpu device, once loaded
+_POOL = config.HOST_POOLS  # the helper threads, by their count
+_POOL_LOCK = config.HOST_POOL_LOCK
+_LOAD_LOCK = config.HOST_LOAD_LOCK  # Warp's module loading, one thread at a time
+_LAUNCHED = config.HOST_LAUNCHED  # kernels launched once (module loaded): later launches may run in parallel
 
 
 def _warp():
@@ -97,7 +99,7 @@ def host_array(array: np.ndarray, dtype=None):
     return view, a
 
 
-_SHARE = threading.local()  # per thread: the CoreShare it counts in, if any
+_SHARE = config.HOST_SHARE  # per thread: the CoreShare it counts in, if any
 
 
 class CoreShare:

@@ -33,10 +33,11 @@ of the band for the distance, where converged float32 projections are good to ~1
 from __future__ import annotations
 
 import itertools
-import threading
 from dataclasses import dataclass
 
 import numpy as np
+
+from geosynth.config import PATCH_SEARCH_LOCK
 
 __all__ = [
     "ARBITER_TOL",
@@ -53,7 +54,7 @@ __all__ = [
 
 # One thread at a time on the run's device (kernel arguments and queues are shared): M2's
 # growth may run two patches at once (geometry_texture._grow), their host steps in parallel.
-_DEVICE_LOCK = threading.Lock()
+_DEVICE_LOCK = PATCH_SEARCH_LOCK  # geosynth.config
 CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 127
 ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
 FIXED_STEPS = 12  # projection steps of the coded fields at most

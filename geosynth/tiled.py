@@ -47,7 +47,6 @@ import hashlib
 import json
 import os
 import shutil
-import threading
 import time
 import uuid
 from dataclasses import dataclass, field as dc_field
@@ -55,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geosynth.config import TILE_LOCK, TILE_MATCHERS
 from geosynth.tiling import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
@@ -99,8 +99,8 @@ class _Exemplar:
     method: str = "optimize"  # geosynth.volume.METHODS: texture optimization or the scan (graphcut, paper)
 
 
-_CACHE: dict = {}  # (key, level) -> geosynth.volume.Matcher, per worker process
-_LOCK = threading.Lock()  # one tile at a time per process: the searches' device queues are not shared
+_CACHE = TILE_MATCHERS  # (key, level) -> geosynth.volume.Matcher, per worker process (geosynth.config)
+_LOCK = TILE_LOCK  # one tile at a time per process: the searches' device queues are not shared
 
 
 def _matcher(ex: _Exemplar, level: int):

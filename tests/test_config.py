@@ -69,3 +69,39 @@ def test_settings_read_and_refused(monkeypatch, tmp_path):
     monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path))  # where it caches: not part of the key
     keys = [k for k, _ in config.pocl_settings()]
     assert "POCL_DEVICES" in keys and "POCL_CACHE_DIR" not in keys and keys == sorted(keys)
+
+
+_STATE_CALLS = {("threading", "Lock"), ("threading", "RLock"), ("threading", "local"), ("threading", "Semaphore"),
+                ("threading", "Event"), ("threading", "Condition")}
+_CLI_ONLY = {"cli.py", "_launch.py"}  # the command line's own signal lists
+
+
+def _makes_state(value) -> bool:
+    """A module-level value that is process-wide state: an empty dict / set / list, or a lock or
+    thread-local made by the threading module."""
+    if (isinstance(value, ast.Dict) and not value.keys) or (isinstance(value, ast.List) and not value.elts):
+        return True
+    if isinstance(value, ast.Call) and isinstance(value.func, ast.Name) and value.func.id in ("dict", "set", "list") \
+            and not value.args:
+        return True
+    return (isinstance(value, ast.Call) and isinstance(value.func, ast.Attribute)
+            and isinstance(value.func.value, ast.Name) and (value.func.value.id, value.func.attr) in _STATE_CALLS)
+
+
+def test_process_wide_caches_and_locks_are_made_in_config():
+    """Every module-level cache (an empty container filled at run time) and lock is made in
+    geosynth.config and named in its table; the modules that use one hold a reference."""
+    offenders = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if (path.name == "config.py" and path.parent == PACKAGE) or path.name in _CLI_ONLY:
+            continue
+        for node in ast.parse(path.read_text(), str(path)).body:
+            value = node.value if isinstance(node, (ast.Assign, ast.AnnAssign)) else None
+            if value is not None and _makes_state(value):
+                offenders.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
+    assert not offenders, offenders
+    doc = config.__doc__
+    for name in ("OPENCL_CONTEXTS", "WARP_INIT_NOTES", "HOST_POOLS", "HOST_POOL_LOCK", "HOST_LOAD_LOCK", "HOST_LAUNCHED",
+                 "HOST_SHARE", "HOST_WARP_DTYPES", "HOST_WARP_STATE", "BLEND_TABLES", "PATCH_SEARCH_LOCK",
+                 "TILE_MATCHERS", "TILE_LOCK", "INPUT_PATHS"):
+        assert f"``{name}``" in doc and hasattr(config, name), name

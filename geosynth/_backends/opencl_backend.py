@@ -25,7 +25,7 @@ from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
 from geosynth._backends.opencl_relief import OpenCLReliefOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
 from geosynth.arrays import DeviceArray
-from geosynth.config import verbose
+from geosynth.config import OPENCL_CONTEXTS, verbose
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
 # Work-group sizes are always given: with none, PoCL picks the largest divisor of the
@@ -142,7 +142,7 @@ def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
 # Per device (platform index, device index): the one context geosynth uses and the programs
 # built in it, shared by the usability check (geosynth.backend) and the backend, so that a
 # program is built once per process.
-_CONTEXTS: dict[tuple[int, int], tuple[cl.Device, cl.Context, dict]] = {}
+_CONTEXTS = OPENCL_CONTEXTS  # (platform, device) -> (device, context, programs): geosynth.config
 
 
 def device_context(platform_index: int, device_index: int) -> tuple[cl.Device, cl.Context, dict]:
