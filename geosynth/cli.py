@@ -134,6 +134,31 @@ def _check_input(path: str, what: str, fix: str) -> str:
     return path
 
 
+def _file_or_example(path: str | None, example: str | None, names, what: str, kinds: str,
+                     name_as_path: bool = True) -> tuple[str | None, str | None, list[str]]:
+    """A command's input: a file or a built-in, exactly one, the file checked.
+
+    Args:
+        path: the positional argument (a file path, or None).
+        example: ``--example`` (a built-in name, or None).
+        names: the built-ins' names.
+        what: the positional argument's name in messages (``"EXEMPLAR"``, ``"INPUT"``).
+        kinds: what file it takes, with its article (``"a mesh file (.ply, .obj, .stl, ...)"``).
+        name_as_path: a built-in's name given as ``path`` (and no such file) means ``--example``.
+
+    Returns:
+        ``(path, example, inputs)``: one of the two None; ``inputs`` the checked file, or empty.
+    """
+    if name_as_path and path is not None and example is None and path in names and not Path(path).exists():
+        path, example = None, path  # a built-in name given as the file
+    listed = ", ".join(names)
+    if (path is None) == (example is None):
+        raise ValueError(f"give {'an' if what[0] in 'AEIOU' else 'a'} {what}, {kinds}, or --example NAME "
+                         f"(one of {listed}), not both or neither.")
+    inputs = [] if path is None else [_check_input(path, what, f"give {kinds}, or --example NAME ({listed})")]
+    return path, example, inputs
+
+
 def _check_outputs(outputs: Sequence[tuple[str | os.PathLike, Sequence[str], str]],
                    inputs: Sequence[str]) -> None:
     """``check_output`` for every (path, suffixes, what) of a run, and no two the same file."""
@@ -317,12 +342,8 @@ def _example_mesh(name: str):
 
 
 def _cmd_field(args: argparse.Namespace) -> int:
-    if (args.input is None) == (args.example is None):
-        raise ValueError(f"give an INPUT mesh or point-set file, or --example NAME ({', '.join(MESH_EXAMPLES)}), "
-                         "not both or neither.")
-    inputs = []
-    if args.input is not None:
-        inputs.append(_check_input(args.input, "INPUT", "give a mesh or PLY point-set file, or --example NAME"))
+    _, _, inputs = _file_or_example(args.input, args.example, MESH_EXAMPLES, "INPUT", "a mesh or PLY point-set file",
+                                    name_as_path=False)
     out = Path(args.output)
     png, png_what = _picture_path(args)
     _check_outputs([(out, FIELD_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
@@ -380,16 +401,8 @@ def _cmd_field(args: argparse.Namespace) -> int:
 
 
 def _cmd_volume(args: argparse.Namespace) -> int:
-    exemplar, example = args.exemplar, args.example
-    if exemplar is not None and example is None and exemplar in EXEMPLARS and not Path(exemplar).exists():
-        exemplar, example = None, exemplar  # a built-in name given as EXEMPLAR
-    if (exemplar is None) == (example is None):
-        raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), "
-                         "not both or neither.")
-    inputs = []
-    if exemplar is not None:
-        inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
-                                   f"NAME ({', '.join(EXEMPLARS)})"))
+    exemplar, example, inputs = _file_or_example(args.exemplar, args.example, EXEMPLARS, "EXEMPLAR",
+                                                 "a mesh file (.ply, .obj, .stl, ...)")
     size, block = _volume_shape(args)
     out = Path(args.output)
     png, png_what = _picture_path(args)
@@ -500,22 +513,14 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.tiled.synthesize_volume_tiled`."""
     from geosynth.tiled import parse_tiles
 
-    exemplar, example = args.exemplar, args.example
-    if exemplar is not None and example is None and exemplar in EXEMPLARS and not Path(exemplar).exists():
-        exemplar, example = None, exemplar
-    if (exemplar is None) == (example is None):
-        raise ValueError(f"give an EXEMPLAR mesh file or --example NAME (one of {', '.join(EXEMPLARS)}), "
-                         "not both or neither.")
+    exemplar, example, inputs = _file_or_example(args.exemplar, args.example, EXEMPLARS, "EXEMPLAR",
+                                                 "a mesh file (.ply, .obj, .stl, ...)")
     try:
         tiles = parse_tiles(args.tiles)
     except (TypeError, ValueError):
         raise ValueError(f"--tiles takes NXxNY, two integers >= 1 (e.g. 4x4), got {args.tiles!r}.") from None
     if args.tileable:
         raise ValueError("--tileable cannot be tiled yet (the tiles' margins would wrap); drop --tiles or --tileable.")
-    inputs = []
-    if exemplar is not None:
-        inputs.append(_check_input(exemplar, "EXEMPLAR", "give a mesh file (.ply, .obj, .stl, ...) or --example "
-                                   f"NAME ({', '.join(EXEMPLARS)})"))
     size, block = _volume_shape(args)
     block = DEFAULT_BLOCK if block is None else block  # the parse-time checks; the exemplar may choose another
     out = Path(args.output)
@@ -837,16 +842,8 @@ def _m1_colour_note(exemplar, say) -> None:
 def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.point_examples import POINT_EXAMPLES
 
-    exemplar, example = args.exemplar, args.example
-    if exemplar is not None and example is None and exemplar in POINT_EXAMPLES and not Path(exemplar).exists():
-        exemplar, example = None, exemplar  # a built-in name given as EXEMPLAR
-    if (exemplar is None) == (example is None):
-        raise ValueError(f"give an EXEMPLAR (a PLY point set or a mesh file) or --example NAME (one of "
-                         f"{', '.join(POINT_EXAMPLES)}), not both or neither.")
-    inputs = []
-    if exemplar is not None:
-        inputs.append(_check_input(exemplar, "EXEMPLAR", "give a PLY point set or a mesh file, or --example NAME "
-                                   f"({', '.join(POINT_EXAMPLES)})"))
+    exemplar, example, inputs = _file_or_example(args.exemplar, args.example, POINT_EXAMPLES, "EXEMPLAR",
+                                                 "a PLY point set or a mesh file")
     if args.scale is not None and args.size is not None:
         raise ValueError("give --scale or --size, not both.")
     out = Path(args.output)
@@ -1000,13 +997,9 @@ def _capture_colours(capture) -> str:
 def _cmd_complete(args: argparse.Namespace) -> int:
     from geosynth.completion_examples import COMPLETION_EXAMPLES
 
-    if (args.input is None) == (args.example is None):
-        raise ValueError(f"give an INPUT capture (a mesh or a PLY point set, colours optional) or --example NAME "
-                         f"(one of {', '.join(COMPLETION_EXAMPLES)}), not both or neither.")
-    inputs = []
-    if args.input is not None:
-        inputs.append(_check_input(args.input, "INPUT", "give a mesh or PLY point set of the captured part, or "
-                                   f"--example NAME ({', '.join(COMPLETION_EXAMPLES)})"))
+    _, _, inputs = _file_or_example(args.input, args.example, COMPLETION_EXAMPLES, "INPUT",
+                                    "a mesh or PLY point set of the captured part (colours optional)",
+                                    name_as_path=False)
     out = Path(args.output)
     png, png_what = _picture_path(args)
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)

@@ -448,3 +448,23 @@ def test_sigint_at_any_moment_leaves_every_old_output_or_every_new_one(tmp_path,
             assert proc.returncode in (0, 130, -signal.SIGINT), seen
         assert not [p.name for p in tmp_path.iterdir() if ".geosynth-" in p.name], seen
     assert sum(state == "old" for _, _, _, state in seen) >= 3, seen  # most moments fell inside the run
+
+
+def test_one_rule_for_a_file_or_a_built_in(tmp_path):
+    """Every command's input is a file or --example, exactly one, through one helper: a built-in's
+    name given as the file means --example (where the command allows it), the file is checked."""
+    from geosynth.cli import _file_or_example
+
+    names = ("terrain", "rings")
+    assert _file_or_example("terrain", None, names, "EXEMPLAR", "a mesh file") == (None, "terrain", [])
+    with pytest.raises(ValueError, match="INPUT 'terrain' does not exist; give a mesh file, or --example NAME"):
+        _file_or_example("terrain", None, names, "INPUT", "a mesh file", name_as_path=False)
+    mesh = tmp_path / "terrain"  # a file of that name wins over the built-in
+    mesh.write_bytes(b"ply\n")
+    assert _file_or_example(str(mesh), None, names, "EXEMPLAR", "a mesh file") == (str(mesh), None, [str(mesh)])
+    for path, example in ((None, None), (str(mesh), "rings")):
+        with pytest.raises(ValueError, match=r"give an EXEMPLAR, a mesh file, or --example NAME \(one of terrain, "
+                                             r"rings\), not both or neither\."):
+            _file_or_example(path, example, names, "EXEMPLAR", "a mesh file")
+    with pytest.raises(ValueError, match="is a folder"):
+        _file_or_example(str(tmp_path), None, names, "EXEMPLAR", "a mesh file")

@@ -208,7 +208,7 @@ def test_cli_complete(tmp_path, capsys):
     assert main(["complete", "--example", "flat", "-o", str(out), "--device", ONE_DEVICE, "--quiet"]) == 0
     assert out.exists() and out.with_suffix(".png").exists()
     assert main(["complete", "-o", str(tmp_path / "x.ply")]) == 2
-    assert "give an INPUT capture" in capsys.readouterr().err
+    assert "give an INPUT, a mesh or PLY point set of the captured part" in capsys.readouterr().err
     assert main(["complete", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "x.ply")]) == 2
     assert main(["complete", "--example", "flat", "-o", str(tmp_path / "x.obj")]) == 2
     assert main(["complete", "--example", "flat", "-o", str(tmp_path / "y.ply"), "--mu", "2"]) == 2
