@@ -193,17 +193,19 @@ def check_uint32_range(total_weight: int, what: str) -> None:
         )
 
 
-def as_points3(name: str, a, n: int | None = None) -> np.ndarray:
-    """``a`` as a finite (N, 3) float64 array (N = ``n`` when given), or a one-line error."""
+def as_points3(name: str, a, n: int | None = None, *, dtype=np.float64, finite: bool = True) -> np.ndarray:
+    """``a`` as a C-contiguous (N, 3) array of ``dtype`` (N = ``n`` when given), finite unless
+    ``finite`` is False (the caller then reports bad rows its own way), or a one-line error:
+    the one (N, 3) point check of the package."""
     arr = np.asarray(a)
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"{name} must be a numeric (N, 3) array, got dtype {arr.dtype}.")
-    arr = arr.astype(np.float64, copy=False)
+    arr = np.ascontiguousarray(arr, dtype=dtype)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}.")
     if n is not None and len(arr) != n:
         raise ValueError(f"{name} must have {n} rows to match the positions, got {len(arr)}.")
-    if not np.isfinite(arr).all():
+    if finite and not np.isfinite(arr).all():
         raise ValueError(f"{name} holds NaN or inf values; remove those points first.")
     return arr
 

@@ -685,12 +685,7 @@ def mesh_distance(
     if points is not None:
         if field is not None or bounds is not None or resolution is not None:
             raise ValueError("pass either points or a grid (field=, or bounds=/resolution=), not both.")
-        pts = np.asarray(points)
-        if pts.dtype.kind not in "iuf":
-            raise TypeError(f"points must be a float array, got dtype {pts.dtype}.")
-        pts = np.ascontiguousarray(pts, dtype=np.float32)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise ValueError(f"points must have shape (M, 3), got {pts.shape}.")
+        pts = _checks.as_points3("points", points, dtype=np.float32, finite=False)
         _checks.check_finite("points", pts)
         backend = _checks.resolve_backend(device)
         m = pts.shape[0]

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth._checks import as_points3
+
 __all__ = [
     "PointTexture",
     "read_point_texture",
@@ -60,12 +62,10 @@ class PointTexture:
     colors: np.ndarray | None = None
 
     def __post_init__(self):
-        p = np.asarray(self.points, np.float64)
+        p = as_points3("points", self.points, finite=False)  # bad rows are reported below, by index
         n = np.asarray(self.normals, np.float64)
         lo = np.asarray(self.box_min, np.float64).reshape(-1)
         hi = np.asarray(self.box_max, np.float64).reshape(-1)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError(f"points must have shape (N, 3), got {p.shape}.")
         if n.shape != p.shape:
             raise ValueError(f"normals must have shape {p.shape} to match points, got {n.shape}.")
         bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
@@ -197,9 +197,7 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
         normals = points.normals if normals is None else normals
         colors = points.colors if colors is None else colors
         points = points.positions
-    p = np.asarray(points, np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {p.shape}.")
+    p = as_points3("points", points, finite=False)
     if len(p) < MIN_POINTS:
         raise ValueError(f"points holds {len(p)} points; a point texture needs at least {MIN_POINTS}.")
     bad = np.flatnonzero(~np.isfinite(p).all(axis=1))

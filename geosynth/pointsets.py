@@ -135,13 +135,9 @@ class PointSet:
 
 
 def _as_points(name: str, array) -> np.ndarray:
-    a = np.asarray(array)
-    if a.dtype.kind not in "iuf":
-        raise TypeError(f"{name} must be a float array, got dtype {a.dtype}.")
-    a = np.ascontiguousarray(a, dtype=np.float32)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {a.shape}.")
-    return a
+    """(N, 3) float32 points, checked (:func:`geosynth._checks.as_points3`; non-finite ones are
+    reported by the caller)."""
+    return _checks.as_points3(name, array, dtype=np.float32, finite=False)
 
 
 def read_point_set(path: str | os.PathLike) -> PointSet:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth._checks import as_points3
 from geosynth.cpu_exact import exp_fixed, norm3
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
@@ -86,9 +87,7 @@ def as_capture(capture) -> Capture:
         alpha = getattr(capture, "alpha", None)
     else:
         pos, col, faces, nrm = capture, None, None, None
-    pos = np.asarray(pos, dtype=np.float64)
-    if pos.ndim != 2 or pos.shape[1] != 3:
-        raise ValueError(f"the capture's positions must have shape (N, 3), got {pos.shape}.")
+    pos = as_points3("the capture's positions", pos, finite=False)  # bad rows are reported below, by index
     bad = ~np.isfinite(pos).all(1)
     if bad.any():
         raise ValueError(f"the capture has {int(bad.sum())} position(s) with NaN or inf coordinates (the first: "

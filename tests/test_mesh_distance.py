@@ -237,7 +237,7 @@ def test_invalid_input():
         mesh_distance(mesh, resolution=1)
     with pytest.raises(ValueError, match="bounds have zero extent"):
         mesh_distance(mesh, bounds=[[0, 0, 0], [0, 0, 0]], resolution=8)
-    with pytest.raises(ValueError, match=r"points must have shape \(M, 3\)"):
+    with pytest.raises(ValueError, match=r"points must have shape \(N, 3\)"):
         mesh_distance(mesh, np.zeros((4, 2)))
     with pytest.raises(ValueError, match="points contains 1 NaN"):
         mesh_distance(mesh, np.array([[0.0, np.nan, 0.0]]))
