@@ -475,7 +475,7 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     - refine: such a directed relief with sharp features (>= 5% of its power below 4 samples a wavelength) gets
       2 refinement passes: one-sided growth breaks thin features (a tower's ledges), a second
       match with both sides textured rejoins them. Stripes (bark's ridges) run on without: on
-      bark the passes made the volume worse (0.31% -> 1.03%, bench/RESULTS.md m4refine).
+      bark the passes made the volume worse (0.31% -> 1.03%, m4refine in `git log -p bench/RESULTS.md`).
 
     Args:
         capture: anything :func:`geosynth.relief_prep.as_capture` takes.

@@ -16,7 +16,7 @@ ring profile's local maximum with the largest sqrt(|k|) P(|k|): the period of th
 spectral peak, weighted a little towards shorter periods. Chosen by measuring on the
 built-ins and on height fields with known spacing (ridges at periods 0.1-0.3 of B and
 0, 30, 45, 90 degrees; bumps of radius 0.03-0.12 on jittered lattices of 0.12-0.3; cells
-of 0.1 and 0.25; bench/RESULTS.md "M2 element size"): the plain power P picked the large
+of 0.1 and 0.25; "M2 element size" in `git log -p bench/RESULTS.md`): the plain power P picked the large
 scale of the stones' random heights on small cells (0.36 for cells of 0.1); sqrt(|k|) P
 picks the cells; |k| P or |k|^2 P (power per octave) picked the tubes' harmonics of
 chainmail and weave. The radially averaged autocorrelation's first peak was the other

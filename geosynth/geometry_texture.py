@@ -136,7 +136,7 @@ class PointTextureReport:
 # The automatic patch size (issue 32; Sec. 3: "large enough to encompass at least a texture
 # element plus some neighborhood"): this many of the relief's dominant periods, within
 # [_PATCH_FEWEST_CELLS cells, _PATCH_MOST of B's shorter side]. Chosen by measuring the
-# built-ins at 1.25 to 2 periods (bench/RESULTS.md "M2 element size -> patch size"): at 1.5
+# built-ins at 1.25 to 2 periods ("M2 element size -> patch size" in `git log -p bench/RESULTS.md`): at 1.5
 # the flowers' patch-field distance came near random pasting's (0.96 of it; 0.76 at 1.25),
 # as at the old default 0.4; at 1.25 every built-in's mean was at or below its old default's.
 PATCH_PERIODS = 1.25

@@ -497,7 +497,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
             the fit; 40 target rows over the height against the capture's 38, its one-row
             ledges 4 rows in both (10.0% of the targets, 10.5% of the capture); the relief
             itself sampled at those targets has a mean |h| 1.08% below the capture's
-            (bench/RESULTS.md, M4 m4spacing).
+            (m4spacing in `git log -p bench/RESULTS.md`).
 
     Returns:
         The :class:`ReliefSurface`.
