@@ -35,7 +35,7 @@ __version__ = "0.1.0"
 # Public name -> the module that defines it, imported when the name is first read.
 _LAZY = {
     "DeviceArray": "geosynth.arrays",
-    "to_device": "geosynth.arrays",
+    "to_device": "geosynth.backend",
     "devices": "geosynth.backend",
     "get_backend": "geosynth.backend",
     "candidate_origins": "geosynth.scoring",

@@ -1,9 +1,10 @@
 """Device arrays and the constants the API and the backends share (a leaf module).
 
-:class:`DeviceArray` is what :func:`to_device` and ``keep_on_device=True`` operations
+:class:`DeviceArray` is what :func:`geosynth.backend.to_device` and ``keep_on_device=True`` operations
 return; the backends (``geosynth._backends``) construct them in their ``to_device`` and
-``empty``. This module imports no other geosynth module at import time, so the API
-modules and the backends can both import it without a cycle.
+``empty``. This module imports no other geosynth module, so the API modules and the
+backends can both import it without a cycle (uploading, ``to_device``, is the device
+switch's: :mod:`geosynth.backend`).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["NONFINITE_SCORES", "SELECT_EQ", "SELECT_LEQ", "SELECT_LT", "DeviceArray", "float_stats", "to_device"]
+__all__ = ["NONFINITE_SCORES", "SELECT_EQ", "SELECT_LEQ", "SELECT_LT", "DeviceArray", "float_stats"]
 
 # Selection modes, shared with the kernels (kernels/ssd.py and ssd.cl: SELECT_LEQ, SELECT_LT, SELECT_EQ).
 SELECT_LEQ, SELECT_LT, SELECT_EQ = 0, 1, 2
@@ -50,7 +51,7 @@ class DeviceArray:
         """For float data: (how many values are NaN or inf, min and max of the finite ones);
         None for other dtypes.
 
-        Recorded from the host copy by :func:`to_device`; for arrays made otherwise, read
+        Recorded from the host copy by :func:`geosynth.backend.to_device`; for arrays made otherwise, read
         back once and kept (DeviceArrays are never modified in place). The public
         operations use it to refuse NaN/inf and data whose float32 scores could overflow.
         """
@@ -97,40 +98,6 @@ class DeviceArray:
 
     def __repr__(self) -> str:
         return f"DeviceArray(shape={self.shape}, dtype={self.dtype}, device={self.device!r})"
-
-
-def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceArray:
-    """Upload a NumPy array to a device once, to reuse across operations.
-
-    For float arrays, how many values are NaN or inf and the range of the others are
-    recorded with it (see :meth:`DeviceArray.value_stats`), so that operations can check
-    it without reading it back.
-
-    Args:
-        array: any NumPy array of a dtype geosynth uses (float32, uint8, int32,
-            uint32); a DeviceArray already on ``device`` is returned as is.
-        device: a device string.
-
-    Returns:
-        A DeviceArray on the resolved device.
-
-    Raises:
-        RuntimeError: ``array`` is a DeviceArray on another device.
-    """
-    # A function-level import: backend.py builds the backends, which import this module,
-    # so arrays.py stays a leaf at import time (see tests/test_structure.py).
-    from geosynth.backend import get_backend
-
-    backend = get_backend(device)
-    if isinstance(array, DeviceArray):
-        if array.backend is not backend:
-            raise RuntimeError(f"inputs live on different devices ({array.device} vs {backend.name}).")
-        return array
-    host = np.ascontiguousarray(array)
-    out = backend.to_device(host)
-    if host.dtype.kind == "f":
-        out._stats = float_stats(host)
-    return out
 
 
 def float_stats(host: np.ndarray) -> tuple[int, float, float]:

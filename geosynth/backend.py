@@ -40,9 +40,12 @@ import tempfile
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from geosynth.arrays import DeviceArray, float_stats
 from geosynth.config import WARP_INIT_NOTES, cache_root, default_pocl_environment, pocl_settings, verbose
 
-__all__ = ["devices", "get_backend", "parse_device"]
+__all__ = ["devices", "get_backend", "parse_device", "to_device"]
 
 _DEVICE_RE = re.compile(r"^(auto|cpu|cuda(?::(\d+))?|opencl(?::(\d+):(\d+))?)$")
 
@@ -391,3 +394,33 @@ def get_backend(device: str = "auto"):
         RuntimeError: the device is not present.
     """
     return _backend_for(resolve_device(device))
+
+
+def to_device(array: np.ndarray | DeviceArray, device: str = "auto") -> DeviceArray:
+    """Upload a NumPy array to a device once, to reuse across operations.
+
+    For float arrays, how many values are NaN or inf and the range of the others are
+    recorded with it (see :meth:`DeviceArray.value_stats`), so that operations can check
+    it without reading it back.
+
+    Args:
+        array: any NumPy array of a dtype geosynth uses (float32, uint8, int32,
+            uint32); a DeviceArray already on ``device`` is returned as is.
+        device: a device string.
+
+    Returns:
+        A DeviceArray on the resolved device.
+
+    Raises:
+        RuntimeError: ``array`` is a DeviceArray on another device.
+    """
+    backend = get_backend(device)
+    if isinstance(array, DeviceArray):
+        if array.backend is not backend:
+            raise RuntimeError(f"inputs live on different devices ({array.device} vs {backend.name}).")
+        return array
+    host = np.ascontiguousarray(array)
+    out = backend.to_device(host)
+    if host.dtype.kind == "f":
+        out._stats = float_stats(host)
+    return out

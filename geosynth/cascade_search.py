@@ -150,7 +150,7 @@ class CascadeSearch:
 
     def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32,
                  min_work: float | None = None, cells: Sequence[int] | None = None):
-        from geosynth.arrays import to_device
+        from geosynth.backend import to_device
 
         field = check_field(field)
         block = check_block_shape(block, field.shape)
@@ -225,7 +225,7 @@ class CascadeSearch:
     def _fused_setup(self, dev: str) -> None:
         """Cell sums (sides N/2 and N/4) and coarse centred norms at every field position,
         in the field's strides (0 where the cube leaves the field), and the cell offsets."""
-        from geosynth.arrays import to_device
+        from geosynth.backend import to_device
 
         shape = self.field.shape
         cc, cf = self._fused_cells
@@ -320,7 +320,7 @@ class CascadeSearch:
         """Every block scored against every query (``batch_dense``), chunk by chunk: the
         (Q, 3) origins and (Q,) SSDs of the smallest SSD, lowest index on ties (the
         answers of :meth:`nearest`, whatever its thresholds), and the blocks alive."""
-        from geosynth.arrays import to_device
+        from geosynth.backend import to_device
         from geosynth.scoring import score_dense
 
         if self._dense_rows is None:

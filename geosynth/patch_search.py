@@ -582,7 +582,7 @@ class PatchSearch:
         return np.column_stack([dz, np.tile(cols[:, 0], nz), np.tile(cols[:, 1], nz)]).astype(np.int64)
 
     def _scorer(self, offsets: np.ndarray):
-        from geosynth.arrays import to_device
+        from geosynth.backend import to_device
         from geosynth.scoring import GatherScorer
 
         key = offsets.tobytes()

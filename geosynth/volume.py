@@ -490,7 +490,7 @@ class Matcher:
 
             self.engine = CascadeSearch(source, block, device=device)
         else:
-            from geosynth.arrays import to_device
+            from geosynth.backend import to_device
             from geosynth.scoring import candidate_origins
 
             self.grid = to_device(source, "auto" if device is None else device)

@@ -8,8 +8,8 @@ initialised, so a cycle of them can fail with "partially initialized module" or 
 names that do not exist yet, depending on which module is imported first. An import
 inside a function runs when the function is called, after every module has finished
 loading, so it cannot cause that; the code uses it deliberately to break a dependency
-(``geosynth.arrays.to_device`` imports ``geosynth.backend`` that way, and the backends
-are imported that way by ``geosynth.backend``). ``if TYPE_CHECKING:`` blocks never run
+(the backends are imported that way by ``geosynth.backend``). A second graph counts those
+imports too: it must have no cycle either (issue 33). ``if TYPE_CHECKING:`` blocks never run
 and are skipped.
 """
 
@@ -81,14 +81,27 @@ def _resolve_from(module: str, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
-def _imports(module: str):
-    """``(imported geosynth module, imported name or None, line)`` for each module-level import.
+def _every_import(tree: ast.Module):
+    """Every Import/ImportFrom node, inside functions and classes too (``if TYPE_CHECKING:``
+    blocks still skipped: they never run)."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and _is_type_checking(node.test):
+            skip.update(id(n) for child in node.body for n in ast.walk(child))
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip:
+            yield node
+
+
+def _imports(module: str, inside_functions: bool = False):
+    """``(imported geosynth module, imported name or None, line)`` for each module-level import
+    (``inside_functions``: every import, wherever it runs).
 
     ``from a.b import c`` imports the module ``a.b.c`` when there is one, else the name
     ``c`` of ``a.b``.
     """
     tree = ast.parse(MODULES[module].read_text(), filename=str(MODULES[module]))
-    for node in _top_level_imports(tree):
+    for node in (_every_import(tree) if inside_functions else _top_level_imports(tree)):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if alias.name in MODULES:
@@ -103,8 +116,8 @@ def _imports(module: str):
                 yield source, alias.name, node.lineno
 
 
-def _graph() -> dict[str, set[str]]:
-    return {m: {target for target, _, _ in _imports(m) if target != m} for m in MODULES}
+def _graph(inside_functions: bool = False) -> dict[str, set[str]]:
+    return {m: {target for target, _, _ in _imports(m, inside_functions) if target != m} for m in MODULES}
 
 
 def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -181,9 +194,21 @@ def test_no_import_cycle():
     assert not cycles, "module-level import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
 
 
+def test_no_import_cycle_even_through_function_level_imports():
+    """The modules draw as a tree with no arrow back up (issue 33): counting the imports that
+    run inside a function too, no module reaches itself. A function-level import may still
+    put off a heavy or optional dependency, never hide a cycle."""
+    package = {m for m in MODULES if not _is_package(m)}  # geosynth/__init__ re-exports lazily
+    graph = {m: targets & package for m, targets in _graph(inside_functions=True).items() if m in package}
+    cycles = find_cycles(graph)
+    assert not cycles, "import cycles through function-level imports: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
 def test_arrays_is_a_leaf():
-    """geosynth.arrays, imported by the API and the backends alike, imports no geosynth module."""
+    """geosynth.arrays, imported by the API and the backends alike, imports no geosynth module,
+    not even inside a function."""
     assert _graph()["geosynth.arrays"] == set()
+    assert _graph(inside_functions=True)["geosynth.arrays"] == set()
 
 
 def test_backends_do_not_import_the_device_switch():
