@@ -870,8 +870,12 @@ _INTERRUPTED = textwrap.dedent("""
 def test_atomic_write_interrupted_by_a_signal_leaves_no_trace(tmp_path, sig, codes):
     out = tmp_path / "out.ply"
     out.write_bytes(b"the old bytes")
+    # One thread in the child: a signal sent to the process may be taken by any thread that does
+    # not block it, and taken by OpenBLAS's worker (started by importing NumPy) it does not wake the
+    # main thread's sleep, so the handler would run only when the sleep ends (1 run in ~15 under load)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     proc = subprocess.Popen([sys.executable, "-c", _INTERRUPTED, str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
+                            stderr=subprocess.PIPE, env=env)
     try:
         assert proc.stdout.readline().strip() == b"writing"
         assert [f for f in os.listdir(tmp_path) if f.startswith(".out.ply.") and ".tmp" in f]  # mid-write
