@@ -77,12 +77,15 @@ MEASURE_SAMPLES = 160  # samples across the exemplar's longest side where a volu
 # grew and rewarded tubes fused into a network)
 
 
-def same_scale_picture(exemplar, output, path: Path) -> None:
+def same_scale_picture(exemplar, output, path: Path, read_as=None) -> None:
     """Exemplar beside a piece of the output of the exemplar's own footprint (the elements
     when they are smaller than half the window, else the faces, whose centre lies in the window around the
     output's centre), so that both render at one
     scale: the command's own picture frames a larger output smaller, which makes every
-    feature look shrunk."""
+    feature look shrunk. ``read_as``: the exemplar as M1 reads it (the surface of its signed
+    distance, a trimesh), drawn instead of the input mesh: parts concatenated, not unioned,
+    draw as surfaces crossing each other where M1 reads one solid (the zoo's linked tori
+    intersect, and M1 is given rings fused at every crossing)."""
     import trimesh
 
     from geosynth.files import write_image
@@ -98,8 +101,10 @@ def same_scale_picture(exemplar, output, path: Path) -> None:
     else:
         inside = np.all(np.abs(output.triangles_center[:, :2] - centre) <= half, axis=1)
         piece = output.submesh([np.nonzero(inside)[0]], append=True) if inside.any() else output
-    write_image(path, side_by_side([render_mesh(exemplar), render_mesh(piece)],
-                                   labels=["exemplar", "output: a piece of the exemplar's size"]))
+    shown = exemplar if read_as is None else read_as
+    write_image(path, side_by_side([render_mesh(shown), render_mesh(piece)],
+                                   labels=["exemplar" if read_as is None else "exemplar, as M1 reads it (its union)",
+                                           "output: a piece of the exemplar's size"]))
 
 
 def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -> dict:
@@ -108,12 +113,15 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
     from geosynth.meshes import load_mesh
     from geosynth.volume_features import compare_features, element_features
 
+    from geosynth.surface import field_to_mesh
+
     a, b = load_mesh(exemplar), load_mesh(output)
-    same_scale_picture(a, b, output.parent.parent / "pictures" / f"{member.name}-same-scale.png")
     # one world spacing for both, fine enough that tilted rings nearly touching stay apart
     # (at 96 samples across, the knit's tori fused in the measure and read as broken)
     spacing = float(np.max(a.bounds[1] - a.bounds[0])) / MEASURE_SAMPLES
     fa, fb = _field(a, spacing), _field(b, spacing)
+    same_scale_picture(a, b, output.parent.parent / "pictures" / f"{member.name}-same-scale.png",
+                       read_as=field_to_mesh(fa))
     relief = member.family in RELIEF_FAMILIES
     ea = element_features(fa.values, float(fa.spacing[0]), slab=relief)
     eb = element_features(fb.values, float(fb.spacing[0]), slab=relief)
