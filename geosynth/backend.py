@@ -96,7 +96,6 @@ def parse_device(device: str) -> DeviceSpec:
 
 # Lines that Warp's native init wrote to stderr and that were held back (the missing CUDA
 # driver on a machine without a GPU); asking for a CUDA device shows them in its error.
-_warp_init_notes = WARP_INIT_NOTES  # geosynth.config
 
 
 def _capture_native_stderr(fn) -> str:
@@ -139,7 +138,7 @@ def _warp_status() -> tuple[Any, Exception | None]:
         # else Warp says at init is passed on.
         for line in said.splitlines():
             if "NVIDIA CUDA driver" in line:
-                _warp_init_notes.append(line.strip())
+                WARP_INIT_NOTES.append(line.strip())
             elif line.strip():
                 print(line, file=sys.stderr)
         return wp, None
@@ -346,7 +345,7 @@ def resolve_device(device: str) -> str:
             raise _absent(device, f"Warp failed to load: {err}; install it with `pip install warp-lang`")
         name = "cpu" if spec.kind == "cpu" else f"cuda:{spec.index}"
         if name not in _warp_device_names():
-            raise _absent(device, "; ".join(_warp_init_notes) if spec.kind == "cuda" else "")
+            raise _absent(device, "; ".join(WARP_INIT_NOTES) if spec.kind == "cuda" else "")
         return name
     cl, err = _opencl_status()
     if cl is None:

@@ -84,9 +84,6 @@ NO_SURFACE, RAY, PROJECTION = 0, 1, 2  # how a counterpart was found (counterpar
 # ------------------------------------------------------------------------ input checks
 
 
-
-
-
 def _box(box_min, box_max) -> tuple[np.ndarray, np.ndarray]:
     lo = np.asarray(box_min, np.float64).reshape(-1)
     hi = np.asarray(box_max, np.float64).reshape(-1)
@@ -311,7 +308,6 @@ _CELL_REACHES = 0.5  # the kernels' cell grid: cells half a reach (1.5 h) wide (
 # Launch width of the host_blend kernels: each worker thread does every _WORKERS-th point with one
 # scratch slot, hot in the cache (one slot per point made every point's lists cold memory).
 _WORKERS = 4
-_held = BLEND_TABLES  # per thread: the gauss table, wrapped for Warp once (geosynth.config)
 
 
 def _list_room(k: int) -> int:
@@ -322,14 +318,14 @@ def _list_room(k: int) -> int:
 
 def _gauss_table():
     """kernels.host_blend.gauss()'s table exp(-j / GAUSS_STEPS), j = 0 .. 9 GAUSS_STEPS + 1
-    (float64, libm's exp), wrapped for Warp once."""
-    held = getattr(_held, "gauss", None)
+    (float64, libm's exp), wrapped for Warp once per thread (``geosynth.config.BLEND_TABLES``)."""
+    held = getattr(BLEND_TABLES, "gauss", None)
     if held is None:
         from geosynth.host_steps import host_array
         from geosynth.kernels.host_blend import GAUSS_STEPS
 
         held = host_array(np.exp(-np.arange(9 * int(GAUSS_STEPS) + 2) / float(GAUSS_STEPS)), np.float64)
-        _held.gauss = held
+        BLEND_TABLES.gauss = held
     return held[0]
 
 
@@ -675,7 +671,6 @@ def _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_norm
     good = length > 1e-9
     out_n[sel[good]] = blended[good] / length[good, None]
     return out_p, out_n
-
 
 
 # ------------------------------------------------------------------------ border cut, relaxation, seam error

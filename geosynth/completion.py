@@ -367,12 +367,12 @@ class AutoSettings:
     latitude: tuple | None = None
 
 
-def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
-    """(spectrum, fine share, nn spacing, regularity, cut, share of power below half the period,
-    slope order, correlation length) of points' relief in the fit's frame."""
+def _relief_grid(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
+    """(grid, mask, step, nn spacing, regularity, cut): points' heights in the fit's unrolled frame
+    on a grid of ``spacing`` (None: their median nearest-neighbour spacing), at most 1024 a side."""
     from scipy.spatial import cKDTree
 
-    from geosynth.relief_spectrum import correlation_length, fine_share, heights_on_grid, relief_spectrum
+    from geosynth.relief_spectrum import heights_on_grid
     from geosynth.surface_fit import relief_frame
 
     uv, h, cut = relief_frame(fit, points, cut)
@@ -383,6 +383,15 @@ def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None =
     # a grid no larger than 1024 a side (an oversampled capture is measured at a coarser step)
     step = max(step, float(np.max(np.ptp(uv, axis=0))) / 1024.0)
     grid, mask = heights_on_grid(uv, h, step)
+    return grid, mask, step, med, regular, cut
+
+
+def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
+    """(spectrum, fine share, nn spacing, regularity, cut, share of power below half the period,
+    slope order, correlation length) of points' relief in the fit's frame."""
+    from geosynth.relief_spectrum import correlation_length, fine_share, relief_spectrum
+
+    grid, mask, step, med, regular, cut = _relief_grid(fit, points, spacing, cut)
     spec = relief_spectrum(grid, step, mask)
     # power below half the dominant period: ~0 for a band-limited relief (a sine, a knurl), a few % and
     # more for broadband ones (bumps of many sizes), which keep the capture's own sampling
@@ -1096,14 +1105,22 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, cand: np.ndarra
     return q
 
 
+def _spectrum_of(fit: SurfaceFit, points: np.ndarray, spacing: float):
+    """The spectrum alone of points' relief in the fit's frame (what the quality numbers need)."""
+    from geosynth.relief_spectrum import relief_spectrum
+
+    grid, mask, step, *_ = _relief_grid(fit, points, spacing)
+    return relief_spectrum(grid, step, mask)
+
+
 def _relief_scale(rs: ReliefSurface, done: np.ndarray) -> dict:
     """The captured part's and the completed part's relief spectra at the target spacing (issue 32)."""
     out = dict(relief_captured=None, relief_completed=None, period_ratio=float("nan"),
                amplitude_ratio=float("nan"), angle_diff_deg=float("nan"))
     p = rs.positions
     try:
-        a = _capture_relief(rs.fit, p[: rs.n_original], rs.spacing)[0]
-        b = _capture_relief(rs.fit, p[done], rs.spacing)[0] if len(done) >= 16 else None
+        a = _spectrum_of(rs.fit, p[: rs.n_original], rs.spacing)
+        b = _spectrum_of(rs.fit, p[done], rs.spacing) if len(done) >= 16 else None
     except (ValueError, RuntimeError):  # a part too thin or small to grid (scipy's qhull: RuntimeError-like QhullError)
         return out
     except Exception as e:  # noqa: BLE001 - qhull's own error class; the measurement is a report only

@@ -50,7 +50,6 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _IMAGE_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 # Every file a reader of this process opened, by resolved path: writers refuse them.
-_INPUTS = INPUT_PATHS  # geosynth.config
 
 
 def _resolved(path: str | os.PathLike) -> str:
@@ -59,12 +58,12 @@ def _resolved(path: str | os.PathLike) -> str:
 
 def note_input(path: str | os.PathLike) -> None:
     """Record ``path`` as an input of this process: no writer here will replace it."""
-    _INPUTS.add(_resolved(path))
+    INPUT_PATHS.add(_resolved(path))
 
 
 def noted_inputs() -> list[str]:
     """The resolved paths readers of this process noted (:func:`note_input`), sorted."""
-    return sorted(_INPUTS)
+    return sorted(INPUT_PATHS)
 
 
 def check_input(path: str | os.PathLike, what: str) -> Path:
@@ -96,7 +95,7 @@ def check_input(path: str | os.PathLike, what: str) -> Path:
 
 def _is_input(out: str, inputs: Iterable[str | os.PathLike | None]) -> str | None:
     """The input that ``out`` (resolved) names, or None."""
-    for item in list(inputs) + sorted(_INPUTS):
+    for item in list(inputs) + sorted(INPUT_PATHS):
         if item is None:
             continue
         real = _resolved(item)

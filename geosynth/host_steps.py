@@ -29,26 +29,18 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from geosynth import config
-from geosynth.config import host_threads_setting
-
-# process-wide, made in geosynth.config (its table says what each holds)
-_DTYPES = config.HOST_WARP_DTYPES
-_STATE = config.HOST_WARP_STATE  # Warp's module and its cpu device, once loaded
-_POOL = config.HOST_POOLS  # the helper threads, by their count
-_POOL_LOCK = config.HOST_POOL_LOCK
-_LOAD_LOCK = config.HOST_LOAD_LOCK  # Warp's module loading, one thread at a time
-_LAUNCHED = config.HOST_LAUNCHED  # kernels launched once (module loaded): later launches may run in parallel
+from geosynth.config import (HOST_LAUNCHED, HOST_LOAD_LOCK, HOST_POOL_LOCK, HOST_POOLS, HOST_SHARE, HOST_WARP_DTYPES,
+                             HOST_WARP_STATE, host_threads_setting)
 
 
 def _warp():
-    wp = _STATE.get("wp")
+    wp = HOST_WARP_STATE.get("wp")
     if wp is not None:
         return wp
-    with _LOAD_LOCK:
-        if "wp" not in _STATE:
+    with HOST_LOAD_LOCK:
+        if "wp" not in HOST_WARP_STATE:
             _load()
-    return _STATE["wp"]
+    return HOST_WARP_STATE["wp"]
 
 
 def _load() -> None:
@@ -59,14 +51,14 @@ def _load() -> None:
     from geosynth.kernels import host_blend, host_search, host_warp
 
     wp = warp_module()
-    _DTYPES.update({np.dtype(np.float64): wp.float64, np.dtype(np.float32): wp.float32,
-                    np.dtype(np.int32): wp.int32, np.dtype(np.int64): wp.int64,
-                    np.dtype(np.uint8): wp.uint8, np.dtype(np.int8): wp.int8,
-                    np.dtype(np.uint32): wp.uint32})
-    _STATE["cpu"] = wp.get_device("cpu")
+    HOST_WARP_DTYPES.update({np.dtype(np.float64): wp.float64, np.dtype(np.float32): wp.float32,
+                             np.dtype(np.int32): wp.int32, np.dtype(np.int64): wp.int64,
+                             np.dtype(np.uint8): wp.uint8, np.dtype(np.int8): wp.int8,
+                             np.dtype(np.uint32): wp.uint32})
+    HOST_WARP_STATE["cpu"] = wp.get_device("cpu")
     for module in (host_search, host_warp, host_blend):
-        wp.load_module(module, device=_STATE["cpu"])
-    _STATE["wp"] = wp
+        wp.load_module(module, device=HOST_WARP_STATE["cpu"])
+    HOST_WARP_STATE["wp"] = wp
 
 
 def host_array(array: np.ndarray, dtype=None):
@@ -90,16 +82,14 @@ def host_array(array: np.ndarray, dtype=None):
         flat = np.zeros(1, a.dtype)
     # From the pointer: about half the Python work of wp.array(flat, copy=False) (~13 us
     # against ~24 us a call; a patch of M2 wraps about 80 arrays).
-    kind = _DTYPES.get(a.dtype)
+    kind = HOST_WARP_DTYPES.get(a.dtype)
     if kind is None:  # a programming error of a caller, never user input
         raise TypeError(f"host_array: dtype {a.dtype} has no Warp twin here; use one of "
-                        f"{', '.join(str(d) for d in _DTYPES)}.")
-    view = wp.array(ptr=flat.__array_interface__["data"][0], shape=(flat.size,), dtype=kind, device=_STATE["cpu"])
+                        f"{', '.join(str(d) for d in HOST_WARP_DTYPES)}.")
+    view = wp.array(ptr=flat.__array_interface__["data"][0], shape=(flat.size,), dtype=kind,
+                    device=HOST_WARP_STATE["cpu"])
     view._geosynth_memory = flat  # the memory lives as long as the view
     return view, a
-
-
-_SHARE = config.HOST_SHARE  # per thread: the CoreShare it counts in, if any
 
 
 class CoreShare:
@@ -115,16 +105,16 @@ class CoreShare:
 
     @contextlib.contextmanager
     def busy(self):
-        before = getattr(_SHARE, "group", None)
+        before = getattr(HOST_SHARE, "group", None)
         with self._lock:
             self.threads += 1
-        _SHARE.group = self
+        HOST_SHARE.group = self
         try:
             yield
         finally:
             with self._lock:
                 self.threads -= 1
-            _SHARE.group = before
+            HOST_SHARE.group = before
 
 
 def host_threads() -> int:
@@ -134,16 +124,16 @@ def host_threads() -> int:
     count = host_threads_setting()
     if count is None:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    group = getattr(_SHARE, "group", None)
+    group = getattr(HOST_SHARE, "group", None)
     return max(1, min(16, count) // max(1, group.threads if group is not None else 1))
 
 
 def _pool(helpers: int) -> ThreadPoolExecutor:
-    with _POOL_LOCK:
-        pool = _POOL.get(helpers)
+    with HOST_POOL_LOCK:
+        pool = HOST_POOLS.get(helpers)
         if pool is None:
             pool = ThreadPoolExecutor(max_workers=helpers, thread_name_prefix="geosynth-host")
-            _POOL[helpers] = pool
+            HOST_POOLS[helpers] = pool
         return pool
 
 
@@ -195,13 +185,13 @@ def host_launch(kernel, dim: int, inputs: Sequence[Any], *, split: bool = False,
     wp = _warp()
     if dim <= 0:
         return
-    device = _STATE["cpu"]
+    device = HOST_WARP_STATE["cpu"]
     args = list(inputs) + ([0] if split else [])
     launched = (kernel.module.name, kernel.key)
-    if launched not in _LAUNCHED:  # its module may load now: one thread at a time, whole
-        with _LOAD_LOCK:
+    if launched not in HOST_LAUNCHED:  # its module may load now: one thread at a time, whole
+        with HOST_LOAD_LOCK:
             wp.launch(kernel, dim=int(dim), inputs=args, device=device)
-            _LAUNCHED.add(launched)
+            HOST_LAUNCHED.add(launched)
         return
     if not split:
         wp.launch(kernel, dim=int(dim), inputs=args, device=device)

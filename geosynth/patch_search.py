@@ -54,7 +54,6 @@ __all__ = [
 
 # One thread at a time on the run's device (kernel arguments and queues are shared): M2's
 # growth may run two patches at once (geometry_texture._grow), their host steps in parallel.
-_DEVICE_LOCK = PATCH_SEARCH_LOCK  # geosynth.config
 CODE_SCALE = 127.0  # a unit of the normalized value is 127 codes; zero is code 127
 ARBITER_TOL = 0.003  # codes: values nearer than this to a rounding boundary are recomputed on the host
 FIXED_STEPS = 12  # projection steps of the coded fields at most
@@ -387,7 +386,7 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
     reach = MLS_REACH * h
     if grid is None and cells is None:
         grid = CellGrid(np.asarray(points, np.float32), np.asarray(normals, np.float32), reach)
-    with _DEVICE_LOCK:
+    with PATCH_SEARCH_LOCK:
         return _kernel_mls_locked(points, normals, queries, h, device, steps, cells, tol, grid, reach)
 
 
@@ -609,7 +608,7 @@ class PatchSearch:
             return SearchChoice(i, 0, 0, len(self.origins))
         # the scores are exact integers (uint32): selected on the host, after the one read-back
         # they need anyway, they are what selection.argmin / within_tolerance give on any device
-        with _DEVICE_LOCK:
+        with PATCH_SEARCH_LOCK:
             sc = self._scorer(offsets)(values, origins=self.origins)
         best = int(np.argmin(sc))  # the lowest index on ties
         near = np.flatnonzero(sc <= tolerance_threshold(sc[best], eps, sc.dtype))

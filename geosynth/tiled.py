@@ -99,19 +99,15 @@ class _Exemplar:
     method: str = "optimize"  # geosynth.volume.METHODS: texture optimization or the scan (graphcut, paper)
 
 
-_CACHE = TILE_MATCHERS  # (key, level) -> geosynth.volume.Matcher, per worker process (geosynth.config)
-_LOCK = TILE_LOCK  # one tile at a time per process: the searches' device queues are not shared
-
-
 def _matcher(ex: _Exemplar, level: int):
     from geosynth.volume import Matcher
 
     k = (ex.key, level)
-    if k not in _CACHE:
-        for old in [c for c in _CACHE if c[0] != ex.key]:  # one exemplar at a time
-            del _CACHE[old]
-        _CACHE[k] = Matcher(ex.sources[level], ex.blocks[level], ex.device, ex.search)
-    return _CACHE[k]
+    if k not in TILE_MATCHERS:
+        for old in [c for c in TILE_MATCHERS if c[0] != ex.key]:  # one exemplar at a time
+            del TILE_MATCHERS[old]
+        TILE_MATCHERS[k] = Matcher(ex.sources[level], ex.blocks[level], ex.device, ex.search)
+    return TILE_MATCHERS[k]
 
 
 def _crop(result, core: Region, part: Region):
@@ -152,7 +148,7 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
     from geosynth.optimize import random_blocks
 
     start = time.time()
-    with _LOCK:
+    with TILE_LOCK:
         t0 = time.perf_counter()
         region, core = grid.region(level, index), grid.core_region(level, index)
         shape = grid.level_shape(level)
@@ -188,7 +184,7 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
     of its window (from the four tiles' final cores) fixed. Returns (free square's
     samples (Z, rows, columns) uint8, info). Draws nothing at random."""
     start = time.time()
-    with _LOCK:
+    with TILE_LOCK:
         t0 = time.perf_counter()
         window, free = grid.corner_window(level, k), grid.corner_free(level, k)
         z = grid.level_shape(level)[0]

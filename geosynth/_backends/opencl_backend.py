@@ -139,19 +139,16 @@ def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
     return program
 
 
-# Per device (platform index, device index): the one context geosynth uses and the programs
-# built in it, shared by the usability check (geosynth.backend) and the backend, so that a
-# program is built once per process.
-_CONTEXTS = OPENCL_CONTEXTS  # (platform, device) -> (device, context, programs): geosynth.config
-
-
 def device_context(platform_index: int, device_index: int) -> tuple[cl.Device, cl.Context, dict]:
-    """(device, context, programs by (family, u8)) of one OpenCL device, made once."""
+    """(device, context, programs by (family, u8)) of one OpenCL device, made once: the one
+    context geosynth uses on it and the programs built in it (kept in
+    ``geosynth.config.OPENCL_CONTEXTS``), shared by the usability check (geosynth.backend) and
+    the backend, so that a program is built once per process."""
     key = (platform_index, device_index)
-    if key not in _CONTEXTS:
+    if key not in OPENCL_CONTEXTS:
         dev = cl.get_platforms()[platform_index].get_devices()[device_index]
-        _CONTEXTS[key] = (dev, cl.Context([dev]), {})
-    return _CONTEXTS[key]
+        OPENCL_CONTEXTS[key] = (dev, cl.Context([dev]), {})
+    return OPENCL_CONTEXTS[key]
 
 
 def build_all(platform_index: int, device_index: int) -> None:
