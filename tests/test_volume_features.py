@@ -82,3 +82,37 @@ def test_compare_and_format():
     empty = element_features(np.ones((8, 16, 16), np.float32))
     assert isinstance(empty, ElementFeatures) and empty.count == 0
     assert math.isnan(compare_features(empty, a)["diameter"])
+
+
+def _torus(cy: float, cx: float, major: float = 6.0, minor: float = 1.6) -> np.ndarray:
+    """A flat ring (torus about z) centred at (11.3, cy, cx), distances in samples."""
+    ring = np.sqrt((Y - cy) ** 2 + (X - cx) ** 2) - major
+    return np.sqrt(ring**2 + (Z - 11.3) ** 2) - np.float32(minor)
+
+
+def test_loops_count_rings_and_their_fusions():
+    """A ring is one loop, a ball none; two rings fused where they overlap make three (issue 32: a
+    linked knit whose rings fuse into a finer mesh of arcs holds more loops than the exemplar)."""
+    def box(inside):  # the (y, x) bounding box's area in samples
+        rows, cols = np.flatnonzero(inside.any(axis=(0, 2))), np.flatnonzero(inside.any(axis=(0, 1)))
+        return (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1)
+
+    rings = [_torus(20.3, 20.7), _torus(20.3, 44.2)]
+    apart = np.minimum(*rings)
+    fused = np.minimum(_torus(20.3, 20.7, 8.0, 1.2), _torus(20.3, 30.7, 8.0, 1.2))  # a lens 3.6 samples wide
+    ball = np.sqrt((Z - 11.3) ** 2 + (Y - 31.6) ** 2 + (X - 30.2) ** 2) - np.float32(5.0)
+    for field, loops in ((rings[0], 1), (apart, 2), (fused, 3), (ball, 0)):
+        f = element_features(field)
+        assert f.loops == pytest.approx(loops / box(field < 0), rel=1e-6), (loops, f)
+    assert compare_features(element_features(apart), element_features(fused))["loops"] > 1
+
+
+def test_a_network_has_no_element_diameter():
+    """One component across the footprint (tubes, linked rings) has no element size; a speck of
+    debris beside it is not its element."""
+    tube = np.sqrt((Y - 31.6) ** 2 + (Z - 11.3) ** 2) - np.float32(2.5)
+    assert math.isnan(element_features(tube).diameter)
+    speck = np.sqrt((Z - 20.5) ** 2 + (Y - 31.6) ** 2 + (X - 30.2) ** 2) - np.float32(1.5)  # above it
+    with_speck = element_features(np.minimum(tube, speck))
+    assert with_speck.diameter == pytest.approx(3.0, rel=0.1)  # the speck is whole: read as an element
+    assert math.isnan(compare_features(element_features(tube), with_speck)["diameter"])
