@@ -87,7 +87,7 @@ def test_to_device_refuses_another_devices_array():
 
 
 def test_no_top_level_kernels_package():
-    """kernels/ installs as geosynth.kernels, never as a top-level `kernels`."""
+    """The kernels live in geosynth/kernels/ and import as geosynth.kernels, never as a top-level `kernels`."""
     code = "import importlib.util, sys; sys.path = [p for p in sys.path if p not in ('', '.')]; " \
            "print(importlib.util.find_spec('kernels') is None, importlib.util.find_spec('geosynth.kernels') is not None)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", check=True)

@@ -1,7 +1,7 @@
 """The package's structure, read from its source with ``ast`` (nothing is imported).
 
-The modules are every ``.py`` file of ``geosynth/`` and of ``kernels/`` (installed as
-``geosynth.kernels``). Only module-level imports are read: statements at the top of a
+The modules are every ``.py`` file of ``geosynth/`` (the kernels included:
+``geosynth/kernels/``). Only module-level imports are read: statements at the top of a
 module, including those inside top-level ``if``/``try`` blocks, but not those inside a
 function or class body. A module-level import runs while the importing module is half
 initialised, so a cycle of them can fail with "partially initialized module" or hand out
@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"geosynth": ROOT / "geosynth", "geosynth.kernels": ROOT / "kernels"}
+PACKAGES = {"geosynth": ROOT / "geosynth"}
 
 
 def _modules() -> dict[str, Path]:

@@ -66,7 +66,7 @@ def probe(env: dict) -> dict:
         raise CheckError(f"gpu-check: {sys.executable} cannot import geosynth ({last}); "
                          "run `make test` first (it builds .venv) or give a Python that has it: make gpu-check GPU_PYTHON=...")
     info = json.loads(run.stdout.strip().splitlines()[-1])
-    for name, want in (("geosynth", ROOT / "geosynth"), ("geosynth.kernels", ROOT / "kernels")):
+    for name, want in (("geosynth", ROOT / "geosynth"), ("geosynth.kernels", ROOT / "geosynth" / "kernels")):
         got = Path(info["geosynth"]).parent if name == "geosynth" else Path(info["kernels"])
         if got.resolve() != want.resolve():
             raise CheckError(f"gpu-check: {sys.executable} imports {name} from {got}, not from this checkout ({want}); "
