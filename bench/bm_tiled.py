@@ -81,7 +81,7 @@ def _picture(path: str, field: np.ndarray, grid) -> None:
 def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[str]:
     from distributed import Client, LocalCluster
 
-    from geosynth.memory import format_bytes
+    from geosynth.core.memory import format_bytes
     from geosynth.tiled import WORKER_RUNTIME_BYTES, exemplar_source, seam_report, synthesize_volume_tiled, tile_bytes
     from geosynth.tiling import TileGrid
     from geosynth.volume import is_slab, synthesize_volume

@@ -34,7 +34,7 @@ __version__ = "0.1.0"
 
 # Public name -> the module that defines it, imported when the name is first read.
 _LAZY = {
-    "DeviceArray": "geosynth.arrays",
+    "DeviceArray": "geosynth.core.arrays",
     "to_device": "geosynth.backend",
     "devices": "geosynth.backend",
     "get_backend": "geosynth.backend",
@@ -69,7 +69,7 @@ _LAZY = {
     "load_point_model": "geosynth.pointmodels",
     "exemplar_mesh": "geosynth.examples",
     "exemplar_field": "geosynth.examples",
-    "MemoryBudgetError": "geosynth.memory",
+    "MemoryBudgetError": "geosynth.core.memory",
     # M2: point-set geometry textures
     "synthesize_point_texture": "geosynth.geometry_texture",
     "PointTextureReport": "geosynth.geometry_texture",

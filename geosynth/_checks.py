@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from geosynth.arrays import DeviceArray, float_stats
+from geosynth.core.arrays import DeviceArray, float_stats
 from geosynth.backend import get_backend
 
 # uint8 data is scored in uint32: the largest possible score must fit.

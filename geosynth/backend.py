@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from geosynth.arrays import DeviceArray, float_stats
-from geosynth.config import WARP_INIT_NOTES, cache_root, default_pocl_environment, pocl_settings, verbose
+from geosynth.core.arrays import DeviceArray, float_stats
+from geosynth.core.config import WARP_INIT_NOTES, cache_root, default_pocl_environment, pocl_settings, verbose
 
 __all__ = ["devices", "get_backend", "parse_device", "to_device"]
 

@@ -51,7 +51,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from geosynth._checks import as_points3, as_unit_vectors, check_positive
-from geosynth.config import BLEND_TABLES
+from geosynth.core.config import BLEND_TABLES
 
 __all__ = [
     "NO_SURFACE",
@@ -318,7 +318,7 @@ def _list_room(k: int) -> int:
 
 def _gauss_table():
     """kernels.host_blend.gauss()'s table exp(-j / GAUSS_STEPS), j = 0 .. 9 GAUSS_STEPS + 1
-    (float64, libm's exp), wrapped for Warp once per thread (``geosynth.config.BLEND_TABLES``)."""
+    (float64, libm's exp), wrapped for Warp once per thread (``geosynth.core.config.BLEND_TABLES``)."""
     held = getattr(BLEND_TABLES, "gauss", None)
     if held is None:
         from geosynth.host_steps import host_array

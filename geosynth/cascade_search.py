@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from geosynth import _checks
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.blocks import block_offsets, block_shape, box_sums
 from geosynth.pyramid import check_block_shape, check_field, check_memory, check_query
 from geosynth.scoring import GatherScorer

@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 import geosynth
-from geosynth.config import set_verbose
-from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
+from geosynth.core.config import set_verbose
+from geosynth.core.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
 from geosynth.examples import EXEMPLARS
 from geosynth.files import IMAGE_SUFFIXES, check_output
 
@@ -551,7 +551,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
 
     from geosynth.examples import resolve_exemplar_mesh
     from geosynth.files import write_image
-    from geosynth.memory import available_memory
+    from geosynth.core.memory import available_memory
     from geosynth.render import render_mesh, side_by_side
     from geosynth.surface import save_mesh
     from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
@@ -856,7 +856,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
 
     from geosynth.files import write_image
     from geosynth.geometry_texture import output_mesh, synthesize_point_texture
-    from geosynth.memory import MemoryBudgetError
+    from geosynth.core.memory import MemoryBudgetError
     from geosynth.pointsets import write_point_set
     from geosynth.render import render_points, side_by_side
 
@@ -1338,7 +1338,7 @@ def _main(argv, early: list[int]) -> int:
     debug = args.debug or args.global_debug
     loud = bool(args.verbose or args.global_verbose)
     if loud:
-        set_verbose(True)  # the runtimes' own messages (geosynth.config); read when they load
+        set_verbose(True)  # the runtimes' own messages (geosynth.core.config); read when they load
     name = f"geosynth {args.command}"
     line = None
     try:

@@ -71,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.cpu_exact import exp_fixed, norm3
+from geosynth.core.exact import exp_fixed, norm3
 from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods, target_spacing)
 from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis

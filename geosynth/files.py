@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.config import INPUT_PATHS
+from geosynth.core.config import INPUT_PATHS
 
 __all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_finite_output", "check_input", "check_output", "defer", "note_input", "noted_inputs",
            "remove_stale_temporaries", "staged_outputs",

@@ -796,7 +796,7 @@ def check_synthesis(box_min, box_max, points_in: int, points_inside: int, *, siz
       ``_MAX_OVERLAP_SAMPLES`` field samples (the search's exact uint32 sums), which
       bounds ``resolution``;
     - the memory: :func:`synthesis_bytes` (and :func:`output_mesh_bytes` with
-      ``mesh_resolution``) within :func:`geosynth.memory.available_memory`.
+      ``mesh_resolution``) within :func:`geosynth.core.memory.available_memory`.
 
     Args:
         box_min, box_max: the exemplar box B; points_in, points_inside: the exemplar's
@@ -808,7 +808,7 @@ def check_synthesis(box_min, box_max, points_in: int, points_inside: int, *, siz
             meshes): it may be named as the one to lower.
         mesh_resolution: also check :func:`output_mesh` at this resolution, with the
             output's height ``z_span`` and the exemplar's ``spacing``.
-        available: bytes available (default :func:`geosynth.memory.available_memory`).
+        available: bytes available (default :func:`geosynth.core.memory.available_memory`).
 
     Returns:
         The layout.
@@ -821,7 +821,7 @@ def check_synthesis(box_min, box_max, points_in: int, points_inside: int, *, siz
             (``count``, ``resolution``, ``scale`` or ``size``; ``mesh_resolution`` for the
             mesh), with the largest value that fits.
     """
-    from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, largest_fitting
+    from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, largest_fitting
 
     share = points_inside / max(1, points_in)
     args = dict(size=size, scale=scale, patch=patch, extra=extra, overlap=overlap, resolution=resolution,
@@ -890,7 +890,7 @@ def check_synthesis(box_min, box_max, points_in: int, points_inside: int, *, siz
                                 f"available; {fix} (or free memory).", option=option, largest=largest,
                                 estimate=need, available=avail)
     if mesh_resolution is not None:
-        from geosynth.memory import require
+        from geosynth.core.memory import require
 
         sp = float(spacing) if spacing else float(lay.cell)
         n_out = parts["output"] // (_BYTES_PER_OUTPUT_POINT * (2 if quality else 1))

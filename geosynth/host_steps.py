@@ -29,7 +29,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from geosynth.config import (HOST_LAUNCHED, HOST_LOAD_LOCK, HOST_POOL_LOCK, HOST_POOLS, HOST_SHARE, HOST_WARP_DTYPES,
+from geosynth.core.config import (HOST_LAUNCHED, HOST_LOAD_LOCK, HOST_POOL_LOCK, HOST_POOLS, HOST_SHARE, HOST_WARP_DTYPES,
                              HOST_WARP_STATE, host_threads_setting)
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from geosynth import _checks, _readers
 from geosynth.field import Field, cubic_grid_geometry
 from geosynth.files import check_input
-from geosynth.memory import require
+from geosynth.core.memory import require
 
 __all__ = ["MeshBVH", "build_bvh", "check_mesh", "load_mesh", "mesh_distance", "orient_faces"]
 

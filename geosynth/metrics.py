@@ -46,12 +46,12 @@ MAX_REFINEMENT = 4
 MAX_REFINED_SAMPLES = 2**25  # per field; caps the refinement of large fields (32 Mi samples, 128 MiB float32)
 # Peak bytes per refined sample while cores are labelled (the float64 zoom, its float32
 # copy, the core mask and the int32 labels): the refinement also stays within the memory
-# available (geosynth.memory), so the quality numbers never refuse a run that fits.
+# available (geosynth.core.memory), so the quality numbers never refuse a run that fits.
 REFINED_SAMPLE_BYTES = 32
 
 
 def _refined_sample_cap() -> int:
-    from geosynth.memory import available_memory
+    from geosynth.core.memory import available_memory
 
     return int(min(MAX_REFINED_SAMPLES, available_memory() // (2 * REFINED_SAMPLE_BYTES)))
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.config import PATCH_SEARCH_LOCK
+from geosynth.core.config import PATCH_SEARCH_LOCK
 
 __all__ = [
     "ARBITER_TOL",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.cpu_exact import times3x3
+from geosynth.core.exact import times3x3
 from geosynth.point_textures import PointTexture, texture_from_image
 
 __all__ = ["POINT_EXAMPLES", "PointExample", "point_texture_example", "stones_image"]

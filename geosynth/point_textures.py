@@ -321,9 +321,9 @@ def file_padding(points: np.ndarray, count: int | None = None, area: float | Non
 
 def _area_fixed(mesh) -> float:
     """A mesh's surface area, the same bits on every CPU: each triangle's by elementwise
-    arithmetic (:func:`geosynth.cpu_exact.norm3` of its cross product), summed by ``math.fsum``
+    arithmetic (:func:`geosynth.core.exact.norm3` of its cross product), summed by ``math.fsum``
     (trimesh's ``area`` sums with NumPy's SIMD reduction)."""
-    from geosynth.cpu_exact import norm3
+    from geosynth.core.exact import norm3
 
     t = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces, np.int64)]
     a, b = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]

@@ -25,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from geosynth.config import passive_openmp_threads
-from geosynth.memory import available_memory, require
+from geosynth.core.config import passive_openmp_threads
+from geosynth.core.memory import available_memory, require
 from geosynth.pointsets import PointSet, estimate_normals, read_geometry
 
 __all__ = [

@@ -59,7 +59,7 @@ import numpy as np
 from geosynth import _checks, _readers
 from geosynth.files import atomic_write, check_finite_output, check_input
 from geosynth.field import Field, cubic_grid, cubic_grid_geometry
-from geosynth.memory import require
+from geosynth.core.memory import require
 
 __all__ = [
     "MLS_MAX_ITER",

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 __all__ = [
     "BlockPyramid",
@@ -60,12 +60,12 @@ _INT32_LIMIT = 2**31 - 1024  # flat indices stay int32 in the kernels
 
 
 def available_memory() -> int:
-    """Bytes this process may still allocate (:func:`geosynth.memory.available_memory`:
+    """Bytes this process may still allocate (:func:`geosynth.core.memory.available_memory`:
     MemAvailable, the cgroup and RLIMIT_AS headroom, ``GEOSYNTH_MEMORY_LIMIT``).
 
     Tests monkeypatch this to check the refusal of oversized inputs.
     """
-    from geosynth import memory
+    from geosynth.core import memory
 
     return memory.available_memory()
 
@@ -77,7 +77,7 @@ def check_memory(estimate: int, what: str) -> None:
         MemoryBudgetError (a MemoryError): with the estimate and the available memory in
             the message; its option is ``"block"`` (a smaller block or source helps).
     """
-    from geosynth.memory import MemoryBudgetError
+    from geosynth.core.memory import MemoryBudgetError
 
     avail = available_memory()
     if estimate > avail:

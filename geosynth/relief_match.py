@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.arrays import DeviceArray
-from geosynth.cpu_exact import exp_fixed, norm3
+from geosynth.core.arrays import DeviceArray
+from geosynth.core.exact import exp_fixed, norm3
 
 FRAME_ONE = 1 << 14  # a unit frame component
 SCORE_ONE = 1 << 24  # the code of an ssd of 1.0
@@ -584,7 +584,7 @@ def _launch(index: ReliefIndex, queries: ReliefQueries, cand: DeviceArray, n_can
     candidates."""
     import dataclasses
 
-    from geosynth.memory import require
+    from geosynth.core.memory import require
 
     b = index.backend
     nq, r = queries.n_queries, queries.rotations
@@ -745,7 +745,7 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
         passes.append((slots, cand, False))
     if not exhaustive and not passes:
         _fail("exhaustive", "False without hints or probes", "pass hints or probe strides, or exhaustive=True")
-    from geosynth.memory import require  # one memory check, for the largest pass
+    from geosynth.core.memory import require  # one memory check, for the largest pass
 
     widest = len(index.samples) if exhaustive else max(p[0].shape[-1] for p in passes)
     per_query = 3 * widest * queries.rotations * 4

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth._checks import as_points3
-from geosynth.cpu_exact import exp_fixed, norm3
+from geosynth.core.exact import exp_fixed, norm3
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
 __all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",

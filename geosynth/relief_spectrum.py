@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cpu_exact import lstsq_fixed
+from geosynth.core.exact import lstsq_fixed
 
 __all__ = ["ReliefSpectrum", "correlation_length", "fine_share", "heights_on_grid", "relief_spectrum"]
 

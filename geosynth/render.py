@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.files import write_image
-from geosynth.interpolate import lerp_axis, linear_taps
+from geosynth.core.interpolate import lerp_axis, linear_taps
 
 __all__ = [
     "View", "field_slices_image", "render_mesh", "render_mesh_png", "render_points", "render_points_png",

@@ -25,7 +25,7 @@ import functools
 import numpy as np
 
 from geosynth import _checks
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 __all__ = ["GatherScorer", "candidate_origins", "lattice_shape", "score_dense", "score_gather"]
 

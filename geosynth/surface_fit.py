@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.cpu_exact import dot3, eigh3_fixed, gram_fixed, lstsq_fixed, norm3, unit_fixed, vdot_fixed
+from geosynth.core.exact import dot3, eigh3_fixed, gram_fixed, lstsq_fixed, norm3, unit_fixed, vdot_fixed
 
 __all__ = ["FIT_KINDS", "SurfaceFit", "fit_frames", "fit_surface", "latitude_axis", "relief_frame", "tangent_frames"]
 
@@ -122,7 +122,7 @@ def latitude_axis(fit: "SurfaceFit", points: np.ndarray, neighbours: int = 12) -
     """
     from scipy.spatial import cKDTree
 
-    from geosynth.cpu_exact import eigh3_fixed, gram_fixed
+    from geosynth.core.exact import eigh3_fixed, gram_fixed
 
     p = np.asarray(points, np.float64).reshape(-1, 3)
     d0 = p - np.asarray(fit.center, np.float64)[None, :]
@@ -340,7 +340,7 @@ def _algebraic(q: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The algebraic sphere (3 columns) or circle (2) fit |q|^2 = 2 c . q + d by least
     squares: (centre, squared radius), or None. The points are centred and scaled to unit
     spread first (the normal equations square the condition), and solved in a fixed order
-    (:func:`geosynth.cpu_exact.lstsq_fixed`: LAPACK's lstsq is not the same bits on every CPU)."""
+    (:func:`geosynth.core.exact.lstsq_fixed`: LAPACK's lstsq is not the same bits on every CPU)."""
     m = q.mean(0)
     w = q - m
     s = math.sqrt(float(np.mean(np.sum(w * w, 1)))) if len(w) else 0.0

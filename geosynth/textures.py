@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from geosynth.files import check_input, write_image
-from geosynth.interpolate import lerp_axis, linear_taps
+from geosynth.core.interpolate import lerp_axis, linear_taps
 
 __all__ = [
     "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",
@@ -421,7 +421,7 @@ def texture_example(name: str, size: int = 64, seed: int = 0) -> np.ndarray:
         MemoryBudgetError: the texture would not fit in memory (option ``"texture_size"``,
             the CLI's ``--texture-size``; refused before allocating).
     """
-    from geosynth.memory import require
+    from geosynth.core.memory import require
 
     if name not in TEXTURES:
         raise ValueError(f"unknown texture example {name!r}; the built-in textures are: {', '.join(TEXTURES)}.")

@@ -131,7 +131,7 @@ def _require_texture(n_pts: int, h: int, w: int, method: str, k: int, levels: in
     (:func:`texture_bytes`) exceeds the memory available: option ``"texture_size"`` (the
     texture's side; largest: a square that fits) when the texture search alone does not
     fit, else ``"count"`` (the point count; largest by bisection)."""
-    from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, largest_fitting, require
+    from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, largest_fitting, require
 
     def est(n, hh, ww):
         return texture_bytes(n, hh, ww, method=method, k=k, levels=levels, m=m, quality=quality)

@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.config import TILE_LOCK, TILE_MATCHERS
+from geosynth.core.config import TILE_LOCK, TILE_MATCHERS
 from geosynth.tiling import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
@@ -382,7 +382,7 @@ class _Threads:
     runtime_bytes = 0  # the threads share this process, whose runtime is already in use
 
     def memory_limit(self) -> int:
-        from geosynth.memory import available_memory
+        from geosynth.core.memory import available_memory
 
         return available_memory() // max(1, self.workers)
 
@@ -444,7 +444,7 @@ class _Distributed:
 
         workers = self.client.scheduler_info(n_workers=-1)["workers"].values()
         limits = [int(w.get("memory_limit") or 0) for w in workers]
-        from geosynth.memory import available_memory
+        from geosynth.core.memory import available_memory
 
         known = [v for v in limits if v > 0]
         if not known:
@@ -462,7 +462,7 @@ class _Distributed:
         return int(sum(self.client.run(sent).values()))
 
     def peak_rss(self) -> dict:
-        from geosynth.memory import peak_resident_bytes
+        from geosynth.core.memory import peak_resident_bytes
 
         pids = self.client.run(os.getpid)
         if len(set(pids.values())) < len(pids) or os.getpid() in pids.values():
@@ -557,7 +557,7 @@ class TiledResult:
 
     def lines(self) -> list[str]:
         """The per-level timings and the run's figures, one line each."""
-        from geosynth.memory import format_bytes
+        from geosynth.core.memory import format_bytes
 
         out = []
         for i, lv in enumerate(self.levels):
@@ -881,7 +881,7 @@ def synthesize_volume_tiled(
             mesh beyond the memory available here.
     """
     from geosynth import _checks
-    from geosynth.memory import MemoryBudgetError, available_memory, format_bytes, require
+    from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, require
     from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
                                  level_blocks, max_levels, optimizes_better, quantize_field)
 

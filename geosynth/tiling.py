@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.interpolate import lerp_axis, linear_taps
+from geosynth.core.interpolate import lerp_axis, linear_taps
 
 __all__ = ["PHASE_A", "PHASE_B", "PHASE_C", "Region", "TileGrid", "assemble", "tile_rng", "upsample_window"]
 

@@ -67,7 +67,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.blocks import block_offsets, block_origins
 from geosynth.pyramid import (
     BlockPyramid,

@@ -45,12 +45,12 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth import _checks
-from geosynth.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION,
+from geosynth.core.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION,
                                 M1_ELEMENT_MARGIN_SAMPLES, M1_MIN_FEATURE_SAMPLES)
 from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.field import Field
-from geosynth.interpolate import lerp_axis, linear_taps
-from geosynth.memory import require
+from geosynth.core.interpolate import lerp_axis, linear_taps
+from geosynth.core.memory import require
 from geosynth.blocks import block_offsets, block_shape
 from geosynth.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
 
@@ -753,7 +753,7 @@ def _require_size(size, target_shape, levels: int, estimate, option: str = "size
     that fits keeps the form given: one number that made a cube, a cube; one number of
     :func:`synthesize_geometry` (x = y = size, z the source's), that; three numbers
     (z, y, x), z kept and y, x scaled together (multiples of the level factor)."""
-    from geosynth.memory import available_memory, largest_fitting
+    from geosynth.core.memory import available_memory, largest_fitting
 
     factor = 2 ** (levels - 1)
     z, y, x = target_shape
@@ -1179,7 +1179,7 @@ def _largest_block(mesh, resolution: int, size, levels: int) -> int:
 
 def _fits_geometry(mesh, size, resolution, levels, block, search, smooth, quality_samples, method, slab) -> bool:
     """Whether :func:`_require_geometry` accepts these settings."""
-    from geosynth.memory import MemoryBudgetError
+    from geosynth.core.memory import MemoryBudgetError
 
     try:
         _require_geometry(mesh, size, resolution, levels, block, search, smooth, quality_samples, method, slab)
@@ -1490,7 +1490,7 @@ def _require_geometry(mesh, size, source_resolution, levels: int, block, search:
     """Refuse a synthesize_geometry whose estimate exceeds the memory available, naming
     ``size`` when a smaller one fits at this source resolution, else ``source_resolution``
     (``structure``: the structure metrics' kind once the exemplar's field is known)."""
-    from geosynth.memory import available_memory, largest_fitting
+    from geosynth.core.memory import available_memory, largest_fitting
 
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}.")

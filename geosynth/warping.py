@@ -69,7 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth._checks import as_points3, as_unit_vectors, check_positive
-from geosynth.cpu_exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
+from geosynth.core.exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
 from geosynth.host_steps import run_parts
 
 __all__ = [

@@ -190,7 +190,7 @@ def test_pocl_threads_pinned_only_when_every_core_is_ours(monkeypatch):
     may not run on every core (PoCL would pin its threads to CPUs 0..n-1)."""
     import os
 
-    from geosynth import config
+    from geosynth.core import config
 
     monkeypatch.delenv("POCL_AFFINITY", raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 4)

@@ -1,9 +1,9 @@
-"""The one resampler (geosynth.interpolate), the one quantizer and the mesh components."""
+"""The one resampler (geosynth.core.interpolate), the one quantizer and the mesh components."""
 
 import numpy as np
 import pytest
 
-from geosynth.interpolate import lerp_axis, linear_taps
+from geosynth.core.interpolate import lerp_axis, linear_taps
 from geosynth.meshes import _components, orient_faces
 from geosynth.render import _bilinear
 from geosynth.textures import sample_bilinear_grid

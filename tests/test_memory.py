@@ -1,4 +1,4 @@
-"""Memory refused up front (geosynth.memory): the estimates against measured peaks, and
+"""Memory refused up front (geosynth.core.memory): the estimates against measured peaks, and
 the refusals (fast, naming the option, with a largest value that really fits).
 
 What is measured, per operation:
@@ -25,7 +25,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from geosynth.memory import (
+from geosynth.core.memory import (
     ENV_LIMIT, MemoryBudgetError, available_memory, format_bytes, largest_fitting, parse_bytes, require,
 )
 
@@ -40,7 +40,7 @@ _RUNNER = textwrap.dedent('''
     def rss():
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    from geosynth.memory import peak_resident_bytes as high_water
+    from geosynth.core.memory import peak_resident_bytes as high_water
     def reset_high_water():
         try:  # Linux >= 4.0: "5" resets the peak RSS to the current RSS
             with open("/proc/self/clear_refs", "w") as f:

@@ -324,7 +324,7 @@ def test_mesh_of_the_output_is_watertight(one_device, wavy):
 
 
 def test_an_output_that_cannot_fit_is_refused(wavy, one_device):
-    from geosynth.memory import MemoryBudgetError
+    from geosynth.core.memory import MemoryBudgetError
 
     with pytest.raises(MemoryBudgetError, match="size"):
         synthesize_point_texture(wavy, size=(3e4, 3e4), device=one_device, quality=False)

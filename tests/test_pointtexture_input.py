@@ -22,7 +22,7 @@ from plyfile import PlyData, PlyElement
 
 from geosynth.cli import main
 from geosynth.geometry_texture import check_synthesis, synthesize_point_texture
-from geosynth.memory import MemoryBudgetError
+from geosynth.core.memory import MemoryBudgetError
 from geosynth.point_examples import point_texture_example
 from geosynth.point_textures import PointTexture, read_point_texture, texture_from_points
 

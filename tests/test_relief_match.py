@@ -382,7 +382,7 @@ def test_bad_input_one_line_errors(one_device):
 
 
 def test_too_many_queries_for_memory_is_refused_up_front(one_device, monkeypatch):
-    from geosynth import memory
+    from geosynth.core import memory
 
     kw = _plane(n=8)
     index = rm.ReliefIndex.build(**kw, device=one_device)

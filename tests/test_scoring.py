@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 import geosynth
 from geosynth import reference
-from geosynth.constants import tol
+from geosynth.core.constants import tol
 
 DTYPES = [np.float32, np.uint8]
 

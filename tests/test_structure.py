@@ -178,7 +178,7 @@ def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_modules_found():
-    for name in ("geosynth", "geosynth.arrays", "geosynth.backend", "geosynth._backends.base",
+    for name in ("geosynth", "geosynth.core.arrays", "geosynth.backend", "geosynth._backends.base",
                  "geosynth.kernels.ssd"):
         assert name in MODULES
 
@@ -205,14 +205,14 @@ def test_no_import_cycle_even_through_function_level_imports():
 
 
 def test_arrays_is_a_leaf():
-    """geosynth.arrays, imported by the API and the backends alike, imports no geosynth module,
+    """geosynth.core.arrays, imported by the API and the backends alike, imports no geosynth module,
     not even inside a function."""
-    assert _graph()["geosynth.arrays"] == set()
-    assert _graph(inside_functions=True)["geosynth.arrays"] == set()
+    assert _graph()["geosynth.core.arrays"] == set()
+    assert _graph(inside_functions=True)["geosynth.core.arrays"] == set()
 
 
 def test_backends_do_not_import_the_device_switch():
-    """The backends take DeviceArray from geosynth.arrays, never from geosynth.backend."""
+    """The backends take DeviceArray from geosynth.core.arrays, never from geosynth.backend."""
     graph = _graph()
     for name in MODULES:
         if name.startswith("geosynth._backends."):

@@ -589,7 +589,7 @@ def test_gap_widening_stops_when_the_gaps_stop_growing(one_device):
 
 
 def test_the_texture_memory_refusal_names_every_option_that_makes_the_size():
-    from geosynth.memory import MemoryBudgetError
+    from geosynth.core.memory import MemoryBudgetError
     from geosynth.texturing import require_texture_memory
 
     with pytest.raises(MemoryBudgetError) as info:

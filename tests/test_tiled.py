@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import ONE_DEVICE
-from geosynth.memory import MemoryBudgetError
+from geosynth.core.memory import MemoryBudgetError
 from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
 from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, upsample_window
 from geosynth.volume import synthesize_volume, upsample

@@ -11,7 +11,7 @@ import pytest
 
 import geosynth.tiled as tiled
 from conftest import ONE_DEVICE
-from geosynth.memory import MemoryBudgetError, format_bytes
+from geosynth.core.memory import MemoryBudgetError, format_bytes
 from geosynth.tiled import corner_task_bytes, exemplar_source, synthesize_volume_tiled, tile_bytes, tile_task_bytes
 
 distributed = pytest.importorskip("distributed")

@@ -15,11 +15,11 @@ against the one recorded hash.
 
 M2 (synthesize_point_texture) is the same bytes on every device and, since issue 40, on
 every x86-64 CPU: its host steps that NumPy or OpenBLAS would round by the CPU's SIMD
-width are done in fixed-order elementwise arithmetic (geosynth.cpu_exact). ``make
+width are done in fixed-order elementwise arithmetic (geosynth.core.exact). ``make
 test-cpus`` runs these tests with NumPy and OpenBLAS acting as an AVX2 and an SSE4
 machine (tools/cpu_matrix.sh); the last test here checks SSE4 from any ``make test``.
 M4 (complete_surface) likewise since issue 40 (branch h40-m4): its fits and host
-arithmetic are fixed-order (geosynth.cpu_exact), and an SSE4 test covers the small golf.
+arithmetic are fixed-order (geosynth.core.exact), and an SSE4 test covers the small golf.
 (The M2 hashes were recorded on branch h40-cpus, before the blend decision of issue 40
 item 3 changed: a change of that decision re-records them; re-recorded in issue 32 when the
 warp's spline became smoothed and height-keeping.)
@@ -133,7 +133,7 @@ def _as_sse4(expression: str) -> str:
 # M4 (complete_surface) at small sizes, one case per fit: (built-in, its options, digests of the
 # completed mesh's positions, normals, colours, faces and completed mask). Every host step before
 # the integer match codes is fixed-order arithmetic since issue 40 (the fits' eigenvectors and
-# least squares, every product and length: geosynth.cpu_exact), so these are the same bytes on
+# least squares, every product and length: geosynth.core.exact), so these are the same bytes on
 # every device and every x86-64 CPU.
 M4_CASES = [
     ("golf", dict(delta=0.13, dimples=24),

@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 
 @dataclass(frozen=True)

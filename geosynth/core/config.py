@@ -9,7 +9,7 @@ can all import it without a cycle.
 |---|---|---|---|
 | ``GEOSYNTH_VERBOSE`` | read | :func:`verbose` (the runtimes' loading, OpenCL builds) | ``1``: let Warp and PoCL print their own messages. The CLI's ``--verbose`` calls :func:`set_verbose` instead; processes started by the tiled path (Dask workers) read only the variable |
 | ``GEOSYNTH_HOST_THREADS`` | read | :func:`host_threads_setting` (``geosynth.host_steps.host_threads``) | how many parts the compiled host steps cut work into (a whole number >= 1; default: the cores this process may use) |
-| ``GEOSYNTH_MEMORY_LIMIT`` | read | :func:`memory_limit_setting` (``geosynth.memory.available_memory``) | a cap on the memory budget (bytes, or with a K, M, G or T suffix) |
+| ``GEOSYNTH_MEMORY_LIMIT`` | read | :func:`memory_limit_setting` (``geosynth.core.memory.available_memory``) | a cap on the memory budget (bytes, or with a K, M, G or T suffix) |
 | ``XDG_CACHE_HOME`` | read | :func:`cache_root` | where geosynth keeps its OpenCL device probe memo (``$XDG_CACHE_HOME/geosynth``, default ``~/.cache/geosynth``) |
 | ``POCL_*`` | read | :func:`pocl_settings` | PoCL's settings that change what its compiler builds: part of the probe memo's key |
 | ``POCL_AFFINITY`` | set (default ``1``) | :func:`default_pocl_environment` | pin PoCL's worker threads, when this process may run on every core |
@@ -93,7 +93,7 @@ def host_threads_setting() -> int | None:
 
 
 def memory_limit_setting() -> str | None:
-    """``GEOSYNTH_MEMORY_LIMIT`` as written (``geosynth.memory.parse_bytes`` reads it), None
+    """``GEOSYNTH_MEMORY_LIMIT`` as written (``geosynth.core.memory.parse_bytes`` reads it), None
     when unset or blank."""
     text = os.environ.get(ENV_MEMORY_LIMIT, "").strip()
     return text or None

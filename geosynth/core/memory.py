@@ -19,7 +19,7 @@ import os
 import resource
 from collections.abc import Callable
 
-from geosynth.config import ENV_MEMORY_LIMIT, memory_limit_setting
+from geosynth.core.config import ENV_MEMORY_LIMIT, memory_limit_setting
 
 __all__ = ["ENV_LIMIT", "MemoryBudgetError", "available_memory", "format_bytes", "largest_fitting", "parse_bytes",
            "peak_resident_bytes", "require"]
