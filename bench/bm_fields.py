@@ -31,9 +31,9 @@ from harness import Row, finish, parse_args, start, table, time_call  # noqa: E4
 
 from geosynth import reference  # noqa: E402
 from geosynth.examples import chainmail_mesh, torus_mesh  # noqa: E402
-from geosynth.field import cubic_grid  # noqa: E402
-from geosynth.meshes import mesh_distance, prepare_mesh  # noqa: E402
-from geosynth.pointsets import pointset_distance  # noqa: E402
+from geosynth.geometry.field import cubic_grid  # noqa: E402
+from geosynth.geometry.meshes import mesh_distance, prepare_mesh  # noqa: E402
+from geosynth.geometry.pointsets import pointset_distance  # noqa: E402
 
 
 def _peer(name):

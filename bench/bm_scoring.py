@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import Row, finish, parse_args, start, table, time_call  # noqa: E402
 
 import geosynth  # noqa: E402
-from geosynth.scoring import GatherScorer  # noqa: E402
+from geosynth.compute.scoring import GatherScorer  # noqa: E402
 
 try:
     import faiss

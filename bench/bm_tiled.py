@@ -57,8 +57,8 @@ def _height_map(field: np.ndarray) -> np.ndarray:
 
 
 def _picture(path: str, field: np.ndarray, grid) -> None:
-    from geosynth.files import write_image
-    from geosynth.render import side_by_side
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import side_by_side
 
     h = _height_map(field)
     g = (h - h.min()) / max(1e-6, float(h.max() - h.min()))

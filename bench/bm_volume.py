@@ -44,7 +44,7 @@ from harness import finish, parse_args, start  # noqa: E402
 
 import geosynth  # noqa: E402
 from geosynth.examples import EXEMPLARS, spheres_field  # noqa: E402 (the end-to-end cube)
-from geosynth.scoring import GatherScorer  # noqa: E402
+from geosynth.compute.scoring import GatherScorer  # noqa: E402
 from geosynth.blocks import block_offsets  # noqa: E402
 from geosynth.cascade_search import CascadeSearch  # noqa: E402
 from geosynth.tree_search import BlockSearch  # noqa: E402

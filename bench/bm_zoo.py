@@ -62,7 +62,7 @@ def _float(pattern: str, text: str) -> float:
 
 
 def _field(mesh, spacing: float):
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
 
     extent = float(np.max(mesh.bounds[1] - mesh.bounds[0]))
     resolution = max(8, int(math.ceil(extent / spacing)))
@@ -88,8 +88,8 @@ def same_scale_picture(exemplar, output, path: Path, read_as=None) -> None:
     intersect, and M1 is given rings fused at every crossing)."""
     import trimesh
 
-    from geosynth.files import write_image
-    from geosynth.render import render_mesh, side_by_side
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_mesh, side_by_side
 
     half = (exemplar.bounds[1] - exemplar.bounds[0])[:2] / 2
     centre = output.bounds.mean(axis=0)[:2]
@@ -110,10 +110,10 @@ def same_scale_picture(exemplar, output, path: Path, read_as=None) -> None:
 def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -> dict:
     """Feature ratios output / exemplar (measured as a relief for the slab families, as
     separate elements for the others) and the block distance against random."""
-    from geosynth.meshes import load_mesh
+    from geosynth.geometry.meshes import load_mesh
     from geosynth.volume_features import compare_features, element_features
 
-    from geosynth.surface import field_to_mesh
+    from geosynth.geometry.surface import field_to_mesh
 
     a, b = load_mesh(exemplar), load_mesh(output)
     # one world spacing for both, fine enough that tilted rings nearly touching stay apart
@@ -204,7 +204,7 @@ def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.nd
 
 
 def _points(path: Path) -> np.ndarray:
-    from geosynth.pointsets import read_geometry
+    from geosynth.geometry.pointsets import read_geometry
 
     g = read_geometry(path)
     return np.asarray(g.vertices if hasattr(g, "vertices") else g.positions, np.float64)
@@ -282,7 +282,7 @@ def measure_complete(member: Member, output: Path, capture: Path | None = None) 
         c = np.column_stack([v["red"], v["green"], v["blue"]])
         ref = c[~done]
         if capture is not None:
-            from geosynth.pointsets import read_geometry
+            from geosynth.geometry.pointsets import read_geometry
             from geosynth.relief_prep import as_capture
 
             cap = as_capture(read_geometry(capture))

@@ -243,7 +243,7 @@ def point_texture_tileable(seed):
     from test_point_texture import SMALL, _wavy
 
     from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.pointsets import pointset_distance
+    from geosynth.geometry.pointsets import pointset_distance
 
     pts, report, _ = synthesize_point_texture(_wavy(), device=ONE_DEVICE, tileable=True, seed=seed, **SMALL)
     w = np.asarray(report.size)

@@ -19,18 +19,18 @@ through p' along +-n' with the surface (the paper's limited ray intersection, wh
 keeps points over a valley from sliding to its sides), else the quasi-orthogonal
 projection of p' (Adamson and Alexa).
 
-The MLS surface is the one of :mod:`geosynth.pointsets` (Gaussian weights of width h cut
+The MLS surface is the one of :mod:`geosynth.geometry.pointsets` (Gaussian weights of width h cut
 off at 3h, ``a(x)`` the weighted mean of the points, ``n(x)`` the normalized weighted
 mean of the normals, ``f(x) = n(x) . (x - a(x))``), evaluated here on the host in
 float64 over each query's ``MLS_NEIGHBOURS`` nearest points within reach: the blended
 positions are output positions that later searches read, and float64 host arithmetic
 makes them the same bits whichever device runs the rest. The device's float32 MLS
-kernel (:func:`geosynth.pointsets.project_points`) agrees with another device's only to
+kernel (:func:`geosynth.geometry.pointsets.project_points`) agrees with another device's only to
 about 1e-6, and a pipeline that fed such positions to its next search would diverge
 between devices. The host evaluation is a compiled host step
 (:mod:`geosynth.kernels.host_blend`, Warp's CPU device for every run, one thread per
 point doing its k nearest points, every iteration and the fallback; see
-:mod:`geosynth.host_steps`); :class:`MLSSurface` and the ``_numpy`` functions are its
+:mod:`geosynth.compute.host_steps`); :class:`MLSSurface` and the ``_numpy`` functions are its
 NumPy twins (the oracles of tests/test_blend_kernels.py). ``device=`` is therefore only
 checked (so that a bad device string fails here as elsewhere); it never changes the
 result.
@@ -50,7 +50,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from geosynth._checks import as_points3, as_unit_vectors, check_positive
+from geosynth.compute.checks import as_points3, as_unit_vectors, check_positive
 from geosynth.core.config import BLEND_TABLES
 
 __all__ = [
@@ -71,7 +71,7 @@ __all__ = [
 ]
 
 MLS_NEIGHBOURS = 24  # nearest points within reach that enter a host MLS evaluation
-_REACH = 3.0  # weights cut off at 3h, as in geosynth.pointsets
+_REACH = 3.0  # weights cut off at 3h, as in geosynth.geometry.pointsets
 _TOL = 1e-3  # |f| <= _TOL * h ends a line search or a projection
 _LINE_ITER = 12
 _PROJ_ITER = 20
@@ -99,7 +99,7 @@ def _box(box_min, box_max) -> tuple[np.ndarray, np.ndarray]:
 def _check_device(device) -> None:
     """A malformed or absent device string fails here, as in every other call."""
     if device is not None:
-        from geosynth.backend import get_backend
+        from geosynth.compute.backend import get_backend
 
         get_backend(device)
 
@@ -321,7 +321,7 @@ def _gauss_table():
     (float64, libm's exp), wrapped for Warp once per thread (``geosynth.core.config.BLEND_TABLES``)."""
     held = getattr(BLEND_TABLES, "gauss", None)
     if held is None:
-        from geosynth.host_steps import host_array
+        from geosynth.compute.host_steps import host_array
         from geosynth.kernels.host_blend import GAUSS_STEPS
 
         held = host_array(np.exp(-np.arange(9 * int(GAUSS_STEPS) + 2) / float(GAUSS_STEPS)), np.float64)
@@ -331,7 +331,7 @@ def _gauss_table():
 
 def _scratch(entries: int):
     """(int32, float64) Warp scratch arrays of ``entries`` entries (the workers' lists)."""
-    from geosynth.host_steps import host_array
+    from geosynth.compute.host_steps import host_array
 
     return host_array(np.empty(entries, np.int32))[0], host_array(np.empty(entries, np.float64))[0]
 
@@ -357,7 +357,7 @@ class _CellGrid:
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, cell: float, auto_k: int = 0):
-        from geosynth.host_steps import host_array, host_launch
+        from geosynth.compute.host_steps import host_array, host_launch
         from geosynth.kernels.host_blend import build_grid_kernel
 
         count = len(points)
@@ -400,7 +400,7 @@ def nearest_k(points: np.ndarray, queries: np.ndarray, k: int, distance_upper_bo
         pykdtree's), and (M, k) int64; where fewer than k lie within the bound, the rest
         are inf and N.
     """
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import knn_kernel
 
     p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
@@ -437,7 +437,7 @@ def _counterparts_compiled(p: np.ndarray, n: np.ndarray, nb_p: np.ndarray, nb_n:
     p, n (M, 3) float64 points and unit normals, nb_p, nb_n (K >= 1, 3) N_k's points and
     unit normals, h the MLS width, tmax the line's reach and the farthest projection
     (world units). Returns ``(positions, normals, how)`` as :func:`counterparts` does."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import counterparts_kernel
 
     m = len(p)
@@ -463,7 +463,7 @@ def _blend_compiled(p: np.ndarray, n: np.ndarray, ps: np.ndarray, ns: np.ndarray
     and its unit normals (its own MLS surface), ps, ns (s, 3) the points to blend (those
     with ramp > 0), r (s,) their ramp and c, nc, how their :func:`counterparts`. Returns
     (s, 3) float64 blended points and unit normals."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import blend_kernel
 
     s = len(ps)
@@ -623,7 +623,7 @@ def _blend_patch_numpy(points, normals, ramp, neighbourhood_points, neighbourhoo
 
 def _blend_patch(points, normals, ramp, neighbourhood_points, neighbourhood_normals, spacing, device, radius,
                  max_ray, relative, *, compiled: bool):
-    from geosynth import _checks
+    from geosynth.compute import checks as _checks
 
     p = as_points3("points", points)
     n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
@@ -839,7 +839,7 @@ def pieces(points, link: float) -> np.ndarray:
     host step ``geosynth.kernels.host_blend.pieces_kernel`` (union-find over the points);
     :func:`_pieces_numpy` is its NumPy twin (SciPy's labels, numbered in the cells' raster
     order: the same pieces)."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import pieces_kernel
 
     p = np.asarray(points, np.float64)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geosynth.scoring import candidate_origins
+from geosynth.compute.scoring import candidate_origins
 
 __all__ = ["block_offsets", "block_origins", "block_shape", "box_sums"]
 
@@ -38,7 +38,7 @@ def block_offsets(block) -> np.ndarray:
 def block_origins(shape, block) -> np.ndarray:
     """(B, 3) int64 origins of every block of a field, in block-index order.
 
-    The same as ``geosynth.scoring.candidate_origins(shape, block_offsets(block))``:
+    The same as ``geosynth.compute.scoring.candidate_origins(shape, block_offsets(block))``:
     raster order, z slowest.
     """
     return candidate_origins(tuple(shape), block_offsets(block))

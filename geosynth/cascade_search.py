@@ -14,11 +14,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from geosynth import _checks
+from geosynth.compute import checks as _checks
 from geosynth.core.arrays import DeviceArray
 from geosynth.blocks import block_offsets, block_shape, box_sums
 from geosynth.pyramid import check_block_shape, check_field, check_memory, check_query
-from geosynth.scoring import GatherScorer
+from geosynth.compute.scoring import GatherScorer
 
 __all__ = ["CascadeSearch", "tally_alive"]
 
@@ -150,7 +150,7 @@ class CascadeSearch:
 
     def __init__(self, field: np.ndarray, block: int, *, device: str | None = None, guesses: int = 32,
                  min_work: float | None = None, cells: Sequence[int] | None = None):
-        from geosynth.backend import to_device
+        from geosynth.compute.backend import to_device
 
         field = check_field(field)
         block = check_block_shape(block, field.shape)
@@ -225,7 +225,7 @@ class CascadeSearch:
     def _fused_setup(self, dev: str) -> None:
         """Cell sums (sides N/2 and N/4) and coarse centred norms at every field position,
         in the field's strides (0 where the cube leaves the field), and the cell offsets."""
-        from geosynth.backend import to_device
+        from geosynth.compute.backend import to_device
 
         shape = self.field.shape
         cc, cf = self._fused_cells
@@ -320,8 +320,8 @@ class CascadeSearch:
         """Every block scored against every query (``batch_dense``), chunk by chunk: the
         (Q, 3) origins and (Q,) SSDs of the smallest SSD, lowest index on ties (the
         answers of :meth:`nearest`, whatever its thresholds), and the blocks alive."""
-        from geosynth.backend import to_device
-        from geosynth.scoring import score_dense
+        from geosynth.compute.backend import to_device
+        from geosynth.compute.scoring import score_dense
 
         if self._dense_rows is None:
             windows = np.lib.stride_tricks.sliding_window_view(self.field, self.block_shape)

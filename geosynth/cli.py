@@ -5,11 +5,11 @@ The ``geosynth`` command line.
 
 Every command checks its arguments before any work: each number against the range
 the library accepts (at parse time), each input file for existence, each output path
-with :func:`geosynth.files.check_output` (never an input, a folder, a path under a
+with :func:`geosynth.io.files.check_output` (never an input, a folder, a path under a
 file, an unwritable folder or the wrong extension; two outputs of one run never the
 same file). An expected failure is one line on stderr, ``geosynth <command>:
 <message>``, exit code 2 (``--debug``: the traceback instead); Ctrl-C exits 130 and
-SIGTERM 143, quietly. One commit step per command (:func:`geosynth.files.staged_outputs`):
+SIGTERM 143, quietly. One commit step per command (:func:`geosynth.io.files.staged_outputs`):
 every output (mesh, picture, point set, store, tile meshes) waits in a temporary until
 the command has finished, and all are moved in together; an interrupt at any moment,
 even one that a library swallowed, leaves every old output as it was (exit 130/143). ``--verbose`` lets the libraries' warnings through (it sets
@@ -35,7 +35,7 @@ import geosynth
 from geosynth.core.config import set_verbose
 from geosynth.core.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
 from geosynth.examples import EXEMPLARS
-from geosynth.files import IMAGE_SUFFIXES, check_output
+from geosynth.io.files import IMAGE_SUFFIXES, check_output
 
 MESH_OUT = (".ply", ".obj", ".stl")
 POINTS_OUT = (".ply",)
@@ -98,7 +98,7 @@ def _device_type(allow_all: bool = False) -> Callable[[str], str]:
     """An argparse ``type=``: a well-formed device string (presence is checked later)."""
 
     def parse(text: str) -> str:
-        from geosynth.backend import parse_device
+        from geosynth.compute.backend import parse_device
 
         if allow_all and text == "all":
             return text
@@ -180,7 +180,7 @@ def _picture_path(args: argparse.Namespace) -> tuple[Path, str]:
 
 def _check_device(device: str | None) -> None:
     """Refuse an absent device now, not after loading the inputs."""
-    from geosynth.backend import resolve_device
+    from geosynth.compute.backend import resolve_device
 
     try:
         resolve_device(device or "auto")
@@ -242,7 +242,7 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
 
 
 def _cmd_devices(args: argparse.Namespace) -> int:
-    from geosynth.backend import describe_devices
+    from geosynth.compute.backend import describe_devices
 
     for name, desc in describe_devices():
         print(f"  {name:<14} {desc}")
@@ -271,10 +271,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if args.device != "all":
         _check_device(args.device)
 
-    from geosynth.backend import describe_devices
+    from geosynth.compute.backend import describe_devices
     from geosynth.examples import spheres_field
     from geosynth.volume import quantize_field
-    from geosynth.files import write_image
+    from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     say("geosynth demo: nearest-block search (M1's linear search) on a generated field\n")
@@ -353,10 +353,10 @@ def _cmd_field(args: argparse.Namespace) -> int:
 
     import trimesh
 
-    from geosynth.files import write_image
-    from geosynth.distance import mesh_distance, pointset_distance
-    from geosynth.pointsets import read_geometry
-    from geosynth.render import field_slices_image
+    from geosynth.io.files import write_image
+    from geosynth.geometry.distance import mesh_distance, pointset_distance
+    from geosynth.geometry.pointsets import read_geometry
+    from geosynth.io.pictures import field_slices_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     t0 = time.perf_counter()
@@ -379,7 +379,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
         if points.normals is None:
             if not args.estimate_normals:
                 raise ValueError(f"{args.input} has no normals; pass --estimate-normals to estimate them (PCA over k neighbours).")
-            from geosynth.pointsets import estimate_normals
+            from geosynth.geometry.pointsets import estimate_normals
 
             points.normals = estimate_normals(points.positions)
         distance, gradient = pointset_distance(points, resolution=args.resolution, padding=args.padding,
@@ -409,9 +409,9 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.files import write_image
-    from geosynth.render import render_mesh, side_by_side
-    from geosynth.surface import save_mesh
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_mesh, side_by_side
+    from geosynth.geometry.surface import save_mesh
     from geosynth.examples import resolve_exemplar_mesh
     from geosynth.volume import block_text, synthesize_geometry
 
@@ -550,10 +550,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     _check_device(args.device)
 
     from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.files import write_image
+    from geosynth.io.files import write_image
     from geosynth.core.memory import available_memory
-    from geosynth.render import render_mesh, side_by_side
-    from geosynth.surface import save_mesh
+    from geosynth.io.pictures import render_mesh, side_by_side
+    from geosynth.geometry.surface import save_mesh
     from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
     from geosynth.volume import target_size
 
@@ -568,7 +568,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
 
     # the untiled run's automatic source resolution, block and size (geosynth.volume.choose_settings),
     # after the tiling is checked on the default grid's shape (no distance computed yet)
-    from geosynth.meshes import check_mesh
+    from geosynth.geometry.meshes import check_mesh
     from geosynth.volume import choose_settings, exemplar_grid
 
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
@@ -698,10 +698,10 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], used)
     _check_device(args.device)
 
-    from geosynth.files import write_image
+    from geosynth.io.files import write_image
     from geosynth.pointmodels import load_point_model, point_model
-    from geosynth.pointsets import write_point_set
-    from geosynth.render import render_points, side_by_side
+    from geosynth.geometry.pointsets import write_point_set
+    from geosynth.io.pictures import render_points, side_by_side
     from geosynth.texturing import texture_points
     from geosynth.textures import read_texture, texture_example
 
@@ -826,7 +826,7 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
 
 
 def _has_colours(path) -> bool:
-    from geosynth._readers import has_colours
+    from geosynth.io.readers import has_colours
 
     return has_colours(Path(path))
 
@@ -854,11 +854,11 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     _check_outputs(outputs, inputs)
     _check_device(args.device)
 
-    from geosynth.files import write_image
+    from geosynth.io.files import write_image
     from geosynth.geometry_texture import output_mesh, synthesize_point_texture
     from geosynth.core.memory import MemoryBudgetError
-    from geosynth.pointsets import write_point_set
-    from geosynth.render import render_points, side_by_side
+    from geosynth.geometry.pointsets import write_point_set
+    from geosynth.io.pictures import render_points, side_by_side
 
     say = (lambda *a, **k: None) if args.quiet else print
     texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
@@ -891,7 +891,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     coloured = " and the exemplar's colours" if points.colors is not None else ""
     say(f"written {out}: {len(points):,} points with normals{coloured}")
     if mesh is not None:
-        from geosynth.surface import save_mesh
+        from geosynth.geometry.surface import save_mesh
 
         save_mesh(mesh, args.mesh, inputs=inputs)
         say(f"mesh: {args.mesh}: {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces "
@@ -1007,7 +1007,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
 
     from geosynth.completion import complete_surface, completion_picture, write_completion
     from geosynth.completion_examples import completion_example
-    from geosynth.files import write_image
+    from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     region = None
@@ -1016,7 +1016,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         capture, label, region = ex.capture, f"example {args.example} ({ex.note})", ex.region
         fit = args.fit or ex.fit
     else:
-        from geosynth.pointsets import read_geometry
+        from geosynth.geometry.pointsets import read_geometry
 
         capture, label, fit = read_geometry(args.input), args.input, args.fit
     # unset options (None) are chosen from the capture's relief; the report's "automatic settings" line says how
@@ -1327,7 +1327,7 @@ def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
 
 def _main(argv, early: list[int]) -> int:
     """:func:`main` inside its signal handlers."""
-    from geosynth.files import staged_outputs
+    from geosynth.io.files import staged_outputs
 
     if early:  # interrupted while loading: nothing has been done
         if signal.SIGTERM in early:

@@ -1159,7 +1159,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
 
     Args:
         capture: the captured part: a :class:`~geosynth.relief_prep.Capture`, a
-            ``trimesh.Trimesh`` (vertex colours kept), a :class:`~geosynth.pointsets.PointSet`
+            ``trimesh.Trimesh`` (vertex colours kept), a :class:`~geosynth.geometry.pointsets.PointSet`
             or an (N, 3) array; optional colours (N, 3) uint8.
         fit: None (chosen by residual), "plane", "sphere", "cylinder", or a SurfaceFit.
         region: ((low, high), (low, high)) parameter ranges to complete (plane: u, v
@@ -1227,7 +1227,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             a named fit far from the data (with its residual); an empty region.
     """
     from geosynth import relief_match as rm
-    from geosynth.backend import resolve_device
+    from geosynth.compute.backend import resolve_device
 
     t0 = time.perf_counter()
     _check_params(DEFAULT_WINDOW if window is None else window, DEFAULT_ROTATIONS if rotations is None else rotations,
@@ -1386,12 +1386,12 @@ def write_completion(path: str | os.PathLike, surface: CompletedSurface, *, inpu
         The path written.
 
     Raises:
-        ValueError: the output is refused (:func:`geosynth.files.check_output`), or a
+        ValueError: the output is refused (:func:`geosynth.io.files.check_output`), or a
             position or normal is NaN or inf (before any file is created).
     """
     from plyfile import PlyData, PlyElement
 
-    from geosynth.files import atomic_write, check_finite_output, check_output
+    from geosynth.io.files import atomic_write, check_finite_output, check_output
 
     check_finite_output(path, "point", position=surface.positions, normal=surface.normals)
     out = check_output(path, inputs=inputs, suffixes=(".ply",), what="completion output")
@@ -1467,7 +1467,7 @@ def completion_picture(surface: CompletedSurface, size=(420, 380)) -> np.ndarray
     Returns:
         (H, W, 3) uint8 picture.
     """
-    from geosynth.render import render_mesh, side_by_side
+    from geosynth.io.pictures import render_mesh, side_by_side
 
     v_cap, v_done, v_border = _views(surface)
     grey = np.full((len(surface), 3), 200, np.uint8)

@@ -225,13 +225,13 @@ def balls_field(resolution: int = 64, seed: int = 0, padding: float = 0.1, **par
     """The exact signed distance of the "balls" exemplar (true spheres, not icospheres).
 
     The minimum over the spheres of ``|p - c| - r``: exact everywhere, inside too, as
-    the spheres do not overlap. The grid is the one :func:`geosynth.meshes.mesh_distance`
+    the spheres do not overlap. The grid is the one :func:`geosynth.geometry.meshes.mesh_distance`
     uses for ``balls_mesh(seed)`` with the same ``resolution`` and ``padding``.
 
     Returns:
-        float32 :class:`~geosynth.field.Field`, negative inside.
+        float32 :class:`~geosynth.geometry.field.Field`, negative inside.
     """
-    from geosynth.field import cubic_grid
+    from geosynth.geometry.field import cubic_grid
 
     centres, radii = _balls_layout(seed, **{k: v for k, v in params.items() if k != "subdivisions"})
     grid = cubic_grid(balls_mesh(seed, **params).bounds, resolution, padding)
@@ -397,7 +397,7 @@ def grid_mesh(seed: int = 0, cells: tuple[int, int, int] = (3, 3, 2), jitter: fl
     ball of ``ball_radius`` sits on every node. Rods and balls overlap, so the mesh is
     made as their union: the distance to the union of capsules and spheres, cut by the
     box, sampled at ``resolution`` samples across the footprint and meshed by marching
-    cubes (:func:`geosynth.surface.field_to_mesh`), which gives one clean closed surface,
+    cubes (:func:`geosynth.geometry.surface.field_to_mesh`), which gives one clean closed surface,
     then smoothed by ``smooth`` Taubin steps (the staircase of the sampling goes away).
 
     Args:
@@ -415,8 +415,8 @@ def grid_mesh(seed: int = 0, cells: tuple[int, int, int] = (3, 3, 2), jitter: fl
     """
     from scipy.interpolate import CubicSpline
 
-    from geosynth.field import Field
-    from geosynth.surface import field_to_mesh
+    from geosynth.geometry.field import Field
+    from geosynth.geometry.surface import field_to_mesh
 
     rng = np.random.default_rng(seed)
     cells = np.asarray(cells, int)
@@ -669,11 +669,11 @@ def exemplar_mesh(name: str, seed: int = 0):
 def exemplar_field(name: str, resolution: int = 64, seed: int = 0, padding: float = 0.1, device: str | None = None):
     """A built-in exemplar's signed distance field on a grid, negative inside.
 
-    The grid is :func:`geosynth.field.cubic_grid` around the mesh's bounds (``resolution``
+    The grid is :func:`geosynth.geometry.field.cubic_grid` around the mesh's bounds (``resolution``
     samples along the longest axis, ``padding`` times it added on every side), the
     same grid as ``mesh_distance(exemplar_mesh(name, seed), resolution=resolution,
     padding=padding)``. Exemplars with an exact analytic distance (balls: true spheres)
-    use it; the others are computed from the mesh by :func:`geosynth.meshes.mesh_distance`
+    use it; the others are computed from the mesh by :func:`geosynth.geometry.meshes.mesh_distance`
     on ``device``.
 
     Args:
@@ -684,7 +684,7 @@ def exemplar_field(name: str, resolution: int = 64, seed: int = 0, padding: floa
         device: the device of ``mesh_distance`` (None: "auto").
 
     Returns:
-        float32 :class:`~geosynth.field.Field`.
+        float32 :class:`~geosynth.geometry.field.Field`.
 
     Raises:
         ValueError: an unknown name, resolution < 2.
@@ -692,7 +692,7 @@ def exemplar_field(name: str, resolution: int = 64, seed: int = 0, padding: floa
     ex = _exemplar(name)
     if ex.field is not None:
         return ex.field(resolution=resolution, seed=seed, padding=padding)
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
 
     return mesh_distance(ex(seed=seed), resolution=resolution, padding=padding, device=device)
 
@@ -702,7 +702,7 @@ def resolve_exemplar_mesh(exemplar, seed: int | None = 0):
 
     Args:
         exemplar: a ``trimesh.Trimesh`` (returned as is), a built-in exemplar name (one
-            of ``EXEMPLARS``) or a mesh file path (read by :func:`geosynth.meshes.load_mesh`).
+            of ``EXEMPLARS``) or a mesh file path (read by :func:`geosynth.geometry.meshes.load_mesh`).
         seed: the built-in exemplar's seed (None: 0).
 
     Returns:
@@ -723,6 +723,6 @@ def resolve_exemplar_mesh(exemplar, seed: int | None = 0):
     if isinstance(exemplar, str) and not Path(exemplar).suffix and not Path(exemplar).exists():
         raise ValueError(f"exemplar {exemplar!r} is neither a built-in exemplar ({', '.join(EXEMPLARS)}) "
                          "nor a mesh file.")
-    from geosynth.meshes import load_mesh
+    from geosynth.geometry.meshes import load_mesh
 
     return load_mesh(exemplar)

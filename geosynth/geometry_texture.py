@@ -33,7 +33,7 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
-from geosynth._checks import UINT32_MAX
+from geosynth.compute.checks import UINT32_MAX
 from geosynth.point_grid import PointGrid
 from geosynth.pointmodels import passive_openmp_threads
 from geosynth.point_textures import PointTexture
@@ -222,7 +222,7 @@ class _Layout:
     period: np.ndarray | None  # tileable: (2,) period
 
 
-# The patch search sums uint8 codes in uint32 (geosynth.scoring.GatherScorer): at most this many
+# The patch search sums uint8 codes in uint32 (geosynth.compute.scoring.GatherScorer): at most this many
 # overlap samples (4 codes each, 255^2 per code at worst) in one patch's query.
 _MAX_OVERLAP_SAMPLES = UINT32_MAX // (4 * 255 * 255)
 
@@ -379,7 +379,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     order would show it; the grid orders points by scan rank, so the output is the same
     bits as one thread's. Stage times are then summed over both threads. The stats' "threads"
     says how many grew it."""
-    from geosynth.host_steps import host_threads
+    from geosynth.compute.host_steps import host_threads
     from geosynth.patch_search import quantized_fields
 
     if not baseline:
@@ -562,7 +562,7 @@ def _grow_two_rows(lay, lag: int, one_patch, rngs, timer, results: dict, bar) ->
     ``timer`` at the end. An error in either thread stops both and is raised here."""
     import threading
 
-    from geosynth.host_steps import CoreShare
+    from geosynth.compute.host_steps import CoreShare
 
     cores = CoreShare()
     done = [0] * lay.rows
@@ -666,7 +666,7 @@ def _field_codes(points, normals, lay, search, h, device, lo, size):
 
 
 def _nearest_window(grid_codes, origins, offsets, values, device):
-    from geosynth.scoring import score_gather
+    from geosynth.compute.scoring import score_gather
 
     s = score_gather(grid_codes, offsets, values, origins=origins, device=device)
     return float(s.min())
@@ -699,7 +699,7 @@ def _field_distance(out_codes, in_codes, patch, samples, rng, device):
 
 
 def _stray_share(points, normals, spacing, h, device) -> float:
-    from geosynth.pointsets import pointset_distance
+    from geosynth.geometry.pointsets import pointset_distance
 
     if len(points) < 4:
         return 1.0
@@ -720,7 +720,7 @@ _BYTES_PER_FIELD_SAMPLE = 320  # D(T_in) on the host: query positions, nearest p
 # float64 codes before rounding (measured: 265-290 B a sample, PatchSearch on 0.2M-1.6M samples);
 # with quality, the output's D on the same spacing, one at a time
 _MESH_BYTES_PER_SAMPLE = 24  # beyond pointsets.grid_mls_bytes: marching cubes' padded float32 copy
-# and its per-cell work (geosynth.surface.field_to_mesh)
+# and its per-cell work (geosynth.geometry.surface.field_to_mesh)
 
 
 def synthesis_bytes(box_min, box_max, points_in: int, points_inside: int, lay: _Layout, quality: bool) -> dict:
@@ -745,10 +745,10 @@ def synthesis_bytes(box_min, box_max, points_in: int, points_inside: int, lay: _
 def output_mesh_bytes(size_xy, z_span: float, points: int, spacing: float, resolution: int) -> int:
     """Estimated peak bytes of :func:`output_mesh` for an output of ``size_xy`` (x, y extent)
     and ``z_span`` (its points' height range, before the mesh's margin), ``points`` points
-    of mean spacing ``spacing``, at ``resolution``: :func:`geosynth.pointsets.grid_mls_bytes`'s
+    of mean spacing ``spacing``, at ``resolution``: :func:`geosynth.geometry.pointsets.grid_mls_bytes`'s
     count plus marching cubes' (``_MESH_BYTES_PER_SAMPLE`` a sample)."""
-    from geosynth.field import cubic_grid_geometry
-    from geosynth.pointsets import MLS_REACH, grid_mls_bytes
+    from geosynth.geometry.field import cubic_grid_geometry
+    from geosynth.geometry.pointsets import MLS_REACH, grid_mls_bytes
 
     z = float(z_span) + 6.0 * spacing
     box = np.array([[0.0, 0.0, 0.0], [float(size_xy[0]), float(size_xy[1]), z]])
@@ -984,7 +984,7 @@ def synthesize_point_texture(
     thread count).
 
     Returns:
-        ``(points, report, timings)``: a :class:`geosynth.pointsets.PointSet` (float32
+        ``(points, report, timings)``: a :class:`geosynth.geometry.pointsets.PointSet` (float32
         positions and unit normals, x and y from B's corner to B's corner + size; uint8
         colours when the exemplar has them, each point's from the exemplar point it was
         warped from), a
@@ -999,11 +999,11 @@ def synthesize_point_texture(
             numbers, and the input errors of :class:`PointTexture`.
         TypeError: arguments of the wrong type.
     """
-    from geosynth import _checks
+    from geosynth.compute import checks as _checks
     from geosynth.blending import has_pieces
     from geosynth.patch_search import PatchSearch
-    from geosynth.host_steps import host_threads
-    from geosynth.pointsets import MLS_REACH, PointSet
+    from geosynth.compute.host_steps import host_threads
+    from geosynth.geometry.pointsets import MLS_REACH, PointSet
     from geosynth.element_size import relief_scale
     from geosynth.warping import WarpWeights, surface_variation
 
@@ -1112,8 +1112,8 @@ def synthesize_point_texture(
 
 def output_mesh(points, normals, spacing: float, resolution: int = 160, device: str | None = None):
     """A watertight mesh of a synthesized point set (item 7 of the method): the MLS signed
-    distance sampled on a grid over its bounds (:func:`geosynth.pointsets.pointset_distance`)
-    and marching cubes closed at the grid's border (:func:`geosynth.surface.field_to_mesh`).
+    distance sampled on a grid over its bounds (:func:`geosynth.geometry.pointsets.pointset_distance`)
+    and marching cubes closed at the grid's border (:func:`geosynth.geometry.surface.field_to_mesh`).
 
     Args:
         points, normals: (N, 3) the point set.
@@ -1124,8 +1124,8 @@ def output_mesh(points, normals, spacing: float, resolution: int = 160, device: 
     Returns:
         A ``trimesh.Trimesh``.
     """
-    from geosynth.pointsets import pointset_distance
-    from geosynth.surface import field_to_mesh
+    from geosynth.geometry.pointsets import pointset_distance
+    from geosynth.geometry.surface import field_to_mesh
 
     p = np.asarray(points, np.float64)
     lo, hi = p.min(axis=0), p.max(axis=0)

@@ -16,12 +16,12 @@ Quality numbers: how close a synthesized field is to the exemplar.
     :func:`format_structure` writes the result as one line.
 
 Inputs of the structure metrics are signed distance fields, negative inside: a
-:class:`~geosynth.field.Field` (its spacing is used) or a (Z, Y, X) float array with a
+:class:`~geosynth.geometry.field.Field` (its spacing is used) or a (Z, Y, X) float array with a
 ``spacing``. Fields rather than meshes because the synthesis has both sides as fields
 (``GeometryResult.exemplar_field`` and ``GeometryResult.volume.field``), elements and
 overhangs are defined on samples, and the mesh needed for area-weighted slopes and
 debris is made here the same way for both sides (marching cubes without smoothing,
-:func:`geosynth.surface.field_to_mesh`), so neither side is favoured by its meshing.
+:func:`geosynth.geometry.surface.field_to_mesh`), so neither side is favoured by its meshing.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.field import Field
+from geosynth.geometry.field import Field
 
 __all__ = [
     "ELEMENT_VOLUME_TOLERANCE", "SLOPE_W1_SCALE", "ExemplarStructure", "bidirectional_block_distance",
@@ -346,7 +346,7 @@ def element_wholeness(exemplar_distance, output_distance, spacing=1.0, *, period
 
     Args:
         exemplar_distance, output_distance: signed distances, negative inside: each a
-            :class:`~geosynth.field.Field` (its spacing is used) or a (Z, Y, X) float
+            :class:`~geosynth.geometry.field.Field` (its spacing is used) or a (Z, Y, X) float
             array in world units of ``spacing`` (1.0: units of samples).
         spacing: sample spacing of array inputs, a number or (x, y, z), > 0.
         periodic: the output wraps around (a tileable synthesis): a bool or one per
@@ -383,7 +383,7 @@ def _surface(values: np.ndarray, spacing: np.ndarray, up_axis: int) -> dict:
     """
     import trimesh
 
-    from geosynth.surface import field_to_mesh
+    from geosynth.geometry.surface import field_to_mesh
 
     mesh = field_to_mesh(Field(values, np.zeros(3), spacing), level=0.0, close=True)
     centre = mesh.triangles_center / spacing  # fractional (x, y, z) sample indices
@@ -455,7 +455,7 @@ def surface_structure(exemplar, output, up_axis: int = 0, spacing=1.0) -> dict:
 
     Args:
         exemplar, output: signed distances, negative inside: each a
-            :class:`~geosynth.field.Field` or a (Z, Y, X) float array in units of
+            :class:`~geosynth.geometry.field.Field` or a (Z, Y, X) float array in units of
             ``spacing``.
         up_axis: the array axis that points up (0: Z, the built-in exemplars' up).
         spacing: sample spacing of array inputs, a number or (x, y, z), > 0.

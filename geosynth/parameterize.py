@@ -52,7 +52,7 @@ import numpy as np
 from geosynth._backends.interfaces import (
     BlendInputs, BlendOutputs, BlendScratch, GrowthInputs, GrowthOutputs, GrowthScratch, PatchFrames,
 )
-from geosynth.pointsets import PointSet
+from geosynth.geometry.pointsets import PointSet
 from geosynth.textures import as_texture, sample_bilinear
 
 __all__ = [
@@ -264,7 +264,7 @@ def as_model(points) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"points has {bad} position(s) with NaN or inf, first at index "
                          f"{int(np.flatnonzero(~np.isfinite(p).all(1))[0])}; remove them first.")
     if points.normals is None:
-        raise ValueError("points has no normals; estimate them first (geosynth.pointsets.estimate_normals) "
+        raise ValueError("points has no normals; estimate them first (geosynth.geometry.pointsets.estimate_normals) "
                          "or load the model with geosynth.pointmodels.load_point_model, which does.")
     n = points.normals.astype(np.float64)
     length = np.linalg.norm(n, axis=1)

@@ -3,12 +3,12 @@
 
 D(S) is the MLS signed distance of a point set S plus its gradient (4 channels) on a
 regular grid (the quasi-orthogonal projection of Adamson and Alexa, through
-:func:`geosynth.pointsets.pointset_distance`, i.e. the ``PointsOps.mls_project`` kernel).
+:func:`geosynth.geometry.pointsets.pointset_distance`, i.e. the ``PointsOps.mls_project`` kernel).
 D(T_in) is computed once on a coarse grid over the whole exemplar box B; every candidate
 patch's overlap field D(O^P) is read from it by the gather SSD kernel
-(:class:`geosynth.scoring.GatherScorer`: the windows are never unpacked); D(O^N) of the
+(:class:`geosynth.compute.scoring.GatherScorer`: the windows are never unpacked); D(O^N) of the
 output neighbourhood's overlap is computed on the fly from the output's points near it.
-The candidates within (1 + eps) of the best score are kept (:func:`geosynth.selection.
+The candidates within (1 + eps) of the best score are kept (:func:`geosynth.compute.selection.
 within_tolerance`) and one is drawn with the seeded generator (step 2 and 3 of Sec. 4).
 
 Identical on every device: the fields are quantized to uint8 (the distance over the band
@@ -67,7 +67,7 @@ _GATHER_SLACK = 0.5  # of h: host_mls gathers each query's points within reach +
 
 def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: float, tree=None,
              fixed: bool = False, nearest=None, compiled: bool = True, cells=None):
-    """The MLS signed distance and gradient of :func:`geosynth.pointsets.pointset_distance`
+    """The MLS signed distance and gradient of :func:`geosynth.geometry.pointsets.pointset_distance`
     (far="nearest"), vectorized over queries, in float64 on the host.
 
     The same definitions as the kernel and :func:`geosynth.reference.mls_project_naive`:
@@ -99,7 +99,7 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     """
     from scipy.spatial import cKDTree
 
-    from geosynth.pointsets import MLS_REACH
+    from geosynth.geometry.pointsets import MLS_REACH
 
     p = np.asarray(points, np.float64)
     x = np.asarray(queries, np.float64).reshape(-1, 3)
@@ -166,19 +166,19 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
 class _HostCells:
     """A point set sorted by cell in float64, for the host projection kernel
     (``geosynth.kernels.host_search.mls_project_f64``; layout of
-    :func:`geosynth.pointsets.cell_sort`).
+    :func:`geosynth.geometry.pointsets.cell_sort`).
 
     Args:
         p, nrm: (N, 3) float64 positions and unit normals, N >= 1; reach: MLS_REACH h.
-        grid: optional, the :class:`geosynth.pointsets.CellGrid` of the same points (their
+        grid: optional, the :class:`geosynth.geometry.pointsets.CellGrid` of the same points (their
             float32 copies) for this reach: its layout is reused (no second sort). A float64
             point may then lie outside its cell by the float32 rounding of the positions; the
             kernel's cell and row ranges are widened by twice the largest such rounding.
     """
 
     def __init__(self, p: np.ndarray, nrm: np.ndarray, reach: float, grid=None):
-        from geosynth.host_steps import host_array
-        from geosynth.pointsets import cell_sort
+        from geosynth.compute.host_steps import host_array
+        from geosynth.geometry.pointsets import cell_sort
 
         if grid is None:
             rel, order, start, self.shift, self.origin, self.cell, self.dims = cell_sort(p, reach)
@@ -206,7 +206,7 @@ class _HostCells:
         ``enough`` (<= reach): a query with a point nearer than it gets the first such point
         met instead (its distance < enough, not necessarily the nearest): exact only where
         the result is >= enough."""
-        from geosynth.host_steps import host_array, host_launch
+        from geosynth.compute.host_steps import host_array, host_launch
         from geosynth.kernels.host_search import nearest_point_f64
 
         m = len(q)
@@ -222,9 +222,9 @@ class _HostCells:
     def project(self, q: np.ndarray, h: float, fixed: bool):
         """:func:`_iterate`'s outputs for (M, 3) float64 queries: (f at the query (NaN:
         no point within reach), last MLS normal, projection), float64, by one launch."""
-        from geosynth.host_steps import host_array, host_launch
+        from geosynth.compute.host_steps import host_array, host_launch
         from geosynth.kernels.host_search import mls_project_f64
-        from geosynth.pointsets import MLS_MAX_ITER, MLS_TOL
+        from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_TOL
 
         steps, tol = (FIXED_STEPS, FIXED_TOL * h) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
         m = len(q)
@@ -259,7 +259,7 @@ def _iterate(p, nrm, tree, q, h, fixed: bool = False):
     (as :func:`quantized_fields`'s kernel); either also stops at an exact fixed point, where
     every later step would repeat the last one bit for bit. The NumPy oracle of
     :class:`_HostCells`'s kernel."""
-    from geosynth.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
+    from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
 
     reach = MLS_REACH * h
     steps, tol = (FIXED_STEPS, FIXED_TOL * h) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
@@ -369,9 +369,9 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
         points, normals: (N, 3) the point set; queries: (M, 3) float positions.
         h: the kernel width; device: a device string; steps: projection steps, >= 1.
         cells: the ``cells`` this function returned for the same points, h and device
-            (the points' :class:`geosynth.pointsets.CellGrid`, already on the device).
+            (the points' :class:`geosynth.geometry.pointsets.CellGrid`, already on the device).
         tol: world units, >= 0.
-        grid: optional, the points' float32 :class:`geosynth.pointsets.CellGrid` for reach
+        grid: optional, the points' float32 :class:`geosynth.geometry.pointsets.CellGrid` for reach
             MLS_REACH h, when already built (and ``cells`` is None).
 
     Returns:
@@ -381,7 +381,7 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
         no point is within reach of the projection; where the projection stopped at
         ``|f| <= tol``, that last step's f), cells).
     """
-    from geosynth.pointsets import MLS_REACH, CellGrid
+    from geosynth.geometry.pointsets import MLS_REACH, CellGrid
 
     reach = MLS_REACH * h
     if grid is None and cells is None:
@@ -391,7 +391,7 @@ def kernel_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: 
 
 
 def _kernel_mls_locked(points, normals, queries, h, device, steps, cells, tol, grid, reach):
-    from geosynth import _checks
+    from geosynth.compute import checks as _checks
 
     if cells is None:
         backend = _checks.resolve_backend(device)
@@ -417,7 +417,7 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     The kernel (:func:`kernel_mls`, FIXED_STEPS steps) gives distance and gradient; each
     is mapped to a code (distance / band and each gradient component times CODE_SCALE,
     rounded, clamped, shifted to 0..254). A query with no point within reach gets the far
-    value of :func:`geosynth.pointsets.pointset_distance` (far="nearest"): the signed
+    value of :func:`geosynth.geometry.pointsets.pointset_distance` (far="nearest"): the signed
     distance to its nearest point's projection, that projection's normal as gradient.
     Recomputed with :func:`host_mls` (float64, the same fixed steps) and coded from that:
     values within ARBITER_TOL codes of a rounding boundary; queries whose projection has
@@ -435,7 +435,7 @@ def quantized_fields(points: np.ndarray, normals: np.ndarray, queries: np.ndarra
     Returns:
         ((M, 4) uint8 codes (distance, gx, gy, gz), how many queries the host recomputed).
     """
-    from geosynth.pointsets import MLS_REACH, CellGrid
+    from geosynth.geometry.pointsets import MLS_REACH, CellGrid
 
     q = np.ascontiguousarray(queries, np.float64).reshape(-1, 3)
     if len(q) == 0:
@@ -581,8 +581,8 @@ class PatchSearch:
         return np.column_stack([dz, np.tile(cols[:, 0], nz), np.tile(cols[:, 1], nz)]).astype(np.int64)
 
     def _scorer(self, offsets: np.ndarray):
-        from geosynth.backend import to_device
-        from geosynth.scoring import GatherScorer
+        from geosynth.compute.backend import to_device
+        from geosynth.compute.scoring import GatherScorer
 
         key = offsets.tobytes()
         s = self._scorers.get(key)
@@ -601,7 +601,7 @@ class PatchSearch:
     def choose(self, offsets: np.ndarray, values: np.ndarray, eps: float, rng: np.random.Generator) -> SearchChoice:
         """Steps 2 and 3 of Sec. 4: the candidates within (1 + eps) of the best score,
         one drawn with ``rng``. With no offsets (the seed patch) every candidate is in."""
-        from geosynth.selection import random_pick, tolerance_threshold
+        from geosynth.compute.selection import random_pick, tolerance_threshold
 
         if len(offsets) == 0:
             i = random_pick(np.arange(len(self.origins)), rng)

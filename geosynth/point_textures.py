@@ -7,7 +7,7 @@ xy, the height axis z), with geometry that extends beyond B in x and y (the padd
 paper asks for, so that MLS projections near B's border see the surface beyond it).
 
 Constructors: :func:`texture_from_points` (an oriented point set; normals estimated by
-:func:`geosynth.pointsets.estimate_normals` when absent), :func:`read_point_texture` (a PLY
+:func:`geosynth.geometry.pointsets.estimate_normals` when absent), :func:`read_point_texture` (a PLY
 point set or any mesh trimesh reads, meshes sampled uniformly by area),
 :func:`texture_from_mesh`, :func:`texture_from_image` (a grey image as a height field,
 the paper's first example, Sec. 6).
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth._checks import as_points3
+from geosynth.compute.checks import as_points3
 
 __all__ = [
     "PointTexture",
@@ -172,10 +172,10 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
     """A point texture from an oriented point set.
 
     Args:
-        points: (N, 3) float positions (N >= 16), or a :class:`geosynth.pointsets.PointSet`
+        points: (N, 3) float positions (N >= 16), or a :class:`geosynth.geometry.pointsets.PointSet`
             (its normals are used unless ``normals`` is given).
         normals: (N, 3) normals; None estimates them (PCA over ``k`` neighbours,
-            oriented towards +z for a sheet: :func:`geosynth.pointsets.estimate_normals`).
+            oriented towards +z for a sheet: :func:`geosynth.geometry.pointsets.estimate_normals`).
         box: (2, 3) the box B; default the points' bounds, shrunk in x and y by
             ``padding`` of the extent on each side.
         padding: see ``box``, in [0, 0.5).
@@ -191,7 +191,7 @@ def texture_from_points(points, normals=None, *, box=None, padding: float = 0.2,
             zero length, no normals and too few neighbours to estimate them (collinear or
             coincident neighbourhoods), an empty box or one holding too few points.
     """
-    from geosynth.pointsets import PointSet, estimate_normals
+    from geosynth.geometry.pointsets import PointSet, estimate_normals
 
     if isinstance(points, PointSet):
         normals = points.normals if normals is None else normals
@@ -335,7 +335,7 @@ def _area_fixed(mesh) -> float:
 def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | None = None, count: int = 40_000,
                        seed: int = 0, before_sampling=None) -> PointTexture:
     """A point texture from a file: a PLY point set (normals estimated when absent) or a mesh
-    (any format :func:`geosynth.pointsets.read_geometry` reads), sampled uniformly; the
+    (any format :func:`geosynth.geometry.pointsets.read_geometry` reads), sampled uniformly; the
     file's colours are kept (a mesh's interpolated at the sampled points).
 
     Args:
@@ -350,10 +350,10 @@ def read_point_texture(path: str | os.PathLike, *, box=None, padding: float | No
             cannot fit; it may raise.
 
     Raises:
-        FileNotFoundError, ValueError: as :func:`geosynth.pointsets.read_geometry`, and as
+        FileNotFoundError, ValueError: as :func:`geosynth.geometry.pointsets.read_geometry`, and as
             :func:`texture_from_points` (each message starting with the file's name).
     """
-    from geosynth.pointsets import PointSet, read_geometry
+    from geosynth.geometry.pointsets import PointSet, read_geometry
 
     g = read_geometry(path)
     name = os.path.basename(str(path))

@@ -27,7 +27,7 @@ import numpy as np
 
 from geosynth.core.config import passive_openmp_threads
 from geosynth.core.memory import available_memory, require
-from geosynth.pointsets import PointSet, estimate_normals, read_geometry
+from geosynth.geometry.pointsets import PointSet, estimate_normals, read_geometry
 
 __all__ = [
     "POINT_MODELS", "PointModelExample", "knn_table", "load_point_model", "passive_openmp_threads", "point_model",
@@ -204,7 +204,7 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
 
     Args:
         mesh: a ``trimesh.Trimesh`` (or a mesh file, read with
-            :func:`geosynth.meshes.load_mesh`).
+            :func:`geosynth.geometry.meshes.load_mesh`).
         count: number of points, >= 16.
         seed: seed of the sampling.
 
@@ -218,7 +218,7 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
     import trimesh
 
     if isinstance(mesh, (str, os.PathLike)):
-        from geosynth.meshes import load_mesh
+        from geosynth.geometry.meshes import load_mesh
 
         mesh = load_mesh(mesh)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
@@ -240,7 +240,7 @@ def sample_mesh_points(mesh, count: int, seed: int = 0) -> PointSet:
 def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0, k_normals: int = 16) -> PointSet:
     """A point model from a file: a point set as it is, or points sampled from a mesh.
 
-    The file is read with :func:`geosynth.pointsets.read_geometry`: one with faces is a
+    The file is read with :func:`geosynth.geometry.pointsets.read_geometry`: one with faces is a
     mesh and is sampled (``count`` points), one without is a point set. Missing normals
     are estimated (PCA over ``k_normals`` neighbours, oriented consistently).
 
@@ -248,7 +248,7 @@ def load_point_model(path: str | os.PathLike, count: int = 30_000, seed: int = 0
         PointSet with positions and normals (and the file's colours, if any).
 
     Raises:
-        FileNotFoundError, ValueError: see :func:`~geosynth.pointsets.read_geometry`;
+        FileNotFoundError, ValueError: see :func:`~geosynth.geometry.pointsets.read_geometry`;
             also too few points to estimate normals from.
         MemoryBudgetError: sampling ``count`` points from a mesh would not fit in memory
             (option ``"count"``; see :func:`sample_mesh_points`).

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
-from geosynth import _checks
+from geosynth.compute import checks as _checks
 from geosynth.core.arrays import DeviceArray
 
 __all__ = [
@@ -205,7 +205,7 @@ def build_pyramid(field: np.ndarray, block: int, *, device: str | None = None) -
     Args:
         field: (Z, Y, X) uint8 array, the quantized source.
         block: the block size N, a power of two <= every side of ``field``.
-        device: a device string (see :mod:`geosynth.backend`); None means ``"auto"``.
+        device: a device string (see :mod:`geosynth.compute.backend`); None means ``"auto"``.
 
     Returns:
         A :class:`BlockPyramid` whose arrays stay on the device.

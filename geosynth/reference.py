@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from geosynth.selection import tolerance_threshold
+from geosynth.compute.selection import tolerance_threshold
 
 
 def score_dense_naive(candidates: np.ndarray, queries: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -40,7 +40,7 @@ def score_gather_naive(
     wrap: bool = False,
 ) -> np.ndarray:
     """Same arguments and result as :func:`geosynth.score_gather`, one candidate at a time."""
-    from geosynth.scoring import candidate_origins
+    from geosynth.compute.scoring import candidate_origins
 
     off = np.asarray(offsets, np.int64)
     k, nd = off.shape
@@ -147,7 +147,7 @@ def winding_number_naive(vertices: np.ndarray, faces: np.ndarray, points: np.nda
 
 
 def mesh_distance_naive(mesh, points: np.ndarray, *, signed: bool = True, band: float | None = None, sign: str = "winding") -> np.ndarray:
-    """Same arguments and result as :func:`geosynth.distance.mesh_distance` with points
+    """Same arguments and result as :func:`geosynth.geometry.distance.mesh_distance` with points
     (float64 here): brute-force distance; the sign from the exact winding number
     (``sign="winding"``) or from ``mesh.contains`` (``sign="contains"``, watertight meshes)."""
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -170,16 +170,16 @@ def mesh_distance_naive(mesh, points: np.ndarray, *, signed: bool = True, band: 
 def mls_project_naive(
     points: np.ndarray, normals: np.ndarray, query: np.ndarray, radius: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The MLS projection of :mod:`geosynth.pointsets`, brute force over all points.
+    """The MLS projection of :mod:`geosynth.geometry.pointsets`, brute force over all points.
 
-    Same definitions as :func:`geosynth.pointsets.pointset_distance` (Gaussian width
+    Same definitions as :func:`geosynth.geometry.pointsets.pointset_distance` (Gaussian width
     ``radius``, cut off at MLS_REACH * radius, projection y <- y - f(y) n(y) until
     |f| <= MLS_TOL * radius or MLS_MAX_ITER steps), one query at a time, in float64.
 
     Returns:
         (distance (M,), gradient (M, 3), projection (M, 3)), float64.
     """
-    from geosynth.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
+    from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_REACH, MLS_TOL
 
     p = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
@@ -219,7 +219,7 @@ def mls_project_naive(
 
 def pointset_distance_naive(points: np.ndarray, normals: np.ndarray, query: np.ndarray, radius: float):
     """Same arguments (query form, explicit radius) and result as
-    :func:`geosynth.pointsets.pointset_distance`, from :func:`mls_project_naive`."""
+    :func:`geosynth.geometry.pointsets.pointset_distance`, from :func:`mls_project_naive`."""
     dist, grad, _ = mls_project_naive(points, normals, query, radius)
     return dist, grad
 

@@ -207,7 +207,7 @@ class ReliefIndex:
             ValueError: shapes, NaN, ids out of range, untextured samples, an empty or
                 degenerate triangulation.
         """
-        from geosynth.backend import get_backend
+        from geosynth.compute.backend import get_backend
 
         base = _float_array("base", base, (3,))
         v = len(base)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth._checks import as_points3
+from geosynth.compute.checks import as_points3
 from geosynth.core.exact import exp_fixed, norm3
 from geosynth.surface_fit import SurfaceFit, tangent_frames
 
@@ -61,7 +61,7 @@ class Capture:
 
 def as_capture(capture) -> Capture:
     """A :class:`Capture` from a Capture, a ``trimesh.Trimesh`` (its vertex colours when it
-    has them), a :class:`geosynth.pointsets.PointSet`, or an (N, 3) array; checked.
+    has them), a :class:`geosynth.geometry.pointsets.PointSet`, or an (N, 3) array; checked.
 
     Raises:
         ValueError: NaN/inf positions (how many, the first index), duplicated positions (how

@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from geosynth.files import check_input, write_image
+from geosynth.io.files import check_input, write_image
 from geosynth.core.interpolate import lerp_axis, linear_taps
 
 __all__ = [
@@ -93,7 +93,7 @@ def read_texture(path: str | os.PathLike) -> np.ndarray:
 
     Grey (L, I;16, ...) and palette images are converted to RGB; an RGBA (or LA, or a
     palette with transparency) image is accepted only if fully opaque, see
-    :func:`as_texture`. The file is noted as an input (:func:`geosynth.files.note_input`).
+    :func:`as_texture`. The file is noted as an input (:func:`geosynth.io.files.note_input`).
 
     Args:
         path: the image file.
@@ -115,7 +115,7 @@ def read_texture(path: str | os.PathLike) -> np.ndarray:
         from PIL import Image
     except ImportError as exc:  # pragma: no cover - pillow is a dependency
         raise ImportError("reading texture images needs Pillow: pip install pillow") from exc
-    from geosynth._readers import reason
+    from geosynth.io.readers import reason
 
     p = check_input(path, "texture image")
     name = f"texture {p.name}"

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from geosynth.backend import get_backend
+from geosynth.compute.backend import get_backend
 from geosynth.matching import DEFAULT_MATCH_BATCH, match_level
 from geosynth.parameterize import (
     DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_k, check_up, colour_parameterization,
@@ -30,7 +30,7 @@ from geosynth.parameterize import (
 )
 from geosynth.point_hierarchy import PointLevel, build_hierarchy
 from geosynth.pointmodels import knn_table, spatial_order
-from geosynth.pointsets import PointSet
+from geosynth.geometry.pointsets import PointSet
 from geosynth.texel_search import DEFAULT_M, TexelSearch, pixel_offsets
 from geosynth.textures import as_texture, texture_pyramid
 
@@ -292,7 +292,7 @@ def texture_points(
 
     Args:
         points: PointSet with positions and normals (estimate missing normals with
-            :func:`geosynth.pointsets.estimate_normals`).
+            :func:`geosynth.geometry.pointsets.estimate_normals`).
         texture: (H, W, 3) uint8 RGB texture (grey is converted; RGBA must be opaque).
         method: ``"param"`` (point parameterization), ``"match"`` (neighbourhood
             matching) or ``"hybrid"`` (parameterization, then matching in the gaps).

@@ -235,7 +235,7 @@ def _resumable(folder: str | None, name: str, task, *args):
         except (OSError, ValueError, KeyError):
             pass  # a damaged file: the task runs again and replaces it
     samples, info = task(*args)
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
@@ -257,14 +257,14 @@ def _open_checkpoint(folder, key: str, resume: bool, inputs) -> tuple[str, int, 
         ValueError: the folder is an input or holds one, holds files that are not a
             checkpoint's, or (``resume``) holds the checkpoint of other settings.
     """
-    from geosynth.files import check_output
+    from geosynth.io.files import check_output
 
     real = os.path.realpath(os.fspath(folder))
     manifest = os.path.join(real, _MANIFEST)
     if not os.path.isdir(real):
         check_output(real, inputs=inputs, what="checkpoint")
     else:
-        from geosynth.files import noted_inputs
+        from geosynth.io.files import noted_inputs
 
         for item in list(inputs or ()) + noted_inputs():
             if item is not None and os.path.realpath(os.fspath(item)).startswith(real + os.sep):
@@ -290,7 +290,7 @@ def _open_checkpoint(folder, key: str, resume: bool, inputs) -> tuple[str, int, 
     if os.path.isdir(real):
         shutil.rmtree(real)
     os.makedirs(real)
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
 
     atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps({"key": key})), stage=False)
     return real, 0, saved
@@ -321,7 +321,7 @@ def _tile_mesh(result, core: Region, extra: list, shape, spacing: float, band: f
     vertices), else the face count."""
     from skimage import measure
 
-    from geosynth.surface import UINT8_LEVEL
+    from geosynth.geometry.surface import UINT8_LEVEL
 
     Z, Y, X = shape
     box = Region(core.y0, min(Y, core.y1 + 1), core.x0, min(X, core.x1 + 1))
@@ -343,7 +343,7 @@ def _tile_mesh(result, core: Region, extra: list, shape, spacing: float, band: f
     if path is not None and len(faces):
         import trimesh
 
-        from geosynth.surface import save_mesh
+        from geosynth.geometry.surface import save_mesh
 
         save_mesh(trimesh.Trimesh(vertices=verts, faces=faces, process=False), path)
     return (verts, faces) if keep else int(len(faces))
@@ -660,7 +660,7 @@ def _faces_per_sample(source: np.ndarray) -> float:
     """Marching-cubes faces per sample of the target, from the exemplar's (x FACES_GROWTH)."""
     from skimage import measure
 
-    from geosynth.surface import UINT8_LEVEL
+    from geosynth.geometry.surface import UINT8_LEVEL
 
     vol = np.pad(source.astype(np.float32), 1, constant_values=255.0)
     if not vol.min() < UINT8_LEVEL < vol.max():
@@ -731,8 +731,8 @@ def tile_mesh_paths(folder: str | os.PathLike, tiles) -> list[Path]:
 
 
 def check_tile_mesh_path(path: str | os.PathLike, inputs) -> Path:
-    """The output guard (:func:`geosynth.files.check_output`) for one tile mesh."""
-    from geosynth.files import check_output
+    """The output guard (:func:`geosynth.io.files.check_output`) for one tile mesh."""
+    from geosynth.io.files import check_output
 
     return check_output(path, inputs=inputs, suffixes=(".ply",), what="tile mesh")
 
@@ -751,9 +751,9 @@ def _check_nesting(store: str | None, mesh_dir, checkpoint) -> None:
 
 def _check_store(store, inputs) -> str:
     """A zarr store path that is no input (nor holds one), and either absent or an older zarr store."""
-    from geosynth.files import check_output
+    from geosynth.io.files import check_output
 
-    from geosynth.files import noted_inputs
+    from geosynth.io.files import noted_inputs
 
     real = os.path.realpath(os.fspath(store))
     p = Path(real)
@@ -774,7 +774,7 @@ def _check_store(store, inputs) -> str:
 
 def _publish(tmp: str, final: str) -> None:
     """Move a finished store from its temporary folder into place (replacing an older store)."""
-    from geosynth.files import temporary_path
+    from geosynth.io.files import temporary_path
 
     old = None
     if os.path.exists(final):
@@ -880,7 +880,7 @@ def synthesize_volume_tiled(
             with the smallest square tiling that fits), or the gathered field or merged
             mesh beyond the memory available here.
     """
-    from geosynth import _checks
+    from geosynth.compute import checks as _checks
     from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, require
     from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
                                  level_blocks, max_levels, optimizes_better, quantize_field)
@@ -1006,7 +1006,7 @@ def synthesize_volume_tiled(
         last = grid.levels - 1
         cores = grid.cores(last)
         graphs, kinds = [], []
-        from geosynth.files import defer, remove_stale_temporaries, temporary_path
+        from geosynth.io.files import defer, remove_stale_temporaries, temporary_path
 
         if store_real is not None:
             import zarr
@@ -1065,7 +1065,7 @@ def synthesize_volume_tiled(
         bytes_moved = engine.transfers() - moved0
         peak = engine.peak_rss()
         # every output is complete: moved into place together (with the command's other
-        # outputs, inside geosynth.files.staged_outputs)
+        # outputs, inside geosynth.io.files.staged_outputs)
         ready_store, ready_meshes = tmp_store, tmp_meshes
 
         def publish() -> None:
@@ -1192,7 +1192,7 @@ def _merge(pieces, smooth: int):
     shared borders) merged, then ``smooth`` Taubin iterations."""
     import trimesh
 
-    from geosynth.surface import smooth_mesh
+    from geosynth.geometry.surface import smooth_mesh
 
     pieces = [(v, f) for v, f in pieces if len(f)]
     if not pieces:
@@ -1223,7 +1223,7 @@ def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed
     :func:`geosynth.volume.choose_settings`). Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
     the exemplar Field)."""
     from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.meshes import check_mesh
+    from geosynth.geometry.meshes import check_mesh
     from geosynth.volume import exemplar_distance
 
     m = resolve_exemplar_mesh(exemplar, seed)

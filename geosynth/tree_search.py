@@ -11,9 +11,9 @@ both on the device, and answers nearest-block queries:
 - :meth:`BlockSearch.nearest`: exact best-first search (A*-like, eq. 2 as the
   bound). It returns exactly what a linear search returns: the block of smallest
   SSD, the lowest block index on ties (index = raster order of block origins, z
-  slowest, as :func:`geosynth.scoring.candidate_origins` enumerates them).
+  slowest, as :func:`geosynth.compute.scoring.candidate_origins` enumerates them).
 - :meth:`BlockSearch.nearest_linear`: the baseline, every block scored through
-  :func:`geosynth.scoring.score_gather` and reduced by :func:`geosynth.selection.argmin`.
+  :func:`geosynth.compute.scoring.score_gather` and reduced by :func:`geosynth.compute.selection.argmin`.
 - ``nearest(query, prune_eps=eps)``: the paper's queue pruning with eq. 3, opt-in
   and APPROXIMATE (eq. 3 holds only for valid distance fields, not for synthesis
   queries with random samples); :meth:`BlockSearch.pruned_disagreement` measures how
@@ -79,8 +79,8 @@ from geosynth.pyramid import (
     pyramid_bytes,
     query_arrays,
 )
-from geosynth.scoring import score_gather
-from geosynth.selection import argmin
+from geosynth.compute.scoring import score_gather
+from geosynth.compute.selection import argmin
 
 __all__ = ["BlockSearch", "TreeStats"]
 
@@ -161,7 +161,7 @@ class BlockSearch:
     Args:
         field: (Z, Y, X) uint8 source (a quantized distance field).
         block: the block size N, a power of two <= every side of ``field``.
-        device: a device string (see :mod:`geosynth.backend`); None means ``"auto"``.
+        device: a device string (see :mod:`geosynth.compute.backend`); None means ``"auto"``.
         parents: introduce the parent nodes of Fig. 3c (default True).
         compress: replace single-child nodes by their child (default True); False keeps
             every level of every chain (more, cheaper intermediate bounds).
@@ -539,8 +539,8 @@ class BlockSearch:
     def nearest_linear(self, query: np.ndarray) -> tuple[tuple[int, int, int], int]:
         """The same answer as :meth:`nearest`, by scoring every block (the baseline).
 
-        Runs :func:`geosynth.scoring.score_gather` over every block origin on the
-        device and :func:`geosynth.selection.argmin` there (lowest index on ties).
+        Runs :func:`geosynth.compute.scoring.score_gather` over every block origin on the
+        device and :func:`geosynth.compute.selection.argmin` there (lowest index on ties).
         """
         query = check_query(query, self.block)
         scores = score_gather(self.pyramid.field, self._offsets, query.reshape(-1), keep_on_device=True)

@@ -44,11 +44,11 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
-from geosynth import _checks
+from geosynth.compute import checks as _checks
 from geosynth.core.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION,
                                 M1_ELEMENT_MARGIN_SAMPLES, M1_MIN_FEATURE_SAMPLES)
 from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
-from geosynth.field import Field
+from geosynth.geometry.field import Field
 from geosynth.core.interpolate import lerp_axis, linear_taps
 from geosynth.core.memory import require
 from geosynth.blocks import block_offsets, block_shape
@@ -428,7 +428,7 @@ def check_common(levels, max_levels: int, levels_why: str, block, tileable, seed
     if seed is not None:
         _check_int("seed", seed, 0)
     if device is not None:
-        from geosynth.backend import parse_device
+        from geosynth.compute.backend import parse_device
 
         parse_device(device)  # a malformed string now; absence is found when the search starts
     if not isinstance(search, str) or search not in SEARCHES:
@@ -490,8 +490,8 @@ class Matcher:
 
             self.engine = CascadeSearch(source, block, device=device)
         else:
-            from geosynth.backend import to_device
-            from geosynth.scoring import candidate_origins
+            from geosynth.compute.backend import to_device
+            from geosynth.compute.scoring import candidate_origins
 
             self.grid = to_device(source, "auto" if device is None else device)
             self.origins = candidate_origins(source.shape, self.offsets)
@@ -537,8 +537,8 @@ class Matcher:
             origin, ssd = self.engine.nearest(query, threshold=threshold)
             self.alive_matches += tally_alive(self.alive_sums, [self.engine.last_info["alive"]])
             return np.asarray(origin), int(ssd)
-        from geosynth.scoring import score_gather
-        from geosynth.selection import argmin
+        from geosynth.compute.scoring import score_gather
+        from geosynth.compute.selection import argmin
 
         offsets, values = self.offsets, query.reshape(-1)
         if order is not None:
@@ -1104,7 +1104,7 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
     Returns:
         Settings.
     """
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
     from geosynth.volume_features import element_features
 
     if source_resolution is not None:
@@ -1247,10 +1247,10 @@ def synthesize_geometry(
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
     1. The exemplar's exact signed distance on a cubic grid of ``source_resolution``
-       samples along its longest side (:func:`geosynth.meshes.mesh_distance`).
+       samples along its longest side (:func:`geosynth.geometry.meshes.mesh_distance`).
     2. :func:`synthesize_volume` to ``size`` samples (same spacing as the source).
     3. Marching cubes at the zero level and Taubin smoothing
-       (:func:`geosynth.surface.field_to_mesh`).
+       (:func:`geosynth.geometry.surface.field_to_mesh`).
     4. Quality numbers beside the random-tiling baseline's: the block distance
        (``quality_samples`` blocks each way; 0 skips all quality numbers) and the
        structure metrics (:func:`geosynth.metrics.structure_report`).
@@ -1275,7 +1275,7 @@ def synthesize_geometry(
         smooth: Taubin smoothing iterations of the output mesh (0: none).
         quality_samples: blocks sampled each way for the quality numbers.
         drop_degenerate: drop the exemplar's zero-area faces instead of refusing it
-            (:func:`geosynth.meshes.check_mesh`).
+            (:func:`geosynth.geometry.meshes.check_mesh`).
 
     Returns:
         GeometryResult.
@@ -1298,9 +1298,9 @@ def synthesize_geometry(
                   M1_DEFAULT_BLOCK if block is None else block, tileable, seed, device, search, progress)
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
-    from geosynth.meshes import check_mesh
+    from geosynth.geometry.meshes import check_mesh
     from geosynth.metrics import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
-    from geosynth.surface import field_to_mesh
+    from geosynth.geometry.surface import field_to_mesh
 
     timings = {}
     t0 = time.perf_counter()
@@ -1453,7 +1453,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
 
     What it counts: the exemplar's field and its copy in samples (8 B per grid sample,
     alive throughout) plus the largest stage: the exemplar's distance field
-    (:func:`geosynth.meshes.grid_distance_bytes`), the synthesis (:func:`volume_bytes`,
+    (:func:`geosynth.geometry.meshes.grid_distance_bytes`), the synthesis (:func:`volume_bytes`,
     float source), the surface (the result's uint8 and float32 fields, 5 B per target
     sample, and field_to_mesh's peak per marching-cubes face; faces estimated from the
     exemplar's area per sample) and the random-tiling baseline of the quality numbers
@@ -1463,7 +1463,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
     "surface" or "elements", from :func:`geosynth.metrics.structure_kind`; None, before
     the exemplar's field is known, takes the smaller); 1 MiB of small buffers.
     """
-    from geosynth.meshes import grid_distance_bytes
+    from geosynth.geometry.meshes import grid_distance_bytes
 
     g = int(np.prod(grid_shape, dtype=object))
     n = int(np.prod(target_shape, dtype=object))
@@ -1547,7 +1547,7 @@ def exemplar_distance(mesh, source_resolution: int, levels: int, *, device: str 
                       ) -> tuple[np.ndarray, float, Field]:
     """The source of an M1 synthesis from a checked exemplar mesh, one way for the untiled
     (:func:`synthesize_geometry`) and the tiled synthesis (:func:`geosynth.tiled.exemplar_source`):
-    its exact signed distance (:func:`geosynth.meshes.mesh_distance`) on
+    its exact signed distance (:func:`geosynth.geometry.meshes.mesh_distance`) on
     :func:`exemplar_grid` of ``source_resolution`` samples along its longest side, z a
     multiple of 2^(levels-1).
 
@@ -1563,7 +1563,7 @@ def exemplar_distance(mesh, source_resolution: int, levels: int, *, device: str 
     Raises:
         ValueError: samples that would lie outside [1e-15, 1e15] world units apart.
     """
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
 
     grid = exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1))
     spacing = float(grid.spacing[0])

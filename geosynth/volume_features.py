@@ -456,7 +456,7 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
 
     Args:
         field: (Z, Y, X) float signed distances, negative inside, z up (a
-            :class:`~geosynth.field.Field` is taken too: its values and spacing).
+            :class:`~geosynth.geometry.field.Field` is taken too: its values and spacing).
             The distances are in world units; ``spacing`` converts samples.
         spacing: world size of one sample.
         slab: measure as a relief (the top surface's bumps: a plate with rivets, a
@@ -466,7 +466,7 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
     Returns:
         ElementFeatures, lengths in world units.
     """
-    from geosynth.field import Field
+    from geosynth.geometry.field import Field
 
     if isinstance(field, Field):
         spacing = float(field.spacing[0])

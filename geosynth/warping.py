@@ -68,9 +68,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth._checks import as_points3, as_unit_vectors, check_positive
+from geosynth.compute.checks import as_points3, as_unit_vectors, check_positive
 from geosynth.core.exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
-from geosynth.host_steps import run_parts
+from geosynth.compute.host_steps import run_parts
 
 __all__ = [
     "WARP_PRESETS",
@@ -209,7 +209,7 @@ def _variation_of(p: np.ndarray, idx: np.ndarray) -> np.ndarray:
     int indices): (m,) float64, the smallest eigenvalue of each covariance over its trace
     (Smith 1961's closed form), by the compiled host step ``host_warp.variation_kernel``;
     :func:`_variation_of_numpy` is its oracle."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels import host_warp
 
     idx = np.asarray(idx).reshape(len(idx), -1)
@@ -281,7 +281,7 @@ def _adaptive_clusters(p: np.ndarray, max_size: int, max_variation: float = _CLU
 def _cluster_run(p: np.ndarray, max_size: int, max_variation: float, limit: int) -> np.ndarray | None:
     """One launch of ``adaptive_clusters_kernel``: the (m,) int64 representatives in no
     order, or None with more than ``limit >= 0`` clusters."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels import host_warp
 
     n = len(p)
@@ -450,7 +450,7 @@ def _greedy_passes(eq, es, c, tie, ps, pq, rn, phi, kr: int, length_weight: floa
         ``(sel, costs)``: (P,) int64 the kept pairing's edges in scan order, and C after
         each kept pass.
     """
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels import host_warp
 
     n_e, n_q = len(eq), len(pq)
@@ -839,7 +839,7 @@ class ThinPlateSpline:
         if self.dtype is not np.float32:
             wp, jac = self._eval_single(p, True)
             return wp, _jacobian_normals(jac, n)
-        from geosynth.host_steps import host_array, host_launch
+        from geosynth.compute.host_steps import host_array, host_launch
         from geosynth.kernels import host_warp
 
         with _blas_controller().limit(limits=1, user_api="blas"):
@@ -857,7 +857,7 @@ def _jacobian_normals(jac: np.ndarray, n: np.ndarray) -> np.ndarray:
     the tangents of :func:`_tangents`; n where the Jacobian collapses them (|J u x J v| <
     1e-12). The compiled host step ``host_warp.jacobian_normals_kernel``;
     :func:`_jacobian_normals_numpy` is its oracle."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels import host_warp
 
     out = np.empty((len(n), 3))
@@ -939,7 +939,7 @@ def _outskirts(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     ((n,) bool outskirt flags, (n, k) int64 the neighbour indices), for (n, 3) float64
     points. The k-d tree query, then the compiled host step ``host_warp.outskirts_kernel``;
     :func:`_outskirts_numpy` is its oracle."""
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels import host_warp
 
     k = int(min(k, len(p)))

@@ -87,7 +87,7 @@ def _nearest_lists(points, queries, k, reach, cell):
     """host_blend.nearest for each query: (m, k) input indices (-1 beyond the count)."""
     import warp as wp
 
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import nearest
 
     grid = B._CellGrid(points, normal(points[:, :2]), cell)

@@ -39,7 +39,7 @@ def files(tmp_path_factory) -> Path:
     import trimesh
 
     from geosynth.pointmodels import point_model
-    from geosynth.pointsets import write_point_set
+    from geosynth.geometry.pointsets import write_point_set
     from geosynth.textures import texture_example, write_texture
 
     d = tmp_path_factory.mktemp("cli")
@@ -386,7 +386,7 @@ def test_good_runs_write_what_they_say(tmp_path, capsys, one_device):
 
 
 def test_sigterm_while_writing_leaves_nothing(tmp_path, capsys, monkeypatch):
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
 
     out = tmp_path / "v.ply"
 

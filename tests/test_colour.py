@@ -12,7 +12,7 @@ from PIL import Image
 from plyfile import PlyData, PlyElement
 
 from conftest import ONE_DEVICE
-from geosynth.pointsets import PointSet, read_geometry, read_point_set, write_point_set
+from geosynth.geometry.pointsets import PointSet, read_geometry, read_point_set, write_point_set
 
 _NAMES = {"long": ("red", "green", "blue", "alpha"), "short": ("r", "g", "b", "a"),
           "diffuse": ("diffuse_red", "diffuse_green", "diffuse_blue", "diffuse_alpha")}
@@ -317,7 +317,7 @@ def test_methods_that_cannot_carry_colour_say_so(tmp_path):
     """M1 works on a distance field: a coloured exemplar gets a one-line note (from the
     volume commands, before the synthesis) that the output has no colour; none for an
     exemplar without colour. has_colours reads a PLY file's header only."""
-    from geosynth._readers import has_colours
+    from geosynth.io.readers import has_colours
     from geosynth.cli import _m1_colour_note
 
     coloured = _bumps(tmp_path / "bumps.ply", n=20)

@@ -567,7 +567,7 @@ def test_cli_refuses_meaningless_complete_options_in_one_line(tmp_path, options,
     on a small capture ran with no word. Now: one line, exit 2, in seconds, nothing written."""
     import time
 
-    from geosynth.pointsets import PointSet, write_point_set
+    from geosynth.geometry.pointsets import PointSet, write_point_set
 
     q = _hex(1.5, 1.5, 0.05)
     q = q[(q[:, 0] < 0.2) | (q[:, 1] < 0.2)]  # an L, 4 rows wide: many points, none deep inside
@@ -608,12 +608,12 @@ def _ply_points(path, pts, normals=None, colors=None):
 @given(shape=st.sampled_from(["grid", "duplicates", "collinear", "coplanar", "few"]),
        nan_normals=st.booleans(), nan_colours=st.booleans(), seed=st.integers(0, 2**16))
 def test_fuzz_complete_reader_point_sets(tmp_path, shape, nan_normals, nan_colours, seed):
-    """Degenerate captures read by `complete` (geosynth.pointsets.read_geometry), fitted and
+    """Degenerate captures read by `complete` (geosynth.geometry.pointsets.read_geometry), fitted and
     prepared: each is handled or refused in one ValueError line naming the problem; never a
     NumPy warning, IndexError, LinAlgError or negative-dimension error."""
     import warnings
 
-    from geosynth.pointsets import read_geometry
+    from geosynth.geometry.pointsets import read_geometry
     from geosynth.relief_prep import as_capture, capture_depth, prepare_relief
     from geosynth.surface_fit import fit_surface
 

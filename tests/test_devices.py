@@ -11,7 +11,7 @@ import pytest
 
 import geosynth
 from conftest import TEST_DEVICES
-from geosynth.backend import parse_device, resolve_device
+from geosynth.compute.backend import parse_device, resolve_device
 
 
 def test_devices_lists_warp_cpu_and_opencl():
@@ -95,7 +95,7 @@ def test_no_top_level_kernels_package():
 
 
 def test_an_opencl_device_whose_compiler_fails_is_left_out_and_refused(monkeypatch):
-    from geosynth import backend
+    from geosynth.compute import backend
 
     fake = (
         ("opencl:0:0", "OpenCL PoCL 3.0: pthread-AMD EPYC", "error: unknown target CPU 'generic'"),

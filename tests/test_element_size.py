@@ -88,7 +88,7 @@ def test_patch_follows_the_element_size():
 def test_a_file_gets_what_its_built_in_gets(tmp_path):
     """flowers written as a PLY and read back (another box B: 0.2 of the extent as padding)
     gets the same patch size in world units as the built-in, which has no setting of its own."""
-    from geosynth.pointsets import PointSet, write_point_set
+    from geosynth.geometry.pointsets import PointSet, write_point_set
 
     t = point_texture_example("flowers", count=12_000)
     path = tmp_path / "flowers.ply"
@@ -155,7 +155,7 @@ def test_cli_says_the_patch_it_chose(tmp_path, capsys):
     """`geosynth pointtexture FILE` with no --patch: the header says "(automatic)" and the
     next line what was measured; the report has the element size line."""
     from geosynth.cli import main
-    from geosynth.pointsets import PointSet, write_point_set
+    from geosynth.geometry.pointsets import PointSet, write_point_set
 
     tex = _relief(_ridges(0.2, 30), n=70)
     path = tmp_path / "ridges.ply"

@@ -71,7 +71,7 @@ def test_balls_field_is_the_exact_distance():
     exact = (np.linalg.norm(pts[:, None, :] - centres[None], axis=-1) - radii).min(1)
     np.testing.assert_allclose(field.values.ravel(), exact, atol=1e-5)
     # the same grid as mesh_distance(exemplar_mesh("balls"), resolution=24)
-    from geosynth.field import cubic_grid
+    from geosynth.geometry.field import cubic_grid
 
     grid = cubic_grid(exemplar_mesh("balls").bounds, 24, 0.1)
     np.testing.assert_allclose(field.origin, grid.origin)

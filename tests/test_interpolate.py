@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from geosynth.core.interpolate import lerp_axis, linear_taps
-from geosynth.meshes import _components, orient_faces
-from geosynth.render import _bilinear
+from geosynth.geometry.meshes import _components, orient_faces
+from geosynth.io.pictures import _bilinear
 from geosynth.textures import sample_bilinear_grid
 from geosynth.volume import dequantize_field, quantize_field, upsample
 

@@ -159,9 +159,9 @@ def test_require_finds_the_largest_by_bisection():
 
 _FIELDS_SETUP = """
 import trimesh
-from geosynth.meshes import grid_distance_bytes, mesh_distance
+from geosynth.geometry.meshes import grid_distance_bytes, mesh_distance
 from geosynth.pointmodels import point_model
-from geosynth.pointsets import default_radius, grid_mls_bytes, pointset_distance
+from geosynth.geometry.pointsets import default_radius, grid_mls_bytes, pointset_distance
 mesh = trimesh.creation.icosphere(3)
 ps = point_model("sphere", 2000)
 h = default_radius(ps.positions)
@@ -328,9 +328,9 @@ def test_device_free_huge_inputs_are_refused_quickly_with_the_largest_that_fits(
 def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch, device):
     import trimesh
 
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
     from geosynth.pointmodels import point_model
-    from geosynth.pointsets import pointset_distance
+    from geosynth.geometry.pointsets import pointset_distance
     from geosynth.texturing import texture_points
     from geosynth.textures import texture_example
     from geosynth.volume import synthesize_geometry, synthesize_volume

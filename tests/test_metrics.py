@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from geosynth.field import Field
+from geosynth.geometry.field import Field
 from geosynth.metrics import (element_wholeness, exemplar_structure, format_structure, pick_refinement,
                               structure_kind, structure_report, surface_structure)
 

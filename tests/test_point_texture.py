@@ -15,7 +15,7 @@ from geosynth.geometry_texture import synthesize_point_texture
 from geosynth.patch_search import PatchSearch, brute_force_scores, host_mls, quantized_fields
 from geosynth.point_examples import point_texture_example
 from geosynth.point_textures import PointTexture, texture_from_image, texture_from_points
-from geosynth.pointsets import MLS_REACH, pointset_distance
+from geosynth.geometry.pointsets import MLS_REACH, pointset_distance
 
 SMALL = dict(scale=1.2, patch=0.5, resolution=24, quality=False)
 
@@ -180,7 +180,7 @@ def test_the_seed_decides_the_points(one_device, small_weave):
 def test_no_device_given_runs_on_auto(small_weave):
     # device=None (the CLI without --device) means "auto", resolved once for every stage (it once
     # reached the gather scorer as None and failed)
-    from geosynth.backend import resolve_device
+    from geosynth.compute.backend import resolve_device
 
     auto = resolve_device("auto")
     a, report, _ = synthesize_point_texture(small_weave, device=None, seed=5, **SMALL)
@@ -388,7 +388,7 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
     from scipy.spatial import cKDTree
 
     from geosynth.patch_search import FIXED_STEPS, FIXED_TOL, _iterate
-    from geosynth.pointsets import MLS_MAX_ITER, MLS_TOL
+    from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_TOL
 
     h = 2 * wavy.spacing
     sheet = wavy.points[::2] * [1, 1, 0]

@@ -68,7 +68,7 @@ def test_anisotropic_block_larger_than_field_is_refused(one_device):
 def domes_source():
     """The domes slab exemplar's signed distance at 32 samples across (in samples)."""
     from geosynth.examples import exemplar_mesh
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
     from geosynth.volume import exemplar_grid
 
     mesh = exemplar_mesh("domes")

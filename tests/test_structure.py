@@ -8,7 +8,7 @@ initialised, so a cycle of them can fail with "partially initialized module" or 
 names that do not exist yet, depending on which module is imported first. An import
 inside a function runs when the function is called, after every module has finished
 loading, so it cannot cause that; the code uses it deliberately to break a dependency
-(the backends are imported that way by ``geosynth.backend``). A second graph counts those
+(the backends are imported that way by ``geosynth.compute.backend``). A second graph counts those
 imports too: it must have no cycle either (issue 33). ``if TYPE_CHECKING:`` blocks never run
 and are skipped.
 """
@@ -178,7 +178,7 @@ def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_modules_found():
-    for name in ("geosynth", "geosynth.core.arrays", "geosynth.backend", "geosynth._backends.base",
+    for name in ("geosynth", "geosynth.core.arrays", "geosynth.compute.backend", "geosynth._backends.base",
                  "geosynth.kernels.ssd"):
         assert name in MODULES
 
@@ -212,11 +212,11 @@ def test_arrays_is_a_leaf():
 
 
 def test_backends_do_not_import_the_device_switch():
-    """The backends take DeviceArray from geosynth.core.arrays, never from geosynth.backend."""
+    """The backends take DeviceArray from geosynth.core.arrays, never from geosynth.compute.backend."""
     graph = _graph()
     for name in MODULES:
         if name.startswith("geosynth._backends."):
-            assert "geosynth.backend" not in graph[name], f"{name} imports geosynth.backend at module level"
+            assert "geosynth.compute.backend" not in graph[name], f"{name} imports geosynth.compute.backend at module level"
 
 
 # -- private names ------------------------------------------------------------------
@@ -227,7 +227,7 @@ def _private_uses(module: str):
     ``from geosynth.m import _name`` (at any depth: imports inside functions count too,
     since the rule is about whose name it is, not when it is loaded), and ``m._name`` where
     ``m`` is a name bound to a geosynth module by an import. A private module imported as
-    a module (``from geosynth import _checks``, ``geosynth._backends.base``) is not a
+    a module (``from geosynth.compute import checks``, ``geosynth._backends.base``) is not a
     private name: such modules are private to the package and shared inside it by design.
     """
     tree = ast.parse(MODULES[module].read_text(), filename=str(MODULES[module]))
@@ -260,7 +260,7 @@ def _private_uses(module: str):
 
 
 def _dotted(node: ast.expr, bound: dict[str, str]) -> str | None:
-    """The geosynth module an expression such as ``volume`` or ``geosynth.backend`` names, if any."""
+    """The geosynth module an expression such as ``volume`` or ``geosynth.compute.backend`` names, if any."""
     if isinstance(node, ast.Name):
         return bound.get(node.id)
     if isinstance(node, ast.Attribute):
@@ -278,8 +278,8 @@ PENDING_PRIVATE_USES: set[tuple[str, str]] = set()
 def test_private_use_finder(tmp_path):
     """The finder on planted source: a private name imported or read through a module is
     found; a private module imported as a module, and a module's own names, are not."""
-    source = ("from geosynth import _checks\nfrom geosynth.volume import _x, y\nimport geosynth.backend as b\n"
-              "def f():\n    from geosynth.pyramid import _z\n    return b._w, _checks.ok\n")
+    source = ("from geosynth.compute import checks\nfrom geosynth.volume import _x, y\nimport geosynth.compute.backend as b\n"
+              "def f():\n    from geosynth.pyramid import _z\n    return b._w, checks.ok\n")
     path = tmp_path / "planted.py"
     path.write_text(source)
     MODULES["geosynth._planted"] = path
@@ -287,7 +287,7 @@ def test_private_use_finder(tmp_path):
         found = [text for _, text in _private_uses("geosynth._planted")]
     finally:
         del MODULES["geosynth._planted"]
-    assert found == ["from geosynth.volume import _x", "from geosynth.pyramid import _z", "geosynth.backend._w"]
+    assert found == ["from geosynth.volume import _x", "from geosynth.pyramid import _z", "geosynth.compute.backend._w"]
 
 
 def test_no_module_imports_a_private_name():
@@ -295,7 +295,7 @@ def test_no_module_imports_a_private_name():
 
     The rule: a name is private to the module that defines it. Another module that needs
     it gets it made public (no underscore, documented) in its home module. Private
-    *modules* (``geosynth._checks``, ``geosynth._readers``, ``geosynth._backends.*``) are
+    *modules* (``geosynth.compute.checks``, ``geosynth.io.readers``, ``geosynth._backends.*``) are
     shared inside the package by design: importing them, and their public names, is fine.
     Tests are not held to this (they may reach into internals to test them).
     """

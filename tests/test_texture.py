@@ -12,7 +12,7 @@ import geosynth
 from geosynth.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
 from geosynth.reference import colour_parameterization_reference, parameterize_reference
 from geosynth.pointmodels import knn_table, load_point_model, point_model
-from geosynth.pointsets import PointSet, read_point_set, write_point_set
+from geosynth.geometry.pointsets import PointSet, read_point_set, write_point_set
 from geosynth.texel_search import TexelSearch
 from geosynth.texturing import texture_points
 from geosynth.textures import (

@@ -242,13 +242,13 @@ def test_tiles_smaller_than_a_block_plus_margin(terrain):
 
 
 def test_cli_tiles_too_small_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
-    import geosynth.meshes
+    import geosynth.geometry.meshes
     from geosynth.cli import main
 
     def computed(*args, **kwargs):
         raise AssertionError("the exemplar's distance field was computed before the tiles were checked")
 
-    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    monkeypatch.setattr(geosynth.geometry.meshes, "mesh_distance", computed)
     argv = ["volume", "--example", "terrain", "-o", str(tmp_path / "t.ply"), "--size", "32", "--levels", "2",
             "--block", "8", "--source-resolution", "32", "--quiet", "--device", ONE_DEVICE, "--tiles", "4x4"]
     assert main(argv) == 2
@@ -471,13 +471,13 @@ def test_cli_interrupted_tiled_run_resumes_to_the_same_bytes(tmp_path):
 
 def test_cli_tree_search_with_a_slab_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
     # issue 37: each tile refused it on a worker, whose traceback reached the user
-    import geosynth.meshes
+    import geosynth.geometry.meshes
     from geosynth.cli import main
 
     def computed(*args, **kwargs):
         raise AssertionError("the exemplar's distance field was computed before the search was checked")
 
-    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    monkeypatch.setattr(geosynth.geometry.meshes, "mesh_distance", computed)
     rc = main(["volume", "--example", "domes", "-o", str(tmp_path / "d.ply"), "--size", "64", "--levels", "2",
                "--block", "8", "--tiles", "2x2", "--search", "tree", "--quiet", "--device", ONE_DEVICE])
     err = capsys.readouterr().err

@@ -63,9 +63,9 @@ def test_every_target_sample_comes_from_the_source_at_one_level(device, source):
 
 def _seam_and_interior_distance(out, src, block, device):
     """Mean nearest-source distance of blocks straddling the wrap seam vs interior blocks."""
-    from geosynth.backend import to_device
-    from geosynth.scoring import score_gather
-    from geosynth.selection import argmin
+    from geosynth.compute.backend import to_device
+    from geosynth.compute.scoring import score_gather
+    from geosynth.compute.selection import argmin
 
     grid = to_device(src, device)
     off = block_offsets(block)

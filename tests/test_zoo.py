@@ -47,7 +47,7 @@ def test_members_are_drawn_again_for_the_same_seed_and_cover_every_family():
 
 @pytest.mark.parametrize("index", [0, 1, 2, 3])  # one capture per writer: trimesh PLY, plyfile ASCII, OBJ, plyfile binary
 def test_every_capture_writer_reads_back_with_its_positions_and_colours(tmp_path, index):
-    from geosynth.pointsets import read_geometry
+    from geosynth.geometry.pointsets import read_geometry
 
     member = zoo.zoo("complete", 4)[index]
     verts, faces, colours, _ = zoo.capture_surface(member)

@@ -44,7 +44,7 @@ class ArrayGroup:
 
 @dataclass(frozen=True)
 class MeshArrays(ArrayGroup):
-    """A prepared mesh (geosynth.meshes.MeshBVH) on a device, flat, in kernel order.
+    """A prepared mesh (geosynth.geometry.meshes.MeshBVH) on a device, flat, in kernel order.
 
     Attributes:
         sbox: (nodes * 8,) float32 search boxes.
@@ -72,7 +72,7 @@ class MeshOps(ABC):
     """Distance to a triangle mesh at points and on grids (float32, world units)."""
 
     def mesh_handle(self, bvh) -> MeshArrays:
-        """The device arrays of a prepared mesh (geosynth.meshes.MeshBVH), uploaded once
+        """The device arrays of a prepared mesh (geosynth.geometry.meshes.MeshBVH), uploaded once
         per mesh and device (kept in ``bvh.device_cache``)."""
         handle = bvh.device_cache.get(self.name)
         if handle is None:

@@ -1,10 +1,10 @@
 """Device arrays and the constants the API and the backends share (a leaf module).
 
-:class:`DeviceArray` is what :func:`geosynth.backend.to_device` and ``keep_on_device=True`` operations
+:class:`DeviceArray` is what :func:`geosynth.compute.backend.to_device` and ``keep_on_device=True`` operations
 return; the backends (``geosynth._backends``) construct them in their ``to_device`` and
 ``empty``. This module imports no other geosynth module, so the API modules and the
 backends can both import it without a cycle (uploading, ``to_device``, is the device
-switch's: :mod:`geosynth.backend`).
+switch's: :mod:`geosynth.compute.backend`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ class DeviceArray:
         """For float data: (how many values are NaN or inf, min and max of the finite ones);
         None for other dtypes.
 
-        Recorded from the host copy by :func:`geosynth.backend.to_device`; for arrays made otherwise, read
+        Recorded from the host copy by :func:`geosynth.compute.backend.to_device`; for arrays made otherwise, read
         back once and kept (DeviceArrays are never modified in place). The public
         operations use it to refuse NaN/inf and data whose float32 scores could overflow.
         """

@@ -8,7 +8,7 @@ can all import it without a cycle.
 | variable | read or set | used by | meaning |
 |---|---|---|---|
 | ``GEOSYNTH_VERBOSE`` | read | :func:`verbose` (the runtimes' loading, OpenCL builds) | ``1``: let Warp and PoCL print their own messages. The CLI's ``--verbose`` calls :func:`set_verbose` instead; processes started by the tiled path (Dask workers) read only the variable |
-| ``GEOSYNTH_HOST_THREADS`` | read | :func:`host_threads_setting` (``geosynth.host_steps.host_threads``) | how many parts the compiled host steps cut work into (a whole number >= 1; default: the cores this process may use) |
+| ``GEOSYNTH_HOST_THREADS`` | read | :func:`host_threads_setting` (``geosynth.compute.host_steps.host_threads``) | how many parts the compiled host steps cut work into (a whole number >= 1; default: the cores this process may use) |
 | ``GEOSYNTH_MEMORY_LIMIT`` | read | :func:`memory_limit_setting` (``geosynth.core.memory.available_memory``) | a cap on the memory budget (bytes, or with a K, M, G or T suffix) |
 | ``XDG_CACHE_HOME`` | read | :func:`cache_root` | where geosynth keeps its OpenCL device probe memo (``$XDG_CACHE_HOME/geosynth``, default ``~/.cache/geosynth``) |
 | ``POCL_*`` | read | :func:`pocl_settings` | PoCL's settings that change what its compiler builds: part of the probe memo's key |
@@ -24,19 +24,19 @@ Process-wide state: every module-level cache and lock is made here and named in 
 | object | used by | what it holds |
 |---|---|---|
 | ``OPENCL_CONTEXTS`` | ``geosynth._backends.opencl_backend`` | (platform, device) -> (device, context, built programs), one context per device per process |
-| ``WARP_INIT_NOTES`` | ``geosynth.backend`` | what Warp's start-up said and was held back (the missing CUDA driver), shown when a cuda device is asked for |
-| ``HOST_WARP_DTYPES``, ``HOST_WARP_STATE`` | ``geosynth.host_steps`` | NumPy -> Warp dtypes; Warp's module and its cpu device, once loaded |
-| ``HOST_POOLS``, ``HOST_POOL_LOCK`` | ``geosynth.host_steps`` | the helper threads of the compiled host steps, by count, and the lock that makes them |
-| ``HOST_LOAD_LOCK``, ``HOST_LAUNCHED`` | ``geosynth.host_steps`` | Warp's module loading, one thread at a time; the kernels launched once (later launches may run in parallel) |
-| ``HOST_SHARE`` | ``geosynth.host_steps`` | per thread: the ``CoreShare`` it counts in |
+| ``WARP_INIT_NOTES`` | ``geosynth.compute.backend`` | what Warp's start-up said and was held back (the missing CUDA driver), shown when a cuda device is asked for |
+| ``HOST_WARP_DTYPES``, ``HOST_WARP_STATE`` | ``geosynth.compute.host_steps`` | NumPy -> Warp dtypes; Warp's module and its cpu device, once loaded |
+| ``HOST_POOLS``, ``HOST_POOL_LOCK`` | ``geosynth.compute.host_steps`` | the helper threads of the compiled host steps, by count, and the lock that makes them |
+| ``HOST_LOAD_LOCK``, ``HOST_LAUNCHED`` | ``geosynth.compute.host_steps`` | Warp's module loading, one thread at a time; the kernels launched once (later launches may run in parallel) |
+| ``HOST_SHARE`` | ``geosynth.compute.host_steps`` | per thread: the ``CoreShare`` it counts in |
 | ``BLEND_TABLES`` | ``geosynth.blending`` | per thread: the Gauss table, wrapped for Warp once |
 | ``PATCH_SEARCH_LOCK`` | ``geosynth.patch_search`` | one patch search on a device at a time (the device queues are not shared) |
 | ``TILE_MATCHERS``, ``TILE_LOCK`` | ``geosynth.tiled`` | per worker process: (key, level) -> M1 matcher; one tile at a time per process |
-| ``INPUT_PATHS`` | ``geosynth.files`` | the input files this process read (an output may never replace one) |
+| ``INPUT_PATHS`` | ``geosynth.io.files`` | the input files this process read (an output may never replace one) |
 
 Not here, on purpose: the memoized functions (``functools.lru_cache``: the runtimes' loading and
-the OpenCL device inventory in ``geosynth.backend``, ``geosynth.render``'s and
-``geosynth.warping``'s tables), each a cache of its own function's result; ``geosynth.files``'
+the OpenCL device inventory in ``geosynth.compute.backend``, ``geosynth.io.pictures``'s and
+``geosynth.warping``'s tables), each a cache of its own function's result; ``geosynth.io.files``'
 current output stage (rebound per ``staged_outputs`` block); the CLI's signal lists
 (``geosynth.cli``, ``geosynth._launch``), which belong to the command line's process only.
 """

@@ -1,7 +1,7 @@
 """Linear interpolation on regular grids: the one resampler of the project.
 
 Textures (:mod:`geosynth.textures`), volume upsampling (:mod:`geosynth.volume`) and
-picture slices (:mod:`geosynth.render`) all resample with these two steps, so their
+picture slices (:mod:`geosynth.io.pictures`) all resample with these two steps, so their
 values agree bit for bit with each other and with the kernels that repeat
 :func:`geosynth.textures.sample_bilinear` operation for operation:
 

@@ -1,6 +1,6 @@
 """Compiled host steps of the blending (Sec. 5.3 of "Geometry texture synthesis with
 point-set surfaces"): Warp kernels in float64, launched on Warp's ``"cpu"`` device for
-every run through :mod:`geosynth.host_steps` (whatever ``device=`` says, so the blended
+every run through :mod:`geosynth.compute.host_steps` (whatever ``device=`` says, so the blended
 points are the same bits on every device).
 
 Their NumPy twins are :class:`geosynth.blending.MLSSurface` and the ``_numpy`` functions
@@ -10,7 +10,7 @@ re-gatherings, the projection fallback, and (``blend_kernel``) the patch's own s
 the blend itself, so that a patch costs a few launches, not a NumPy pass per operation.
 ``pieces_kernel`` is :func:`geosynth.blending.pieces` (the flowers' cut, Sec. 5.3).
 
-The MLS surface (Adamson and Alexa, as in :mod:`geosynth.pointsets`): over a query's
+The MLS surface (Adamson and Alexa, as in :mod:`geosynth.geometry.pointsets`): over a query's
 gathered neighbours, ``w_i(y) = exp(-|p_i - y|^2 / h^2)`` (0 beyond ``reach`` = 3h),
 ``n(y) = normalize(sum w_i n_i)``, ``f(y) = n(y) . (y - a(y))`` with ``a`` the weighted mean
 of the points; the weights by :func:`gauss` (an inline exp).

@@ -1,7 +1,7 @@
 """The search's float64 host recomputation of flagged samples: "Geometry texture synthesis
 with point-set surfaces", Sec. 5.1 (D(S), the MLS signed distance of a point set).
 
-A compiled host step (see ``geosynth.host_steps``): launched on Warp's ``"cpu"`` device for
+A compiled host step (see ``geosynth.compute.host_steps``): launched on Warp's ``"cpu"`` device for
 every run, whatever device the run's other kernels use, so the recomputed samples are the
 same bits on cpu, opencl and cuda. The oracle is ``geosynth.patch_search._iterate`` (NumPy).
 

@@ -1,5 +1,5 @@
 """Compiled host steps of the warp (Sec. 5.2): Warp kernels in float64, launched on Warp's
-``"cpu"`` device for every run through :mod:`geosynth.host_steps` (whatever ``device=``
+``"cpu"`` device for every run through :mod:`geosynth.compute.host_steps` (whatever ``device=``
 says, so the warped points are the same bits on every device).
 
 Each kernel has a NumPy twin in :mod:`geosynth.warping` (its oracle; tests/test_warping.py

@@ -7,7 +7,7 @@ Both kernels compute, per query point p, the exact distance to the mesh and, whe
 ``is_signed``, its sign from the fast generalized winding number (Barill et al.
 2018): negative where the winding number exceeds 1/2. Same kernel names (with the
 ``_kernel`` suffix) as sdf_mesh.cl; both traverse the BVH arrays of
-geosynth.meshes.MeshBVH (``sbox``, ``child``, ``tri_lanes``, ``tris``, ``dipole``).
+geosynth.geometry.meshes.MeshBVH (``sbox``, ``child``, ``tri_lanes``, ``tris``, ``dipole``).
 
 One result on every device: the distance is the minimum over all triangles
 of ``tri_min_dist2``, the operations of sdf_mesh.cl's ``tri_min_dist2_v`` in the same

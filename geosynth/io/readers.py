@@ -1,8 +1,8 @@
 """What geometry does this file hold? Implements no paper section: the readers behind every
 method's input.
 
-Reading geometry files, for :func:`geosynth.pointsets.read_point_set`,
-:func:`geosynth.pointsets.read_geometry` and :func:`geosynth.meshes.load_mesh`.
+Reading geometry files, for :func:`geosynth.geometry.pointsets.read_point_set`,
+:func:`geosynth.geometry.pointsets.read_geometry` and :func:`geosynth.geometry.meshes.load_mesh`.
 
 - PLY (ASCII, binary little- and big-endian; with or without normals, colours, faces)
   through plyfile.
@@ -10,7 +10,7 @@ Reading geometry files, for :func:`geosynth.pointsets.read_point_set`,
   nothing (NaN vertices, the faces that use them) is dropped before the checks here.
 
 Every failure is a one-line ValueError that names the file and says what is wrong;
-the callers check first that the file exists (:func:`geosynth.files.check_input`).
+the callers check first that the file exists (:func:`geosynth.io.files.check_input`).
 """
 
 from __future__ import annotations
@@ -761,7 +761,7 @@ def checked_mesh(p: Path, g: Geometry):
 
     if g.faces is None or len(g.faces) == 0:
         raise ValueError(f"{_name(p)} holds no faces: it is a point set, not a mesh "
-                         "(geosynth.pointsets.read_geometry reads either).")
+                         "(geosynth.geometry.pointsets.read_geometry reads either).")
     if len(g.positions) == 0:
         raise ValueError(f"{_name(p)} has faces but no vertices.")
     _first_bad(p, np.isfinite(_finite32(g.positions)).all(1), "vertex", "vertices")

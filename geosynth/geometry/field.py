@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.files import atomic_write, check_finite_output, check_input
+from geosynth.io.files import atomic_write, check_finite_output, check_input
 
 __all__ = ["Field", "cubic_grid", "cubic_grid_geometry", "grid_points", "grid_resolution"]
 
@@ -119,7 +119,7 @@ class Field:
     def load(cls, path: str | os.PathLike) -> "Field":
         """Read a field written by :meth:`save` (a .npz with values, origin, spacing).
 
-        The file is noted as an input (:func:`geosynth.files.note_input`).
+        The file is noted as an input (:func:`geosynth.io.files.note_input`).
 
         Returns:
             The Field.
@@ -158,7 +158,7 @@ class Field:
 
 
 def _unreadable_field(p: Path, exc: BaseException) -> ValueError:
-    from geosynth._readers import reason
+    from geosynth.io.readers import reason
 
     return ValueError(f"{str(p)!r} is not a readable geosynth field file: {reason(exc)}; give a .npz written by "
                       "Field.save (or the field command).")

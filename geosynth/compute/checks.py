@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from geosynth.core.arrays import DeviceArray, float_stats
-from geosynth.backend import get_backend
+from geosynth.compute.backend import get_backend
 
 # uint8 data is scored in uint32: the largest possible score must fit.
 UINT32_MAX = np.iinfo(np.uint32).max

@@ -47,7 +47,7 @@ def _load() -> None:
     """Warp, its cpu device and every host kernel module, loaded once: loading a module
     (hashing it and the modules it uses) is not safe from two threads at once, and the
     steps run from several (run_parts, and M2's growth of two rows)."""
-    from geosynth.backend import warp_module
+    from geosynth.compute.backend import warp_module
     from geosynth.kernels import host_blend, host_search, host_warp
 
     wp = warp_module()

@@ -5,7 +5,7 @@ field).
 Geometry out: a field's level set as a triangle mesh, smoothing, and mesh files.
 
 :func:`field_to_mesh` runs marching cubes (scikit-image's Lewiner variant) on a
-:class:`~geosynth.field.Field`, puts the vertices where the field's samples are in
+:class:`~geosynth.geometry.field.Field`, puts the vertices where the field's samples are in
 the world, and orients the faces outward (the field is negative inside, as every
 signed distance in geosynth is). :func:`smooth_mesh` applies Taubin (or
 volume-preserving Laplacian) smoothing, and :func:`save_mesh` writes PLY, OBJ or
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.files import atomic_write, check_finite_output
-from geosynth.field import Field
+from geosynth.io.files import atomic_write, check_finite_output
+from geosynth.geometry.field import Field
 
 __all__ = ["MESH_SUFFIXES", "field_to_mesh", "save_mesh", "smooth_mesh"]
 
@@ -49,7 +49,7 @@ def field_to_mesh(field: Field, level: float | None = None, smooth: int = 0, met
       values, which caps the cut at most one sample beyond the border.
 
     Args:
-        field: a scalar :class:`~geosynth.field.Field` (values (Z, Y, X), float32 or
+        field: a scalar :class:`~geosynth.geometry.field.Field` (values (Z, Y, X), float32 or
             uint8), at least 2 samples per axis, no NaN.
         level: the iso-value; None for the default above.
         smooth: smoothing iterations after meshing (0: none); see :func:`smooth_mesh`.
@@ -67,7 +67,7 @@ def field_to_mesh(field: Field, level: float | None = None, smooth: int = 0, met
 
     Example:
         >>> import numpy as np
-        >>> from geosynth.field import Field
+        >>> from geosynth.geometry.field import Field
         >>> z, y, x = np.mgrid[:16, :16, :16]
         >>> f = Field(np.sqrt((x - 7.5) ** 2 + (y - 7.5) ** 2 + (z - 7.5) ** 2) - 5, (0, 0, 0), 1.0)
         >>> mesh = field_to_mesh(f)
@@ -78,7 +78,7 @@ def field_to_mesh(field: Field, level: float | None = None, smooth: int = 0, met
     from skimage import measure
 
     if not isinstance(field, Field):
-        raise TypeError(f"field must be a geosynth.field.Field, got {type(field).__name__}.")
+        raise TypeError(f"field must be a geosynth.geometry.field.Field, got {type(field).__name__}.")
     values = field.values
     if values.ndim != 3:
         raise ValueError(f"field must be scalar (Z, Y, X) to mesh, got values of shape {values.shape}.")

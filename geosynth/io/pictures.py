@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.files import write_image
+from geosynth.io.files import write_image
 from geosynth.core.interpolate import lerp_axis, linear_taps
 
 __all__ = [
@@ -34,7 +34,7 @@ __all__ = [
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write an 8-bit grey (H, W) or RGB (H, W, 3) image, atomically, as PNG or JPEG
-    by the suffix (:func:`geosynth.files.write_image`); returns the path."""
+    by the suffix (:func:`geosynth.io.files.write_image`); returns the path."""
     return write_image(path, image)
 
 

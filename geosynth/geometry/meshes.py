@@ -6,7 +6,7 @@ Meshes: loading, checking, orienting, and the signed distance of a mesh.
 The host half of the mesh distance-field family (kernels/sdf_mesh.*): the input
 checks, a consistent face orientation, and the bounding volume hierarchy (BVH) that
 both backends traverse, built once per mesh in NumPy and cached. The public function
-is :func:`mesh_distance` (re-exported by :mod:`geosynth.distance`).
+is :func:`mesh_distance` (re-exported by :mod:`geosynth.geometry.distance`).
 """
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
-from geosynth import _checks, _readers
-from geosynth.field import Field, cubic_grid_geometry
-from geosynth.files import check_input
+from geosynth.compute import checks as _checks
+from geosynth.io import readers as _readers
+from geosynth.geometry.field import Field, cubic_grid_geometry
+from geosynth.io.files import check_input
 from geosynth.core.memory import require
 
 __all__ = ["MeshBVH", "build_bvh", "check_mesh", "load_mesh", "mesh_distance", "orient_faces"]
@@ -61,7 +62,7 @@ def load_mesh(path: str | os.PathLike):
 
     Scenes with several meshes are concatenated (their transforms applied); PLY polygons
     are split into triangle fans. The file is noted as an input
-    (:func:`geosynth.files.note_input`): no writer of this process replaces it.
+    (:func:`geosynth.io.files.note_input`): no writer of this process replaces it.
 
     Args:
         path: the file.
@@ -641,22 +642,22 @@ def mesh_distance(
     Args:
         mesh: a ``trimesh.Trimesh`` or a path to a mesh file (any format trimesh reads).
         points: (M, 3) query positions; if given, the result is an (M,) array.
-        field: a :class:`~geosynth.field.Field` whose geometry (origin, spacing, shape)
+        field: a :class:`~geosynth.geometry.field.Field` whose geometry (origin, spacing, shape)
             gives the grid; its values are not used or changed.
         bounds: (2, 3) (x, y, z) min and max corners of the grid box (default
             ``mesh.bounds``), used with ``resolution`` through
-            :func:`~geosynth.field.cubic_grid`.
+            :func:`~geosynth.geometry.field.cubic_grid`.
         resolution: samples along the longest axis (>= 2), when ``field`` is None.
         padding: fraction of the largest extent added around ``bounds``.
         signed: negative inside (True) or the unsigned distance (False).
         band: if given (> 0), distances are clamped to [-band, band] (faster too:
             nothing beyond the band is searched).
         drop_degenerate: remove zero-area faces instead of raising.
-        device: a device string (see :mod:`geosynth.backend`); None means "auto".
+        device: a device string (see :mod:`geosynth.compute.backend`); None means "auto".
 
     Returns:
         (M,) float32 distances when ``points`` is given, else a new float32
-        :class:`~geosynth.field.Field` on the requested grid.
+        :class:`~geosynth.geometry.field.Field` on the requested grid.
 
     Raises:
         TypeError: ``mesh`` is not a mesh or path; ``field`` is not a Field; ``signed``
@@ -706,7 +707,7 @@ def mesh_distance(
 
     if field is not None:
         if not isinstance(field, Field):
-            raise TypeError(f"field must be a geosynth.field.Field, got {type(field).__name__}.")
+            raise TypeError(f"field must be a geosynth.geometry.field.Field, got {type(field).__name__}.")
         if bounds is not None or resolution is not None:
             raise ValueError("pass either field= or bounds=/resolution=, not both.")
         shape = field.shape

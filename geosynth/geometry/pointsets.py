@@ -56,9 +56,10 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth import _checks, _readers
-from geosynth.files import atomic_write, check_finite_output, check_input
-from geosynth.field import Field, cubic_grid, cubic_grid_geometry
+from geosynth.compute import checks as _checks
+from geosynth.io import readers as _readers
+from geosynth.io.files import atomic_write, check_finite_output, check_input
+from geosynth.geometry.field import Field, cubic_grid, cubic_grid_geometry
 from geosynth.core.memory import require
 
 __all__ = [
@@ -135,7 +136,7 @@ class PointSet:
 
 
 def _as_points(name: str, array) -> np.ndarray:
-    """(N, 3) float32 points, checked (:func:`geosynth._checks.as_points3`; non-finite ones are
+    """(N, 3) float32 points, checked (:func:`geosynth.compute.checks.as_points3`; non-finite ones are
     reported by the caller)."""
     return _checks.as_points3(name, array, dtype=np.float32, finite=False)
 
@@ -149,7 +150,7 @@ def read_point_set(path: str | os.PathLike) -> PointSet:
     255 (whole-number floats up to 255 as they are; other floats beyond [0, 1], NaN, half a
     colour group are refused); face colours only: each vertex the mean of its faces'.
     Other properties and faces are ignored. The file is noted as an
-    input (:func:`geosynth.files.note_input`): no writer of this process replaces it.
+    input (:func:`geosynth.io.files.note_input`): no writer of this process replaces it.
 
     Args:
         path: the .ply file.
@@ -167,7 +168,7 @@ def read_point_set(path: str | os.PathLike) -> PointSet:
     p = check_input(path, "point set")
     if p.suffix.lower() != ".ply":
         raise ValueError(f"point sets are read from PLY files; {str(p)!r} is not .ply (read meshes and other "
-                         "formats with geosynth.pointsets.read_geometry).")
+                         "formats with geosynth.geometry.pointsets.read_geometry).")
     return _point_set(p, _readers.read_ply(p, faces=False))
 
 
@@ -218,7 +219,7 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
     has normals and red, green, blue (uchar) when it has colours (and alpha when it has
     one). The file is written to
     a temporary name beside ``path`` and then renamed over it, so a reader never sees a
-    partial file (:func:`geosynth.files.atomic_write`).
+    partial file (:func:`geosynth.io.files.atomic_write`).
 
     Args:
         path: the .ply file to write.
@@ -278,7 +279,7 @@ def _kdtree(points: np.ndarray, balanced: bool = True):
     try:
         from scipy.spatial import cKDTree
     except ImportError as exc:  # pragma: no cover - scipy is a dependency
-        raise ImportError("geosynth.pointsets needs scipy (pip install scipy) for neighbour search.") from exc
+        raise ImportError("geosynth.geometry.pointsets needs scipy (pip install scipy) for neighbour search.") from exc
     # An unbalanced tree builds about 2x faster; fine for one nearest-neighbour query.
     return cKDTree(points) if balanced else cKDTree(points, balanced_tree=False, compact_nodes=False)
 
@@ -426,7 +427,7 @@ def _prepare(points, normals) -> tuple[np.ndarray, np.ndarray]:
     if normals is None:
         raise ValueError(
             "normals are required: the MLS distance takes its sign from the normals; estimate them "
-            "with geosynth.pointsets.estimate_normals(points)."
+            "with geosynth.geometry.pointsets.estimate_normals(points)."
         )
     nrm = _as_points("normals", normals)
     if nrm.shape != p.shape:
@@ -595,7 +596,7 @@ def _fill_far(p, nrm, h, device, coords, d, g) -> None:
 
 def _lattice_coords(origin, spacing, shape):
     """``coords`` for :func:`_fill_far` on a grid: the world positions of flat sample
-    indices, as :func:`geosynth.field.grid_points` computes them (float64, then float32)."""
+    indices, as :func:`geosynth.geometry.field.grid_points` computes them (float64, then float32)."""
     nz, ny, nx = (int(v) for v in shape)
     origin, spacing = np.asarray(origin, np.float64), np.asarray(spacing, np.float64)
 
@@ -658,7 +659,7 @@ def pointset_distance(
     - ``query``: (M, 3) points -> returns two arrays;
     - ``field``: a :class:`Field` whose geometry (origin, spacing, shape) is used;
     - ``resolution`` (and optionally ``bounds``, default the points' bounding box):
-      the cubic grid of :func:`geosynth.field.cubic_grid` (``padding`` around it).
+      the cubic grid of :func:`geosynth.geometry.field.cubic_grid` (``padding`` around it).
 
     Args:
         points: (N, 3) float positions, or a PointSet (its normals are used unless
@@ -674,7 +675,7 @@ def pointset_distance(
         far: what queries beyond reach (3h) of every input point get: ``"nearest"``
             (the signed distance to the nearest input point's projection) or
             ``"reach"`` (``+reach``, gradient 0); see the module docstring.
-        device: a device string (see :mod:`geosynth.backend`); None means ``"auto"``.
+        device: a device string (see :mod:`geosynth.compute.backend`); None means ``"auto"``.
 
     Returns:
         With ``query``: ``(distance, gradient)``, (M,) and (M, 3) float32 arrays.
@@ -693,7 +694,7 @@ def pointset_distance(
 
     Example:
         >>> import numpy as np
-        >>> from geosynth.pointsets import pointset_distance
+        >>> from geosynth.geometry.pointsets import pointset_distance
         >>> g = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1, 1, 21)), -1).reshape(-1, 2)
         >>> pts = np.c_[g, np.zeros(len(g))]
         >>> d, grad = pointset_distance(pts, np.tile([0, 0, 1.0], (len(g), 1)), [[0.0, 0.0, 0.05]], device="cpu")
@@ -720,7 +721,7 @@ def pointset_distance(
         return d, g
     if field is not None:
         if not isinstance(field, Field):
-            raise TypeError(f"field must be a geosynth.field.Field, got {type(field).__name__}.")
+            raise TypeError(f"field must be a geosynth.geometry.field.Field, got {type(field).__name__}.")
         shape = field.shape
         require(grid_mls_bytes(int(np.prod(shape, dtype=object)), p, h), option="field", value=shape,
                 what=f"the MLS distance field of a {shape[2]} x {shape[1]} x {shape[0]} grid")

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from geosynth import _checks
+from geosynth.compute import checks as _checks
 from geosynth.core.arrays import NONFINITE_SCORES, SELECT_EQ, SELECT_LEQ, SELECT_LT, DeviceArray
 
 _FLOAT32_MAX = np.finfo(np.float32).max

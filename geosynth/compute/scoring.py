@@ -24,7 +24,7 @@ import functools
 
 import numpy as np
 
-from geosynth import _checks
+from geosynth.compute import checks as _checks
 from geosynth.core.arrays import DeviceArray
 
 __all__ = ["GatherScorer", "candidate_origins", "lattice_shape", "score_dense", "score_gather"]
@@ -58,7 +58,7 @@ def score_dense(
         queries: (B, D) or (D,) array of the same dtype as ``candidates``.
         weights: optional (D,) non-negative weights; float for float data, integers
             for uint8 data.
-        device: a device string (see :mod:`geosynth.backend`); None means the device
+        device: a device string (see :mod:`geosynth.compute.backend`); None means the device
             of a DeviceArray input, else ``"auto"``.
         keep_on_device: return a DeviceArray instead of a NumPy array, for
             selection on the device.

@@ -5,13 +5,13 @@ Dumont and Dutré, "Geometry Synthesis", Sec. 3 (system overview), and the MLS d
 Distance fields: sampling the signed distance of meshes and oriented point sets.
 
 The public face of the distance-field kernel family (kernels/sdf_mesh.*,
-kernels/sdf_points.*). Grids are :class:`geosynth.field.Field` objects.
+kernels/sdf_points.*). Grids are :class:`geosynth.geometry.field.Field` objects.
 """
 
 from __future__ import annotations
 
-from geosynth.field import Field as Field
-from geosynth.field import cubic_grid as cubic_grid
-from geosynth.meshes import load_mesh as load_mesh
-from geosynth.meshes import mesh_distance as mesh_distance
-from geosynth.pointsets import pointset_distance as pointset_distance
+from geosynth.geometry.field import Field as Field
+from geosynth.geometry.field import cubic_grid as cubic_grid
+from geosynth.geometry.meshes import load_mesh as load_mesh
+from geosynth.geometry.meshes import mesh_distance as mesh_distance
+from geosynth.geometry.pointsets import pointset_distance as pointset_distance

@@ -148,7 +148,7 @@ def _warp_status() -> tuple[Any, Exception | None]:
 
 def warp_module():
     """Warp, initialized quietly as every backend here does (the host steps' way in:
-    :mod:`geosynth.host_steps`); a broken install raises a RuntimeError saying why."""
+    :mod:`geosynth.compute.host_steps`); a broken install raises a RuntimeError saying why."""
     wp, err = _warp_status()
     if wp is None:  # Warp is a dependency: a broken install is an error, never skipped
         raise RuntimeError(f"Warp failed to load ({err}); reinstall warp-lang (make test builds .venv with it).")
