@@ -7,7 +7,7 @@ option but the output, the device and the seed), then the benchmark measures the
 itself, from the files, independently of what the command printed:
 
 - volume: the exemplar's and the output's distance fields at one world spacing ->
-  :func:`geosynth.volume_features.element_features` (element diameter, height, tube
+  :func:`geosynth.volume.features.element_features` (element diameter, height, tube
   thickness, top-surface period, share of whole elements), ratios output / exemplar; the
   block distance against random tiling as the command printed it (< 1 beats random).
 - pointtexture: heights above the exemplar's base plane, gridded ->
@@ -73,7 +73,7 @@ RELIEF_FAMILIES = ("bumps", "cobbles", "terrain")  # one connected slab with a r
 TUBE_FAMILIES = ("tubes",)  # elements that run across the footprint: none is whole, so their size is the thickness
 MEASURE_SAMPLES = 160  # samples across the exemplar's longest side where a volume is measured
 # tubes stay connected: the output's tubes run at least an exemplar's length between breaks
-# (geosynth.volume_features.tube_connection == 1; the volume share across, used before, fell as the output
+# (geosynth.volume.features.tube_connection == 1; the volume share across, used before, fell as the output
 # grew and rewarded tubes fused into a network)
 
 
@@ -111,7 +111,7 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
     """Feature ratios output / exemplar (measured as a relief for the slab families, as
     separate elements for the others) and the block distance against random."""
     from geosynth.geometry.meshes import load_mesh
-    from geosynth.volume_features import compare_features, element_features
+    from geosynth.volume.features import compare_features, element_features
 
     from geosynth.geometry.surface import field_to_mesh
 

@@ -37,7 +37,7 @@ def claim(fn):
 
 
 def _spheres():
-    from geosynth.examples import spheres_field
+    from geosynth.volume.examples import spheres_field
 
     return spheres_field(20, count=7, radius=(2.0, 4.0), seed=5)
 
@@ -45,8 +45,8 @@ def _spheres():
 @claim
 def volume_beats_random_tiling(seed):
     """tests/test_volume.py::test_beats_random_tiling: block distance synthesis / random tiling."""
-    from geosynth.metrics import bidirectional_block_distance
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.quality import bidirectional_block_distance
+    from geosynth.volume.synthesis import synthesize_volume
 
     src = _spheres()
     kw = dict(size=32, levels=2, block=8, progress=False, device=ONE_DEVICE, seed=seed, method="paper")
@@ -62,7 +62,7 @@ def volume_tileable_wraps(seed):
     plain seam - tiled seam (> 0)."""
     from test_volume import _seam_and_interior_distance
 
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     src = _spheres()
     kw = dict(size=32, levels=2, block=8, progress=False, device=ONE_DEVICE, seed=seed, method="paper")
@@ -76,8 +76,8 @@ def volume_tileable_wraps(seed):
 @claim
 def methods_beat_random_tiling(seed):
     """tests/test_optimize.py::test_methods_beat_random_tiling: block distance per method / random tiling."""
-    from geosynth.metrics import bidirectional_block_distance
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.quality import bidirectional_block_distance
+    from geosynth.volume.synthesis import synthesize_volume
 
     src = _spheres()
     kw = dict(levels=2, block=8, progress=False, device="cpu", seed=seed)
@@ -92,7 +92,7 @@ def methods_beat_random_tiling(seed):
 
 
 def _geometry(name, seed, size=48, res=32):
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     r = synthesize_geometry(name, size, source_resolution=res, levels=2, block=8, quality_samples=40, seed=seed,
                             device=ONE_DEVICE, progress=False, smooth=2, iterations=[4, 2])
@@ -128,9 +128,9 @@ def geometry_balls_32(seed):
 def metrics_random_tiling_scores_low(seed):
     """tests/test_metrics.py::test_builtin_balls_and_terrain_against_random_tiling: the
     structure scores of randomly tiled balls and terrain."""
-    from geosynth.examples import balls_field, terrain_heights
-    from geosynth.metrics import structure_report
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.examples import balls_field, terrain_heights
+    from geosynth.volume.quality import structure_report
+    from geosynth.volume.synthesis import synthesize_volume
 
     ex = balls_field(resolution=48)
     h = float(ex.spacing[0])
@@ -152,7 +152,7 @@ def metrics_noise_scores_low(seed):
     from scipy import ndimage
     from test_metrics import TORI_SHAPE, tori
 
-    from geosynth.metrics import element_wholeness
+    from geosynth.volume.quality import element_wholeness
 
     noise = ndimage.gaussian_filter(np.random.default_rng(seed).standard_normal(TORI_SHAPE), 2)
     noise = (3 * noise / noise.std()).astype(np.float32)
@@ -162,7 +162,7 @@ def metrics_noise_scores_low(seed):
 @claim
 def slab_thin_plate(seed, size=96, res=48):
     """tests/test_slab.py::test_defaults_grow_a_thin_plate_that_they_refused."""
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     r = synthesize_geometry("domes", size, source_resolution=res, device=ONE_DEVICE, progress=False, seed=seed,
                             quality_samples=20, smooth=0, iterations=2)
@@ -175,7 +175,7 @@ def slab_thin_plate(seed, size=96, res=48):
 def tiled_seams(seed):
     """tests/test_tiled.py::test_seams_as_good_as_inside (threads instead of a Dask cluster:
     the bits do not depend on the engine)."""
-    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
+    from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled
 
     out = {}
     kw = dict(levels=2, block=8, seed=seed, progress=False, iterations=2, device=ONE_DEVICE, scheduler="threads",

@@ -46,10 +46,10 @@ _LAZY = {
     "best_fraction": "geosynth.compute.selection",
     "random_pick": "geosynth.compute.selection",
     "within_tolerance": "geosynth.compute.selection",
-    "synthesize_volume": "geosynth.volume",
-    "synthesize_geometry": "geosynth.volume",
-    "VolumeResult": "geosynth.volume",
-    "GeometryResult": "geosynth.volume",
+    "synthesize_volume": "geosynth.volume.synthesis",
+    "synthesize_geometry": "geosynth.volume.synthesis",
+    "VolumeResult": "geosynth.volume.synthesis",
+    "GeometryResult": "geosynth.volume.synthesis",
     "texture_points": "geosynth.texturing",
     "TextureReport": "geosynth.texturing",
     "mesh_distance": "geosynth.geometry.meshes",
@@ -67,8 +67,8 @@ _LAZY = {
     "write_image": "geosynth.io.files",
     "point_model": "geosynth.pointmodels",
     "load_point_model": "geosynth.pointmodels",
-    "exemplar_mesh": "geosynth.examples",
-    "exemplar_field": "geosynth.examples",
+    "exemplar_mesh": "geosynth.volume.examples",
+    "exemplar_field": "geosynth.volume.examples",
     "MemoryBudgetError": "geosynth.core.memory",
     # M2: point-set geometry textures
     "synthesize_point_texture": "geosynth.geometry_texture",
@@ -77,8 +77,8 @@ _LAZY = {
     "point_texture_example": "geosynth.point_examples",
     "complete_surface": "geosynth.completion",
     "CompletionReport": "geosynth.completion",
-    "synthesize_volume_tiled": "geosynth.tiled",
-    "exemplar_source": "geosynth.tiled",
+    "synthesize_volume_tiled": "geosynth.volume.tiled",
+    "exemplar_source": "geosynth.volume.tiled",
 }
 
 __all__ = sorted(_LAZY)

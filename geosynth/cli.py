@@ -34,7 +34,7 @@ import numpy as np
 import geosynth
 from geosynth.core.config import set_verbose
 from geosynth.core.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
-from geosynth.examples import EXEMPLARS
+from geosynth.volume.examples import EXEMPLARS
 from geosynth.io.files import IMAGE_SUFFIXES, check_output
 
 MESH_OUT = (".ply", ".obj", ".stl")
@@ -198,7 +198,7 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
     Returns:
         (size for synthesize_geometry: one int or (z, y, x); block: one int or a list).
     """
-    given_block = args.block is not None  # None: chosen from the exemplar (geosynth.volume.choose_settings)
+    given_block = args.block is not None  # None: chosen from the exemplar (geosynth.volume.synthesis.choose_settings)
     sizes, blocks, levels = list(args.size), list(args.block or [DEFAULT_BLOCK]), args.levels
     if len(sizes) not in (1, 3):
         raise ValueError(f"--size takes one number (x = y; z follows the exemplar) or three (x y z), "
@@ -272,8 +272,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         _check_device(args.device)
 
     from geosynth.compute.backend import describe_devices
-    from geosynth.examples import spheres_field
-    from geosynth.volume import quantize_field
+    from geosynth.volume.examples import spheres_field
+    from geosynth.volume.synthesis import quantize_field
     from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
@@ -336,7 +336,7 @@ MESH_EXAMPLES = ("torus", "chainmail")
 
 
 def _example_mesh(name: str):
-    from geosynth.examples import chainmail_mesh, torus_mesh
+    from geosynth.volume.examples import chainmail_mesh, torus_mesh
 
     return {"torus": torus_mesh, "chainmail": chainmail_mesh}[name]()
 
@@ -412,8 +412,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     from geosynth.io.files import write_image
     from geosynth.io.pictures import render_mesh, side_by_side
     from geosynth.geometry.surface import save_mesh
-    from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.volume import block_text, synthesize_geometry
+    from geosynth.volume.examples import resolve_exemplar_mesh
+    from geosynth.volume.synthesis import block_text, synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -455,13 +455,13 @@ def _cmd_volume(args: argparse.Namespace) -> int:
                 f"   mean {q['mean']:9.1f}")
         structures = {k: q["structure"] for k, q in result.quality.items() if q.get("structure")}
         if structures:
-            from geosynth.metrics import format_structure
+            from geosynth.volume.quality import format_structure
 
             say("structure (what a person sees; beside random tiling):")
             for k, report in structures.items():
                 say(f"  {k:<14} {format_structure(report)}")
     if result.features:
-        from geosynth.volume_features import format_features
+        from geosynth.volume.features import format_features
 
         say("feature scale (exemplar -> output, world units; x1.00 is kept):")
         ex = result.features["exemplar"]
@@ -510,8 +510,8 @@ def _checkpoint_path(out: Path) -> Path:
 
 
 def _cmd_volume_tiled(args: argparse.Namespace) -> int:
-    """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.tiled.synthesize_volume_tiled`."""
-    from geosynth.tiled import parse_tiles
+    """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.volume.tiled.synthesize_volume_tiled`."""
+    from geosynth.volume.tiled import parse_tiles
 
     exemplar, example, inputs = _file_or_example(args.exemplar, args.example, EXEMPLARS, "EXEMPLAR",
                                                  "a mesh file (.ply, .obj, .stl, ...)")
@@ -527,7 +527,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     png, png_what = _picture_path(args)
     outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
     if args.tile_meshes is not None:  # every tile's file passes the guard, not only the first
-        from geosynth.tiled import tile_mesh_paths
+        from geosynth.volume.tiled import tile_mesh_paths
 
         if os.path.exists(args.tile_meshes) and not os.path.isdir(args.tile_meshes):
             raise ValueError(f"--tile-meshes {args.tile_meshes!r} is a file; give a folder (it is created).")
@@ -549,13 +549,13 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
                                  "inside the other (a store is replaced whole); give each its own place.")
     _check_device(args.device)
 
-    from geosynth.examples import resolve_exemplar_mesh
+    from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.io.files import write_image
     from geosynth.core.memory import available_memory
     from geosynth.io.pictures import render_mesh, side_by_side
     from geosynth.geometry.surface import save_mesh
-    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
-    from geosynth.volume import target_size
+    from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
+    from geosynth.volume.synthesis import target_size
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -566,10 +566,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
                   search=args.search, method=args.method)
 
-    # the untiled run's automatic source resolution, block and size (geosynth.volume.choose_settings),
+    # the untiled run's automatic source resolution, block and size (geosynth.volume.synthesis.choose_settings),
     # after the tiling is checked on the default grid's shape (no distance computed yet)
     from geosynth.geometry.meshes import check_mesh
-    from geosynth.volume import choose_settings, exemplar_grid
+    from geosynth.volume.synthesis import choose_settings, exemplar_grid
 
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
     check_mesh(exemplar_mesh, "exemplar", drop_degenerate=args.drop_degenerate)
@@ -1096,7 +1096,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
     p.add_argument("--slab", choices=["auto", "yes", "no"], default="auto",
                    help="blocks through the exemplar's full thickness, grown across only: auto (default: when the "
-                        "exemplar is at least 2.5x thinner along z than across: geosynth.volume.SLAB_RATIO), yes or "
+                        "exemplar is at least 2.5x thinner along z than across: geosynth.volume.synthesis.SLAB_RATIO), yes or "
                         "no; the same choice with --tiles")
     p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
                    help=f"Taubin smoothing iterations, 0 to {MAX_SMOOTH} (default 10)")
@@ -1110,7 +1110,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_volume)
-    # tiled synthesis on Dask (geosynth.tiled)
+    # tiled synthesis on Dask (geosynth.volume.tiled)
     p.add_argument("--tiles", default=None, metavar="NXxNY",
                    help="synthesize in NX x NY tiles on Dask (two-phase schedule, same result with any workers)")
     p.add_argument("--workers", type=_int_type(1, 1024), default=None,

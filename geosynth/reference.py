@@ -228,7 +228,7 @@ def pointset_distance_naive(points: np.ndarray, normals: np.ndarray, query: np.n
 
 
 def box_sums_naive(field: np.ndarray, cell: int) -> np.ndarray:
-    """Same result as :meth:`geosynth.pyramid.BlockPyramid.cell_sums`: the exact sum of
+    """Same result as :meth:`geosynth.volume.pyramid.BlockPyramid.cell_sums`: the exact sum of
     every cell^3 cube of ``field``, (Z - c + 1, Y - c + 1, X - c + 1) int64."""
     from numpy.lib.stride_tricks import sliding_window_view
 
@@ -236,14 +236,14 @@ def box_sums_naive(field: np.ndarray, cell: int) -> np.ndarray:
 
 
 def box_means_naive(field: np.ndarray, cell: int) -> np.ndarray:
-    """Same result as :meth:`geosynth.pyramid.BlockPyramid.means`: the cube means
+    """Same result as :meth:`geosynth.volume.pyramid.BlockPyramid.means`: the cube means
     rounded half up, computed in float64 then floor(mean + 1/2), as uint8."""
     return np.floor(box_sums_naive(field, cell) / float(cell) ** 3 + 0.5).astype(np.uint8)
 
 
 def compare_level_naive(field: np.ndarray, query: np.ndarray, origins: np.ndarray, level: int,
                         rounded: bool = False) -> np.ndarray:
-    """Same arguments and result as :func:`geosynth.pyramid.compare_level` (without the
+    """Same arguments and result as :func:`geosynth.volume.pyramid.compare_level` (without the
     pyramid): the level's cell sums by reshaping each block, then the integer D."""
     n_block = query.shape[0]
     n = 1 << (level - 1)
@@ -269,7 +269,7 @@ def compare_level_naive(field: np.ndarray, query: np.ndarray, origins: np.ndarra
 
 
 def nearest_block_naive(field: np.ndarray, query: np.ndarray) -> tuple[tuple[int, int, int], int]:
-    """Same result as :meth:`geosynth.tree_search.BlockSearch.nearest`: the SSD of the query
+    """Same result as :meth:`geosynth.volume.tree.BlockSearch.nearest`: the SSD of the query
     against every block, the smallest, the lowest raster index on ties."""
     from numpy.lib.stride_tricks import sliding_window_view
 

@@ -186,7 +186,7 @@ def test_inputs_on_different_devices(device_pair):
 
 def test_synthesize_volume_invalid_input():
     """Every option is checked before any work: no truncation, no constant fields."""
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     source = RNG.standard_normal((16, 16, 16)).astype(np.float32)
 
@@ -230,7 +230,7 @@ def test_synthesize_volume_invalid_input():
 
 
 def test_synthesize_geometry_invalid_input():
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     def run(**options):
         synthesize_geometry("terrain", **{"size": 32, "progress": False, **options})

@@ -232,7 +232,7 @@ def test_texture_points_estimates_match_rss(device):
 def test_volume_estimate_matches_traced_peak(device):
     """synthesize_volume, targets 8 x 48 x 48 and 8 x 96 x 96: tracemalloc (the target,
     its upsampling and the scan are NumPy; the 16^3 source's device buffers are small)."""
-    from geosynth.volume import synthesize_volume, volume_bytes
+    from geosynth.volume.synthesis import synthesize_volume, volume_bytes
 
     z, y, x = np.mgrid[:16, :16, :16]
     src = (np.sin(x / 2.5) * np.cos(y / 3.0) * 4 + (z - 8)).astype(np.float32)
@@ -250,8 +250,8 @@ def test_geometry_estimate_matches_traced_peak(warp_cpu, name, kind):
     """synthesize_geometry at source resolution 16, sizes 32 and 64 (4x the samples), with
     the quality numbers and each kind of structure metrics: tracemalloc (fields, marching
     cubes, smoothing and the metrics are NumPy)."""
-    from geosynth.examples import exemplar_mesh
-    from geosynth.volume import _exemplar_grid_geometry, geometry_bytes, synthesize_geometry
+    from geosynth.volume.examples import exemplar_mesh
+    from geosynth.volume.synthesis import _exemplar_grid_geometry, geometry_bytes, synthesize_geometry
 
     mesh = exemplar_mesh(name, seed=0)
     synthesize_geometry(mesh, 16, source_resolution=16, levels=2, block=8, iterations=2, device=warp_cpu,
@@ -333,7 +333,7 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
     from geosynth.geometry.pointsets import pointset_distance
     from geosynth.texturing import texture_points
     from geosynth.textures import texture_example
-    from geosynth.volume import synthesize_geometry, synthesize_volume
+    from geosynth.volume.synthesis import synthesize_geometry, synthesize_volume
 
     mesh = trimesh.creation.icosphere(2)
     ps = point_model("sphere", 1000)

@@ -10,7 +10,7 @@ import trimesh
 import geosynth
 from conftest import TEST_DEVICES
 from geosynth import reference
-from geosynth.examples import chainmail_mesh
+from geosynth.volume.examples import chainmail_mesh
 from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.distance import mesh_distance
 from geosynth.geometry.meshes import check_mesh, load_mesh, orient_faces
@@ -395,7 +395,7 @@ def test_points_order_and_duplicates(device, rng):
 def test_synthesize_geometry_same_file_on_every_device(tmp_path):
     # end to end from a mesh: the same exemplar and seed write byte-identical PLY files
     from geosynth.geometry.surface import save_mesh
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     pairs = _device_pairs()
     mesh = chainmail_mesh(2, major_sections=24, minor_sections=12)
@@ -548,7 +548,7 @@ def test_the_volume_pipelines_exemplar_field_does_not_depend_on_the_mesh_units(t
     # issue 37 item 4: the volume pipeline (the exemplar's field at a source resolution, in
     # samples) gives the same signs for the plate at 1e-6, 1 and 1e6 (measured: 0 flips,
     # distances within 2e-6 samples)
-    from geosynth.tiled import exemplar_source
+    from geosynth.volume.tiled import exemplar_source
 
     fields, spacings = {}, {}
     for s in (1e-6, 1.0, 1e6):

@@ -8,12 +8,12 @@ import pytest
 
 import geosynth
 from geosynth import reference
-from geosynth import tree_search as tree_search_mod
-from geosynth.blocks import block_offsets, block_origins, box_sums
-from geosynth.cascade_search import CascadeSearch
-from geosynth.examples import spheres_field
-from geosynth.tree_search import BlockSearch
-from geosynth.volume import quantize_field
+from geosynth.volume import tree as tree_search_mod
+from geosynth.volume.blocks import block_offsets, block_origins, box_sums
+from geosynth.volume.cascade import CascadeSearch
+from geosynth.volume.examples import spheres_field
+from geosynth.volume.tree import BlockSearch
+from geosynth.volume.synthesis import quantize_field
 
 # (block size, source side): small enough for CI, block sizes 2 to 16.
 CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
@@ -321,7 +321,7 @@ def test_search_invalid_input(monkeypatch, one_device):
     for cells in ([3], [8], [1], [2, 4], [2, 2]):
         with pytest.raises(ValueError, match="cells must"):
             CascadeSearch(field, 8, device=one_device, cells=cells)
-    import geosynth.pyramid as pyramid
+    import geosynth.volume.pyramid as pyramid
 
     monkeypatch.setattr(pyramid, "available_memory", lambda: 10_000)
     with pytest.raises(MemoryError, match=r"estimated [0-9.]+ MiB"):

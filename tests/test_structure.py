@@ -278,8 +278,8 @@ PENDING_PRIVATE_USES: set[tuple[str, str]] = set()
 def test_private_use_finder(tmp_path):
     """The finder on planted source: a private name imported or read through a module is
     found; a private module imported as a module, and a module's own names, are not."""
-    source = ("from geosynth.compute import checks\nfrom geosynth.volume import _x, y\nimport geosynth.compute.backend as b\n"
-              "def f():\n    from geosynth.pyramid import _z\n    return b._w, checks.ok\n")
+    source = ("from geosynth.compute import checks\nfrom geosynth.volume.synthesis import _x, y\nimport geosynth.compute.backend as b\n"
+              "def f():\n    from geosynth.volume.pyramid import _z\n    return b._w, checks.ok\n")
     path = tmp_path / "planted.py"
     path.write_text(source)
     MODULES["geosynth._planted"] = path
@@ -287,7 +287,7 @@ def test_private_use_finder(tmp_path):
         found = [text for _, text in _private_uses("geosynth._planted")]
     finally:
         del MODULES["geosynth._planted"]
-    assert found == ["from geosynth.volume import _x", "from geosynth.pyramid import _z", "geosynth.compute.backend._w"]
+    assert found == ["from geosynth.volume.synthesis import _x", "from geosynth.volume.pyramid import _z", "geosynth.compute.backend._w"]
 
 
 def test_no_module_imports_a_private_name():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from geosynth.volume import quantize_field
+from geosynth.volume.synthesis import quantize_field
 from geosynth.geometry.field import Field
 from geosynth.geometry.surface import field_to_mesh, save_mesh, smooth_mesh
 

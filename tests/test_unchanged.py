@@ -37,13 +37,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geosynth.examples import exemplar_field
+from geosynth.volume.examples import exemplar_field
 from geosynth.geometry_texture import synthesize_point_texture
 from geosynth.point_examples import point_texture_example
 from geosynth.pointmodels import point_model
 from geosynth.textures import texture_example
 from geosynth.texturing import texture_points
-from geosynth.volume import synthesize_volume
+from geosynth.volume.synthesis import synthesize_volume
 
 
 def _digest(*arrays: np.ndarray) -> str:

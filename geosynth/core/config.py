@@ -31,7 +31,7 @@ Process-wide state: every module-level cache and lock is made here and named in 
 | ``HOST_SHARE`` | ``geosynth.compute.host_steps`` | per thread: the ``CoreShare`` it counts in |
 | ``BLEND_TABLES`` | ``geosynth.blending`` | per thread: the Gauss table, wrapped for Warp once |
 | ``PATCH_SEARCH_LOCK`` | ``geosynth.patch_search`` | one patch search on a device at a time (the device queues are not shared) |
-| ``TILE_MATCHERS``, ``TILE_LOCK`` | ``geosynth.tiled`` | per worker process: (key, level) -> M1 matcher; one tile at a time per process |
+| ``TILE_MATCHERS``, ``TILE_LOCK`` | ``geosynth.volume.tiled`` | per worker process: (key, level) -> M1 matcher; one tile at a time per process |
 | ``INPUT_PATHS`` | ``geosynth.io.files`` | the input files this process read (an output may never replace one) |
 
 Not here, on purpose: the memoized functions (``functools.lru_cache``: the runtimes' loading and

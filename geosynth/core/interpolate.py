@@ -1,6 +1,6 @@
 """Linear interpolation on regular grids: the one resampler of the project.
 
-Textures (:mod:`geosynth.textures`), volume upsampling (:mod:`geosynth.volume`) and
+Textures (:mod:`geosynth.textures`), volume upsampling (:mod:`geosynth.volume.synthesis`) and
 picture slices (:mod:`geosynth.io.pictures`) all resample with these two steps, so their
 values agree bit for bit with each other and with the kernels that repeat
 :func:`geosynth.textures.sample_bilinear` operation for operation:
@@ -14,7 +14,7 @@ values agree bit for bit with each other and with the kernels that repeat
 scipy.ndimage.map_coordinates / zoom (order=1) compute the same blend in float64 with
 other roundings: that would change the float32 volume results and the texture values
 the kernels reproduce, hence this small module. (The elements metric's grid
-refinement, geosynth.metrics._refine, stays on scipy.ndimage.zoom: it differs from
+refinement, geosynth.volume.quality._refine, stays on scipy.ndimage.zoom: it differs from
 this module by up to 1 float32 ulp, so moving it would change metric figures.)
 """
 

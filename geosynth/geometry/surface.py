@@ -42,7 +42,7 @@ def field_to_mesh(field: Field, level: float | None = None, smooth: int = 0, met
       negative inside). Faces are wound counter-clockwise seen from outside, so face
       normals point outward and a closed result has a positive volume.
     - ``level`` defaults to 0.0 for float fields and to 127.5 for uint8 fields (the
-      zero distance of :func:`geosynth.volume.quantize_field`, between codes 127
+      zero distance of :func:`geosynth.volume.synthesis.quantize_field`, between codes 127
       and 128, so the surface never passes exactly through a sample).
     - Where the inside touches the border of the grid the surface is open there,
       unless ``close`` is set: then the volume is padded with one layer of outside

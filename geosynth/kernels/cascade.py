@@ -5,7 +5,7 @@ The fused cascade search (M1): Warp kernels.
 
 The twin of ``cascade.cl``, with the same arguments in the same order
 (``cascade_search_kernel`` <-> ``cascade_search``); cascade.cl says what the bounds
-are and why the answer is exact. It serves :class:`geosynth.cascade_search.CascadeSearch`
+are and why the answer is exact. It serves :class:`geosynth.volume.cascade.CascadeSearch`
 (the lower bound of Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 4.2, eq. 2,
 over every block of the source). Arrays are flat; nothing here validates.
 """

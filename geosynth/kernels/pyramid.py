@@ -17,7 +17,7 @@ c = N / 2^(l-1) and samples slab log2(c) at origin + c * (i, j, k).
 Node codes (``node_code``): ``level * 2 + kind``; kind 0 compares exact cell sums,
 kind 1 compares against the interval of sums that the node's uint8-rounded means
 allow (a parent node grouping children with equal rounded means; see
-``geosynth.tree_search``).
+``geosynth.volume.tree``).
 
 Hashes are linear polynomial hashes modulo 2^64, built by doubling (``pyramid_hash_step``);
 they only propose groups, which are then verified exactly (``pyramid_pair_equal``).

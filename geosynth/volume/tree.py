@@ -5,7 +5,7 @@ Sec. 4.1 (search tree construction), 4.2 (block similarity, eqs. 2 and 3), 4.3 (
 best-first matching algorithm) and 4.4 (branching factor: parent nodes).
 
 :class:`BlockSearch` builds, once per source field and block size, the global pyramid
-(:mod:`geosynth.pyramid`) and a search tree over every block of the source, keeps
+(:mod:`geosynth.volume.pyramid`) and a search tree over every block of the source, keeps
 both on the device, and answers nearest-block queries:
 
 - :meth:`BlockSearch.nearest`: exact best-first search (A*-like, eq. 2 as the
@@ -50,7 +50,7 @@ The bound and exactness
 -----------------------
 A node's priority is an integer key = 4 * N^3 * (a lower bound of the full SSD of
 every block below it): exact nodes use Cauchy-Schwarz on exact cell sums
-(D_l / c^3, see :mod:`geosynth.pyramid`), parent nodes the rounded-interval form,
+(D_l / c^3, see :mod:`geosynth.volume.pyramid`), parent nodes the rounded-interval form,
 leaves the exact SSD (key = 4 N^3 SSD). A child's key is raised to its parent's key
 when lower (still a valid bound). Entries are ordered by (key, lowest block index
 below the node), so the first leaf popped has the smallest SSD and, among equal
@@ -68,8 +68,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth.core.arrays import DeviceArray
-from geosynth.blocks import block_offsets, block_origins
-from geosynth.pyramid import (
+from geosynth.volume.blocks import block_offsets, block_origins
+from geosynth.volume.pyramid import (
     BlockPyramid,
     build_pyramid,
     check_block,

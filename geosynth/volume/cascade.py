@@ -4,7 +4,7 @@ M1's exact nearest-block search without the tree: the lower bound of Lagae, Dumo
 Dutré, "Geometry Synthesis", Sec. 4.2 (eq. 2, cell sums of coarser levels bound the
 block distance), evaluated over every block of the source at a few levels coarse to
 fine, then exact distances of the survivors. It returns the block that the paper's
-best-first search (Sec. 4.3, :class:`geosynth.tree_search.BlockSearch`) returns. The
+best-first search (Sec. 4.3, :class:`geosynth.volume.tree.BlockSearch`) returns. The
 fused form runs in one launch of ``kernels/cascade.py`` / ``kernels/cascade.cl``.
 """
 
@@ -16,8 +16,8 @@ import numpy as np
 
 from geosynth.compute import checks as _checks
 from geosynth.core.arrays import DeviceArray
-from geosynth.blocks import block_offsets, block_shape, box_sums
-from geosynth.pyramid import check_block_shape, check_field, check_memory, check_query
+from geosynth.volume.blocks import block_offsets, block_shape, box_sums
+from geosynth.volume.pyramid import check_block_shape, check_field, check_memory, check_query
 from geosynth.compute.scoring import GatherScorer
 
 __all__ = ["CascadeSearch", "tally_alive"]

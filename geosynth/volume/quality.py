@@ -81,8 +81,8 @@ def bidirectional_block_distance(
     Returns:
         {"output_to_exemplar": float, "exemplar_to_output": float, "mean": float}.
     """
-    from geosynth.blocks import block_shape
-    from geosynth.cascade_search import CascadeSearch
+    from geosynth.volume.blocks import block_shape
+    from geosynth.volume.cascade import CascadeSearch
 
     bz, by, bx = sides = block_shape(block)
     for name, v in (("exemplar", exemplar), ("output", output)):
@@ -125,7 +125,7 @@ def _distance(name: str, value, spacing) -> tuple[np.ndarray, np.ndarray]:
                          f"got shape {values.shape}.")
     if not np.issubdtype(values.dtype, np.floating):
         raise TypeError(f"{name} must hold float signed distances (negative inside), got {values.dtype}; "
-                        "dequantize uint8 codes first (geosynth.volume.dequantize_field).")
+                        "dequantize uint8 codes first (geosynth.volume.synthesis.dequantize_field).")
     values = np.asarray(values, np.float32)
     if not np.isfinite(values).all():
         raise ValueError(f"{name} has {int((~np.isfinite(values)).sum())} NaN or infinite values; "

@@ -4,7 +4,7 @@ Tiled M1 synthesis (texture optimization per level, Kwatra, Essa, Bobick and Kwa
 "Texture Optimization for Example-based Synthesis", SIGGRAPH 2005, Sec. 3, run on the
 multiresolution pyramid of Lagae, Dumont and Dutre, "Geometry Synthesis", Sec. 5.2) cuts
 the target into tiles across x and y; z is never cut. This module is the geometry and the
-schedule only: no synthesis, no engine (those are :mod:`geosynth.tiled`).
+schedule only: no synthesis, no engine (those are :mod:`geosynth.volume.tiled`).
 
 - Tile cores partition each level's x-y plane: a regular grid of ``nx`` x ``ny`` cores,
   all of one size (a multiple of the level factor 2^(levels-1), so every coarser level
@@ -88,7 +88,7 @@ class TileGrid:
         coarse_whole: run the levels that fit in one tile whole (False: tile every level
             whose cores still hold a block plus the margin).
         slab: the blocks span each level's full thickness along z (a slab exemplar,
-            :func:`geosynth.volume.is_slab`); ``blocks`` are then their sides across.
+            :func:`geosynth.volume.synthesis.is_slab`); ``blocks`` are then their sides across.
     """
 
     shape: tuple[int, int, int]
@@ -151,8 +151,8 @@ class TileGrid:
 
     def block_shape(self, level: int):
         """The block the synthesis of ``level`` matches: N (a cube) or, for a slab,
-        (Z_l, N, N) with Z_l the level's thickness (:func:`geosynth.volume.level_block_shapes`)."""
-        from geosynth.volume import level_block_shapes
+        (Z_l, N, N) with Z_l the level's thickness (:func:`geosynth.volume.synthesis.level_block_shapes`)."""
+        from geosynth.volume.synthesis import level_block_shapes
 
         return level_block_shapes(self.shape, self.levels, list(self.blocks), self.slab)[level]
 
@@ -290,7 +290,7 @@ def assemble(shape_z: int, box: Region, pieces, dtype=np.uint8, fill=None) -> tu
 
 def upsample_window(coarse: np.ndarray, coarse_box: Region, coarse_shape, fine_box: Region,
                     fine_shape) -> np.ndarray:
-    """The samples of ``fine_box`` of :func:`geosynth.volume.upsample` (non-periodic) of
+    """The samples of ``fine_box`` of :func:`geosynth.volume.synthesis.upsample` (non-periodic) of
     a level of ``coarse_shape``, from the window ``coarse`` holding ``coarse_box`` of it:
     bit for bit the same values as upsampling the whole level and cutting the box out
     (the same coordinates, taps, weights and float32 blends, in the same axis order).

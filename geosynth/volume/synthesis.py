@@ -25,9 +25,9 @@ a block then holds whole columns of the slab (a dome, a ring of a single layer),
 no block position along z can stack a slab's top on its bottom.
 
 Beyond the paper (``method=``): "graphcut" pastes each block of the same
-scan along a minimum-error cut through the overlap (:mod:`geosynth.graphcut`) instead
+scan along a minimum-error cut through the overlap (:mod:`geosynth.volume.graphcut`) instead
 of keeping every synthesized sample; "optimize" replaces the scan by texture
-optimization per level (:mod:`geosynth.optimize`, Kwatra et al. 2005): exact matches
+optimization per level (:mod:`geosynth.volume.optimize`, Kwatra et al. 2005): exact matches
 of every block on a dense lattice and a robust weighted vote, iterated.
 
 Matching is exact (the lowest source index on ties) and integer-scored, and the votes
@@ -47,12 +47,12 @@ import numpy as np
 from geosynth.compute import checks as _checks
 from geosynth.core.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION,
                                 M1_ELEMENT_MARGIN_SAMPLES, M1_MIN_FEATURE_SAMPLES)
-from geosynth.examples import resolve_exemplar_mesh as _exemplar_mesh
+from geosynth.volume.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.geometry.field import Field
 from geosynth.core.interpolate import lerp_axis, linear_taps
 from geosynth.core.memory import require
-from geosynth.blocks import block_offsets, block_shape
-from geosynth.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
+from geosynth.volume.blocks import block_offsets, block_shape
+from geosynth.volume.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -78,7 +78,7 @@ __all__ = [
 
 # How each level is made from its matches: "paper" (scan-order copying, already
 # synthesized samples kept), "graphcut" (the same scan, pasted along a minimum-error
-# cut, geosynth.graphcut), "optimize" (texture optimization, geosynth.optimize).
+# cut, geosynth.volume.graphcut), "optimize" (texture optimization, geosynth.volume.optimize).
 METHODS = ("paper", "graphcut", "optimize")
 # The default, "auto": the method that scores best on the built-in exemplars' structure
 # metrics for the kind of run (bench/bm_volume.py --part quality; opencl, 64 -> 128, 3
@@ -101,7 +101,7 @@ def resolve_method(method: str, slab: bool, terrain: bool = False) -> str:
     return method
 
 
-# A source is a terrain when it is one relief (geosynth.volume_features.covers_footprint)
+# A source is a terrain when it is one relief (geosynth.volume.features.covers_footprint)
 # and fewer than TERRAIN_FLAT of its columns top out at its commonest height (no flat
 # ground). On the zoo and the built-ins, plates with rivets, domes or cobbles have
 # 0.47-0.79 of their columns on the plate, terrains 0.07-0.12.
@@ -111,7 +111,7 @@ TERRAIN_FLAT = 0.25
 def is_terrain(values: np.ndarray) -> bool:
     """Whether a (Z, Y, X) source (uint8 codes, inside < 128, or float signed
     distances, inside < 0) is a terrain: a height field (:func:`is_height_field`) that is
-    one relief (:func:`geosynth.volume_features.covers_footprint`) with no flat ground
+    one relief (:func:`geosynth.volume.features.covers_footprint`) with no flat ground
     (TERRAIN_FLAT). Graphcut's seams cross such a surface as creases and steps: the zoo's
     terrain slab came out with its hills 0.80x their spacing under graphcut, 1.01x under
     texture optimization, whose histogram matching keeps the height (bench/RESULTS.md, the
@@ -123,7 +123,7 @@ def is_terrain(values: np.ndarray) -> bool:
 
 def _terrain(values: np.ndarray, labels: np.ndarray | None = None) -> bool:
     """:func:`is_terrain`, with the inside's components (:func:`_inside_labels`) when known."""
-    from geosynth.volume_features import covers_footprint
+    from geosynth.volume.features import covers_footprint
 
     v = np.asarray(values)
     codes = v if v.dtype == np.uint8 else np.where(v < 0, 0, 255).astype(np.uint8)
@@ -140,7 +140,7 @@ def _terrain(values: np.ndarray, labels: np.ndarray | None = None) -> bool:
 def is_tubes_across(values: np.ndarray) -> bool:
     """Whether a (Z, Y, X) source (uint8 codes or float signed distances) is separate
     elements of which at least M1_ACROSS_SHARE of the inside runs across the footprint
-    (tubes; :func:`geosynth.volume_features.across_share`). Graphcut's stitches across such
+    (tubes; :func:`geosynth.volume.features.across_share`). Graphcut's stitches across such
     tubes break or fuse them; texture optimization blends them on (the zoo's wavy tubes:
     block distance 0.11 of random tiling's against 0.25, their height 1.00 against 0.94;
     straight tubes 0.05 against 0.06). From the inside mask alone, as :func:`is_terrain`."""
@@ -157,7 +157,7 @@ def _inside_labels(values: np.ndarray) -> np.ndarray:
 
 
 def _tubes_across(labels: np.ndarray) -> bool:
-    from geosynth.volume_features import across_share, covers_footprint
+    from geosynth.volume.features import across_share, covers_footprint
 
     if int(labels.max()) < 2 or covers_footprint(labels):
         return False
@@ -482,11 +482,11 @@ class Matcher:
             raise ValueError(f"search='tree' takes cubic blocks only; a slab's block {tuple(block)} needs "
                              "search='cascade' or 'linear'.")
         if search == "tree":
-            from geosynth.tree_search import BlockSearch
+            from geosynth.volume.tree import BlockSearch
 
             self.engine = BlockSearch(source, block, device=device)
         elif search == "cascade":
-            from geosynth.cascade_search import CascadeSearch
+            from geosynth.volume.cascade import CascadeSearch
 
             self.engine = CascadeSearch(source, block, device=device)
         else:
@@ -513,7 +513,7 @@ class Matcher:
         """Exact nearest blocks of (Q, bz, by, bx) queries: ((Q, 3) origins, (Q,) SSDs, alive)."""
         if self.search == "cascade":
             origins, ssds, alive = self.engine.nearest_batch(queries, thresholds)
-            from geosynth.cascade_search import tally_alive
+            from geosynth.volume.cascade import tally_alive
 
             self.alive_matches += tally_alive(self.alive_sums, alive)
             return origins, ssds, alive
@@ -532,7 +532,7 @@ class Matcher:
             origin, ssd = self.engine.nearest(query)
             return np.asarray(origin), int(ssd)
         if self.search == "cascade":
-            from geosynth.cascade_search import tally_alive
+            from geosynth.volume.cascade import tally_alive
 
             origin, ssd = self.engine.nearest(query, threshold=threshold)
             self.alive_matches += tally_alive(self.alive_sums, [self.engine.last_info["alive"]])
@@ -612,7 +612,7 @@ def synthesize_level(source, target, block, matcher, wrap, rng, progress, label,
                 matched[pos] = np.asarray(origin)
             piece = piece_at(origin)
             if cut:  # graphcut: a minimum-error seam through the overlap decides which samples change
-                from geosynth.graphcut import min_cut, must_keep
+                from geosynth.volume.graphcut import min_cut, must_keep
 
                 keep = must_keep(done, pos, block, wrap)
                 fresh = min_cut(query, piece, fresh, keep if fixed is None else keep | fixed[box])
@@ -639,7 +639,7 @@ def matcher_bytes(shape, block, search: str) -> int:
     total = int(np.prod(shape, dtype=object))
     n_blocks = int(np.prod([max(0, int(s) - b + 1) for s, b in zip(shape, block_shape(block))], dtype=object))
     if search == "tree" and np.ndim(block) == 0:
-        from geosynth.tree_search import BlockSearch
+        from geosynth.volume.tree import BlockSearch
 
         return BlockSearch.memory_estimate(tuple(int(v) for v in shape), int(block))
     if search == "cascade":  # the field, up to two float32 bound grids and their box sums; per block 40 B
@@ -662,7 +662,7 @@ def volume_bytes(target_shape, source_shape, blocks, search: str = "cascade", fl
     block of Python bookkeeping, the level's search) and the result (uint8 target and
     float32 field, 5 n); 128 KiB of small buffers (the matcher's objects, the levels' reports).
     With ``method="optimize"`` each level's scan stage also holds texture optimization's
-    vote accumulators and query chunk (:func:`geosynth.optimize.memory_estimate`).
+    vote accumulators and query chunk (:func:`geosynth.volume.optimize.memory_estimate`).
     Measured (tracemalloc; RSS agrees): see tests/test_memory.py.
     """
     levels = len(blocks)
@@ -840,7 +840,7 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
                            method: str = "auto", band: float | None = None, iterations=None,
                            tiled: bool = False, terrain: bool = False) -> VolumeSettings:
     """The choices of an M1 synthesis from a (Z, Y, X) source to a (Z, Y, X) target, made
-    in one place for :func:`synthesize_volume` and :func:`geosynth.tiled.synthesize_volume_tiled`:
+    in one place for :func:`synthesize_volume` and :func:`geosynth.volume.tiled.synthesize_volume_tiled`:
     slab or not (:func:`is_slab` when ``slab`` is None), each level's block (:func:`level_blocks`,
     shrunk to fit by :func:`plan_blocks`), the method ("auto": :func:`resolve_method`), the
     band and the iteration caps (``tiled`` is recorded only: a tiled run chooses the same).
@@ -906,8 +906,8 @@ def synthesize_volume(
         device: a device string for the matching kernels (None: "auto").
         search: "cascade" (the default: eq. 2 lower bounds of every block, coarse to
             fine, on the device, then exact SSDs of the few survivors; see
-            :class:`geosynth.cascade_search.CascadeSearch`), "tree" (the paper's exact
-            best-first search, :class:`geosynth.tree_search.BlockSearch`; fast for clean
+            :class:`geosynth.volume.cascade.CascadeSearch`), "tree" (the paper's exact
+            best-first search, :class:`geosynth.volume.tree.BlockSearch`; fast for clean
             queries, slower for synthesis queries whose random or upsampled samples
             weaken its bounds) or "linear" (every block scored by the gather kernel).
             All three return the same block.
@@ -921,8 +921,8 @@ def synthesize_volume(
         method: how a level is made from the matches (:data:`METHODS`): "paper" (the
             scan-order copying above), "graphcut" (the same scan, each block pasted
             along a minimum-error cut through the overlap,
-            :func:`geosynth.graphcut.min_cut`) or "optimize" (texture optimization,
-            :func:`geosynth.optimize.optimize_level`: the coarsest level starts from
+            :func:`geosynth.volume.graphcut.min_cut`) or "optimize" (texture optimization,
+            :func:`geosynth.volume.optimize.optimize_level`: the coarsest level starts from
             random source blocks, every level iterates exact matches of blocks on a
             stride-N/4 lattice and a robust vote, until under 1% of the matches
             change or ``iterations``), or "auto" (the default: "graphcut" for a slab,
@@ -991,7 +991,7 @@ def synthesize_volume(
         t0 = time.perf_counter()
         shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
         if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
-            from geosynth.optimize import random_blocks
+            from geosynth.volume.optimize import random_blocks
 
             target = random_blocks(s, shape, b, rng, tileable)
         elif target is None:  # random samples of the source
@@ -1005,7 +1005,7 @@ def synthesize_volume(
         label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {block_text(b)})"
         iters = 1
         if optimizing:
-            from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
+            from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
 
             got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
                                  stride=level_stride(across, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
@@ -1051,7 +1051,7 @@ class Settings:
         size: the target (as :func:`synthesize_geometry` takes it), scaled with the
             resolution when that was chosen and raised.
         thickness: the exemplar's thinnest feature (median local thickness,
-            :func:`geosynth.volume_features.element_features`), world units; nan when
+            :func:`geosynth.volume.features.element_features`), world units; nan when
             not measured (resolution given).
         text: one line saying what was chosen and why ("" when everything was given).
         field: the exemplar's distance Field measured at the chosen resolution, when it
@@ -1079,13 +1079,13 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
 
     The exemplar's signed distance at the default resolution (64 samples along its
     longest side) gives its median local thickness (twice the distance to the surface on
-    the medial axis, :func:`geosynth.volume_features.element_features`). A feature must
+    the medial axis, :func:`geosynth.volume.features.element_features`). A feature must
     span ``M1_MIN_FEATURE_SAMPLES`` (3) samples to survive the quantization, the block
     matching and marching cubes; a thinner exemplar gets twice the resolution, the
     block twice the samples (the same world span: the layout it copies is the one that
     worked at 64) and a size given as samples twice the samples (the world extent the
     size meant at the default resolution). Separate elements (rings, washers: whole
-    ones, :attr:`~geosynth.volume_features.ElementFeatures.span`) wider than that block
+    ones, :attr:`~geosynth.volume.features.ElementFeatures.span`) wider than that block
     less ``M1_ELEMENT_MARGIN_SAMPLES`` get the power of two that holds one with the
     margin, where the source still holds two such blocks across (and the target one):
     a block narrower than an element copies arcs of it. Given values are kept: a given
@@ -1105,7 +1105,7 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
         Settings.
     """
     from geosynth.geometry.meshes import mesh_distance
-    from geosynth.volume_features import element_features
+    from geosynth.volume.features import element_features
 
     if source_resolution is not None:
         return Settings(int(source_resolution), M1_DEFAULT_BLOCK if block is None else block, size, math.nan,
@@ -1198,16 +1198,16 @@ class GeometryResult:
         exemplar_field: the exemplar's signed distance Field the source was made from.
         quality: the quality numbers, if computed: {"synthesis": ..., "random tiling":
             ...}, each the block distance dict of
-            :func:`geosynth.metrics.bidirectional_block_distance` plus "structure":
-            :func:`geosynth.metrics.structure_report` of that field against the
-            exemplar's (print it with :func:`geosynth.metrics.format_structure`);
+            :func:`geosynth.volume.quality.bidirectional_block_distance` plus "structure":
+            :func:`geosynth.volume.quality.structure_report` of that field against the
+            exemplar's (print it with :func:`geosynth.volume.quality.format_structure`);
             "synthesis" also has "method".
         method: the method that made the volume (:data:`METHODS`, "auto" resolved).
         timings: seconds per stage.
         cleanup: one line on the border slivers removed (:func:`drop_border_slivers`), or "".
         settings: one line: the source resolution, block and size chosen and why
             (:func:`choose_settings`); "" when all were given.
-        features: the feature scale (:func:`geosynth.volume_features.element_features`)
+        features: the feature scale (:func:`geosynth.volume.features.element_features`)
             of "exemplar" (its field clamped to the synthesis band, as the output's is)
             and "synthesis" (and "random tiling" with the quality numbers); empty when
             quality_samples is 0.
@@ -1253,11 +1253,11 @@ def synthesize_geometry(
        (:func:`geosynth.geometry.surface.field_to_mesh`).
     4. Quality numbers beside the random-tiling baseline's: the block distance
        (``quality_samples`` blocks each way; 0 skips all quality numbers) and the
-       structure metrics (:func:`geosynth.metrics.structure_report`).
+       structure metrics (:func:`geosynth.volume.quality.structure_report`).
 
     Args:
         exemplar: a trimesh.Trimesh, a mesh file path, or a built-in exemplar name
-            (:data:`geosynth.examples.EXEMPLARS`).
+            (:data:`geosynth.volume.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
         levels, block, tileable, seed, device, search, progress, method, iterations, slab:
@@ -1299,7 +1299,7 @@ def synthesize_geometry(
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
     from geosynth.geometry.meshes import check_mesh
-    from geosynth.metrics import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
+    from geosynth.volume.quality import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
     from geosynth.geometry.surface import field_to_mesh
 
     timings = {}
@@ -1415,9 +1415,9 @@ def synthesis_features(exemplar_field: Field, vol: VolumeResult, base: VolumeRes
     """The feature scale of the exemplar (its distances clamped to the synthesis band,
     as the output's are: the same thickness ceiling on both sides) and of the output
     (and the random tiling's): {"exemplar", "synthesis"[, "random tiling"]} ->
-    :class:`geosynth.volume_features.ElementFeatures`. Both sides are measured the same
+    :class:`geosynth.volume.features.ElementFeatures`. Both sides are measured the same
     way (a relief or elements, decided on the exemplar)."""
-    from geosynth.volume_features import element_features
+    from geosynth.volume.features import element_features
 
     spacing = float(exemplar_field.spacing[0])
     limit = np.float32(vol.band * spacing)
@@ -1436,7 +1436,7 @@ def synthesis_features(exemplar_field: Field, vol: VolumeResult, base: VolumeRes
 # smoothing, 258-268 with Taubin smoothing.
 _FACES_PER_AREA_CELL = 3.1
 _MESH_FACE_BYTES = (105, 270)
-# Traced peak of geosynth.metrics.structure_report: the surface metrics 459-466 B per
+# Traced peak of geosynth.volume.quality.structure_report: the surface metrics 459-466 B per
 # marching-cubes face of the larger of the exemplar's and the output's meshes (one at a
 # time: terrain 64-256, domes 128); the element metrics ~25 B per output sample at refinement 1 (chainmail, balls), finer
 # refinements only where the memory then available allows (metrics._refined_sample_cap).
@@ -1460,7 +1460,7 @@ def geometry_bytes(grid_shape, spacing: float, area: float, target_shape, blocks
     (the result, its mesh at ~60 B per face, and a baseline synthesis), then the
     structure metrics beside both fields (the larger of the surface metrics' meshes of
     exemplar and output, or the element metrics' labels: ``structure`` is the kind,
-    "surface" or "elements", from :func:`geosynth.metrics.structure_kind`; None, before
+    "surface" or "elements", from :func:`geosynth.volume.quality.structure_kind`; None, before
     the exemplar's field is known, takes the smaller); 1 MiB of small buffers.
     """
     from geosynth.geometry.meshes import grid_distance_bytes
@@ -1546,7 +1546,7 @@ def exemplar_distance(mesh, source_resolution: int, levels: int, *, device: str 
                       drop_degenerate: bool = False, before=None, field: Field | None = None
                       ) -> tuple[np.ndarray, float, Field]:
     """The source of an M1 synthesis from a checked exemplar mesh, one way for the untiled
-    (:func:`synthesize_geometry`) and the tiled synthesis (:func:`geosynth.tiled.exemplar_source`):
+    (:func:`synthesize_geometry`) and the tiled synthesis (:func:`geosynth.volume.tiled.exemplar_source`):
     its exact signed distance (:func:`geosynth.geometry.meshes.mesh_distance`) on
     :func:`exemplar_grid` of ``source_resolution`` samples along its longest side, z a
     multiple of 2^(levels-1).

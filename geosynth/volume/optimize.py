@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from geosynth.blocks import block_shape
-from geosynth.cascade_search import tally_alive
+from geosynth.volume.blocks import block_shape
+from geosynth.volume.cascade import tally_alive
 
 __all__ = ["IRLS_R", "irls_weights", "lattice_positions", "memory_estimate", "optimize_level", "random_blocks", "vote"]
 
@@ -379,7 +379,7 @@ def optimize_level(source: np.ndarray, target: np.ndarray, block: int, search, *
         target: (Z, Y, X) uint8 initialization; overwritten with the result.
         block: block size N, or an anisotropic block (bz, by, bx).
         search: an object with ``nearest_batch(queries, thresholds)`` returning
-            ((Q, 3) origins, (Q,) SSDs, alive) -- :class:`geosynth.cascade_search.CascadeSearch`
+            ((Q, 3) origins, (Q,) SSDs, alive) -- :class:`geosynth.volume.cascade.CascadeSearch`
             -- or with ``nearest(query, threshold=)`` returning (origin, SSD).
         stride: lattice stride (default N/4, at least 1).
         wrap: periodic target.

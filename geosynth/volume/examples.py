@@ -509,7 +509,7 @@ def terrain_mesh(seed: int = 0, size: int = 96, base: float = 0.1, relief: float
 
 # ------------------------------------------------------------------ slab exemplars
 #
-# Exemplars much thinner along z than across (geosynth.volume.is_slab): the synthesis
+# Exemplars much thinner along z than across (geosynth.volume.synthesis.is_slab): the synthesis
 # grows them across only, with blocks that span their full thickness.
 
 

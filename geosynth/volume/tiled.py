@@ -1,15 +1,15 @@
 """M1 beyond one process: how is a large volume synthesized tile by tile on Dask, with the
 same answer whatever the number of workers?
 
-:func:`synthesize_volume_tiled` runs the M1 synthesis of :func:`geosynth.volume.synthesize_volume`
+:func:`synthesize_volume_tiled` runs the M1 synthesis of :func:`geosynth.volume.synthesis.synthesize_volume`
 (texture optimization per level, Kwatra, Essa, Bobick and Kwatra, "Texture Optimization
 for Example-based Synthesis", SIGGRAPH 2005, or the scan, with graphcut pasting on a
 slab, on the multiresolution block pyramid of Lagae, Dumont and Dutre, "Geometry
 Synthesis", Sec. 5.2; the untiled synthesis's choices,
-:func:`geosynth.volume.choose_volume_settings`) as a task graph on
+:func:`geosynth.volume.synthesis.choose_volume_settings`) as a task graph on
 ``dask.distributed``: the tiles, margins and the two-phase (checkerboard) schedule of
-:mod:`geosynth.tiling`; phase B tiles are constrained syntheses
-(:func:`geosynth.optimize.optimize_level` with ``fixed``, or the scan with the given
+:mod:`geosynth.volume.tiles`; phase B tiles are constrained syntheses
+(:func:`geosynth.volume.optimize.optimize_level` with ``fixed``, or the scan with the given
 samples kept and the scan run away from them) against their phase-A neighbours' results.
 
 - The engine: a ``LocalCluster`` by default (``workers`` processes of one thread), any
@@ -29,10 +29,10 @@ samples kept and the scan run away from them) against their phase-A neighbours' 
   vertices coincide exactly along shared borders), one merged mesh when it fits in
   memory, and the field in memory when asked and it fits; anything that does not fit is
   refused before the run starts, with the estimate.
-- Random draws come from (seed, level, tile index) (:func:`geosynth.tiling.tile_rng`);
+- Random draws come from (seed, level, tile index) (:func:`geosynth.volume.tiles.tile_rng`);
   every vote and cut runs in a fixed order, so the result depends only on the seed and
   the tiling: not on the number of workers, the engine, nor the order tasks finish in.
-  One tile is exactly :func:`geosynth.volume.synthesize_volume`'s result.
+  One tile is exactly :func:`geosynth.volume.synthesis.synthesize_volume`'s result.
 - Interruption: with ``checkpoint``, every tile and corner task's result is saved there
   as it finishes (atomically, by the worker); a run stopped by Ctrl-C, SIGTERM or a lost
   machine is continued with ``resume=True``, which loads the saved results instead of
@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.core.config import TILE_LOCK, TILE_MATCHERS
-from geosynth.tiling import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
+from geosynth.volume.tiles import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
            "tile_task_bytes", "corner_task_bytes", "kept_bytes", "WORKER_RUNTIME_BYTES"]
@@ -66,13 +66,13 @@ CONNECT_TIMEOUT_S = 5.0
 # synthesis roughens the surface (measured 1.0-1.4x on the built-in terrain and chainmail).
 FACES_GROWTH = 1.5
 # Peak bytes per face of a mesh held and merged on the client (vertices, faces and the
-# vertex de-duplication; geosynth.volume measures 96-105 B per face for marching cubes).
+# vertex de-duplication; geosynth.volume.synthesis measures 96-105 B per face for marching cubes).
 MERGE_FACE_BYTES = 160
 # Per sample of a tile's region, alive through its task: the uint8 target, the given
 # mask and the fixed crops (phase B), the assembled coarser window (1/8).
 _TILE_SAMPLE_BYTES = 4
 # The trilinear x2 upsampling of the coarser crops (float32 passes, their taps and the
-# rounded result: geosynth.volume's 15 B per sample).
+# rounded result: geosynth.volume.synthesis's 15 B per sample).
 _UPSAMPLE_SAMPLE_BYTES = 15
 # A task's Python objects, the crops' lists, the info dict.
 _TASK_BYTES = 256 << 10
@@ -96,11 +96,11 @@ class _Exemplar:
     search: str
     seed: int
     key: str  # digest of the sources and parameters: the worker's search cache key
-    method: str = "optimize"  # geosynth.volume.METHODS: texture optimization or the scan (graphcut, paper)
+    method: str = "optimize"  # geosynth.volume.synthesis.METHODS: texture optimization or the scan (graphcut, paper)
 
 
 def _matcher(ex: _Exemplar, level: int):
-    from geosynth.volume import Matcher
+    from geosynth.volume.synthesis import Matcher
 
     k = (ex.key, level)
     if k not in TILE_MATCHERS:
@@ -125,14 +125,14 @@ def _info(result) -> dict:
 
 def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, fixed) -> dict:
     """One level of ``ex.method`` on a tile's or corner's ``target`` (in place), ``fixed``
-    samples given: texture optimization (:func:`geosynth.optimize.optimize_level`) or the
+    samples given: texture optimization (:func:`geosynth.volume.optimize.optimize_level`) or the
     scan of synthesize_volume (graphcut, paper). Returns its matches, iterations,
     mean_distance and stopped."""
-    from geosynth.optimize import level_final, level_sigma, level_stride, optimize_level
+    from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
 
     source, b, matcher = ex.sources[level], ex.blocks[level], _matcher(ex, level)
     if ex.method != "optimize":
-        from geosynth.volume import synthesize_level
+        from geosynth.volume.synthesis import synthesize_level
 
         count, mean = synthesize_level(source, target, b, matcher, False, None, False, "", False,
                                         cut=ex.method == "graphcut", fixed=fixed)
@@ -145,7 +145,7 @@ def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, f
 
 def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list, fixed: list):
     """Synthesize one tile of one level; returns (core (Z, rows, columns) uint8, info)."""
-    from geosynth.optimize import random_blocks
+    from geosynth.volume.optimize import random_blocks
 
     start = time.time()
     with TILE_LOCK:
@@ -518,7 +518,7 @@ class TiledResult:
         mesh: the merged trimesh.Trimesh (world units), or None.
         tile_meshes: per-tile PLY paths written (tiles with no surface write none).
         source: the finest uint8 source the synthesis matched against.
-        grid: the :class:`geosynth.tiling.TileGrid`.
+        grid: the :class:`geosynth.volume.tiles.TileGrid`.
         band: the quantization band (samples); spacing: world size of a sample.
         levels: per level {"seconds" (wall), "tasks" (tiles), "graph_tasks" (tiles, crops
             and the small info tasks), "whole", "matches", "task_seconds" (summed),
@@ -532,7 +532,7 @@ class TiledResult:
         resumed: tile and corner tasks whose results were loaded from the checkpoint of
             an interrupted run instead of computed (0 without ``resume``).
         settings: the choices made from the input, the untiled synthesis's
-            (:class:`geosynth.volume.VolumeSettings`).
+            (:class:`geosynth.volume.synthesis.VolumeSettings`).
     """
 
     quantized: np.ndarray | None
@@ -581,13 +581,13 @@ def tile_task_bytes(grid: TileGrid, level: int, index: int) -> int:
     the level's search: per sample of the tile's region, the target, the given mask and
     the fixed crops (_TILE_SAMPLE_BYTES, alive throughout), plus the larger of the
     trilinear upsampling of the coarser crops (_UPSAMPLE_SAMPLE_BYTES, a finer level)
-    and the texture optimization (:func:`geosynth.optimize.memory_estimate`; phase B
+    and the texture optimization (:func:`geosynth.volume.optimize.memory_estimate`; phase B
     with its given samples), plus the core's copy returned. Measured against the traced
     peak of every task in tests/test_tiled_memory.py. The scans (graphcut, paper: a slab's
     default) need less and are not modelled: this bounds them (their traced peaks measured
     2.5-16x below it, chainmail and terrain, blocks 8 and 16), so a tiling is refused early
     rather than late."""
-    from geosynth.optimize import level_stride, memory_estimate
+    from geosynth.volume.optimize import level_stride, memory_estimate
 
     r, c = grid.region(level, index), grid.core_region(level, index)
     z = grid.level_shape(level)[0]
@@ -604,12 +604,12 @@ def corner_task_bytes(grid: TileGrid, level: int, k: int) -> int:
     """Estimated peak bytes of one corner task (:func:`_corner_task`, phase C) beyond the
     exemplar and the level's search: per sample of the corner's window, the assembled
     target, its coverage and fixed masks and the four tiles' crops (_TILE_SAMPLE_BYTES),
-    plus the constrained texture optimization (:func:`geosynth.optimize.memory_estimate`
+    plus the constrained texture optimization (:func:`geosynth.volume.optimize.memory_estimate`
     with given samples) and the free square's copy returned. A window is at most a tile's
     region across (2 h + 2 b <= the smallest core + b), so a corner task never needs more
     than the largest tile task; measured against the traced peak in
     tests/test_tiled_memory.py."""
-    from geosynth.optimize import level_stride, memory_estimate
+    from geosynth.volume.optimize import level_stride, memory_estimate
 
     w, f = grid.corner_window(level, k), grid.corner_free(level, k)
     z = grid.level_shape(level)[0]
@@ -624,11 +624,11 @@ def tile_bytes(grid: TileGrid, source_shape, search: str = "cascade", mesh: bool
                faces_per_sample: float = 0.0, phases: int = 3) -> int:
     """Estimated peak bytes of one worker's tile work for ``grid``, beyond its runtime
     (:data:`WORKER_RUNTIME_BYTES`) and the results it keeps: the exemplar's pyramid, every
-    level's search (a worker keeps them all: :func:`geosynth.volume.matcher_bytes`, device
+    level's search (a worker keeps them all: :func:`geosynth.volume.synthesis.matcher_bytes`, device
     buffers included) and the largest tile task of any level (:func:`tile_task_bytes`),
     or corner task with ``phases`` 3 (:func:`corner_task_bytes`); with ``mesh``, the
     tile's marching cubes too (:data:`MERGE_FACE_BYTES` per face)."""
-    from geosynth.volume import matcher_bytes
+    from geosynth.volume.synthesis import matcher_bytes
 
     shapes = [tuple(int(v) for v in source_shape)]
     for _ in range(grid.levels - 1):
@@ -677,7 +677,7 @@ def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int
               method: str = "auto") -> TileGrid:
     """The tiling of a synthesis from a source of ``source_shape`` to ``target_shape``
     (both (Z, Y, X); the target already a multiple of 2^(levels-1)): the untiled
-    synthesis's choices (:func:`geosynth.volume.choose_volume_settings`: slab or not, the
+    synthesis's choices (:func:`geosynth.volume.synthesis.choose_volume_settings`: slab or not, the
     blocks per level) and :meth:`TileGrid.make`. Needs the shapes only, so a tiling whose
     cores are smaller than a block plus the margin, or a search the tiles would refuse
     (``search="tree"`` with a slab's blocks), is refused before any field is computed or
@@ -693,8 +693,8 @@ def tile_grid(source_shape, target_shape, tiles, levels: int, block, margin: int
 
 def _settings_and_grid(source_shape, target_shape, tiles, levels: int, block, margin, coarse_whole: bool, slab,
                        search: str, method: str, band=None, iterations=None, terrain: bool = False):
-    """(:class:`geosynth.volume.VolumeSettings` of a tiled run, its :class:`TileGrid`)."""
-    from geosynth.volume import choose_volume_settings
+    """(:class:`geosynth.volume.synthesis.VolumeSettings` of a tiled run, its :class:`TileGrid`)."""
+    from geosynth.volume.synthesis import choose_volume_settings
 
     source_shape = tuple(int(v) for v in source_shape)
     target_shape = tuple(int(v) for v in target_shape)
@@ -823,13 +823,13 @@ def synthesize_volume_tiled(
 
     Args:
         source, size, levels, block, seed, device, search, band, spacing, iterations, slab: as
-            :func:`geosynth.volume.synthesize_volume`, with the same choices made from the
-            input (:func:`geosynth.volume.choose_volume_settings`: ``result.settings``);
+            :func:`geosynth.volume.synthesis.synthesize_volume`, with the same choices made from the
+            input (:func:`geosynth.volume.synthesis.choose_volume_settings`: ``result.settings``);
             tileable targets are not tiled (see ``tiles``).
-        method: as synthesize_volume (:data:`geosynth.volume.METHODS` or "auto": graphcut
+        method: as synthesize_volume (:data:`geosynth.volume.synthesis.METHODS` or "auto": graphcut
             for a slab, optimize otherwise). The scans (graphcut, paper) run each phase-B
             tile and corner window with its neighbours' samples given
-            (``geosynth.volume.synthesize_level``'s ``fixed``).
+            (``geosynth.volume.synthesis.synthesize_level``'s ``fixed``).
         tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
             tiled level's cores must hold its block plus the margin.
         workers: workers of the LocalCluster started when ``scheduler`` is None (or
@@ -882,7 +882,7 @@ def synthesize_volume_tiled(
     """
     from geosynth.compute import checks as _checks
     from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume import (check_common, check_scale, check_size, check_source_and_size, downsample,
+    from geosynth.volume.synthesis import (check_common, check_scale, check_size, check_source_and_size, downsample,
                                  level_blocks, max_levels, optimizes_better, quantize_field)
 
     t_start = time.perf_counter()
@@ -1020,7 +1020,7 @@ def synthesize_volume_tiled(
                                   fill_value=0)
             arr.attrs.update({"band": float(band), "spacing": float(spacing), "seed": int(seed),
                               "tiles": [nx, ny], "blocks": list(blocks), "slab": grid.slab, "levels": levels,
-                              "what": "uint8 signed distance codes (geosynth.volume.quantize_field), z y x"})
+                              "what": "uint8 signed distance codes (geosynth.volume.synthesis.quantize_field), z y x"})
             for t, c in cores.items():
                 graphs.append(delayed(_write_tile, pure=False)(tmp_store, finest[t], c,
                                                                dask_key_name=f"write-{run}-{t}"))
@@ -1213,18 +1213,18 @@ def _merge(pieces, smooth: int):
 def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed: int | None = 0,
                     device: str | None = None, check=None, drop_degenerate: bool = False, field=None):
     """An exemplar mesh (a trimesh, a file or a built-in name) as the source of a
-    synthesis, as :func:`geosynth.volume.synthesize_geometry` makes it
-    (:func:`geosynth.volume.exemplar_distance`): its exact signed distance on
-    :func:`geosynth.volume.exemplar_grid`. ``check``: None, or a callable taking the
+    synthesis, as :func:`geosynth.volume.synthesis.synthesize_geometry` makes it
+    (:func:`geosynth.volume.synthesis.exemplar_distance`): its exact signed distance on
+    :func:`geosynth.volume.synthesis.exemplar_grid`. ``check``: None, or a callable taking the
     source's (Z, Y, X) shape, called before the distance is computed (so that a tiling
     that cannot be is refused before the field's seconds: see :func:`tile_grid`).
     ``drop_degenerate``: drop the exemplar's zero-area faces instead of refusing it.
     ``field``: None, or the distance already computed on that grid (see
-    :func:`geosynth.volume.choose_settings`). Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
+    :func:`geosynth.volume.synthesis.choose_settings`). Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
     the exemplar Field)."""
-    from geosynth.examples import resolve_exemplar_mesh
+    from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.geometry.meshes import check_mesh
-    from geosynth.volume import exemplar_distance
+    from geosynth.volume.synthesis import exemplar_distance
 
     m = resolve_exemplar_mesh(exemplar, seed)
     check_mesh(m, "exemplar", drop_degenerate=drop_degenerate)
@@ -1240,7 +1240,7 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block=Non
     (a slab's spans the thickness, :meth:`TileGrid.block_shape`). For every block of
     ``field`` on a lattice of ``stride`` (x-y, from stride // 2) and bz (z), the
     exact nearest block of ``source`` (SSD / block^3, squared uint8 units per sample,
-    :class:`geosynth.cascade_search.CascadeSearch`); blocks whose x-y footprint crosses a
+    :class:`geosynth.volume.cascade.CascadeSearch`); blocks whose x-y footprint crosses a
     border between two tile cores of the finest level are "seam", those within one core
     are "interior".
 
@@ -1252,8 +1252,8 @@ def seam_report(source: np.ndarray, field: np.ndarray, grid: TileGrid, block=Non
         {"seam": mean, "interior": mean, "ratio": seam / interior, "seam_blocks",
         "interior_blocks", "step_seam", "step_interior", "step_ratio"}.
     """
-    from geosynth.blocks import block_shape
-    from geosynth.cascade_search import CascadeSearch
+    from geosynth.volume.blocks import block_shape
+    from geosynth.volume.cascade import CascadeSearch
 
     last = grid.levels - 1
     if block is None:

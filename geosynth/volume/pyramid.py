@@ -32,7 +32,7 @@ It uses the exact cell sums: for one cell of c^3 samples with sums Q (query) and
 
 is a lower bound of the full block SSD, and N^3 * dist_l = LB_l for exact means.
 Since c^3 is a power of two, the search keeps every bound as an exact integer
-(see :mod:`geosynth.tree_search`).
+(see :mod:`geosynth.volume.tree`).
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def check_field(field) -> np.ndarray:
     if field.dtype != np.uint8:
         raise TypeError(
             f"field has dtype {field.dtype}: expected uint8 (quantize it first, e.g. with "
-            "geosynth.volume.quantize_field)."
+            "geosynth.volume.synthesis.quantize_field)."
         )
     if field.ndim != 3:
         raise ValueError(f"field must be a 3-D (Z, Y, X) array, got shape {field.shape}.")

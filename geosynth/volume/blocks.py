@@ -1,7 +1,7 @@
 """Where are a field's blocks, and what are the sums of its cubes?
 
-The block lattice that both M1 searches (:mod:`geosynth.tree_search`,
-:mod:`geosynth.cascade_search`) share: a block's sample offsets, every block's origin in
+The block lattice that both M1 searches (:mod:`geosynth.volume.tree`,
+:mod:`geosynth.volume.cascade`) share: a block's sample offsets, every block's origin in
 block-index order, and exact sums over every cube of a field, the cell sums of the
 lower bound (eq. 2) of Lagae, Dumont and Dutré, "Geometry Synthesis", Sec. 4.2 (block
 similarity).

@@ -101,7 +101,7 @@ def must_keep(done: np.ndarray, origin, block, wrap: bool) -> np.ndarray:
         block: N, or (bz, by, bx).
         wrap: the target is periodic (the neighbour across a face is on the other side).
     """
-    from geosynth.blocks import block_shape
+    from geosynth.volume.blocks import block_shape
 
     shape = done.shape
     sides = block_shape(block)
