@@ -200,8 +200,8 @@ def tiled_seams(seed):
 @claim
 def point_texture_beats_random_pasting(seed):
     """tests/test_point_texture.py::test_synthesis_beats_random_pasting (weave)."""
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
+    from geosynth.pointtexture.examples import point_texture_example
 
     tex = point_texture_example("weave", count=10_000)
     _, report, _ = synthesize_point_texture(tex, device=ONE_DEVICE, seed=seed, scale=1.2, patch=0.5, resolution=24,
@@ -216,14 +216,14 @@ def point_texture_beats_random_pasting(seed):
 def point_texture_keeps_element_size(seed):
     """Issue 32 item 2 (no test: about 20 s a seed): with the default (automatic) patch and
     resolution, the output's element size and relief amplitude over the exemplar's
-    (geosynth.element_size, printed by every run), and the patch-field distance over random
+    (geosynth.pointtexture.element_size, printed by every run), and the patch-field distance over random
     pasting's, on a bumps relief nobody tuned for (tests/test_element_size.py's _relief:
     domes of radius 0.06 on a jittered 0.2 lattice, a new layout per seed) and on flowers
     (its sampling seed)."""
     from test_element_size import _bumps, _relief
 
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
+    from geosynth.pointtexture.examples import point_texture_example
 
     out = {}
     for name, tex in (("bumps", _relief(_bumps(0.06, 0.2, 100 + seed), n=110, seed=seed)),
@@ -242,7 +242,7 @@ def point_texture_tileable(seed):
     distance of the right border's points, moved one period, to the left border's surface, in spacings."""
     from test_point_texture import SMALL, _wavy
 
-    from geosynth.geometry_texture import synthesize_point_texture
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
     from geosynth.geometry.pointsets import pointset_distance
 
     pts, report, _ = synthesize_point_texture(_wavy(), device=ONE_DEVICE, tileable=True, seed=seed, **SMALL)
@@ -263,7 +263,7 @@ def blending_scene(seed):
     scenes drawn with rng(seed) (the tests' rng fixture is seed 1234)."""
     from test_blending import SP, flowers_edge, flowers_scene, height, scene, scene_edge
 
-    from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
+    from geosynth.pointtexture.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
 
     rng = np.random.default_rng(seed)
     out = {}
@@ -298,7 +298,7 @@ def blending_relax(seed):
     from scipy.spatial import cKDTree
     from test_blending import SP, grid_xy, height, normal
 
-    from geosynth.blending import relax_points
+    from geosynth.pointtexture.blending import relax_points
 
     rng = np.random.default_rng(seed)
     xy = grid_xy(0, 1, 0, 1, rng, 0.45)

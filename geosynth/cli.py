@@ -759,8 +759,8 @@ def _pointtexture_check(args: argparse.Namespace, box_min, box_max, points_in: i
                         count: bool, z_span: float, spacing: float, patch: float) -> None:
     """Every memory-scaling option of ``geosynth pointtexture`` (--count, --resolution, --scale or
     --size, --mesh-resolution) and every combination of --patch, --extra and --overlap checked
-    before the work (:func:`geosynth.geometry_texture.check_synthesis`), with the flags named."""
-    from geosynth.geometry_texture import check_synthesis
+    before the work (:func:`geosynth.pointtexture.synthesis.check_synthesis`), with the flags named."""
+    from geosynth.pointtexture.synthesis import check_synthesis
 
     try:
         check_synthesis(box_min, box_max, int(points_in), int(points_inside), size=args.size,
@@ -779,8 +779,8 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     """The exemplar, with the options checked against it before it is made (a built-in: from
     a 1,000-point sample of it; a mesh: from its box before sampling --count points) and
     again once it is there (its own numbers)."""
-    from geosynth.point_examples import POINT_EXAMPLES, point_texture_example
-    from geosynth.point_textures import read_point_texture
+    from geosynth.pointtexture.examples import POINT_EXAMPLES, point_texture_example
+    from geosynth.pointtexture.texture import read_point_texture
 
     # before the exemplar exists its element size is unknown: its memory and the options are
     # checked with a patch of 0.4 (the old default), and again once it is there with the patch
@@ -816,7 +816,7 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     inside = int(texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum())
     line = ""
     if args.patch is None:  # issue 32: the patch from the exemplar's element size, said in one line
-        from geosynth.geometry_texture import choose_patch
+        from geosynth.pointtexture.synthesis import choose_patch
 
         choice = choose_patch(texture, args.resolution)
         patch, line = choice.patch, choice.line
@@ -840,7 +840,7 @@ def _m1_colour_note(exemplar, say) -> None:
 
 
 def _cmd_pointtexture(args: argparse.Namespace) -> int:
-    from geosynth.point_examples import POINT_EXAMPLES
+    from geosynth.pointtexture.examples import POINT_EXAMPLES
 
     exemplar, example, inputs = _file_or_example(args.exemplar, args.example, POINT_EXAMPLES, "EXEMPLAR",
                                                  "a PLY point set or a mesh file")
@@ -855,7 +855,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     _check_device(args.device)
 
     from geosynth.io.files import write_image
-    from geosynth.geometry_texture import output_mesh, synthesize_point_texture
+    from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
     from geosynth.core.memory import MemoryBudgetError
     from geosynth.geometry.pointsets import write_point_set
     from geosynth.io.pictures import render_points, side_by_side
@@ -912,7 +912,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
 
 
 def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
-    from geosynth.point_examples import POINT_EXAMPLES
+    from geosynth.pointtexture.examples import POINT_EXAMPLES
 
     p = sub.add_parser("pointtexture", parents=[common],
                        help="M2: grow a larger point-set geometry texture from an exemplar (patches, warp, blend)")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth.blending import (
+from geosynth.pointtexture.blending import (
     PROJECTION,
     RAY,
     blend_patch,

@@ -297,8 +297,8 @@ def test_pointtexture_carries_the_exemplars_colours(tmp_path):
     the bumps, whose colour is a ramp of height, the output's colours still say its heights
     (the ramp's height read back from red agrees with z: correlation > 0.75; a shuffle of the
     same colours gives ~0), and the written file holds them."""
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_textures import read_point_texture
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
+    from geosynth.pointtexture.texture import read_point_texture
 
     texture = read_point_texture(_bumps(tmp_path / "bumps.ply"), count=3000, seed=0)
     assert texture.colors is not None and texture.colors.shape == texture.points.shape
@@ -362,7 +362,7 @@ def test_obj_colours_trimesh_would_drop_are_refused(tmp_path, body, want):
 def test_point_set_exemplar_keeps_its_colours(tmp_path):
     """A PLY point-set exemplar's colours reach the PointTexture, row for row with its points
     (coincident points merged, the first one's colour kept)."""
-    from geosynth.point_textures import read_point_texture
+    from geosynth.pointtexture.texture import read_point_texture
 
     rng = np.random.default_rng(2)
     p = np.column_stack([rng.random((400, 2)), 0.01 * rng.random(400)]).astype(np.float32)

@@ -1,4 +1,4 @@
-"""M2's element size (geosynth.element_size) and the patch size chosen from it (issue 32,
+"""M2's element size (geosynth.pointtexture.element_size) and the patch size chosen from it (issue 32,
 items 1 and 2): measured periods of relief nobody tuned for, the same choice for a built-in
 and a file, --patch overriding, the output's element size and amplitude kept, the same
 numbers on an SSE4 CPU."""
@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geosynth.element_size import relief_scale
-from geosynth.geometry_texture import PATCH_PERIODS, choose_patch, synthesize_point_texture
-from geosynth.point_examples import point_texture_example
-from geosynth.point_textures import PointTexture, read_point_texture, texture_from_points
+from geosynth.pointtexture.element_size import relief_scale
+from geosynth.pointtexture.synthesis import PATCH_PERIODS, choose_patch, synthesize_point_texture
+from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.texture import PointTexture, read_point_texture, texture_from_points
 
 
 def _relief(fn, n=150, width=1.5, pad=0.25, seed=0) -> PointTexture:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from geosynth.patch_search import (FIXED_STEPS, FIXED_TOL, RESIDUAL_TOL, PatchSearch, _HostCells, _iterate,
+from geosynth.pointtexture.patch_search import (FIXED_STEPS, FIXED_TOL, RESIDUAL_TOL, PatchSearch, _HostCells, _iterate,
                                    host_mls, kernel_mls)
 from geosynth.geometry.pointsets import MLS_REACH, CellGrid
 
@@ -155,7 +155,7 @@ def test_kernel_tolerance_stop_and_its_residual(device, rng):
 def test_quantized_fields_flags_unconverged_sheets(one_device):
     """Between two sheets 1.2 h apart the projections do not converge: quantized_fields
     sends them to the host (the residual test), and its codes are the host's there."""
-    from geosynth.patch_search import _codes, _round_codes, quantized_fields
+    from geosynth.pointtexture.patch_search import _codes, _round_codes, quantized_fields
 
     p, n, h = _sheets(1.2)
     q = np.random.default_rng(0).uniform([0.1, 0.1, -h], [0.9, 0.9, 2 * h], (50, 3))
@@ -171,7 +171,7 @@ def test_quantized_fields_flags_unconverged_sheets(one_device):
 def test_host_choice_equals_the_device_selection(one_device):
     """PatchSearch.choose selects on the host: the same candidate set, best score and pick
     as selection.argmin / within_tolerance on the device scores, for several eps."""
-    from geosynth.point_textures import PointTexture
+    from geosynth.pointtexture.texture import PointTexture
     from geosynth.compute.selection import argmin, random_pick, within_tolerance
 
     p, n, h = _wavy()

@@ -38,8 +38,8 @@ import numpy as np
 import pytest
 
 from geosynth.volume.examples import exemplar_field
-from geosynth.geometry_texture import synthesize_point_texture
-from geosynth.point_examples import point_texture_example
+from geosynth.pointtexture.synthesis import synthesize_point_texture
+from geosynth.pointtexture.examples import point_texture_example
 from geosynth.pointmodels import point_model
 from geosynth.textures import texture_example
 from geosynth.texturing import texture_points

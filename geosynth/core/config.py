@@ -29,14 +29,14 @@ Process-wide state: every module-level cache and lock is made here and named in 
 | ``HOST_POOLS``, ``HOST_POOL_LOCK`` | ``geosynth.compute.host_steps`` | the helper threads of the compiled host steps, by count, and the lock that makes them |
 | ``HOST_LOAD_LOCK``, ``HOST_LAUNCHED`` | ``geosynth.compute.host_steps`` | Warp's module loading, one thread at a time; the kernels launched once (later launches may run in parallel) |
 | ``HOST_SHARE`` | ``geosynth.compute.host_steps`` | per thread: the ``CoreShare`` it counts in |
-| ``BLEND_TABLES`` | ``geosynth.blending`` | per thread: the Gauss table, wrapped for Warp once |
-| ``PATCH_SEARCH_LOCK`` | ``geosynth.patch_search`` | one patch search on a device at a time (the device queues are not shared) |
+| ``BLEND_TABLES`` | ``geosynth.pointtexture.blending`` | per thread: the Gauss table, wrapped for Warp once |
+| ``PATCH_SEARCH_LOCK`` | ``geosynth.pointtexture.patch_search`` | one patch search on a device at a time (the device queues are not shared) |
 | ``TILE_MATCHERS``, ``TILE_LOCK`` | ``geosynth.volume.tiled`` | per worker process: (key, level) -> M1 matcher; one tile at a time per process |
 | ``INPUT_PATHS`` | ``geosynth.io.files`` | the input files this process read (an output may never replace one) |
 
 Not here, on purpose: the memoized functions (``functools.lru_cache``: the runtimes' loading and
 the OpenCL device inventory in ``geosynth.compute.backend``, ``geosynth.io.pictures``'s and
-``geosynth.warping``'s tables), each a cache of its own function's result; ``geosynth.io.files``'
+``geosynth.pointtexture.warping``'s tables), each a cache of its own function's result; ``geosynth.io.files``'
 current output stage (rebound per ``staged_outputs`` block); the CLI's signal lists
 (``geosynth.cli``, ``geosynth._launch``), which belong to the command line's process only.
 """

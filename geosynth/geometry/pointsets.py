@@ -527,7 +527,7 @@ def cell_sort(points: np.ndarray, reach: float):
     return rel, order, start, shift, lo, cell, dims
 
 
-# Public for callers that launch PointsOps.mls_project themselves (geosynth.patch_search, M2's
+# Public for callers that launch PointsOps.mls_project themselves (geosynth.pointtexture.patch_search, M2's
 # fixed-step projections): the points sorted by cell, as the kernels read them.
 CellGrid = _CellGrid
 

@@ -3,19 +3,19 @@ point-set surfaces"): Warp kernels in float64, launched on Warp's ``"cpu"`` devi
 every run through :mod:`geosynth.compute.host_steps` (whatever ``device=`` says, so the blended
 points are the same bits on every device).
 
-Their NumPy twins are :class:`geosynth.blending.MLSSurface` and the ``_numpy`` functions
+Their NumPy twins are :class:`geosynth.pointtexture.blending.MLSSurface` and the ``_numpy`` functions
 beside it (the oracles; tests/test_blend_kernels.py compares them). One thread per query
 does all of a query's work: its k nearest points, every iteration of the line search, the
 re-gatherings, the projection fallback, and (``blend_kernel``) the patch's own surface and
 the blend itself, so that a patch costs a few launches, not a NumPy pass per operation.
-``pieces_kernel`` is :func:`geosynth.blending.pieces` (the flowers' cut, Sec. 5.3).
+``pieces_kernel`` is :func:`geosynth.pointtexture.blending.pieces` (the flowers' cut, Sec. 5.3).
 
 The MLS surface (Adamson and Alexa, as in :mod:`geosynth.geometry.pointsets`): over a query's
 gathered neighbours, ``w_i(y) = exp(-|p_i - y|^2 / h^2)`` (0 beyond ``reach`` = 3h),
 ``n(y) = normalize(sum w_i n_i)``, ``f(y) = n(y) . (y - a(y))`` with ``a`` the weighted mean
 of the points; the weights by :func:`gauss` (an inline exp).
 
-Neighbours come from a dense cell grid (``geosynth.blending._CellGrid``): points
+Neighbours come from a dense cell grid (``geosynth.pointtexture.blending._CellGrid``): points
 sorted by linear cell index ``(cz * ny + cy) * nx + cx`` (stably, so a cell holds its points
 in input order), ``cell_start[c]`` the first point of cell c (``nx*ny*nz + 1`` entries),
 points interleaved with their unit normals, 6 float64 each; ``ids[j]`` the input index of
@@ -408,7 +408,7 @@ def _counterpart_of(
     i: int,  # the point
     slot: int,  # its worker's scratch slot
 ):
-    """:func:`geosynth.blending.counterparts` for one query: the ray-plane iteration along
+    """:func:`geosynth.pointtexture.blending.counterparts` for one query: the ray-plane iteration along
     +-n' (MLSSurface.intersect_line), else the projection (MLSSurface.project), each with
     MLSSurface._iterate's re-gathering (a query that converged more than h from where its
     neighbours were gathered is gathered again there, at most 3 gatherings: ``_settle``)."""
@@ -476,7 +476,7 @@ def counterparts_kernel(
     workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
     part_start: int,  # the worker of thread 0 (host_steps.host_launch's split)
 ):
-    """:func:`geosynth.blending.counterparts` (``_counterpart_of``) for the points w, w +
+    """:func:`geosynth.pointtexture.blending.counterparts` (``_counterpart_of``) for the points w, w +
     workers, ...; the arguments as ``_counterpart_of``'s. One scratch slot per worker,
     reused from point to point (hot in the cache; a slot per point was cold memory each
     time)."""
@@ -517,7 +517,7 @@ def _blend_of(
     i: int,  # the point
     slot: int,  # its worker's scratch slot
 ):
-    """The blend of :func:`geosynth.blending.blend_patch` for one point: ``p'' = p' + r (c -
+    """The blend of :func:`geosynth.pointtexture.blending.blend_patch` for one point: ``p'' = p' + r (c -
     c')``, ``n'' = normalize(n' + r (n_c - n_c'))`` with c' one ray-plane step (RAY) or one
     projection step (PROJECTION) on F'_k's own MLS surface at p' (relative), else
     ``p'' = (1 - r) p' + r c``, ``n'' = normalize((1 - r) n' + r n_c)``."""
@@ -589,7 +589,7 @@ def blend_kernel(
     workers: int,  # launch dim: each worker does every workers-th point in one scratch slot
     part_start: int,  # the worker of thread 0 (host_steps.host_launch's split)
 ):
-    """The blend of :func:`geosynth.blending.blend_patch` (``_blend_of``) for the points w,
+    """The blend of :func:`geosynth.pointtexture.blending.blend_patch` (``_blend_of``) for the points w,
     w + workers, ...; the arguments as ``_blend_of``'s, one scratch slot per worker (as
     counterparts_kernel)."""
     w = part_start + wp.tid()
@@ -694,7 +694,7 @@ def pieces_kernel(
     parent: wp.array(dtype=wp.int32),  # scratch (M,)
     labels: wp.array(dtype=wp.int32),  # out (M,) 0, 1, ... in the order of each piece's first point
 ):
-    """geosynth.blending.pieces: occupied cells joined through faces, edges or corners
+    """geosynth.pointtexture.blending.pieces: occupied cells joined through faces, edges or corners
     (26-connectivity), by union-find over the points (one thread); each cell's points hang
     on its first point, whose set is joined with the first points of its occupied
     neighbour cells."""
@@ -757,7 +757,7 @@ def knn_kernel(
     workers: int,  # launch dim: each worker does every workers-th query in one scratch slot
     part_start: int,  # the worker of thread 0 (host_steps.host_launch's split)
 ):
-    """The k nearest points of each query in pykdtree's form (``geosynth.blending.nearest_k``):
+    """The k nearest points of each query in pykdtree's form (``geosynth.pointtexture.blending.nearest_k``):
     :func:`nearest`'s list, sorted nearer first, ties by lower input index (insertion sort:
     k is small), padded with (inf, count_all)."""
     w = part_start + wp.tid()

@@ -3,7 +3,7 @@ with point-set surfaces", Sec. 5.1 (D(S), the MLS signed distance of a point set
 
 A compiled host step (see ``geosynth.compute.host_steps``): launched on Warp's ``"cpu"`` device for
 every run, whatever device the run's other kernels use, so the recomputed samples are the
-same bits on cpu, opencl and cuda. The oracle is ``geosynth.patch_search._iterate`` (NumPy).
+same bits on cpu, opencl and cuda. The oracle is ``geosynth.pointtexture.patch_search._iterate`` (NumPy).
 
 The MLS surface (Adamson and Alexa), as in sdf_points.py but in float64: Gaussian weights
 ``w_i(y) = exp(-|p_i - y|^2 / h^2)`` cut off at ``reach`` (``d^2 < reach^2``),

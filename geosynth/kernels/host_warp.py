@@ -2,7 +2,7 @@
 ``"cpu"`` device for every run through :mod:`geosynth.compute.host_steps` (whatever ``device=``
 says, so the warped points are the same bits on every device).
 
-Each kernel has a NumPy twin in :mod:`geosynth.warping` (its oracle; tests/test_warping.py
+Each kernel has a NumPy twin in :mod:`geosynth.pointtexture.warping` (its oracle; tests/test_warping.py
 compares them). Arrays are flat float64 (``(m, 3)`` arrays as ``3 m`` entries, row-major).
 Nothing here validates.
 """

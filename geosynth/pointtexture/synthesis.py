@@ -5,12 +5,12 @@ processing of Sec. 5 (search 5.1, warping 5.2, blending 5.3).
 :func:`synthesize_point_texture` grows the output T_out over the xy plane in scan-line
 order, one patch at a time: the output's neighbourhood N_k of the next patch box gives
 the overlap field D(O^N) (MLS distance + gradient on the overlap's grid samples); the
-patch search (:class:`geosynth.patch_search.PatchSearch`) keeps every exemplar patch
+patch search (:class:`geosynth.pointtexture.patch_search.PatchSearch`) keeps every exemplar patch
 within (1 + eps) of the best and draws one; the patch with its extra region E_k (F_k),
 translated into place, is warped to N_k by a thin-plate spline
-(:func:`geosynth.warping.warp_patch`), blended into N_k across the overlap
-(:func:`geosynth.blending.blend_patch`) and pasted: the output's points inside F_k's box
-are removed and F''_k's copied in (:class:`geosynth.point_grid.PointGrid`). A border of
+(:func:`geosynth.pointtexture.warping.warp_patch`), blended into N_k across the overlap
+(:func:`geosynth.pointtexture.blending.blend_patch`) and pasted: the output's points inside F_k's box
+are removed and F''_k's copied in (:class:`geosynth.pointtexture.output_grid.PointGrid`). A border of
 width w_E is cut at the end (step 8); ``tileable=True`` grows a periodic output instead
 (the last column and row overlap the first ones, nothing is cut).
 
@@ -34,9 +34,9 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 from threadpoolctl import threadpool_limits
 from geosynth.compute.checks import UINT32_MAX
-from geosynth.point_grid import PointGrid
-from geosynth.pointmodels import passive_openmp_threads
-from geosynth.point_textures import PointTexture
+from geosynth.pointtexture.output_grid import PointGrid
+from geosynth.core.config import passive_openmp_threads
+from geosynth.pointtexture.texture import PointTexture
 
 __all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
            "synthesize_point_texture"]
@@ -55,7 +55,7 @@ class PointTextureReport:
         patch_choice: with ``patch=None``, the line that says what was measured and which
             patch size was chosen (:func:`choose_patch`); else "".
         relief: ``{"exemplar": (period, amplitude, peak), "output": (...), "baseline":
-            (...)}``, world units, peak a bool (:func:`geosynth.element_size.relief_scale`;
+            (...)}``, world units, peak a bool (:func:`geosynth.pointtexture.element_size.relief_scale`;
             the output and the baseline measured over their extent at the exemplar's
             height-map cell, at half to twice the exemplar's period; the baseline with
             ``quality`` only).
@@ -150,7 +150,7 @@ class PatchChoice:
 
     Attributes:
         patch: the patch side as a fraction of B's shorter side (2 decimals).
-        scale: the exemplar's :class:`geosynth.element_size.ReliefScale`.
+        scale: the exemplar's :class:`geosynth.pointtexture.element_size.ReliefScale`.
         line: one line: what was measured and what was chosen.
     """
 
@@ -161,10 +161,10 @@ class PatchChoice:
 
 def choose_patch(texture: PointTexture, resolution: int = 48) -> PatchChoice:
     """The patch size from the exemplar's element size: ``PATCH_PERIODS`` dominant periods
-    of its relief (:func:`geosynth.element_size.relief_scale`), rounded to 0.01 of B's
+    of its relief (:func:`geosynth.pointtexture.element_size.relief_scale`), rounded to 0.01 of B's
     shorter side, at most ``_PATCH_MOST`` of it and at least ``_PATCH_FEWEST_CELLS`` cells
     of D(T_in) at ``resolution``. The same for a built-in and a file; CPU-exact (the
-    period is one of a discrete set; see geosynth.element_size).
+    period is one of a discrete set; see geosynth.pointtexture.element_size).
 
     Args:
         texture: the exemplar.
@@ -174,7 +174,7 @@ def choose_patch(texture: PointTexture, resolution: int = 48) -> PatchChoice:
     Returns:
         A :class:`PatchChoice`.
     """
-    from geosynth.element_size import relief_scale
+    from geosynth.pointtexture.element_size import relief_scale
 
     rs = relief_scale(texture.points, texture.box_min, texture.box_max, texture.spacing)
     ext = (texture.box_max - texture.box_min)[:2]
@@ -228,13 +228,13 @@ _MAX_OVERLAP_SAMPLES = UINT32_MAX // (4 * 255 * 255)
 
 
 def _grid_layers(box_min, box_max, cell: float) -> int:
-    """nz of D(T_in) (:class:`geosynth.patch_search.PatchSearch`'s rule: B's height plus
+    """nz of D(T_in) (:class:`geosynth.pointtexture.patch_search.PatchSearch`'s rule: B's height plus
     a cell above and below)."""
     return int(np.ceil((float(box_max[2]) - float(box_min[2])) / cell - 1e-9)) + 3
 
 
 def _grid_columns(box_min, box_max, cell: float) -> tuple[int, int]:
-    """(nx, ny) of D(T_in), as :class:`geosynth.patch_search.PatchSearch` counts them."""
+    """(nx, ny) of D(T_in), as :class:`geosynth.pointtexture.patch_search.PatchSearch` counts them."""
     return tuple(int(np.floor((float(box_max[a]) - float(box_min[a])) / cell + 1e-9)) + 1 for a in range(2))
 
 
@@ -329,26 +329,26 @@ def _as_texture(exemplar, seed) -> PointTexture:
     if isinstance(exemplar, PointTexture):
         return exemplar
     if isinstance(exemplar, str):
-        from geosynth.point_examples import POINT_EXAMPLES, point_texture_example
+        from geosynth.pointtexture.examples import POINT_EXAMPLES, point_texture_example
 
         if exemplar in POINT_EXAMPLES:
             return point_texture_example(exemplar, seed=seed)
-        from geosynth.point_textures import read_point_texture
+        from geosynth.pointtexture.texture import read_point_texture
 
         return read_point_texture(exemplar, seed=seed)
     import os
 
     if isinstance(exemplar, os.PathLike):
-        from geosynth.point_textures import read_point_texture
+        from geosynth.pointtexture.texture import read_point_texture
 
         return read_point_texture(exemplar, seed=seed)
     raise TypeError(f"exemplar must be a PointTexture, a built-in name or a file path, got {type(exemplar).__name__}.")
 
 
 def _default_weights(texture: PointTexture):
-    from geosynth.warping import WARP_PRESETS, WarpWeights
+    from geosynth.pointtexture.warping import WARP_PRESETS, WarpWeights
 
-    from geosynth.point_examples import POINT_EXAMPLES
+    from geosynth.pointtexture.examples import POINT_EXAMPLES
 
     ex = POINT_EXAMPLES.get(texture.name)
     return WARP_PRESETS[ex.preset] if ex is not None else WarpWeights()
@@ -380,11 +380,11 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     bits as one thread's. Stage times are then summed over both threads. The stats' "threads"
     says how many grew it."""
     from geosynth.compute.host_steps import host_threads
-    from geosynth.patch_search import quantized_fields
+    from geosynth.pointtexture.patch_search import quantized_fields
 
     if not baseline:
-        from geosynth.warping import warp_patch
-        from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_errors
+        from geosynth.pointtexture.warping import warp_patch
+        from geosynth.pointtexture.blending import blend_patch, cut_pieces, overlap_ramp, seam_errors
 
     cell, pc = lay.cell, lay.patch
     reach = 3.0 * h
@@ -480,7 +480,7 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
             t0 = timer.add("blend", t0)
             fp, fn = bp, bn
         elif baseline and seams_wanted and len(offsets) and nb_p is not None and len(nb_p):
-            from geosynth.blending import seam_error as _seam
+            from geosynth.pointtexture.blending import seam_error as _seam
 
             edge = _edge_samples(search, offsets, q, sides)
             out["baseline"] = _seam(fp, fn, nb_p, nb_n, edge, spacing)
@@ -654,7 +654,7 @@ def _source_colors(texture: PointTexture, src: np.ndarray) -> np.ndarray | None:
 
 def _field_codes(points, normals, lay, search, h, device, lo, size):
     """D of an output on the search grid's spacing over [lo, lo + size] (codes (nz, ny, nx, 4))."""
-    from geosynth.patch_search import quantized_fields
+    from geosynth.pointtexture.patch_search import quantized_fields
 
     cell = lay.cell
     nx, ny = (int(np.floor(size[a] / cell + 1e-9)) + 1 for a in range(2))
@@ -955,7 +955,7 @@ def synthesize_point_texture(
     """Grow a larger point-set geometry texture from an exemplar (Sec. 4 and 5).
 
     Args:
-        exemplar: a :class:`geosynth.point_textures.PointTexture`, a built-in name
+        exemplar: a :class:`geosynth.pointtexture.texture.PointTexture`, a built-in name
             (heightfield, chainmail, weave, flowers) or a file (PLY point set or mesh).
         size: (2,) output extent in x and y, world units; default ``scale`` times B's.
         scale: output extent in units of the exemplar box B's (when ``size`` is None).
@@ -968,11 +968,11 @@ def synthesize_point_texture(
             interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
         resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
             51 to 84).
-        weights: a :class:`geosynth.warping.WarpWeights`; default the paper's preset for
+        weights: a :class:`geosynth.pointtexture.warping.WarpWeights`; default the paper's preset for
             a built-in, else WarpWeights().
         eps: the relative tolerance of the candidate set (step 2), >= 0.
         tileable: grow a periodic output (its opposite borders continue each other).
-        relax: relax the final point set (:func:`geosynth.blending.relax_points`).
+        relax: relax the final point set (:func:`geosynth.pointtexture.blending.relax_points`).
         quality: compute the quality numbers and the random-pasting baseline.
         quality_samples: patches sampled per direction for the patch-field distance.
         device: a device string; None means "auto".
@@ -1000,12 +1000,12 @@ def synthesize_point_texture(
         TypeError: arguments of the wrong type.
     """
     from geosynth.compute import checks as _checks
-    from geosynth.blending import has_pieces
-    from geosynth.patch_search import PatchSearch
+    from geosynth.pointtexture.blending import has_pieces
+    from geosynth.pointtexture.patch_search import PatchSearch
     from geosynth.compute.host_steps import host_threads
     from geosynth.geometry.pointsets import MLS_REACH, PointSet
-    from geosynth.element_size import relief_scale
-    from geosynth.warping import WarpWeights, surface_variation
+    from geosynth.pointtexture.element_size import relief_scale
+    from geosynth.pointtexture.warping import WarpWeights, surface_variation
 
     t_start = time.perf_counter()
     texture = _as_texture(exemplar, seed)
@@ -1018,7 +1018,7 @@ def synthesize_point_texture(
     if weights is None:
         weights = _default_weights(texture)
     elif not isinstance(weights, WarpWeights):
-        raise TypeError(f"weights must be a geosynth.warping.WarpWeights, got {type(weights).__name__}.")
+        raise TypeError(f"weights must be a geosynth.pointtexture.warping.WarpWeights, got {type(weights).__name__}.")
     backend = _checks.resolve_backend(device)
     device = backend.name  # the resolved device ("auto" / None made concrete): every stage runs on this one
     choice = None
@@ -1051,7 +1051,7 @@ def synthesize_point_texture(
     t0 = time.perf_counter()
     p, n, src = _cut(grid, lay, texture, tileable)
     if relax:
-        from geosynth.blending import relax_points
+        from geosynth.pointtexture.blending import relax_points
 
         p, n = relax_points(p, n, spacing, device=device)
     # item 2 of issue 32: the output's element size and relief amplitude beside the exemplar's

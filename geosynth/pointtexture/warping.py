@@ -156,7 +156,7 @@ class _KDTree:
     """k nearest neighbours in cKDTree's form: ``query(x, k, distance_upper_bound)`` ->
     ((m, k) float64 distances, (m, k) int64 indices; index len(points) and distance inf
     where fewer than k lie within the bound), nearest first, ties by lower index. By the
-    compiled host step :func:`geosynth.blending.nearest_k` (exact in float64, split over
+    compiled host step :func:`geosynth.pointtexture.blending.nearest_k` (exact in float64, split over
     the cores); on the built-ins' warp queries it gave pykdtree's indices and distances
     bit for bit (tests/test_warping.py compares them), about as fast on one thread (10,000
     points, 3,000 queries of 16: 5.3 ms against 6.0 ms with its tree), but it lets go of the
@@ -167,7 +167,7 @@ class _KDTree:
         self._grid = None  # the points' cell grid, built at the first query, kept for the next
 
     def query(self, x: np.ndarray, k: int = 1, distance_upper_bound: float | None = None):
-        from geosynth.blending import knn_grid, nearest_k
+        from geosynth.pointtexture.blending import knn_grid, nearest_k
 
         if self._grid is None and len(x):
             self._grid = knn_grid(self.points, int(k))

@@ -169,7 +169,7 @@ class MLSSurface:
     """
 
     def __init__(self, points, normals, radius: float, neighbours: int = MLS_NEIGHBOURS):
-        from geosynth.pointmodels import passive_openmp_threads
+        from geosynth.core.config import passive_openmp_threads
 
         passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
         from pykdtree.kdtree import KDTree
@@ -939,7 +939,7 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
       never two in one place.
 
     On a connected surface (a height field, a weave's threads) nothing is a piece and
-    nothing changes; :func:`geosynth.geometry_texture.synthesize_point_texture` calls this
+    nothing changes; :func:`geosynth.pointtexture.synthesis.synthesize_point_texture` calls this
     only for an exemplar that has pieces (:func:`has_pieces`). Host float64 and integer
     decisions only: the same on every device.
 

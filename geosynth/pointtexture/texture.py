@@ -292,7 +292,7 @@ def texture_from_mesh(mesh, count: int = 40_000, *, box=None, padding: float = 0
 
 
 # A file's padding (the geometry beyond B that B's border needs), in mean point spacings:
-# the MLS support reaches 3 h = 6 spacings (h = 2 spacings, geosynth.geometry_texture) and a
+# the MLS support reaches 3 h = 6 spacings (h = 2 spacings, geosynth.pointtexture.synthesis) and a
 # warped patch reads points up to 4 spacings beyond its box; 8 covers both. The rest of the
 # file is texture: at a fixed 20% a side, 64% of the area was cut off, and a file whose edges
 # differ from its middle (the zoo's noise) lost a third of its relief.

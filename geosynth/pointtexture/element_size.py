@@ -8,7 +8,7 @@ enough to encompass at least a texture element plus some neighborhood." Nothing 
 method measured that; a built-in carried its own patch size and a user's file got 0.4.
 
 The measurement (:func:`relief_scale`): the points' heights above the reference plane
-(z; :class:`geosynth.point_textures.PointTexture`'s plane is xy) as a height map over the
+(z; :class:`geosynth.pointtexture.texture.PointTexture`'s plane is xy) as a height map over the
 box B (the highest point in each cell: what one sees from above; empty cells take their
 nearest filled cell's height), windowed, zero-padded 4x and Fourier transformed; its power
 averaged over rings of equal frequency |k|. The element size is the period 1/|k| of the

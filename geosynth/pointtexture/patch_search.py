@@ -508,7 +508,7 @@ class PatchSearch:
     grid (in B).
 
     Args:
-        texture: the :class:`geosynth.point_textures.PointTexture`.
+        texture: the :class:`geosynth.pointtexture.texture.PointTexture`.
         cell: grid spacing, world units.
         patch, extra: patch side and extra-region width, in cells.
         h: MLS kernel width; band: the distance code's saturation distance.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth.core.exact import times3x3
-from geosynth.point_textures import PointTexture, texture_from_image
+from geosynth.pointtexture.texture import PointTexture, texture_from_image
 
 __all__ = ["POINT_EXAMPLES", "PointExample", "point_texture_example", "stones_image"]
 
@@ -25,8 +25,8 @@ PAD = 0.25  # geometry beyond B on each side, in units of B's side
 @dataclass(frozen=True)
 class PointExample:
     """A built-in exemplar: its maker, the paper's input point count (Table 1) and the key of
-    its warping weights in :data:`geosynth.warping.WARP_PRESETS`. No patch size: a built-in's
-    is measured like a file's (:func:`geosynth.geometry_texture.choose_patch`, issue 32)."""
+    its warping weights in :data:`geosynth.pointtexture.warping.WARP_PRESETS`. No patch size: a built-in's
+    is measured like a file's (:func:`geosynth.pointtexture.synthesis.choose_patch`, issue 32)."""
 
     make: object
     count: int
