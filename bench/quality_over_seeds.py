@@ -324,9 +324,9 @@ def blending_relax(seed):
 @claim
 def texture_flat_grid(seed):
     """tests/test_texture.py::test_matching_a_flat_grid_reproduces_the_exemplar (batched): result / random."""
-    from geosynth.pointmodels import point_model  # noqa: F401
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model  # noqa: F401
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
     from test_texture import grid_points
 
     tex = texture_example("noise", 24, seed=4)
@@ -338,9 +338,9 @@ def texture_flat_grid(seed):
 @claim
 def texture_hybrid(seed):
     """tests/test_texture.py::test_hybrid_colours_every_point_and_is_close_to_parameterization."""
-    from geosynth.pointmodels import point_model
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
 
     tex = texture_example("noise", 32, seed=0)
     ps = point_model("sphere", 2500, seed=0)
@@ -353,9 +353,9 @@ def texture_hybrid(seed):
 @claim
 def texture_coherent(seed):
     """tests/test_texture.py::test_multilevel_and_coherent_matching: coherent result / random."""
-    from geosynth.pointmodels import point_model
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
 
     tex = texture_example("bricks", 64, seed=0)
     ps = point_model("torus", 1000, seed=0)

@@ -665,7 +665,7 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
                                                   if args.levels > 1 else "")
                              + "; use a larger --texture-size, a smaller -k or fewer --levels.")
     if name is not None:  # the texel search's memory, known now for a built-in texture (the model's points: later)
-        from geosynth.texturing import require_texture_memory
+        from geosynth.texturing.synthesis import require_texture_memory
 
         levels = 1 if args.method == "param" else args.levels
         require_texture_memory(args.count if model_is_sampled else args.k + 1, size, size, args.method, args.k,
@@ -673,8 +673,8 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
 
 
 def _cmd_texture(args: argparse.Namespace) -> int:
-    from geosynth.pointmodels import POINT_MODELS
-    from geosynth.textures import TEXTURES
+    from geosynth.texturing.models import POINT_MODELS
+    from geosynth.texturing.textures import TEXTURES
 
     inputs = list(args.inputs)
     model_path = None if args.example else (inputs.pop(0) if inputs else None)
@@ -699,11 +699,11 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     _check_device(args.device)
 
     from geosynth.io.files import write_image
-    from geosynth.pointmodels import load_point_model, point_model
+    from geosynth.texturing.models import load_point_model, point_model
     from geosynth.geometry.pointsets import write_point_set
     from geosynth.io.pictures import render_points, side_by_side
-    from geosynth.texturing import texture_points
-    from geosynth.textures import read_texture, texture_example
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import read_texture, texture_example
 
     say = (lambda *a, **k: None) if args.quiet else print
     if args.example:

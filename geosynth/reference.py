@@ -295,7 +295,7 @@ def _div3(a, s):  # one division, as the kernels
 
 def _appendix_a(pf, pp, pu, pv, pn, ps, pt, unit):
     """The kernels' appendix_a on Python floats: (ok, qu, qv, normal, T, S, |F - P|)."""
-    from geosynth.parameterize import PARALLEL_LIMIT
+    from geosynth.texturing.parameterize import PARALLEL_LIMIT
 
     tiny = 1e-300
     v = [pf[0] - pp[0], pf[1] - pp[1], pf[2] - pp[2]]
@@ -372,10 +372,10 @@ class _FifoQueue:
 
 def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(0.0, 1.0, 0.0), weights=None,
                            threshold: float | None = None, max_patch: float | None = None, seed=0, neighbours=None):
-    """Same arguments (less ``device``) and result as :func:`geosynth.parameterize.parameterize_points`:
+    """Same arguments (less ``device``) and result as :func:`geosynth.texturing.parameterize.parameterize_points`:
     the growth of ``kernels/growth.py`` as a plain-Python loop, the same float64
     arithmetic in the same order (so normally the same bits)."""
-    from geosynth.parameterize import (
+    from geosynth.texturing.parameterize import (
         DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, FREE, GAP, PATCH, Parameterization, growth_buckets,
         growth_inputs,
     )
@@ -483,11 +483,11 @@ def parameterize_reference(points, k: int = 25, *, unit_scale: float = 1.0, up=(
 
 def colour_parameterization_reference(points, param, texture, *, tileable: bool = True, seed=0):
     """Same arguments (less ``blend_gaps`` and ``device``) and result as
-    :func:`geosynth.parameterize.colour_parameterization`: the blending of
+    :func:`geosynth.texturing.parameterize.colour_parameterization`: the blending of
     ``kernels/growth.py`` (``blend_gaps``) as a plain-Python loop, same arithmetic in the
     same order."""
-    from geosynth.parameterize import PATCH, as_model, growth_buckets, patch_offsets
-    from geosynth.textures import as_texture, sample_bilinear
+    from geosynth.texturing.parameterize import PATCH, as_model, growth_buckets, patch_offsets
+    from geosynth.texturing.textures import as_texture, sample_bilinear
 
     p, nrm = as_model(points)
     tex = as_texture(texture)
@@ -574,11 +574,11 @@ def colour_parameterization_reference(points, param, texture, *, tileable: bool 
 
 def match_coherent_reference(level, search, colours, coloured, source, rng, subtexel: bool = True):
     """The coherent matching of ``kernels/growth.py`` (``match_coherent``) as a plain-Python
-    loop: same arguments as ``geosynth.matching.match_coherent_level`` (level, TexelSearch,
+    loop: same arguments as ``geosynth.texturing.matching.match_coherent_level`` (level, TexelSearch,
     colours (n, 3) uint8, coloured (n,) bool, source (n,) int64, Generator, subtexel), the
     same random draws, the same arithmetic; returns new (colours, coloured, source)."""
-    from geosynth.parameterize import PARALLEL_LIMIT, growth_buckets
-    from geosynth.texel_search import refine_shifts
+    from geosynth.texturing.parameterize import PARALLEL_LIMIT, growth_buckets
+    from geosynth.texturing.texel_search import refine_shifts
 
     n, k = level.neighbours.shape
     order = rng.permutation(n).tolist()

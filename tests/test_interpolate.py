@@ -6,7 +6,7 @@ import pytest
 from geosynth.core.interpolate import lerp_axis, linear_taps
 from geosynth.geometry.meshes import _components, orient_faces
 from geosynth.io.pictures import _bilinear
-from geosynth.textures import sample_bilinear_grid
+from geosynth.texturing.textures import sample_bilinear_grid
 from geosynth.volume.synthesis import dequantize_field, quantize_field, upsample
 
 

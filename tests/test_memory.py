@@ -160,7 +160,7 @@ def test_require_finds_the_largest_by_bisection():
 _FIELDS_SETUP = """
 import trimesh
 from geosynth.geometry.meshes import grid_distance_bytes, mesh_distance
-from geosynth.pointmodels import point_model
+from geosynth.texturing.models import point_model
 from geosynth.geometry.pointsets import default_radius, grid_mls_bytes, pointset_distance
 mesh = trimesh.creation.icosphere(3)
 ps = point_model("sphere", 2000)
@@ -190,7 +190,7 @@ def test_point_model_estimates_match_rss():
     RSS, as scipy's kd-tree is outside NumPy."""
     setup = """
     import trimesh
-    from geosynth.pointmodels import POINT_MODELS, point_model, sample_mesh_points, _MESH_SAMPLE_BYTES, _MESH_FACE_BYTES
+    from geosynth.texturing.models import POINT_MODELS, point_model, sample_mesh_points, _MESH_SAMPLE_BYTES, _MESH_FACE_BYTES
     mesh = trimesh.creation.icosphere(4)
     """
     cases = []
@@ -209,9 +209,9 @@ def test_texture_points_estimates_match_rss(device):
     texel search (param with the quality numbers, 2k points, m = 8 and 16 on 32^2: 4x the
     supersampled pixels): RSS, as the kernels' buffers and pykdtree's tree are outside NumPy."""
     setup = f"""
-    from geosynth.pointmodels import point_model
-    from geosynth.texturing import texture_bytes, texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_bytes, texture_points
+    from geosynth.texturing.textures import texture_example
     DEVICE = {device!r}
     tex16, tex32 = texture_example("noise", 16), texture_example("noise", 32)
     models = {{n: point_model("blob", n) for n in (300, 2000, 4000, 16000)}}
@@ -272,7 +272,7 @@ def test_geometry_estimate_matches_traced_peak(warp_cpu, name, kind):
 
 @pytest.mark.parametrize("name", ["bricks", "checker", "noise"])
 def test_texture_example_estimate_matches_traced_peak(name):
-    from geosynth.textures import TEXTURES, texture_example
+    from geosynth.texturing.textures import TEXTURES, texture_example
 
     for size in (256, 512):
         peak, _ = _traced_peak(lambda: texture_example(name, size))
@@ -314,8 +314,8 @@ def test_device_free_huge_inputs_are_refused_quickly_with_the_largest_that_fits(
     """The host-only operations (no device argument), once."""
     import trimesh
 
-    from geosynth.pointmodels import point_model, sample_mesh_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model, sample_mesh_points
+    from geosynth.texturing.textures import texture_example
 
     mesh = trimesh.creation.icosphere(2)
     _check_refusals(monkeypatch, [
@@ -329,10 +329,10 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
     import trimesh
 
     from geosynth.geometry.meshes import mesh_distance
-    from geosynth.pointmodels import point_model
+    from geosynth.texturing.models import point_model
     from geosynth.geometry.pointsets import pointset_distance
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
     from geosynth.volume.synthesis import synthesize_geometry, synthesize_volume
 
     mesh = trimesh.creation.icosphere(2)

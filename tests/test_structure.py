@@ -269,7 +269,7 @@ def _dotted(node: ast.expr, bound: dict[str, str]) -> str | None:
     return None
 
 
-# Private names of geosynth.parameterize still imported while R2's split of texture.py
+# Private names of geosynth.texturing.parameterize still imported while R2's split of texture.py
 # (issue 15) is in flight: that split makes them public. Each entry must still match a
 # use, so the lead deletes the entry once the merge has removed it.
 PENDING_PRIVATE_USES: set[tuple[str, str]] = set()

@@ -40,9 +40,9 @@ import pytest
 from geosynth.volume.examples import exemplar_field
 from geosynth.pointtexture.synthesis import synthesize_point_texture
 from geosynth.pointtexture.examples import point_texture_example
-from geosynth.pointmodels import point_model
-from geosynth.textures import texture_example
-from geosynth.texturing import texture_points
+from geosynth.texturing.models import point_model
+from geosynth.texturing.textures import texture_example
+from geosynth.texturing.synthesis import texture_points
 from geosynth.volume.synthesis import synthesize_volume
 
 

@@ -139,7 +139,7 @@ def default_pocl_environment() -> None:
 def passive_openmp_threads() -> None:
     """``OMP_WAIT_POLICY=PASSIVE`` unless the user set it: the kNN query's OpenMP threads
     (pykdtree's own libgomp reads it once, when it loads, which is at the first
-    ``geosynth.pointmodels.knn_table``) then sleep when the query ends instead of spinning
+    ``geosynth.texturing.models.knn_table``) then sleep when the query ends instead of spinning
     on, which took a core from the one-work-item kernels that follow. Measured (2 cores,
     16k-point sphere): the growth right after the kNN 9.0 ms median against 14.5 ms; the whole
     parameterization row 27-29 ms against 32-37 ms in alternating runs; the kNN itself and the

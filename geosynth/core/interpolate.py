@@ -1,14 +1,14 @@
 """Linear interpolation on regular grids: the one resampler of the project.
 
-Textures (:mod:`geosynth.textures`), volume upsampling (:mod:`geosynth.volume.synthesis`) and
+Textures (:mod:`geosynth.texturing.textures`), volume upsampling (:mod:`geosynth.volume.synthesis`) and
 picture slices (:mod:`geosynth.io.pictures`) all resample with these two steps, so their
 values agree bit for bit with each other and with the kernels that repeat
-:func:`geosynth.textures.sample_bilinear` operation for operation:
+:func:`geosynth.texturing.textures.sample_bilinear` operation for operation:
 
 - :func:`linear_taps`: along one axis, the two samples around a coordinate and the
   weight of the second (wrapped, or the coordinate clamped to the grid first);
 - :func:`lerp_axis`: blend along one axis with those taps, ``a * (1 - t) + b * t``
-  (:func:`geosynth.textures.sample_bilinear`, whose lookups are scattered, writes the
+  (:func:`geosynth.texturing.textures.sample_bilinear`, whose lookups are scattered, writes the
   same blend out for its four texels).
 
 scipy.ndimage.map_coordinates / zoom (order=1) compute the same blend in float64 with

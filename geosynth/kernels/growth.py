@@ -10,7 +10,7 @@ The twin of ``growth.cl`` (same kernel names without ``_kernel``, same arguments
 same order, the same float64 arithmetic in the same order, exact integer scores);
 ``geosynth.reference`` has plain-Python twins (``parameterize_reference``,
 ``colour_parameterization_reference``, ``match_coherent_reference``) that give the same
-bits. Definitions are those of ``geosynth/parameterize.py`` and ``geosynth/matching.py``;
+bits. Definitions are those of ``geosynth/texturing/parameterize.py`` and ``geosynth/texturing/matching.py``;
 the orders are fixed here:
 
 - ``grow_patches_kernel``: patches start at the first free point of ``order`` (a seeded
@@ -420,7 +420,7 @@ def _wrap(i: int, size: int):
 @wp.func
 def _bilinear(tex: wp.array(dtype=wp.uint8), h: int, w: int, wrap: int, x: wp.float64, y: wp.float64):
     """Bilinear texture lookup at texel coordinates (x, y), as
-    geosynth.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge."""
+    geosynth.texturing.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge."""
     one = wp.float64(1.0)
     if wrap == 0:
         y = wp.min(wp.max(y, wp.float64(0.0)), wp.float64(h - 1))

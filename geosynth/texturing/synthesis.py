@@ -2,9 +2,9 @@
 
 The public entry point of M3, :func:`texture_points`: Zhang, Qiu and Kaufman, "Fast
 Hybrid Approach for Texturing Point Models", all three of its methods: the point
-parameterization (Sec. 3, :mod:`geosynth.parameterize`), point neighbourhood matching
-(Sec. 4, 4.1 and 4.2: :mod:`geosynth.point_hierarchy`, :mod:`geosynth.matching`,
-:mod:`geosynth.texel_search`) and the hybrid of the two (Sec. 5). Also the quality
+parameterization (Sec. 3, :mod:`geosynth.texturing.parameterize`), point neighbourhood matching
+(Sec. 4, 4.1 and 4.2: :mod:`geosynth.texturing.hierarchy`, :mod:`geosynth.texturing.matching`,
+:mod:`geosynth.texturing.texel_search`) and the hybrid of the two (Sec. 5). Also the quality
 numbers (:func:`neighbourhood_error`), the report and the memory estimate.
 
 Hybrid (Sec. 5): the parameterization colours the patch points; gaps are widened
@@ -23,16 +23,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geosynth.compute.backend import get_backend
-from geosynth.matching import DEFAULT_MATCH_BATCH, match_level
-from geosynth.parameterize import (
+from geosynth.texturing.matching import DEFAULT_MATCH_BATCH, match_level
+from geosynth.texturing.parameterize import (
     DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_k, check_up, colour_parameterization,
     frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
 )
-from geosynth.point_hierarchy import PointLevel, build_hierarchy
-from geosynth.pointmodels import knn_table, spatial_order
+from geosynth.texturing.hierarchy import PointLevel, build_hierarchy
+from geosynth.texturing.models import knn_table, spatial_order
 from geosynth.geometry.pointsets import PointSet
-from geosynth.texel_search import DEFAULT_M, TexelSearch, pixel_offsets
-from geosynth.textures import as_texture, texture_pyramid
+from geosynth.texturing.texel_search import DEFAULT_M, TexelSearch, pixel_offsets
+from geosynth.texturing.textures import as_texture, texture_pyramid
 
 __all__ = ["METHODS", "TextureReport", "neighbourhood_error", "texture_bytes", "texture_points"]
 

@@ -37,7 +37,7 @@ import time
 
 import numpy as np
 
-from geosynth.textures import sample_bilinear_grid
+from geosynth.texturing.textures import sample_bilinear_grid
 
 __all__ = ["DEFAULT_M", "TexelSearch", "pixel_offsets", "refine_shifts"]
 

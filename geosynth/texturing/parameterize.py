@@ -53,7 +53,7 @@ from geosynth._backends.interfaces import (
     BlendInputs, BlendOutputs, BlendScratch, GrowthInputs, GrowthOutputs, GrowthScratch, PatchFrames,
 )
 from geosynth.geometry.pointsets import PointSet
-from geosynth.textures import as_texture, sample_bilinear
+from geosynth.texturing.textures import as_texture, sample_bilinear
 
 __all__ = [
     "FREE", "GAP", "PATCH", "CheckedModel", "DeviceGrowth", "Parameterization", "as_model", "check_up",
@@ -265,7 +265,7 @@ def as_model(points) -> tuple[np.ndarray, np.ndarray]:
                          f"{int(np.flatnonzero(~np.isfinite(p).all(1))[0])}; remove them first.")
     if points.normals is None:
         raise ValueError("points has no normals; estimate them first (geosynth.geometry.pointsets.estimate_normals) "
-                         "or load the model with geosynth.pointmodels.load_point_model, which does.")
+                         "or load the model with geosynth.texturing.models.load_point_model, which does.")
     n = points.normals.astype(np.float64)
     length = np.linalg.norm(n, axis=1)
     if not np.isfinite(n).all() or (length < 1e-12).any():
@@ -337,7 +337,7 @@ def growth_inputs(points: PointSet, k: int, *, unit_scale: float = 1.0, up=(0.0,
         patch's seed frame starts from (kernels/growth.py): ``up`` as (1, 3), or (N, 3)
         random directions (one per point) when ``up`` is None.
     """
-    from geosynth.pointmodels import knn_table
+    from geosynth.texturing.models import knn_table
 
     p, nrm = as_model(points)
     n_pts = len(p)

@@ -6,8 +6,8 @@ Approach for Texturing Point Models", Sec. 4 (point neighbourhood matching), 4.1
 
 - A point's irregular neighbourhood: its k nearest neighbours mapped onto its tangent
   plane by the patch mapping of the paper's Appendix A
-  (:func:`geosynth.parameterize.tangent_offsets`), in texels, x along the frame's S axis
-  and y along T; it is scored against every texel by :mod:`geosynth.texel_search`.
+  (:func:`geosynth.texturing.parameterize.tangent_offsets`), in texels, x along the frame's S axis
+  and y along T; it is scored against every texel by :mod:`geosynth.texturing.texel_search`.
 - Order: most coloured neighbours first. A batch takes the best points (coloured
   neighbours within MATCH_KEY_SLACK of the best and at least MATCH_KEY_FRACTION of it),
   none in another's k-neighbourhood, so colouring one cannot change another's query.
@@ -27,9 +27,9 @@ import math
 import numpy as np
 
 from geosynth._backends.interfaces import MatchInputs, MatchScratch, MatchState
-from geosynth.parameterize import growth_buckets, pick_batch, tangent_offsets
-from geosynth.point_hierarchy import PointLevel
-from geosynth.texel_search import TexelSearch, pixel_offsets, refine_shifts
+from geosynth.texturing.parameterize import growth_buckets, pick_batch, tangent_offsets
+from geosynth.texturing.hierarchy import PointLevel
+from geosynth.texturing.texel_search import TexelSearch, pixel_offsets, refine_shifts
 
 __all__ = ["DEFAULT_MATCH_BATCH", "match_coherent_level", "match_level"]
 

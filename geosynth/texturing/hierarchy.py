@@ -94,7 +94,7 @@ def build_hierarchy(positions: np.ndarray, normals: np.ndarray, s_axis: np.ndarr
     Raises:
         ValueError: a level would have k or fewer points.
     """
-    from geosynth.pointmodels import knn_table
+    from geosynth.texturing.models import knn_table
 
     dist, nb = neighbours if neighbours is not None else knn_table(positions, k)
     out = [PointLevel(positions, normals, s_axis, t_axis, nb, dist, unit)]
