@@ -69,7 +69,7 @@ def plane_case(samples_side: int, seed: int = 0):
 
 
 def boundary_queries(index, triangles, count: int, spacing: float, w: int = 2):
-    from geosynth import relief_match as rm
+    from geosynth.completion import matching as rm
 
     v = index.n_vertices
     nb = [set() for _ in range(v)]
@@ -109,7 +109,7 @@ def _cpu_time(fn, repeats: int) -> float:
 
 
 def main(argv=None) -> int:
-    from geosynth import relief_match as rm
+    from geosynth.completion import matching as rm
     from geosynth.reference import relief_scores_reference
 
     args = options(argv)

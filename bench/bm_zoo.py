@@ -11,7 +11,7 @@ itself, from the files, independently of what the command printed:
   thickness, top-surface period, share of whole elements), ratios output / exemplar; the
   block distance against random tiling as the command printed it (< 1 beats random).
 - pointtexture: heights above the exemplar's base plane, gridded ->
-  :func:`geosynth.relief_spectrum.relief_spectrum` (amplitude, dominant period) of exemplar
+  :func:`geosynth.completion.spectrum.relief_spectrum` (amplitude, dominant period) of exemplar
   and output; the patch-field distance against random pasting as printed.
 - complete: the relief over the zoo surface's own (u, v) (plane x, y; cylinder arc length and
   height; sphere near its equator) of the captured and the completed parts -> amplitude,
@@ -136,12 +136,12 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
 
 
 def _grid(uv: np.ndarray, h: np.ndarray, spacing: float):
-    """The heights on a grid (:func:`geosynth.relief_spectrum.heights_on_grid`), cropped to
+    """The heights on a grid (:func:`geosynth.completion.spectrum.heights_on_grid`), cropped to
     the largest connected piece: a capture in two strips (a plane missing a band) has a
     spectrum whose peaks are split by the gap's own (lobes at 1 / the strips' distance)."""
     from scipy import ndimage
 
-    from geosynth.relief_spectrum import heights_on_grid
+    from geosynth.completion.spectrum import heights_on_grid
 
     grid, mask = heights_on_grid(uv - uv.min(0), h, spacing)
     labels, n = ndimage.label(mask)
@@ -166,8 +166,8 @@ def _split_scales(grid: np.ndarray, mask: np.ndarray, spacing: float, sigma: flo
 
 
 def correlation_length(grid: np.ndarray, mask: np.ndarray, spacing: float) -> float:
-    """:func:`geosynth.relief_spectrum.correlation_length` (an isotropic relief's element size)."""
-    from geosynth.relief_spectrum import correlation_length as measure
+    """:func:`geosynth.completion.spectrum.correlation_length` (an isotropic relief's element size)."""
+    from geosynth.completion.spectrum import correlation_length as measure
 
     return measure(grid, spacing, mask)
 
@@ -175,7 +175,7 @@ def correlation_length(grid: np.ndarray, mask: np.ndarray, spacing: float) -> fl
 def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], spacing: float) -> dict:
     """Relief ``b`` (grid, mask) against the exemplar's ``a`` at one spacing.
 
-    The exemplar's dominant period P (:func:`geosynth.relief_spectrum.relief_spectrum`) sets
+    The exemplar's dominant period P (:func:`geosynth.completion.spectrum.relief_spectrum`) sets
     the scale: both reliefs are split into detail (less their Gaussian average over P) and
     base. ``size``: detail period ratio (an isotropic exemplar, anisotropy < 0.5: the
     correlation length's ratio instead); ``height``: detail amplitude ratio; ``base``: the
@@ -184,7 +184,7 @@ def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.nd
     degrees between the detail's directions. Without the split a slow undulation of the
     output's plate wins the spectrum peak and reads as features 6x too large (seen on the zoo).
     """
-    from geosynth.relief_spectrum import relief_spectrum
+    from geosynth.completion.spectrum import relief_spectrum
 
     period = relief_spectrum(a[0], spacing, a[1]).period
     out = {}
@@ -283,7 +283,7 @@ def measure_complete(member: Member, output: Path, capture: Path | None = None) 
         ref = c[~done]
         if capture is not None:
             from geosynth.geometry.pointsets import read_geometry
-            from geosynth.relief_prep import as_capture
+            from geosynth.completion.prep import as_capture
 
             cap = as_capture(read_geometry(capture))
             if cap.colors is not None:

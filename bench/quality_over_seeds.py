@@ -371,7 +371,7 @@ def texture_coherent(seed):
 def _wave(seed, refine=0):
     from test_completion import WAVE_REGION, _sine_fit, _wave_capture
 
-    from geosynth.completion import complete_surface
+    from geosynth.completion.synthesis import complete_surface
 
     surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
                                           device=ONE_DEVICE, seed=seed, refine=refine)
@@ -403,7 +403,7 @@ def completion_balance(seed):
     and the offers drawn from seed (the test: case 0, picks 1, offers 2)."""
     from test_completion import _balance_case
 
-    from geosynth.relief_match import Matches
+    from geosynth.completion.matching import Matches
 
     bal, level = _balance_case(seed=seed)
     uni, _ = _balance_case(seed=seed)
@@ -421,8 +421,8 @@ def completion_balance(seed):
 @claim
 def completion_tower(seed):
     """tests/test_completion.py::test_tower_keeps_its_ledges_at_the_median_spacing."""
-    from geosynth.completion import complete_surface
-    from geosynth.completion_examples import tower_example
+    from geosynth.completion.synthesis import complete_surface
+    from geosynth.completion.examples import tower_example
 
     ex = tower_example()
     surface, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=3, rotations=1,

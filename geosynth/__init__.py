@@ -75,8 +75,8 @@ _LAZY = {
     "PointTextureReport": "geosynth.pointtexture.synthesis",
     "PointTexture": "geosynth.pointtexture.texture",
     "point_texture_example": "geosynth.pointtexture.examples",
-    "complete_surface": "geosynth.completion",
-    "CompletionReport": "geosynth.completion",
+    "complete_surface": "geosynth.completion.synthesis",
+    "CompletionReport": "geosynth.completion.synthesis",
     "synthesize_volume_tiled": "geosynth.volume.tiled",
     "exemplar_source": "geosynth.volume.tiled",
 }

@@ -962,8 +962,8 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
 
 
 def _max_error_type(text: str) -> float:
-    """An argparse ``type=`` for --max-error: geosynth.completion.check_max_error's range."""
-    from geosynth.completion import check_max_error
+    """An argparse ``type=`` for --max-error: geosynth.completion.synthesis.check_max_error's range."""
+    from geosynth.completion.synthesis import check_max_error
 
     try:
         value = float(text)
@@ -978,7 +978,7 @@ def _max_error_type(text: str) -> float:
 def _capture_colours(capture) -> str:
     """How the capture is coloured, for the run's first line: 'RGB colours', 'RGBA colours'
     or 'no colours' (then the completion matches relief only, mu 1)."""
-    from geosynth.relief_prep import as_capture
+    from geosynth.completion.prep import as_capture
 
     cap = capture if hasattr(capture, "colors") and hasattr(capture, "alpha") else None
     if cap is None and hasattr(capture, "visual"):
@@ -995,7 +995,7 @@ def _capture_colours(capture) -> str:
 
 
 def _cmd_complete(args: argparse.Namespace) -> int:
-    from geosynth.completion_examples import COMPLETION_EXAMPLES
+    from geosynth.completion.examples import COMPLETION_EXAMPLES
 
     _, _, inputs = _file_or_example(args.input, args.example, COMPLETION_EXAMPLES, "INPUT",
                                     "a mesh or PLY point set of the captured part (colours optional)",
@@ -1005,8 +1005,8 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.completion import complete_surface, completion_picture, write_completion
-    from geosynth.completion_examples import completion_example
+    from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
+    from geosynth.completion.examples import completion_example
     from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
@@ -1224,7 +1224,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the targets) (default auto: exhaustive while targets x candidates x rotations is under 4e7)")
     p.add_argument("--no-balance", action="store_true",
                    help="the paper's uniform pick among the matches within 1.1x the best (default: the "
-                        "histogram-aware pick, our extension; see geosynth.completion._Balance)")
+                        "histogram-aware pick, our extension; see geosynth.completion.synthesis._Balance)")
     p.add_argument("--png", default=None, help="picture: captured, completed, completed part tinted; .png or .jpg "
                                                "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")

@@ -705,11 +705,11 @@ def _relief_tri_d2(ap, ab, ac):
 
 
 def relief_scores_reference(index, queries, limits=None, slots=None) -> np.ndarray:
-    """Same result as :func:`geosynth.relief_match.score` (``.codes``), by the same integer
+    """Same result as :func:`geosynth.completion.matching.score` (``.codes``), by the same integer
     arithmetic in NumPy: (Q, k, R) uint32 codes for the samples ``index.samples[slots]``
     (slots: None = every sample, (k,) for every query, or (Q, k) a row per query where -1
     is no candidate: OVER). Breckon and Fisher, Sec. 3 and Appendix A (FindMatches)."""
-    from geosynth import relief_match as rm
+    from geosynth.completion import matching as rm
 
     lim = (np.full(queries.n_queries, rm.CODE_CAP, np.int64) if limits is None
            else np.clip(np.asarray(limits).astype(np.int64), -1, rm.CODE_CAP))
@@ -739,7 +739,7 @@ def _relief_one_list(index, queries, lim: int, slots: np.ndarray, qi: int, adj: 
                      fan: np.ndarray) -> np.ndarray:
     """(k, R) uint32 codes of query qi (its limit ``lim``) against the samples
     index.samples[slots]; adj, fan: the index's CSR lists padded with -1."""
-    from geosynth import relief_match as rm
+    from geosynth.completion import matching as rm
 
     h = index.host
     cand = index.samples[slots].astype(np.int64)

@@ -255,7 +255,7 @@ def test_half_cylinder_completes_with_its_colours(tmp_path):
     all. Now the completed file holds red, green, blue and alpha (the capture gave one), the
     captured vertices keep their colours, and the completed part's colour histogram meets the
     capture's (intersection >= 0.8 on each of 3 seeds; measured 0.96-0.97)."""
-    from geosynth.completion import complete_surface, write_completion
+    from geosynth.completion.synthesis import complete_surface, write_completion
 
     cap = _half_cylinder(tmp_path / "cap.ply")
     src = PlyData.read(str(cap))["vertex"].data

@@ -646,7 +646,7 @@ def test_a_corrupt_stl_is_refused_saying_what_is_wrong_with_it(tmp_path):
 
 
 def test_every_writer_refuses_non_finite_values_before_creating_a_file(tmp_path):
-    from geosynth.completion import CompletedSurface, write_completion
+    from geosynth.completion.synthesis import CompletedSurface, write_completion
     from geosynth.geometry.surface import save_mesh
 
     p, n, c = _cloud(300)

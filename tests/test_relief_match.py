@@ -1,4 +1,4 @@
-"""M4 FindMatches (geosynth.relief_match, kernels/relief.*): the kernel equals the NumPy
+"""M4 FindMatches (geosynth.completion.matching, kernels/relief.*): the kernel equals the NumPy
 oracle bit for bit on every device and rotation, partners that are not samples make a
 match invalid, a copied neighbourhood scores 0 where it came from, devices agree bit for
 bit, the pruned find_matches() selects what an unpruned score() would, and bad input
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from geosynth import relief_match as rm
+from geosynth.completion import matching as rm
 from geosynth.reference import relief_scores_reference
 
 

@@ -146,8 +146,8 @@ M4_CASES = [
 
 
 def _m4_digests(name: str, options: dict, device: str) -> tuple[str, ...]:
-    from geosynth.completion import complete_surface
-    from geosynth.completion_examples import completion_example
+    from geosynth.completion.synthesis import complete_surface
+    from geosynth.completion.examples import completion_example
 
     ex = completion_example(name, seed=0, **options)
     # the settings these hashes were pinned with, given explicitly (the built-ins' own settings before

@@ -8,7 +8,7 @@ The twin of ``relief.cl`` (same kernel names without ``_kernel``, same arguments
 same order). Integer arithmetic throughout (positions in quanta, frames scaled by
 FRAME_ONE = 2^14, colours 0..255, integer weights); the only floating-point operations
 are single IEEE double multiplications and divisions of exact integers, truncated, so
-every device returns the same bits (geosynth.relief_match defines the codes and
+every device returns the same bits (geosynth.completion.matching defines the codes and
 geosynth.reference.relief_scores_reference is the NumPy twin).
 
 - ``relief_scores_kernel`` (launched over (Q, R, n_cand): neighbouring threads share the

@@ -156,7 +156,7 @@ def latitude_axis(fit: "SurfaceFit", points: np.ndarray, neighbours: int = 12) -
 
 def relief_frame(fit: "SurfaceFit", points: np.ndarray, cut: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """The points' relief in the fit's own unrolled (u, v) frame, world units (issue 32: the
-    relief's period and orientation are measured there, :mod:`geosynth.relief_spectrum`).
+    relief's period and orientation are measured there, :mod:`geosynth.completion.spectrum`).
 
     plane: (u, v) along ``basis``; cylinder: u = radius x angle, v = height along the axis;
     sphere: a sinusoidal projection, u = radius x (azimuth - pi) x sin(polar), v = radius x

@@ -4,14 +4,14 @@ extension of Sec. 6, and the evaluation of Sec. 5 (Table 1: the mean integral of
 volume between the fit and the surface, original vs completed part) and Sec. 6 (Fig. 13:
 RGB histograms of the original and completed parts).
 
-:func:`complete_surface` fits the underlying surface (:mod:`geosynth.surface_fit`),
-prepares samples, targets and their triangulation (:mod:`geosynth.relief_prep`), uploads
-the samples once (:class:`geosynth.relief_match.ReliefIndex`) and grows:
+:func:`complete_surface` fits the underlying surface (:mod:`geosynth.completion.fit`),
+prepares samples, targets and their triangulation (:mod:`geosynth.completion.prep`), uploads
+the samples once (:class:`geosynth.completion.matching.ReliefIndex`) and grows:
 
 - L = the untextured targets with a textured vertex among their edge neighbours, sorted
   by decreasing number of textured vertices in their W_t-ring neighbourhood;
 - for each t in L: its matches (every sample x R rotations, within 1.1x the best score,
-  :func:`geosynth.relief_match.find_matches`), one picked with the seeded generator
+  :func:`geosynth.completion.matching.find_matches`), one picked with the seeded generator
   (the paper: uniformly; by default our histogram-aware pick, :class:`_Balance`); if
   its score is below MaxErrThreshold, t gets the match's displacement (and colour) and is
   textured; otherwise t is skipped and its window W_t shrinks by one ring (not below 1);
@@ -72,9 +72,9 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.core.exact import exp_fixed, norm3
-from geosynth.relief_prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
+from geosynth.completion.prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods, target_spacing)
-from geosynth.surface_fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis
+from geosynth.completion.fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
            "complete_surface", "completion_picture", "write_completion"]
@@ -139,7 +139,7 @@ class CompletedSurface:
         completed: (V,) bool, True for the targets (the completed part).
         captured: (V,) bool, True for the capture's own vertices (not the oversampling's).
         textured: (V,) bool, False only for targets the growth could not reach.
-        fit: the :class:`~geosynth.surface_fit.SurfaceFit`.
+        fit: the :class:`~geosynth.completion.fit.SurfaceFit`.
         alpha: (V,) uint8 alpha of the colours when the capture gave one, else None.
     """
 
@@ -197,18 +197,18 @@ class CompletionReport:
         device: the device string the matching ran on.
         whole_windows: how many of the capture's own vertices lie at least ``window``
             target spacings from the captured part's border (their W-ring neighbourhood is
-            all captured relief; :func:`geosynth.relief_prep.capture_depth`).
+            all captured relief; :func:`geosynth.completion.prep.capture_depth`).
         picked_original: the fraction of completed targets that copied one of the
             capture's own vertices (the rest copied oversampling vertices); n_original: how
             many of the samples are the capture's own vertices.
         auto: the automatic settings' one-line reason (:func:`choose_settings`; "" when every
             setting was given); n_candidates: how many samples are candidates.
-        frame_axis: a sphere's latitude frames' axis (:func:`geosynth.surface_fit.latitude_axis`)
+        frame_axis: a sphere's latitude frames' axis (:func:`geosynth.completion.fit.latitude_axis`)
             and its least-eigenvalue share, or None.
         search: FindMatches' search, one of ``SEARCHES`` (:func:`choose_search`).
         The quality also holds the relief's scale, captured part against completed part, both
         measured in the fit's unrolled frame at the target spacing
-        (:mod:`geosynth.relief_spectrum`): ``relief_captured`` and ``relief_completed``
+        (:mod:`geosynth.completion.spectrum`): ``relief_captured`` and ``relief_completed``
         (ReliefSpectrum, None when a part is too small to measure), ``period_ratio``,
         ``amplitude_ratio`` (completed / captured) and ``angle_diff_deg`` (in [0, 90]).
     """
@@ -344,12 +344,12 @@ class AutoSettings:
         coarse: True when the targets are coarser than the capture (the capture then is not
             oversampled and its candidates are thinned to the target spacing).
         capture_spacing: the capture's median nearest-neighbour spacing in the fit's frame.
-        spectrum: the capture's :class:`~geosynth.relief_spectrum.ReliefSpectrum` in the fit's
-            unrolled frame (:func:`geosynth.surface_fit.relief_frame`).
+        spectrum: the capture's :class:`~geosynth.completion.spectrum.ReliefSpectrum` in the fit's
+            unrolled frame (:func:`geosynth.completion.fit.relief_frame`).
         fine: the share of its power below 4 capture spacings a wavelength.
         regular: 10th percentile / median of the nearest-neighbour spacings.
         reason: the one-line report.
-        latitude: a sphere's :func:`geosynth.surface_fit.latitude_axis` (axis, share) when it
+        latitude: a sphere's :func:`geosynth.completion.fit.latitude_axis` (axis, share) when it
             was measured (a relief with a period), else None.
     """
 
@@ -372,8 +372,8 @@ def _relief_grid(fit: SurfaceFit, points: np.ndarray, spacing: float | None = No
     on a grid of ``spacing`` (None: their median nearest-neighbour spacing), at most 1024 a side."""
     from scipy.spatial import cKDTree
 
-    from geosynth.relief_spectrum import heights_on_grid
-    from geosynth.surface_fit import relief_frame
+    from geosynth.completion.spectrum import heights_on_grid
+    from geosynth.completion.fit import relief_frame
 
     uv, h, cut = relief_frame(fit, points, cut)
     nn = cKDTree(uv).query(uv, 2)[0][:, 1]
@@ -389,7 +389,7 @@ def _relief_grid(fit: SurfaceFit, points: np.ndarray, spacing: float | None = No
 def _capture_relief(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
     """(spectrum, fine share, nn spacing, regularity, cut, share of power below half the period,
     slope order, correlation length) of points' relief in the fit's frame."""
-    from geosynth.relief_spectrum import correlation_length, fine_share, relief_spectrum
+    from geosynth.completion.spectrum import correlation_length, fine_share, relief_spectrum
 
     grid, mask, step, med, regular, cut = _relief_grid(fit, points, spacing, cut)
     spec = relief_spectrum(grid, step, mask)
@@ -435,9 +435,9 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
     built-in and a user's file.
 
     The relief's heights over the fit, unrolled into the fit's own (u, v) frame
-    (:func:`geosynth.surface_fit.relief_frame`), give its dominant period T, orientation and
-    anisotropy (:func:`geosynth.relief_spectrum.relief_spectrum`) and the share of power in
-    sharp features (:func:`~geosynth.relief_spectrum.fine_share`); the capture's sampling s is
+    (:func:`geosynth.completion.fit.relief_frame`), give its dominant period T, orientation and
+    anisotropy (:func:`geosynth.completion.spectrum.relief_spectrum`) and the share of power in
+    sharp features (:func:`~geosynth.completion.spectrum.fine_share`); the capture's sampling s is
     the median nearest-neighbour spacing there. Then:
 
     - target spacing: a band-limited relief (< 2% of its power below T / 2) with more than
@@ -454,7 +454,7 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       holds), which takes the median edge on the fit too. Both samplings are weighed: the
       coarser targets above are taken when either the capture or the rule's targets hold more
       than 12 on T. A relief that is not band-limited is coarsened by its elements' size instead:
-      when its correlation length L (:func:`geosynth.relief_spectrum.correlation_length`, about a
+      when its correlation length L (:func:`geosynth.completion.spectrum.correlation_length`, about a
       bump's radius) spans more than ``AUTO_FEATURE_COARSEN`` (4) of the rule's targets, targets at
       L / ``AUTO_PER_FEATURE`` (3). Sparse bumps' spectral period is their spacing, not their size:
       a zoo bumps sphere resampled to 20,000 vertices held 30 samples on T and 7 on L, and its
@@ -474,9 +474,9 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       R = 4 copied rows into vertical bands). Stripes (anisotropy >= 0.5: a sine, ridges, a
       knurl), isotropic and flat reliefs and spheres: the paper's R = 4 in its frames, except
       a sphere whose relief's slopes run about one axis (stripes, a knurl:
-      :func:`geosynth.surface_fit.latitude_axis` share under ``LATITUDE_SHARE``, 1/3 meaning
+      :func:`geosynth.completion.fit.latitude_axis` share under ``LATITUDE_SHARE``, 1/3 meaning
       no axis), which gets R = 4 in the latitude frames about that axis
-      (:func:`geosynth.surface_fit.fit_frames`; the paper's frames turn against such a relief
+      (:func:`geosynth.completion.fit.fit_frames`; the paper's frames turn against such a relief
       over a sphere, where no tangent field is without a singular point: these turn only at
       the axis' poles). Stripes are their own half turn and a quarter turn scores badly, so the extra
       rotations only add candidates: the wave at R = 1 lost histogram (0.029-0.034 against
@@ -487,7 +487,7 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
       bark the passes made the volume worse (0.31% -> 1.03%, m4refine in `git log -p bench/RESULTS.md`).
 
     Args:
-        capture: anything :func:`geosynth.relief_prep.as_capture` takes.
+        capture: anything :func:`geosynth.completion.prep.as_capture` takes.
         fit: the capture's :class:`SurfaceFit`.
 
     Returns:
@@ -590,7 +590,7 @@ def choose_search(search: str, n_targets: int, n_candidates: int, rotations: int
 def _thin(fit: SurfaceFit, points: np.ndarray, delta: float) -> np.ndarray:
     """(k,) int64 ids of ``points`` one per cell of a ``delta`` grid in the fit's unrolled
     frame: the point nearest its cell's centre (lowest id on ties), sorted."""
-    from geosynth.surface_fit import relief_frame
+    from geosynth.completion.fit import relief_frame
 
     uv = relief_frame(fit, points)[0]
     cell = np.floor(uv / delta)
@@ -1107,7 +1107,7 @@ def _quality(rs: ReliefSurface, textured: np.ndarray, seed: int, cand: np.ndarra
 
 def _spectrum_of(fit: SurfaceFit, points: np.ndarray, spacing: float):
     """The spectrum alone of points' relief in the fit's frame (what the quality numbers need)."""
-    from geosynth.relief_spectrum import relief_spectrum
+    from geosynth.completion.spectrum import relief_spectrum
 
     grid, mask, step, *_ = _relief_grid(fit, points, spacing)
     return relief_spectrum(grid, step, mask)
@@ -1158,7 +1158,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
-        capture: the captured part: a :class:`~geosynth.relief_prep.Capture`, a
+        capture: the captured part: a :class:`~geosynth.completion.prep.Capture`, a
             ``trimesh.Trimesh`` (vertex colours kept), a :class:`~geosynth.geometry.pointsets.PointSet`
             or an (N, 3) array; optional colours (N, 3) uint8.
         fit: None (chosen by residual), "plane", "sphere", "cylinder", or a SurfaceFit.
@@ -1179,7 +1179,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         progress: show a progress bar over the targets.
         max_targets: refuse a completion with more targets (None: no limit).
         oversample: "butterfly", "midpoint" (the paper's coplanar midpoints) or "none"; see
-            :func:`geosynth.relief_prep.prepare_relief`. None: "butterfly", or "none" when the
+            :func:`geosynth.completion.prep.prepare_relief`. None: "butterfly", or "none" when the
             automatic spacing makes the targets coarser than the capture.
         candidates: "capture" (default): only the capture's own vertices are candidate
             matches (their displacements and colours are copied), the oversampling's
@@ -1192,8 +1192,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
             own orientation, on a cylinder u around it and v along its axis, on a plane its
             u and v axes, on a sphere along its latitudes about the relief's axis when it has one
-            (:func:`geosynth.surface_fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
-            the fit's polar axis, :func:`geosynth.surface_fit.fit_frames`). With
+            (:func:`geosynth.completion.fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
+            the fit's polar axis, :func:`geosynth.completion.fit.fit_frames`). With
             "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
             turn is a symmetry of the relief).
         refine: refinement passes after the growth (our extension; 0, the default, is
@@ -1202,7 +1202,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         spacing: the target lattice's spacing: "minimum" (default, Sec. 4: the capture's
             minimum edge length) or "median" (our option: the median length of its edges on
             the fit, targets as dense as the capture, so that features one sample thick keep
-            their share of the vertices; see :func:`geosynth.relief_prep.prepare_relief`), or a
+            their share of the vertices; see :func:`geosynth.completion.prep.prepare_relief`), or a
             length (world units). When the automatic choice coarsens the targets (a capture
             with over 12 samples on its relief's period), the candidates are thinned to one a
             target spacing in the fit's frame.
@@ -1226,7 +1226,7 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             (no captured vertex ``window`` target spacings from its border); a fit that does not converge or
             a named fit far from the data (with its residual); an empty region.
     """
-    from geosynth import relief_match as rm
+    from geosynth.completion import matching as rm
     from geosynth.compute.backend import resolve_device
 
     t0 = time.perf_counter()

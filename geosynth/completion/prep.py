@@ -4,7 +4,7 @@ targets, the combined triangulation, W-ring neighbourhoods), Sec. 4 (target spac
 minimum edge length; the capture oversampled once by 1-to-4 subdivision) and Sec. 6 (new
 samples coloured by a Gaussian-weighted sum of their k nearest neighbours).
 
-:func:`prepare_relief` turns a capture and its :class:`~geosynth.surface_fit.SurfaceFit`
+:func:`prepare_relief` turns a capture and its :class:`~geosynth.completion.fit.SurfaceFit`
 into a :class:`ReliefSurface`: every vertex (samples first, then targets) with its base
 position on the fit, the fit's normal there (the corrected normal), the paper's tangent
 frame, its displacement ``D = position - base`` (zero for targets), colour, and one
@@ -30,7 +30,7 @@ import numpy as np
 
 from geosynth.compute.checks import as_points3
 from geosynth.core.exact import exp_fixed, norm3
-from geosynth.surface_fit import SurfaceFit, tangent_frames
+from geosynth.completion.fit import SurfaceFit, tangent_frames
 
 __all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",
            "prepare_relief", "ring_neighbourhoods", "target_spacing"]
@@ -296,7 +296,7 @@ def capture_depth(rs: "ReliefSurface") -> np.ndarray:
     nearest target or vertex of a border edge (an edge of one triangle). A target's W-ring
     neighbourhood reaches about W target spacings, so a candidate whose depth is below
     ``W * rs.spacing`` is matched partly against the border's samples, not against captured
-    relief (:func:`geosynth.completion.complete_surface` counts and checks them)."""
+    relief (:func:`geosynth.completion.synthesis.complete_surface` counts and checks them)."""
     from scipy.spatial import cKDTree
 
     f = np.sort(rs.faces.astype(np.int64), axis=1)
@@ -480,7 +480,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
             the paper's coplanar midpoints; "none": no oversampling (a capture already
             much denser than the targets has the phases the oversampling is for).
         spacing: a length (world units on the fit): the targets' spacing as given (the
-            automatic choice of :func:`geosynth.completion.complete_surface` for a capture
+            automatic choice of :func:`geosynth.completion.synthesis.complete_surface` for a capture
             much denser than its relief needs; not below 0.5x the capture's median edge). Or the
             target lattice's spacing. "minimum" (default, the paper's Sec. 4):
             the capture's minimum edge length (at least 0.5x its median), so that the

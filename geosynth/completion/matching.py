@@ -194,10 +194,10 @@ class ReliefIndex:
                 targets textured so far: the paper's "boot-strapped" variant), or (P,)
                 int ids of textured vertices: a fixed set of usable partners apart from
                 the candidates, e.g. every oversampled sample while only the capture's
-                own vertices are candidates (:func:`geosynth.completion.complete_surface`).
+                own vertices are candidates (:func:`geosynth.completion.synthesis.complete_surface`).
             frames: None (the paper's frames from ``normals``, :func:`paper_frames`) or
                 (V, 3, 3) frames, rows u, v, n (e.g. the fit's own,
-                :func:`geosynth.surface_fit.fit_frames`); n must be ``normals``' direction.
+                :func:`geosynth.completion.fit.fit_frames`); n must be ``normals``' direction.
             device: a device string of geosynth.devices().
 
         Returns:
@@ -713,7 +713,7 @@ def find_matches(index: ReliefIndex, queries: ReliefQueries, max_err: float, tol
             of the batch before the probes, or (Q, k) int slots a row per query (-1:
             none; each query scored against its own row only).
         exhaustive: True (the paper): the full pass over every sample decides. False (our
-            option for large captures, :data:`geosynth.completion.SEARCHES`): the
+            option for large captures, :data:`geosynth.completion.synthesis.SEARCHES`): the
             selection is made among the hints and the probe strides only, with the same
             rules; no full pass. Needs hints or probes.
         around: with ``exhaustive=False``, None or a function from (Q, m) int64 slots (-1:

@@ -5,7 +5,7 @@ planes), Figs. 9, 11, 12 (tree bark on a cylinder) and Fig. 10 (the tower of Pis
 arches on a cylinder).
 
 Each example is generated on the whole object and then cut: :func:`completion_example`
-returns the captured part as a :class:`~geosynth.relief_prep.Capture` (positions, colours,
+returns the captured part as a :class:`~geosynth.completion.prep.Capture` (positions, colours,
 no faces: they are triangulated over the fit) and the hidden part's ground truth for
 comparison, with the fit and region to complete.
 """
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geosynth.relief_prep import Capture
+from geosynth.completion.prep import Capture
 
 __all__ = ["COMPLETION_EXAMPLES", "CompletionExample", "completion_example"]
 
@@ -36,7 +36,7 @@ class CompletionExample:
         note: what it stands for.
 
     The scene only: no method settings. A built-in gets what a user's file gets, the settings
-    :func:`geosynth.completion.choose_settings` measures and chooses (issue 32).
+    :func:`geosynth.completion.synthesis.choose_settings` measures and chooses (issue 32).
     """
 
     name: str
