@@ -6,7 +6,7 @@
 // operators only (see common.h).
 #include "common.h"
 
-// M1's cascade search in one launch (geosynth.cascade_search.CascadeSearch, fused). Lower
+// M1's cascade search in one launch (geosynth.volume.cascade.CascadeSearch, fused). Lower
 // bounds of a block's SSD, per cell of m samples with sums S_q, S_b and centred norms
 // C_q, C_b (the norm of the samples minus their mean): SSD_cell = (S_q - S_b)^2 / m +
 // |q~ - b~|^2 >= (S_q - S_b)^2 / m + (C_q - C_b)^2. The 8 coarse cells (side n/2) use

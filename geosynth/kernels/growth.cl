@@ -3,7 +3,7 @@
 // mapping and gap blending (Sec. 3.4: blend_gaps) and the coherent neighbourhood matching
 // of one level (Sec. 4: match_coherent). The twin of growth.py (same kernels, same
 // arguments in the same order, float64 without contraction in the same order, exact
-// integer scores); see there and geosynth/parameterize.py, geosynth/matching.py for the
+// integer scores); see there and geosynth/texturing/parameterize.py, geosynth/texturing/matching.py for the
 // definitions.
 #include "common.h"
 
@@ -290,7 +290,7 @@ GS_INLINE long wrap_index(long i, long size)
 }
 
 // Bilinear texture lookup at texel coordinates (x, y) (texel centres at integers), as
-// geosynth.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge.
+// geosynth.texturing.textures.sample_bilinear: wrapped (wrap != 0) or clamped to the edge.
 GS_INLINE void bilinear(__global const uchar* tex, int h, int w, int wrap, double x, double y, double* out)
 {
     if (!wrap) { y = FMIN(FMAX(y, 0.0), (double)(h - 1)); x = FMIN(FMAX(x, 0.0), (double)(w - 1)); }

@@ -18,8 +18,8 @@
 // atan2 polynomial. No contraction into FMAs (pragma below; Warp: fuse_fp off) and
 // correctly rounded division and sqrt (-cl-fp32-correctly-rounded-divide-sqrt).
 //
-// BVH layout (geosynth.meshes.MeshBVH; node 0 unused, root = node 1):
-//   sbox   (N * 8) float: search box min xyz, 0, max xyz, 0 (grown by geosynth.meshes.BOX_SLACK);
+// BVH layout (geosynth.geometry.meshes.MeshBVH; node 0 unused, root = node 1):
+//   sbox   (N * 8) float: search box min xyz, 0, max xyz, 0 (grown by geosynth.geometry.meshes.BOX_SLACK);
 //          the two children of a node are adjacent
 //   child  (N * 2) int:   internal (first child, 0) | leaf (first triangle, count > 0)
 //   dipole (N * 8) float: centroid xyz, (beta r)^2, area-weighted normal sum xyz, 0
@@ -52,7 +52,7 @@
 // angles of its near leaves) in exactly the order of the per-point traversal above,
 // so the sign is the per-point algorithm's, lane by lane.
 //
-// Lane triangles `tri_lanes` (F * 32) float, in leaf order (geosynth.meshes.MeshBVH):
+// Lane triangles `tri_lanes` (F * 32) float, in leaf order (geosynth.geometry.meshes.MeshBVH):
 //   0 a, 3 ab = b - a, 6 ac = c - a, 9 n = ab x ac, 12 bc = c - b,
 //   15 n x ab, 18 n x bc, 21 1/|ab|^2, 22 1/|ac|^2, 23 1/|bc|^2, 24 ac x n,
 //   27 1/|n|^2, 28 inside threshold (0; +inf for a needle whose normal underflows)

@@ -12,7 +12,7 @@
 // stops there: the later steps would repeat it exactly, so the result is the same as with
 // all max_iter steps, sooner.
 //
-// Neighbours come from a cell-sorted grid built on the host (geosynth.pointsets): the
+// Neighbours come from a cell-sorted grid built on the host (geosynth.geometry.pointsets): the
 // points sorted by linear cell index (cz * ny + cy) * nx + cx, cell_start[c] the first
 // point of cell c (nx*ny*nz + 1 entries, the last = n). The cells of one (cz, cy) row are
 // consecutive, so a row of cells is one contiguous range of points.
