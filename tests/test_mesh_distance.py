@@ -1,5 +1,5 @@
 """Mesh distance fields on every present device, against the brute-force oracles of
-geosynth.reference and analytic cases."""
+geosynth.geometry.reference and analytic cases."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import trimesh
 
 import geosynth
 from conftest import TEST_DEVICES
-from geosynth import reference
+from geosynth.geometry import reference
 from geosynth.volume.examples import chainmail_mesh
 from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.distance import mesh_distance

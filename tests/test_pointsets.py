@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import reference
+from geosynth.geometry import reference
 from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.distance import pointset_distance as distance_pointset_distance
 from geosynth.geometry.pointsets import (

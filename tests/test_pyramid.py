@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import reference
+from geosynth.volume import reference
 from geosynth.volume.examples import spheres_field
 from geosynth.volume.synthesis import quantize_field
 from geosynth.volume.pyramid import build_pyramid, compare_level

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial import Delaunay
 
 from geosynth.completion import matching as rm
-from geosynth.reference import relief_scores_reference
+from geosynth.completion.reference import relief_scores_reference
 
 
 def _plane(n=13, jitter=0.2, seed=0, split=0.5):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import geosynth
-from geosynth import reference
+from geosynth.volume import reference
 from geosynth.volume import tree as tree_search_mod
 from geosynth.volume.blocks import block_offsets, block_origins, box_sums
 from geosynth.volume.cascade import CascadeSearch

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import reference
+from geosynth.volume import reference
 from geosynth.volume.cascade import CascadeSearch
 from geosynth.volume.examples import spheres_field
 from geosynth.volume.synthesis import quantize_field

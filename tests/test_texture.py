@@ -10,7 +10,7 @@ import pytest
 
 import geosynth
 from geosynth.texturing.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
-from geosynth.reference import colour_parameterization_reference, parameterize_reference
+from geosynth.texturing.reference import colour_parameterization_reference, parameterize_reference
 from geosynth.texturing.models import knn_table, load_point_model, point_model
 from geosynth.geometry.pointsets import PointSet, read_point_set, write_point_set
 from geosynth.texturing.texel_search import TexelSearch
@@ -184,7 +184,7 @@ def test_parameterization_of_a_sphere_near_the_seed(device):
                                                ("torus", 9, {"up": None, "threshold": 0.9})])
 def test_parameterization_kernel_equals_the_python_growth(device, model, k, options):
     # the kernel's growth order, arithmetic and results against the plain-Python loop of
-    # geosynth.reference (same operations in the same order: the same bits, NaN included)
+    # geosynth.texturing.reference (same operations in the same order: the same bits, NaN included)
     ps = point_model(model, 2500, seed=2)
     ref = parameterize_reference(ps, k, seed=4, **options)
     par = parameterize_points(ps, k, seed=4, device=device, **options)
@@ -384,7 +384,7 @@ def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, 
     # the one-launch coherent matching against its plain-Python twin (same order, same
     # integer scores, same random draws): the same texels and colours on every device
     from geosynth.texturing.parameterize import frames_from_up
-    from geosynth.reference import match_coherent_reference
+    from geosynth.texturing.reference import match_coherent_reference
     from geosynth.texturing.matching import match_coherent_level
     from geosynth.texturing.hierarchy import build_hierarchy
 

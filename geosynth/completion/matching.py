@@ -21,7 +21,7 @@ world units, frames to integers scaled by ``FRAME_ONE``, colours to 0..255, weig
 1..``WEIGHT_ONE``; partner searches and the point-triangle region tests are int64; a
 squared distance is one correctly rounded double division of exact integers, truncated;
 the score is an integer code, ``SCORE_ONE`` for an ssd of 1.0 (docs/relief_match.md has the whole
-arithmetic). :func:`geosynth.reference.relief_scores_reference` is the NumPy twin.
+arithmetic). :func:`geosynth.completion.reference.relief_scores_reference` is the NumPy twin.
 """
 
 from __future__ import annotations

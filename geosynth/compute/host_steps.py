@@ -14,8 +14,8 @@ the GIL while a CPU launch runs): each item is computed by the same code whichev
 holds it, so the bits do not depend on the number of cores. :func:`run_parts` does the
 same for NumPy loops over independent chunks.
 
-Each such kernel has a plain NumPy twin (its oracle, beside the caller or in
-``geosynth.reference``) and a test comparing them to a float64 tolerance; they are not
+Each such kernel has a plain NumPy twin (its oracle, beside the caller or in a
+method's ``reference`` module) and a test comparing them to a float64 tolerance; they are not
 required to agree bit for bit with NumPy (its sums are pairwise, the kernels' sequential).
 """
 

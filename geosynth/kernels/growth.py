@@ -8,7 +8,7 @@ kernels.
 
 The twin of ``growth.cl`` (same kernel names without ``_kernel``, same arguments in the
 same order, the same float64 arithmetic in the same order, exact integer scores);
-``geosynth.reference`` has plain-Python twins (``parameterize_reference``,
+``geosynth.texturing.reference`` has plain-Python twins (``parameterize_reference``,
 ``colour_parameterization_reference``, ``match_coherent_reference``) that give the same
 bits. Definitions are those of ``geosynth/texturing/parameterize.py`` and ``geosynth/texturing/matching.py``;
 the orders are fixed here:

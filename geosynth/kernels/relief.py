@@ -9,7 +9,7 @@ same order). Integer arithmetic throughout (positions in quanta, frames scaled b
 FRAME_ONE = 2^14, colours 0..255, integer weights); the only floating-point operations
 are single IEEE double multiplications and divisions of exact integers, truncated, so
 every device returns the same bits (geosynth.completion.matching defines the codes and
-geosynth.reference.relief_scores_reference is the NumPy twin).
+geosynth.completion.reference.relief_scores_reference is the NumPy twin).
 
 - ``relief_scores_kernel`` (launched over (Q, R, n_cand): neighbouring threads share the
   rotation, as the OpenCL work-items): for query q, candidate s = samples[slot], slot =

@@ -70,7 +70,7 @@ def host_mls(points: np.ndarray, normals: np.ndarray, queries: np.ndarray, h: fl
     """The MLS signed distance and gradient of :func:`geosynth.geometry.pointsets.pointset_distance`
     (far="nearest"), vectorized over queries, in float64 on the host.
 
-    The same definitions as the kernel and :func:`geosynth.reference.mls_project_naive`:
+    The same definitions as the kernel and :func:`geosynth.geometry.reference.mls_project_naive`:
     Gaussian weights of width h cut off at MLS_REACH * h, ``f(y) = n(y) . (y - a(y))``,
     steps ``y <- y - f n`` until ``|f| <= MLS_TOL h`` or MLS_MAX_ITER steps, distance
     ``sign(f(x)) min(|x - proj|, reach)``, gradient the last MLS normal; a query with no

@@ -38,7 +38,7 @@ Definitions (paper's notation):
 
 The growth and the gap blending each run in one kernel launch (one work-item) in the
 paper's sequential order; kernels/growth.py defines the queues' tie order (first in,
-first out within a priority) and geosynth.reference has plain-Python twins.
+first out within a priority) and geosynth.texturing.reference has plain-Python twins.
 """
 
 from __future__ import annotations
@@ -374,7 +374,7 @@ def parameterize_points(
     """Flatten a point model into 2D patches with bounded distortion (paper Sec. 3.2-3.3).
 
     The growth is the paper's sequential order, in one kernel launch (``kernels/growth``;
-    the queue's tie order is defined there); :func:`geosynth.reference.parameterize_reference`
+    the queue's tie order is defined there); :func:`geosynth.texturing.reference.parameterize_reference`
     is its plain-Python twin.
 
     Args:
