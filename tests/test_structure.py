@@ -11,6 +11,12 @@ loading, so it cannot cause that; the code uses it deliberately to break a depen
 (the backends are imported that way by ``geosynth.compute.backend``). A second graph counts those
 imports too: it must have no cycle either (issue 33). ``if TYPE_CHECKING:`` blocks never run
 and are skipped.
+
+The layout (issue 33): the top level holds only the public API and the command line; every
+other module lives in one subpackage per shared layer (core, io, kernels, _backends, compute,
+geometry) or per method (volume, pointtexture, texturing, completion). Counting the imports
+inside functions, a module imports only its own subpackage and lower layers, and no method
+imports another.
 """
 
 from __future__ import annotations
@@ -217,6 +223,67 @@ def test_backends_do_not_import_the_device_switch():
     for name in MODULES:
         if name.startswith("geosynth._backends."):
             assert "geosynth.compute.backend" not in graph[name], f"{name} imports geosynth.compute.backend at module level"
+
+
+
+# -- the layout: one subpackage per shared layer and per method (issue 33) -----------
+
+TOP_LEVEL = {"__init__.py", "__main__.py", "_launch.py", "cli.py"}  # the public API and the command line
+METHODS = {"volume": "M1", "pointtexture": "M2", "texturing": "M3", "completion": "M4"}
+# Each subpackage's layer, lowest first. A module imports only modules of its own subpackage and
+# of subpackages of a lower layer, counting the imports inside functions; the top level
+# (geosynth/__init__, cli, _launch, __main__) stands above them all and nothing below imports it.
+LAYERS = {"core": 0, "io": 1, "kernels": 1, "_backends": 2, "compute": 3, "geometry": 4, **{m: 5 for m in METHODS}}
+
+
+def _layer_of(module: str) -> str | None:
+    """The subpackage ``module`` belongs to (``geosynth.volume.tiled`` -> ``volume``); None for
+    the top level."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_top_level_is_the_api_and_the_command_line():
+    """``ls geosynth/`` shows the architecture: the four top-level modules, then one folder per
+    shared layer and per method, each a package."""
+    folder = PACKAGES["geosynth"]
+    assert {p.name for p in folder.glob("*.py")} == TOP_LEVEL
+    folders = {p.name for p in folder.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert folders == set(LAYERS)
+    assert all((folder / name / "__init__.py").is_file() for name in LAYERS)
+
+
+def test_each_layer_imports_only_layers_below_it():
+    """core imports nothing of geosynth outside core; io only core; the backends only core and
+    the kernels; compute adds the backends; geometry adds compute and io; a method any shared
+    layer. Nothing imports the top level. Imports inside functions count."""
+    bad = []
+    for module, targets in _graph(inside_functions=True).items():
+        mine = _layer_of(module)
+        if mine is None:
+            continue
+        for target in sorted(targets):
+            theirs = _layer_of(target)
+            if theirs != mine and (theirs is None or LAYERS[theirs] >= LAYERS[mine]):
+                bad.append(f"{module} ({mine}) -> {target} ({theirs or 'top level'})")
+    assert not bad, "imports against the layer order:\n" + "\n".join(bad)
+
+
+def test_no_method_imports_another_method():
+    """Each method's subpackage (M1 volume, M2 pointtexture, M3 texturing, M4 completion)
+    imports no other method's, not even inside a function: what they share lives in a shared layer."""
+    bad = sorted(f"{METHODS[_layer_of(m)]}: {m} -> {t}" for m, targets in _graph(inside_functions=True).items()
+                 for t in targets if _layer_of(m) in METHODS and _layer_of(t) in METHODS and _layer_of(t) != _layer_of(m))
+    assert not bad, "\n".join(bad)
+
+
+def test_subpackages_import_nothing_when_imported():
+    """A subpackage's ``__init__`` only documents it: importing ``geosynth.volume`` loads none of
+    its modules (``import geosynth`` and each folder stay cheap)."""
+    for name in MODULES:
+        if name != "geosynth" and _is_package(name):
+            tree = ast.parse(MODULES[name].read_text())
+            assert not [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))], name
 
 
 # -- private names ------------------------------------------------------------------

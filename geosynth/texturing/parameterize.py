@@ -439,11 +439,11 @@ def parameterize_with_device_arrays(
     Returns:
         (:class:`Parameterization`, :class:`DeviceGrowth`).
     """
-    import geosynth
+    from geosynth.compute.backend import get_backend
 
     t_start = time.perf_counter()
     w = _check_growth_options(weights, threshold, unit_scale, max_patch)
-    backend = geosynth.get_backend(device or "auto")
+    backend = get_backend(device or "auto")
     g = growth_inputs(points, k, unit_scale=unit_scale, up=up, seed=seed, neighbours=neighbours)
     n_pts, k = g["nb"].shape
     n_buckets = growth_buckets(k)
@@ -528,7 +528,7 @@ def colour_parameterization(
     Returns:
         (colours (N, 3) uint8, coloured (N,) bool, offsets (P, 2) float64 texel offset (x, y) per patch).
     """
-    import geosynth
+    from geosynth.compute.backend import get_backend
 
     p, nrm = as_model(points)
     tex = as_texture(texture)
@@ -542,7 +542,7 @@ def colour_parameterization(
         at = param.uv[idx] + offsets[param.patch[idx]]
         colours_f[idx] = sample_bilinear(tex, at[:, 1], at[:, 0], tileable)
         return np.clip(np.rint(colours_f), 0, 255).astype(np.uint8), is_patch.copy(), offsets
-    backend = geosynth.get_backend(device or "auto")
+    backend = get_backend(device or "auto")
     n_pts, k = param.neighbours.shape
     n_buckets = growth_buckets(k)
     f64, i32 = np.float64, np.int32

@@ -73,7 +73,7 @@ class TexelSearch:
 
     def __init__(self, texture: np.ndarray, coarse: np.ndarray | None, m: int, reach: float, tileable: bool,
                  device: str | None):
-        import geosynth
+        from geosynth.compute.backend import to_device
 
         self.texture = texture
         self.h, self.w = texture.shape[:2]
@@ -90,7 +90,7 @@ class TexelSearch:
         grid = np.pad(grid, pad, mode="wrap" if tileable else "edge")
         self.host = grid if coarse is not None else grid[0]
         self.nd = 3 if coarse is not None else 2
-        self.device_grid = geosynth.to_device(np.ascontiguousarray(self.host), device if device else "auto")
+        self.device_grid = to_device(np.ascontiguousarray(self.host), device if device else "auto")
         self.device = self.device_grid.backend.name
         self.phase_grid = None  # the batched kernel's layout, uploaded on first use
         self.phase_dims = (0, 0)
@@ -120,10 +120,10 @@ class TexelSearch:
                 supersampled-pixel offsets, dz = 0 for this level and 1 for the coarse one.
             values: (K, 3) uint8 colours.
         """
-        import geosynth
+        from geosynth.compute.scoring import score_gather
 
         off, vals, wts = self._query(np.asarray(offsets_px, np.int64), np.asarray(values, np.uint8))
-        return geosynth.score_gather(self.device_grid, off, vals, wts, stride=(2, self.m, self.m)[-self.nd:],
+        return score_gather(self.device_grid, off, vals, wts, stride=(2, self.m, self.m)[-self.nd:],
                                      keep_on_device=True)
 
     def best(self, offsets_px: np.ndarray, values: np.ndarray) -> tuple[int, int]:
