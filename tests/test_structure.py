@@ -294,7 +294,7 @@ def _private_uses(module: str):
     ``from geosynth.m import _name`` (at any depth: imports inside functions count too,
     since the rule is about whose name it is, not when it is loaded), and ``m._name`` where
     ``m`` is a name bound to a geosynth module by an import. A private module imported as
-    a module (``from geosynth.compute import checks``, ``geosynth._backends.base``) is not a
+    a module (``from geosynth import _backends``, ``geosynth._backends.base``) is not a
     private name: such modules are private to the package and shared inside it by design.
     """
     tree = ast.parse(MODULES[module].read_text(), filename=str(MODULES[module]))
@@ -345,8 +345,8 @@ PENDING_PRIVATE_USES: set[tuple[str, str]] = set()
 def test_private_use_finder(tmp_path):
     """The finder on planted source: a private name imported or read through a module is
     found; a private module imported as a module, and a module's own names, are not."""
-    source = ("from geosynth.compute import checks\nfrom geosynth.volume.synthesis import _x, y\nimport geosynth.compute.backend as b\n"
-              "def f():\n    from geosynth.volume.pyramid import _z\n    return b._w, checks.ok\n")
+    source = ("from geosynth import _backends\nfrom geosynth.volume.synthesis import _x, y\nimport geosynth.compute.backend as b\n"
+              "def f():\n    from geosynth.volume.pyramid import _z\n    return b._w, _backends.base\n")
     path = tmp_path / "planted.py"
     path.write_text(source)
     MODULES["geosynth._planted"] = path
@@ -362,8 +362,8 @@ def test_no_module_imports_a_private_name():
 
     The rule: a name is private to the module that defines it. Another module that needs
     it gets it made public (no underscore, documented) in its home module. Private
-    *modules* (``geosynth.compute.checks``, ``geosynth.io.readers``, ``geosynth._backends.*``) are
-    shared inside the package by design: importing them, and their public names, is fine.
+    *modules* (``geosynth._backends.*``) are shared inside the package by design: importing
+    them, and their public names, is fine.
     Tests are not held to this (they may reach into internals to test them).
     """
     found = {(m, text): line for m in MODULES for line, text in _private_uses(m)}
