@@ -142,8 +142,8 @@ def scaling(args, dev) -> list[str]:
 def main(argv=None) -> int:
     args = options(argv)
     devices = start(args)
-    from geosynth.completion.synthesis import complete_surface
     from geosynth.completion.examples import completion_example
+    from geosynth.completion.synthesis import complete_surface
 
     if args.scaling:
         return finish("\n".join(scaling(args, devices[0])), args,

@@ -82,9 +82,9 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
     from distributed import Client, LocalCluster
 
     from geosynth.core.memory import format_bytes
+    from geosynth.volume.synthesis import is_slab, synthesize_volume
     from geosynth.volume.tiled import WORKER_RUNTIME_BYTES, exemplar_source, seam_report, synthesize_volume_tiled, tile_bytes
     from geosynth.volume.tiles import TileGrid
-    from geosynth.volume.synthesis import is_slab, synthesize_volume
 
     import logging
 

@@ -43,13 +43,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import finish, parse_args, start  # noqa: E402
 
 import geosynth  # noqa: E402
-from geosynth.volume.examples import EXEMPLARS, spheres_field  # noqa: E402 (the end-to-end cube)
 from geosynth.compute.scoring import GatherScorer  # noqa: E402
+from geosynth.volume import synthesis as volume  # noqa: E402
 from geosynth.volume.blocks import block_offsets  # noqa: E402
 from geosynth.volume.cascade import CascadeSearch  # noqa: E402
-from geosynth.volume.tree import BlockSearch  # noqa: E402
-from geosynth.volume import synthesis as volume  # noqa: E402
+from geosynth.volume.examples import EXEMPLARS, spheres_field  # noqa: E402 (the end-to-end cube)
 from geosynth.volume.synthesis import quantize_field, synthesize_geometry, synthesize_volume  # noqa: E402
+from geosynth.volume.tree import BlockSearch  # noqa: E402
 
 PAPER_SECONDS = {(64, 8): 0.025, (128, 16): 0.5, (256, 32): 10.0}
 # Warp on the CPU runs one thread: linear searches past this many sample comparisons

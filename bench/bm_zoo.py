@@ -282,8 +282,8 @@ def measure_complete(member: Member, output: Path, capture: Path | None = None) 
         c = np.column_stack([v["red"], v["green"], v["blue"]])
         ref = c[~done]
         if capture is not None:
-            from geosynth.geometry.pointsets import read_geometry
             from geosynth.completion.prep import as_capture
+            from geosynth.geometry.pointsets import read_geometry
 
             cap = as_capture(read_geometry(capture))
             if cap.colors is not None:

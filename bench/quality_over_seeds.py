@@ -200,8 +200,8 @@ def tiled_seams(seed):
 @claim
 def point_texture_beats_random_pasting(seed):
     """tests/test_point_texture.py::test_synthesis_beats_random_pasting (weave)."""
-    from geosynth.pointtexture.synthesis import synthesize_point_texture
     from geosynth.pointtexture.examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     tex = point_texture_example("weave", count=10_000)
     _, report, _ = synthesize_point_texture(tex, device=ONE_DEVICE, seed=seed, scale=1.2, patch=0.5, resolution=24,
@@ -222,8 +222,8 @@ def point_texture_keeps_element_size(seed):
     (its sampling seed)."""
     from test_element_size import _bumps, _relief
 
-    from geosynth.pointtexture.synthesis import synthesize_point_texture
     from geosynth.pointtexture.examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     out = {}
     for name, tex in (("bumps", _relief(_bumps(0.06, 0.2, 100 + seed), n=110, seed=seed)),
@@ -242,8 +242,8 @@ def point_texture_tileable(seed):
     distance of the right border's points, moved one period, to the left border's surface, in spacings."""
     from test_point_texture import SMALL, _wavy
 
-    from geosynth.pointtexture.synthesis import synthesize_point_texture
     from geosynth.geometry.pointsets import pointset_distance
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     pts, report, _ = synthesize_point_texture(_wavy(), device=ONE_DEVICE, tileable=True, seed=seed, **SMALL)
     w = np.asarray(report.size)
@@ -421,8 +421,8 @@ def completion_balance(seed):
 @claim
 def completion_tower(seed):
     """tests/test_completion.py::test_tower_keeps_its_ledges_at_the_median_spacing."""
-    from geosynth.completion.synthesis import complete_surface
     from geosynth.completion.examples import tower_example
+    from geosynth.completion.synthesis import complete_surface
 
     ex = tower_example()
     surface, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=3, rotations=1,

@@ -34,8 +34,8 @@ import numpy as np
 import geosynth
 from geosynth.core.config import set_verbose
 from geosynth.core.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
-from geosynth.volume.examples import EXEMPLARS
 from geosynth.io.files import IMAGE_SUFFIXES, check_output
+from geosynth.volume.examples import EXEMPLARS
 
 MESH_OUT = (".ply", ".obj", ".stl")
 POINTS_OUT = (".ply",)
@@ -272,9 +272,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         _check_device(args.device)
 
     from geosynth.compute.backend import describe_devices
+    from geosynth.io.files import write_image
     from geosynth.volume.examples import spheres_field
     from geosynth.volume.synthesis import quantize_field
-    from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     say("geosynth demo: nearest-block search (M1's linear search) on a generated field\n")
@@ -353,9 +353,9 @@ def _cmd_field(args: argparse.Namespace) -> int:
 
     import trimesh
 
-    from geosynth.io.files import write_image
     from geosynth.geometry.distance import mesh_distance, pointset_distance
     from geosynth.geometry.pointsets import read_geometry
+    from geosynth.io.files import write_image
     from geosynth.io.pictures import field_slices_image
 
     say = (lambda *a, **k: None) if args.quiet else print
@@ -409,9 +409,9 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
+    from geosynth.geometry.surface import save_mesh
     from geosynth.io.files import write_image
     from geosynth.io.pictures import render_mesh, side_by_side
-    from geosynth.geometry.surface import save_mesh
     from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.volume.synthesis import block_text, synthesize_geometry
 
@@ -549,13 +549,13 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
                                  "inside the other (a store is replaced whole); give each its own place.")
     _check_device(args.device)
 
-    from geosynth.volume.examples import resolve_exemplar_mesh
-    from geosynth.io.files import write_image
     from geosynth.core.memory import available_memory
-    from geosynth.io.pictures import render_mesh, side_by_side
     from geosynth.geometry.surface import save_mesh
-    from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_mesh, side_by_side
+    from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.volume.synthesis import target_size
+    from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -698,10 +698,10 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], used)
     _check_device(args.device)
 
-    from geosynth.io.files import write_image
-    from geosynth.texturing.models import load_point_model, point_model
     from geosynth.geometry.pointsets import write_point_set
+    from geosynth.io.files import write_image
     from geosynth.io.pictures import render_points, side_by_side
+    from geosynth.texturing.models import load_point_model, point_model
     from geosynth.texturing.synthesis import texture_points
     from geosynth.texturing.textures import read_texture, texture_example
 
@@ -854,11 +854,11 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     _check_outputs(outputs, inputs)
     _check_device(args.device)
 
-    from geosynth.io.files import write_image
-    from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
     from geosynth.core.memory import MemoryBudgetError
     from geosynth.geometry.pointsets import write_point_set
+    from geosynth.io.files import write_image
     from geosynth.io.pictures import render_points, side_by_side
+    from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
 
     say = (lambda *a, **k: None) if args.quiet else print
     texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
@@ -1005,8 +1005,8 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
     from geosynth.completion.examples import completion_example
+    from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
     from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print

@@ -38,8 +38,8 @@ def files(tmp_path_factory) -> Path:
     """Inputs of every kind in one folder: meshes, a point set, a texture, a bomb, a folder."""
     import trimesh
 
-    from geosynth.texturing.models import point_model
     from geosynth.geometry.pointsets import write_point_set
+    from geosynth.texturing.models import point_model
     from geosynth.texturing.textures import texture_example, write_texture
 
     d = tmp_path_factory.mktemp("cli")

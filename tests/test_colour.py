@@ -317,8 +317,8 @@ def test_methods_that_cannot_carry_colour_say_so(tmp_path):
     """M1 works on a distance field: a coloured exemplar gets a one-line note (from the
     volume commands, before the synthesis) that the output has no colour; none for an
     exemplar without colour. has_colours reads a PLY file's header only."""
-    from geosynth.io.readers import has_colours
     from geosynth.cli import _m1_colour_note
+    from geosynth.io.readers import has_colours
 
     coloured = _bumps(tmp_path / "bumps.ply", n=20)
     plain = _bumps(tmp_path / "plain.ply", n=20, coloured=False)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from conftest import ONE_DEVICE
-from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
 from geosynth.completion.prep import Capture
+from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
 
 AMPLITUDE, PERIOD = 0.08, 0.5
 
@@ -336,8 +336,8 @@ def _balance_case(n0=400, seed=0):
 
 
 def test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram():
-    from geosynth.completion.synthesis import TOLERANCE
     from geosynth.completion.matching import Matches
+    from geosynth.completion.synthesis import TOLERANCE
 
     # The histogram distance of the balanced pick / the paper's uniform pick, over 3 draws (case,
     # picks and offers): measured over draws 0-19, the same under native, AVX2 and SSE4, 0.131
@@ -449,8 +449,8 @@ def test_median_spacing_lays_the_targets_in_the_capture_rows():
     in the arch recesses 5% inside the wall) gives 40 rows over the tower's height against the
     capture's 38, so its one-row ledges (4 rows in both) lose a twentieth of their share."""
     from geosynth.completion.examples import tower_example
-    from geosynth.completion.prep import prepare_relief
     from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import prepare_relief
 
     from geosynth.completion.synthesis import choose_settings
 
@@ -613,9 +613,9 @@ def test_fuzz_complete_reader_point_sets(tmp_path, shape, nan_normals, nan_colou
     NumPy warning, IndexError, LinAlgError or negative-dimension error."""
     import warnings
 
-    from geosynth.geometry.pointsets import read_geometry
-    from geosynth.completion.prep import as_capture, capture_depth, prepare_relief
     from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import as_capture, capture_depth, prepare_relief
+    from geosynth.geometry.pointsets import read_geometry
 
     rng = np.random.default_rng(seed)
     q = _hex(0.6, 0.5, 0.05)
@@ -689,9 +689,9 @@ def test_knurled_half_cylinder_keeps_its_period_and_orientation():
 
 def test_automatic_settings_follow_the_relief_and_explicit_options_override():
     """choose_settings on two reliefs and the explicit options' precedence."""
-    from geosynth.completion.synthesis import choose_settings
     from geosynth.completion.examples import completion_example
     from geosynth.completion.fit import fit_surface
+    from geosynth.completion.synthesis import choose_settings
 
     knurl = _knurled_half_cylinder()
     a = choose_settings(knurl, fit_surface(knurl.positions, "cylinder"))
@@ -730,9 +730,9 @@ def test_irregular_sampling_puts_the_targets_at_the_median_edge_and_a_sphere_in_
     7,298 captured points, 309 s): the automatic settings take the median edge on the fit
     instead, which :func:`target_spacing` reports as :func:`prepare_relief` makes it. Ridges
     along a sphere's latitudes get R 4 in the latitude frames."""
-    from geosynth.completion.synthesis import choose_settings
-    from geosynth.completion.prep import prepare_relief, target_spacing
     from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import prepare_relief, target_spacing
+    from geosynth.completion.synthesis import choose_settings
 
     cap = _latitude_sphere()
     sf = fit_surface(cap.positions, "sphere")
@@ -806,8 +806,8 @@ def test_sparse_bumps_sampled_densely_get_targets_by_their_size(seed):
     (a zoo sphere at 20,000 vertices grew worms). Their correlation length L sets the targets
     instead once it spans more than 4 of them: L / 3, the same whatever the capture's density;
     a capture already near that keeps its own edge."""
-    from geosynth.completion.synthesis import AUTO_PER_FEATURE, choose_settings
     from geosynth.completion.fit import fit_surface
+    from geosynth.completion.synthesis import AUTO_PER_FEATURE, choose_settings
 
     size = 2 * math.sqrt(math.log(2)) * 0.06
     spacings = []

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from geosynth.pointtexture.element_size import relief_scale
-from geosynth.pointtexture.synthesis import PATCH_PERIODS, choose_patch, synthesize_point_texture
 from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.synthesis import PATCH_PERIODS, choose_patch, synthesize_point_texture
 from geosynth.pointtexture.texture import PointTexture, read_point_texture, texture_from_points
 
 

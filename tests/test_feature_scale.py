@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import geosynth.volume.synthesis as volume
-from geosynth.volume.synthesis import choose_settings, match_histogram, synthesize_volume
 from geosynth.volume.features import compare_features, element_features
+from geosynth.volume.synthesis import choose_settings, match_histogram, synthesize_volume
 
 SEEDS = (0, 1, 2)
 

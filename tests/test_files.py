@@ -21,10 +21,10 @@ from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from geosynth.geometry.field import Field
-from geosynth.io.files import atomic_write, check_input, check_output, note_input, write_image
 from geosynth.geometry.meshes import load_mesh
-from geosynth.texturing.models import load_point_model
 from geosynth.geometry.pointsets import PointSet, read_geometry, read_point_set, write_point_set
+from geosynth.io.files import atomic_write, check_input, check_output, note_input, write_image
+from geosynth.texturing.models import load_point_model
 from geosynth.texturing.textures import read_texture
 
 

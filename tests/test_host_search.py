@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from geosynth.geometry.pointsets import MLS_REACH, CellGrid
 from geosynth.pointtexture.patch_search import (FIXED_STEPS, FIXED_TOL, RESIDUAL_TOL, PatchSearch, _HostCells, _iterate,
                                    host_mls, kernel_mls)
-from geosynth.geometry.pointsets import MLS_REACH, CellGrid
 
 
 def _wavy(n_side=50, seed=0, offset=(0.0, 0.0, 0.0)):
@@ -171,8 +171,8 @@ def test_quantized_fields_flags_unconverged_sheets(one_device):
 def test_host_choice_equals_the_device_selection(one_device):
     """PatchSearch.choose selects on the host: the same candidate set, best score and pick
     as selection.argmin / within_tolerance on the device scores, for several eps."""
-    from geosynth.pointtexture.texture import PointTexture
     from geosynth.compute.selection import argmin, random_pick, within_tolerance
+    from geosynth.pointtexture.texture import PointTexture
 
     p, n, h = _wavy()
     tex = PointTexture(p, n, [0, 0, -0.04], [1, 1, 0.04], name="wavy")

@@ -329,8 +329,8 @@ def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch,
     import trimesh
 
     from geosynth.geometry.meshes import mesh_distance
-    from geosynth.texturing.models import point_model
     from geosynth.geometry.pointsets import pointset_distance
+    from geosynth.texturing.models import point_model
     from geosynth.texturing.synthesis import texture_points
     from geosynth.texturing.textures import texture_example
     from geosynth.volume.synthesis import synthesize_geometry, synthesize_volume

@@ -10,10 +10,10 @@ import trimesh
 import geosynth
 from conftest import TEST_DEVICES
 from geosynth.geometry import reference
-from geosynth.volume.examples import chainmail_mesh
-from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.distance import mesh_distance
+from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.meshes import check_mesh, load_mesh, orient_faces
+from geosynth.volume.examples import chainmail_mesh
 
 # float32 kernels against a float64 oracle: relative to the mesh size
 ATOL = 2e-6

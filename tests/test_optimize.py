@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import geosynth
+from geosynth.volume.cascade import CascadeSearch
 from geosynth.volume.examples import spheres_field
 from geosynth.volume.graphcut import cut_cost, min_cut, must_keep
 from geosynth.volume.optimize import falloff, irls_weights, lattice_positions, optimize_level, vote
-from geosynth.volume.cascade import CascadeSearch
 from geosynth.volume.synthesis import METHODS, synthesize_volume
 
 

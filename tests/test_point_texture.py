@@ -11,11 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from geosynth.pointtexture.synthesis import synthesize_point_texture
-from geosynth.pointtexture.patch_search import PatchSearch, brute_force_scores, host_mls, quantized_fields
-from geosynth.pointtexture.examples import point_texture_example
-from geosynth.pointtexture.texture import PointTexture, texture_from_image, texture_from_points
 from geosynth.geometry.pointsets import MLS_REACH, pointset_distance
+from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.patch_search import PatchSearch, brute_force_scores, host_mls, quantized_fields
+from geosynth.pointtexture.synthesis import synthesize_point_texture
+from geosynth.pointtexture.texture import PointTexture, texture_from_image, texture_from_points
 
 SMALL = dict(scale=1.2, patch=0.5, resolution=24, quality=False)
 
@@ -387,8 +387,8 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
     projections do not converge)."""
     from scipy.spatial import cKDTree
 
-    from geosynth.pointtexture.patch_search import FIXED_STEPS, FIXED_TOL, _iterate
     from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_TOL
+    from geosynth.pointtexture.patch_search import FIXED_STEPS, FIXED_TOL, _iterate
 
     h = 2 * wavy.spacing
     sheet = wavy.points[::2] * [1, 1, 0]

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from geosynth.geometry import reference
-from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.distance import pointset_distance as distance_pointset_distance
+from geosynth.geometry.field import Field, cubic_grid
 from geosynth.geometry.pointsets import (
     MLS_REACH,
     PointSet,

@@ -21,9 +21,9 @@ from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from geosynth.cli import main
-from geosynth.pointtexture.synthesis import check_synthesis, synthesize_point_texture
 from geosynth.core.memory import MemoryBudgetError
 from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.synthesis import check_synthesis, synthesize_point_texture
 from geosynth.pointtexture.texture import PointTexture, read_point_texture, texture_from_points
 
 GIB = 1 << 30

@@ -7,8 +7,8 @@ import pytest
 
 from geosynth.volume import reference
 from geosynth.volume.examples import spheres_field
-from geosynth.volume.synthesis import quantize_field
 from geosynth.volume.pyramid import build_pyramid, compare_level
+from geosynth.volume.synthesis import quantize_field
 
 
 def _real_field(size: int = 24) -> np.ndarray:

@@ -12,8 +12,8 @@ from geosynth.volume import tree as tree_search_mod
 from geosynth.volume.blocks import block_offsets, block_origins, box_sums
 from geosynth.volume.cascade import CascadeSearch
 from geosynth.volume.examples import spheres_field
-from geosynth.volume.tree import BlockSearch
 from geosynth.volume.synthesis import quantize_field
+from geosynth.volume.tree import BlockSearch
 
 # (block size, source side): small enough for CI, block sizes 2 to 16.
 CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]

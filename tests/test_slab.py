@@ -67,8 +67,8 @@ def test_anisotropic_block_larger_than_field_is_refused(one_device):
 @pytest.fixture(scope="module")
 def domes_source():
     """The domes slab exemplar's signed distance at 32 samples across (in samples)."""
-    from geosynth.volume.examples import exemplar_mesh
     from geosynth.geometry.meshes import mesh_distance
+    from geosynth.volume.examples import exemplar_mesh
     from geosynth.volume.synthesis import exemplar_grid
 
     mesh = exemplar_mesh("domes")

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import geosynth
+from geosynth.geometry.pointsets import PointSet, read_point_set, write_point_set
+from geosynth.texturing.models import knn_table, load_point_model, point_model
 from geosynth.texturing.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
 from geosynth.texturing.reference import colour_parameterization_reference, parameterize_reference
-from geosynth.texturing.models import knn_table, load_point_model, point_model
-from geosynth.geometry.pointsets import PointSet, read_point_set, write_point_set
-from geosynth.texturing.texel_search import TexelSearch
 from geosynth.texturing.synthesis import texture_points
+from geosynth.texturing.texel_search import TexelSearch
 from geosynth.texturing.textures import (
     as_texture, read_texture, sample_bilinear, sample_bilinear_grid, supersample, texture_example, texture_pyramid,
     write_texture,
@@ -383,10 +383,10 @@ def test_multilevel_and_coherent_matching(one_device):
 def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, m, prefilled):
     # the one-launch coherent matching against its plain-Python twin (same order, same
     # integer scores, same random draws): the same texels and colours on every device
+    from geosynth.texturing.hierarchy import build_hierarchy
+    from geosynth.texturing.matching import match_coherent_level
     from geosynth.texturing.parameterize import frames_from_up
     from geosynth.texturing.reference import match_coherent_reference
-    from geosynth.texturing.matching import match_coherent_level
-    from geosynth.texturing.hierarchy import build_hierarchy
 
     ps = point_model("blob", 1500, seed=5)
     tex = texture_example("noise", 24, seed=2)

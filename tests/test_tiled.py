@@ -16,9 +16,9 @@ import pytest
 
 from conftest import ONE_DEVICE
 from geosynth.core.memory import MemoryBudgetError
+from geosynth.volume.synthesis import synthesize_volume, upsample
 from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled
 from geosynth.volume.tiles import PHASE_A, PHASE_B, Region, TileGrid, upsample_window
-from geosynth.volume.synthesis import synthesize_volume, upsample
 
 distributed = pytest.importorskip("distributed")
 

@@ -37,12 +37,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geosynth.volume.examples import exemplar_field
-from geosynth.pointtexture.synthesis import synthesize_point_texture
 from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.synthesis import synthesize_point_texture
 from geosynth.texturing.models import point_model
-from geosynth.texturing.textures import texture_example
 from geosynth.texturing.synthesis import texture_points
+from geosynth.texturing.textures import texture_example
+from geosynth.volume.examples import exemplar_field
 from geosynth.volume.synthesis import synthesize_volume
 
 
@@ -146,8 +146,8 @@ M4_CASES = [
 
 
 def _m4_digests(name: str, options: dict, device: str) -> tuple[str, ...]:
-    from geosynth.completion.synthesis import complete_surface
     from geosynth.completion.examples import completion_example
+    from geosynth.completion.synthesis import complete_surface
 
     ex = completion_example(name, seed=0, **options)
     # the settings these hashes were pinned with, given explicitly (the built-ins' own settings before

@@ -115,9 +115,9 @@ def test_random_bumps_on_a_cylinder_are_not_a_directed_relief():
     """The zoo's bumped cylinder: its spectrum's anisotropy reads 0.22 (a handful of bumps),
     above the directed threshold, but its slopes point every way (slope order ~0.06, the
     tower's arches 0.54): R 4 in the paper's frames, not one unturned copy (1.18x its size)."""
-    from geosynth.completion.synthesis import choose_settings
-    from geosynth.completion.prep import Capture
     from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import Capture
+    from geosynth.completion.synthesis import choose_settings
 
     member = zoo.zoo("complete", 5)[4]
     verts, faces, _, _ = zoo.capture_surface(member)

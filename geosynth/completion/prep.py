@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth.completion.fit import SurfaceFit, tangent_frames
 from geosynth.compute.checks import as_points3
 from geosynth.core.exact import exp_fixed, norm3
-from geosynth.completion.fit import SurfaceFit, tangent_frames
 
 __all__ = ["TARGET_SPACINGS", "Capture", "ReliefSurface", "as_capture", "capture_depth", "check_spacing_rule",
            "prepare_relief", "ring_neighbourhoods", "target_spacing"]

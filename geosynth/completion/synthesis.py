@@ -71,10 +71,10 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.core.exact import exp_fixed, norm3
+from geosynth.completion.fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis
 from geosynth.completion.prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods, target_spacing)
-from geosynth.completion.fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surface, latitude_axis
+from geosynth.core.exact import exp_fixed, norm3
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
            "complete_surface", "completion_picture", "write_completion"]
@@ -372,8 +372,8 @@ def _relief_grid(fit: SurfaceFit, points: np.ndarray, spacing: float | None = No
     on a grid of ``spacing`` (None: their median nearest-neighbour spacing), at most 1024 a side."""
     from scipy.spatial import cKDTree
 
-    from geosynth.completion.spectrum import heights_on_grid
     from geosynth.completion.fit import relief_frame
+    from geosynth.completion.spectrum import heights_on_grid
 
     uv, h, cut = relief_frame(fit, points, cut)
     nn = cKDTree(uv).query(uv, 2)[0][:, 1]

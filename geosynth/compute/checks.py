@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from geosynth.core.arrays import DeviceArray, float_stats
 from geosynth.compute.backend import get_backend
+from geosynth.core.arrays import DeviceArray, float_stats
 
 # uint8 data is scored in uint32: the largest possible score must fit.
 UINT32_MAX = np.iinfo(np.uint32).max

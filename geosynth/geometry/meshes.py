@@ -20,10 +20,10 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from geosynth.compute import checks as _checks
-from geosynth.io import readers as _readers
-from geosynth.geometry.field import Field, cubic_grid_geometry
-from geosynth.io.files import check_input
 from geosynth.core.memory import require
+from geosynth.geometry.field import Field, cubic_grid_geometry
+from geosynth.io import readers as _readers
+from geosynth.io.files import check_input
 
 __all__ = ["MeshBVH", "build_bvh", "check_mesh", "load_mesh", "mesh_distance", "orient_faces"]
 

@@ -57,10 +57,10 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.compute import checks as _checks
+from geosynth.core.memory import require
+from geosynth.geometry.field import Field, cubic_grid, cubic_grid_geometry
 from geosynth.io import readers as _readers
 from geosynth.io.files import atomic_write, check_finite_output, check_input
-from geosynth.geometry.field import Field, cubic_grid, cubic_grid_geometry
-from geosynth.core.memory import require
 
 __all__ = [
     "MLS_MAX_ITER",

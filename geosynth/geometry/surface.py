@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.io.files import atomic_write, check_finite_output
 from geosynth.geometry.field import Field
+from geosynth.io.files import atomic_write, check_finite_output
 
 __all__ = ["MESH_SUFFIXES", "field_to_mesh", "save_mesh", "smooth_mesh"]
 

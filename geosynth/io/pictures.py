@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from geosynth.io.files import write_image
 from geosynth.core.interpolate import lerp_axis, linear_taps
+from geosynth.io.files import write_image
 
 __all__ = [
     "View", "field_slices_image", "render_mesh", "render_mesh_png", "render_points", "render_points_png",

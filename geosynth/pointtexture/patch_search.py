@@ -223,8 +223,8 @@ class _HostCells:
         """:func:`_iterate`'s outputs for (M, 3) float64 queries: (f at the query (NaN:
         no point within reach), last MLS normal, projection), float64, by one launch."""
         from geosynth.compute.host_steps import host_array, host_launch
-        from geosynth.kernels.host_search import mls_project_f64
         from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_TOL
+        from geosynth.kernels.host_search import mls_project_f64
 
         steps, tol = (FIXED_STEPS, FIXED_TOL * h) if fixed else (MLS_MAX_ITER, MLS_TOL * h)
         m = len(q)

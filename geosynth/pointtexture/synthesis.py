@@ -34,8 +34,8 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 from threadpoolctl import threadpool_limits
 from geosynth.compute.checks import UINT32_MAX
-from geosynth.pointtexture.output_grid import PointGrid
 from geosynth.core.config import passive_openmp_threads
+from geosynth.pointtexture.output_grid import PointGrid
 from geosynth.pointtexture.texture import PointTexture
 
 __all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
@@ -383,8 +383,8 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     from geosynth.pointtexture.patch_search import quantized_fields
 
     if not baseline:
-        from geosynth.pointtexture.warping import warp_patch
         from geosynth.pointtexture.blending import blend_patch, cut_pieces, overlap_ramp, seam_errors
+        from geosynth.pointtexture.warping import warp_patch
 
     cell, pc = lay.cell, lay.patch
     reach = 3.0 * h
@@ -1000,11 +1000,11 @@ def synthesize_point_texture(
         TypeError: arguments of the wrong type.
     """
     from geosynth.compute import checks as _checks
-    from geosynth.pointtexture.blending import has_pieces
-    from geosynth.pointtexture.patch_search import PatchSearch
     from geosynth.compute.host_steps import host_threads
     from geosynth.geometry.pointsets import MLS_REACH, PointSet
+    from geosynth.pointtexture.blending import has_pieces
     from geosynth.pointtexture.element_size import relief_scale
+    from geosynth.pointtexture.patch_search import PatchSearch
     from geosynth.pointtexture.warping import WarpWeights, surface_variation
 
     t_start = time.perf_counter()

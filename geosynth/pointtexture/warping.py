@@ -69,8 +69,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from geosynth.compute.checks import as_points3, as_unit_vectors, check_positive
-from geosynth.core.exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
 from geosynth.compute.host_steps import run_parts
+from geosynth.core.exact import exp_fixed, log_fixed, round_log_f32, solve_fixed, sum_products_f32, times3x3
 
 __all__ = [
     "WARP_PRESETS",

@@ -27,8 +27,8 @@ import math
 import numpy as np
 
 from geosynth._backends.interfaces import MatchInputs, MatchScratch, MatchState
-from geosynth.texturing.parameterize import growth_buckets, pick_batch, tangent_offsets
 from geosynth.texturing.hierarchy import PointLevel
+from geosynth.texturing.parameterize import growth_buckets, pick_batch, tangent_offsets
 from geosynth.texturing.texel_search import TexelSearch, pixel_offsets, refine_shifts
 
 __all__ = ["DEFAULT_MATCH_BATCH", "match_coherent_level", "match_level"]

@@ -23,14 +23,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geosynth.compute.backend import get_backend
+from geosynth.geometry.pointsets import PointSet
+from geosynth.texturing.hierarchy import PointLevel, build_hierarchy
 from geosynth.texturing.matching import DEFAULT_MATCH_BATCH, match_level
+from geosynth.texturing.models import knn_table, spatial_order
 from geosynth.texturing.parameterize import (
     DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_k, check_up, colour_parameterization,
     frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
 )
-from geosynth.texturing.hierarchy import PointLevel, build_hierarchy
-from geosynth.texturing.models import knn_table, spatial_order
-from geosynth.geometry.pointsets import PointSet
 from geosynth.texturing.texel_search import DEFAULT_M, TexelSearch, pixel_offsets
 from geosynth.texturing.textures import as_texture, texture_pyramid
 

@@ -23,8 +23,8 @@ from typing import Callable
 
 import numpy as np
 
-from geosynth.io.files import check_input, write_image
 from geosynth.core.interpolate import lerp_axis, linear_taps
+from geosynth.io.files import check_input, write_image
 
 __all__ = [
     "TEXTURES", "TextureExample", "as_texture", "bricks_texture", "checker_texture", "noise_texture",

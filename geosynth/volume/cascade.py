@@ -15,10 +15,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from geosynth.compute import checks as _checks
+from geosynth.compute.scoring import GatherScorer
 from geosynth.core.arrays import DeviceArray
 from geosynth.volume.blocks import block_offsets, block_shape, box_sums
 from geosynth.volume.pyramid import check_block_shape, check_field, check_memory, check_query
-from geosynth.compute.scoring import GatherScorer
 
 __all__ = ["CascadeSearch", "tally_alive"]
 

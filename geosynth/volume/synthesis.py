@@ -47,11 +47,11 @@ import numpy as np
 from geosynth.compute import checks as _checks
 from geosynth.core.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION,
                                 M1_ELEMENT_MARGIN_SAMPLES, M1_MIN_FEATURE_SAMPLES)
-from geosynth.volume.examples import resolve_exemplar_mesh as _exemplar_mesh
-from geosynth.geometry.field import Field
 from geosynth.core.interpolate import lerp_axis, linear_taps
 from geosynth.core.memory import require
+from geosynth.geometry.field import Field
 from geosynth.volume.blocks import block_offsets, block_shape
+from geosynth.volume.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.volume.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
 
 __all__ = [
@@ -1299,8 +1299,8 @@ def synthesize_geometry(
     _check_int("smooth", smooth, 0)
     _check_int("quality_samples", quality_samples, 0)
     from geosynth.geometry.meshes import check_mesh
-    from geosynth.volume.quality import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
     from geosynth.geometry.surface import field_to_mesh
+    from geosynth.volume.quality import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
 
     timings = {}
     t0 = time.perf_counter()

@@ -1222,8 +1222,8 @@ def exemplar_source(exemplar, source_resolution: int = 64, levels: int = 3, seed
     ``field``: None, or the distance already computed on that grid (see
     :func:`geosynth.volume.synthesis.choose_settings`). Returns (float32 (Z, Y, X) distances in samples, spacing (world units per sample),
     the exemplar Field)."""
-    from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.geometry.meshes import check_mesh
+    from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.volume.synthesis import exemplar_distance
 
     m = resolve_exemplar_mesh(exemplar, seed)

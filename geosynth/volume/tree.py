@@ -67,6 +67,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geosynth.compute.scoring import score_gather
+from geosynth.compute.selection import argmin
 from geosynth.core.arrays import DeviceArray
 from geosynth.volume.blocks import block_offsets, block_origins
 from geosynth.volume.pyramid import (
@@ -79,8 +81,6 @@ from geosynth.volume.pyramid import (
     pyramid_bytes,
     query_arrays,
 )
-from geosynth.compute.scoring import score_gather
-from geosynth.compute.selection import argmin
 
 __all__ = ["BlockSearch", "TreeStats"]
 
