@@ -16,7 +16,7 @@ completion using non-parametric techniques"): speed and quality.
 3. ``--scaling``: issue 32's target, 20,000 captured vertices completed in <= 60 s on 2 cores
    (opencl): the issue's knurled half cylinder (180 x 120 vertices) and zoo members 02, 05, 08,
    11 (the spheres, the slowest family) resampled to about 20,000 captured vertices, each with the
-   exhaustive and the coherent search (``geosynth.completion.SEARCHES``) on the first device,
+   exhaustive and the coherent search (``geosynth.completion.synthesis.SEARCHES``) on the first device,
    defaults otherwise: time and the relief's period and amplitude ratios.
 
 With ``--quick``: the Fig. 9 case at a tenth of its size and the wave and flat examples.
@@ -66,7 +66,7 @@ def options(argv=None):
 def fig9_capture(scale: float = 1.0):
     """A bark capture sized like Fig. 9: about 12,852 * scale samples after oversampling and
     7,200 * scale targets (a unit cylinder, 32% of its circumference captured)."""
-    from geosynth.completion_examples import bark_example
+    from geosynth.completion.examples import bark_example
 
     return bark_example(seed=0, delta=0.05, height=3.47 * scale, fraction=0.323)
 
@@ -111,7 +111,7 @@ def zoo_capture(index: int, vertices: int = SCALING_VERTICES):
 
 def scaling(args, dev) -> list[str]:
     """The scaling part (module docstring, 3)."""
-    from geosynth.completion import complete_surface
+    from geosynth.completion.synthesis import complete_surface
 
     cases = [("issue 32 knurled half cylinder", knurled_half_cylinder())]
     cases += [zoo_capture(i) for i in (2, 5, 8, 11)]
@@ -134,7 +134,7 @@ def scaling(args, dev) -> list[str]:
             print(row, flush=True)
             lines.append(row)
     lines += ["", "Ratios: completed / captured relief, measured in the fit's unrolled frame "
-              "(geosynth.relief_spectrum); the issue's targets: period within 10%, orientation within 10 degrees, "
+              "(geosynth.completion.spectrum); the issue's targets: period within 10%, orientation within 10 degrees, "
               "20,000 captured vertices in <= 60 s on 2 cores (opencl)."]
     return lines
 
@@ -142,8 +142,8 @@ def scaling(args, dev) -> list[str]:
 def main(argv=None) -> int:
     args = options(argv)
     devices = start(args)
-    from geosynth.completion import complete_surface
-    from geosynth.completion_examples import completion_example
+    from geosynth.completion.examples import completion_example
+    from geosynth.completion.synthesis import complete_surface
 
     if args.scaling:
         return finish("\n".join(scaling(args, devices[0])), args,
@@ -223,10 +223,10 @@ def main(argv=None) -> int:
               "Slope = mean |h_i - h_j| / |b_i - b_j|, colour step = mean |c_i - c_j| (RGB L1 / 3) over vertex pairs of "
               "a part about one target spacing apart (random copies break both). The baseline keeps the |h| and colour "
               "distributions by construction, so its volume and histogram numbers are the sampling noise of "
-              "independent copies, not a competitor (see geosynth.completion). Halves = the capture's two halves "
+              "independent copies, not a competitor (see geosynth.completion.synthesis). Halves = the capture's two halves "
               "(split at the median of the first fit parameter) against each other: how much two real parts of the "
               "surface differ. Completion with the histogram-aware pick "
-              "(the default; geosynth.completion._Balance)."]
+              "(the default; geosynth.completion.synthesis._Balance)."]
     scale_text = "--quick" if args.quick else "full size"
     return finish("\n".join(lines), args, title=f"# bm_completion: M4 relief and colour completion ({scale_text})")
 

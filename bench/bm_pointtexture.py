@@ -44,8 +44,8 @@ def options(argv=None):
 
 
 def run_case(label, name, n_in, n_out, devices, quality):
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_examples import point_texture_example
+    from geosynth.pointtexture.examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     tex = point_texture_example(name, count=n_in)
     inside = int(tex.inside_mask(tex.points, tex.box_min, tex.box_max).sum())

@@ -1,5 +1,5 @@
 """M4 FindMatches speed: (target, sample, rotation) triples per second, per backend, vs the
-NumPy oracle (geosynth.reference.relief_scores_reference).
+NumPy oracle (geosynth.completion.reference.relief_scores_reference).
 
 The case is the paper's Fig. 9 size (Breckon and Fisher, "3D Surface Relief and Colour
 Completion", Sec. 5: s = 12,852 samples, t = 7,200 targets, R = 4): a plane with a wave
@@ -69,7 +69,7 @@ def plane_case(samples_side: int, seed: int = 0):
 
 
 def boundary_queries(index, triangles, count: int, spacing: float, w: int = 2):
-    from geosynth import relief_match as rm
+    from geosynth.completion import matching as rm
 
     v = index.n_vertices
     nb = [set() for _ in range(v)]
@@ -109,8 +109,8 @@ def _cpu_time(fn, repeats: int) -> float:
 
 
 def main(argv=None) -> int:
-    from geosynth import relief_match as rm
-    from geosynth.reference import relief_scores_reference
+    from geosynth.completion import matching as rm
+    from geosynth.completion.reference import relief_scores_reference
 
     args = options(argv)
     devices = start(args)

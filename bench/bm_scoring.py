@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import Row, finish, parse_args, start, table, time_call  # noqa: E402
 
 import geosynth  # noqa: E402
-from geosynth.scoring import GatherScorer  # noqa: E402
+from geosynth.compute.scoring import GatherScorer  # noqa: E402
 
 try:
     import faiss
@@ -106,8 +106,8 @@ def block_offsets(size: int) -> np.ndarray:
 def gather_blocks_rows(devices, rng, size=64, block=16) -> list[Row]:
     case = f"gather uint8 {size}^3 field, all {block}^3 blocks"
     print(f"  {case}", flush=True)
-    from geosynth.examples import spheres_field
-    from geosynth.volume import quantize_field
+    from geosynth.volume.examples import spheres_field
+    from geosynth.volume.synthesis import quantize_field
 
     field = quantize_field(spheres_field(size, count=40, seed=1), band=4.0)
     off = block_offsets(block)

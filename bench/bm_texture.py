@@ -32,9 +32,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import finish, parse_args, start  # noqa: E402
 
-from geosynth.pointmodels import point_model  # noqa: E402
-from geosynth.texturing import texture_points  # noqa: E402
-from geosynth.textures import texture_example  # noqa: E402
+from geosynth.texturing.models import point_model  # noqa: E402
+from geosynth.texturing.synthesis import texture_points  # noqa: E402
+from geosynth.texturing.textures import texture_example  # noqa: E402
 
 QUICK_PASSES, QUICK_SECONDS = 3, 2.0  # cases under 2 s run 3 times, the best pass reported (this VM's noise)
 # (name, method, model, points, texture size, k, levels, coherent, paper points/s)

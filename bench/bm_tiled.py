@@ -1,4 +1,4 @@
-"""Tiled M1 synthesis on Dask (geosynth.tiled): a large terrain and a slab texture (chainmail)
+"""Tiled M1 synthesis on Dask (geosynth.volume.tiled): a large terrain and a slab texture (chainmail)
 from the built-ins on a 2-worker LocalCluster: wall time, per-level time, peak memory per
 worker, tasks, bytes moved between workers, seam against interior quality; the same
 target untiled (where it fits) for the ratio; and from those figures an estimate for
@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from harness import finish, parse_args, start  # noqa: E402
 
-# M1's defaults (geosynth.volume.synthesize_geometry): with 2 levels, block 8, source 32
+# M1's defaults (geosynth.volume.synthesis.synthesize_geometry): with 2 levels, block 8, source 32
 # and one iteration a level (this bench's settings until 2026-12-03) the terrain came out
 # as blocky noise (slopes 0.11 against the defaults' 0.8), so those runs judged seams only.
 LEVELS, BLOCK, RESOLUTION = 3, 16, 64
@@ -57,8 +57,8 @@ def _height_map(field: np.ndarray) -> np.ndarray:
 
 
 def _picture(path: str, field: np.ndarray, grid) -> None:
-    from geosynth.files import write_image
-    from geosynth.render import side_by_side
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import side_by_side
 
     h = _height_map(field)
     g = (h - h.min()) / max(1e-6, float(h.max() - h.min()))
@@ -81,10 +81,10 @@ def _picture(path: str, field: np.ndarray, grid) -> None:
 def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[str]:
     from distributed import Client, LocalCluster
 
-    from geosynth.memory import format_bytes
-    from geosynth.tiled import WORKER_RUNTIME_BYTES, exemplar_source, seam_report, synthesize_volume_tiled, tile_bytes
-    from geosynth.tiling import TileGrid
-    from geosynth.volume import is_slab, synthesize_volume
+    from geosynth.core.memory import format_bytes
+    from geosynth.volume.synthesis import is_slab, synthesize_volume
+    from geosynth.volume.tiled import WORKER_RUNTIME_BYTES, exemplar_source, seam_report, synthesize_volume_tiled, tile_bytes
+    from geosynth.volume.tiles import TileGrid
 
     import logging
 
@@ -98,7 +98,7 @@ def _run(name, size, tiles, device, png, untiled: bool, baseline: bool) -> list[
                            silence_logs=logging.ERROR)
     client = Client(cluster)
     try:
-        client.run(lambda: __import__("geosynth.volume"))  # imports out of the timing
+        client.run(lambda: __import__("geosynth.volume.synthesis"))  # imports out of the timing
         t0 = time.perf_counter()
         r = synthesize_volume_tiled(src, shape, (tiles, tiles), scheduler=client, **kw)
         wall = time.perf_counter() - t0

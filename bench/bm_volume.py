@@ -43,13 +43,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import finish, parse_args, start  # noqa: E402
 
 import geosynth  # noqa: E402
-from geosynth.examples import EXEMPLARS, spheres_field  # noqa: E402 (the end-to-end cube)
-from geosynth.scoring import GatherScorer  # noqa: E402
-from geosynth.blocks import block_offsets  # noqa: E402
-from geosynth.cascade_search import CascadeSearch  # noqa: E402
-from geosynth.tree_search import BlockSearch  # noqa: E402
-from geosynth import volume  # noqa: E402
-from geosynth.volume import quantize_field, synthesize_geometry, synthesize_volume  # noqa: E402
+from geosynth.compute.scoring import GatherScorer  # noqa: E402
+from geosynth.volume import synthesis as volume  # noqa: E402
+from geosynth.volume.blocks import block_offsets  # noqa: E402
+from geosynth.volume.cascade import CascadeSearch  # noqa: E402
+from geosynth.volume.examples import EXEMPLARS, spheres_field  # noqa: E402 (the end-to-end cube)
+from geosynth.volume.synthesis import quantize_field, synthesize_geometry, synthesize_volume  # noqa: E402
+from geosynth.volume.tree import BlockSearch  # noqa: E402
 
 PAPER_SECONDS = {(64, 8): 0.025, (128, 16): 0.5, (256, 32): 10.0}
 # Warp on the CPU runs one thread: linear searches past this many sample comparisons
@@ -63,7 +63,7 @@ def sphere_source(side: int, block: int, seed: int) -> np.ndarray:
     Quantized with a band of half a block, so only distances within the band matter:
     each sphere updates the periodic box of samples within radius + band of its centre
     (exact there), which takes seconds for 256^3 where
-    :func:`geosynth.examples.spheres_field`'s whole-grid loop takes minutes.
+    :func:`geosynth.volume.examples.spheres_field`'s whole-grid loop takes minutes.
     """
     rng = np.random.default_rng(seed)
     count = max(8, int(40 * (side / 64) ** 3))

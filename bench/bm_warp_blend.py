@@ -27,9 +27,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import Row, finish, parse_args, start, table, time_call  # noqa: E402
 
-from geosynth.blending import blend_patch, overlap_ramp, seam_error  # noqa: E402
-from geosynth.point_examples import point_texture_example  # noqa: E402
-from geosynth.warping import WARP_PRESETS, surface_variation, warp_patch  # noqa: E402
+from geosynth.pointtexture.blending import blend_patch, overlap_ramp, seam_error  # noqa: E402
+from geosynth.pointtexture.examples import point_texture_example  # noqa: E402
+from geosynth.pointtexture.warping import WARP_PRESETS, surface_variation, warp_patch  # noqa: E402
 
 
 def patch_step(name: str, count: int | None, rng: np.random.Generator):

@@ -7,11 +7,11 @@ option but the output, the device and the seed), then the benchmark measures the
 itself, from the files, independently of what the command printed:
 
 - volume: the exemplar's and the output's distance fields at one world spacing ->
-  :func:`geosynth.volume_features.element_features` (element diameter, height, tube
+  :func:`geosynth.volume.features.element_features` (element diameter, height, tube
   thickness, top-surface period, share of whole elements), ratios output / exemplar; the
   block distance against random tiling as the command printed it (< 1 beats random).
 - pointtexture: heights above the exemplar's base plane, gridded ->
-  :func:`geosynth.relief_spectrum.relief_spectrum` (amplitude, dominant period) of exemplar
+  :func:`geosynth.completion.spectrum.relief_spectrum` (amplitude, dominant period) of exemplar
   and output; the patch-field distance against random pasting as printed.
 - complete: the relief over the zoo surface's own (u, v) (plane x, y; cylinder arc length and
   height; sphere near its equator) of the captured and the completed parts -> amplitude,
@@ -62,7 +62,7 @@ def _float(pattern: str, text: str) -> float:
 
 
 def _field(mesh, spacing: float):
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
 
     extent = float(np.max(mesh.bounds[1] - mesh.bounds[0]))
     resolution = max(8, int(math.ceil(extent / spacing)))
@@ -73,7 +73,7 @@ RELIEF_FAMILIES = ("bumps", "cobbles", "terrain")  # one connected slab with a r
 TUBE_FAMILIES = ("tubes",)  # elements that run across the footprint: their size is the thickness
 MEASURE_SAMPLES = 160  # samples across the exemplar's longest side where a volume is measured
 # tubes stay connected: the output's tubes run at least an exemplar's length between breaks
-# (geosynth.volume_features.tube_connection == 1; the volume share across, used before, fell as the output
+# (geosynth.volume.features.tube_connection == 1; the volume share across, used before, fell as the output
 # grew and rewarded tubes fused into a network)
 
 
@@ -88,8 +88,8 @@ def same_scale_picture(exemplar, output, path: Path, read_as=None) -> None:
     intersect, and M1 is given rings fused at every crossing)."""
     import trimesh
 
-    from geosynth.files import write_image
-    from geosynth.render import render_mesh, side_by_side
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_mesh, side_by_side
 
     half = (exemplar.bounds[1] - exemplar.bounds[0])[:2] / 2
     centre = output.bounds.mean(axis=0)[:2]
@@ -116,10 +116,10 @@ def same_scale_picture(exemplar, output, path: Path, read_as=None) -> None:
 def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -> dict:
     """Feature ratios output / exemplar (measured as a relief for the slab families, as
     separate elements for the others) and the block distance against random."""
-    from geosynth.meshes import load_mesh
-    from geosynth.volume_features import compare_features, element_features
+    from geosynth.geometry.meshes import load_mesh
+    from geosynth.volume.features import compare_features, element_features
 
-    from geosynth.surface import field_to_mesh
+    from geosynth.geometry.surface import field_to_mesh
 
     a, b = load_mesh(exemplar), load_mesh(output)
     # one world spacing for both, fine enough that tilted rings nearly touching stay apart
@@ -145,12 +145,12 @@ def measure_volume(member: Member, exemplar: Path, output: Path, printed: str) -
 
 
 def _grid(uv: np.ndarray, h: np.ndarray, spacing: float):
-    """The heights on a grid (:func:`geosynth.relief_spectrum.heights_on_grid`), cropped to
+    """The heights on a grid (:func:`geosynth.completion.spectrum.heights_on_grid`), cropped to
     the largest connected piece: a capture in two strips (a plane missing a band) has a
     spectrum whose peaks are split by the gap's own (lobes at 1 / the strips' distance)."""
     from scipy import ndimage
 
-    from geosynth.relief_spectrum import heights_on_grid
+    from geosynth.completion.spectrum import heights_on_grid
 
     grid, mask = heights_on_grid(uv - uv.min(0), h, spacing)
     labels, n = ndimage.label(mask)
@@ -175,8 +175,8 @@ def _split_scales(grid: np.ndarray, mask: np.ndarray, spacing: float, sigma: flo
 
 
 def correlation_length(grid: np.ndarray, mask: np.ndarray, spacing: float) -> float:
-    """:func:`geosynth.relief_spectrum.correlation_length` (an isotropic relief's element size)."""
-    from geosynth.relief_spectrum import correlation_length as measure
+    """:func:`geosynth.completion.spectrum.correlation_length` (an isotropic relief's element size)."""
+    from geosynth.completion.spectrum import correlation_length as measure
 
     return measure(grid, spacing, mask)
 
@@ -184,7 +184,7 @@ def correlation_length(grid: np.ndarray, mask: np.ndarray, spacing: float) -> fl
 def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], spacing: float) -> dict:
     """Relief ``b`` (grid, mask) against the exemplar's ``a`` at one spacing.
 
-    The exemplar's dominant period P (:func:`geosynth.relief_spectrum.relief_spectrum`) sets
+    The exemplar's dominant period P (:func:`geosynth.completion.spectrum.relief_spectrum`) sets
     the scale: both reliefs are split into detail (less their Gaussian average over P) and
     base. ``size``: detail period ratio (an isotropic exemplar, anisotropy < 0.5: the
     correlation length's ratio instead); ``height``: detail amplitude ratio; ``base``: the
@@ -193,7 +193,7 @@ def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.nd
     degrees between the detail's directions. Without the split a slow undulation of the
     output's plate wins the spectrum peak and reads as features 6x too large (seen on the zoo).
     """
-    from geosynth.relief_spectrum import relief_spectrum
+    from geosynth.completion.spectrum import relief_spectrum
 
     period = relief_spectrum(a[0], spacing, a[1]).period
     out = {}
@@ -213,7 +213,7 @@ def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.nd
 
 
 def _points(path: Path) -> np.ndarray:
-    from geosynth.pointsets import read_geometry
+    from geosynth.geometry.pointsets import read_geometry
 
     g = read_geometry(path)
     return np.asarray(g.vertices if hasattr(g, "vertices") else g.positions, np.float64)
@@ -291,8 +291,8 @@ def measure_complete(member: Member, output: Path, capture: Path | None = None) 
         c = np.column_stack([v["red"], v["green"], v["blue"]])
         ref = c[~done]
         if capture is not None:
-            from geosynth.pointsets import read_geometry
-            from geosynth.relief_prep import as_capture
+            from geosynth.completion.prep import as_capture
+            from geosynth.geometry.pointsets import read_geometry
 
             cap = as_capture(read_geometry(capture))
             if cap.colors is not None:

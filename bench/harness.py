@@ -112,7 +112,7 @@ def parse_args(doc: str, argv: Sequence[str] | None = None, *, quick: str,
 
 
 def _device_list(text: str) -> list[str]:
-    from geosynth.backend import parse_device
+    from geosynth.compute.backend import parse_device
 
     names = [d.strip() for d in text.split(",") if d.strip()]
     if not names:
@@ -133,7 +133,7 @@ def start(args: argparse.Namespace) -> list[str]:
         that is not present ends the run with its one-line error.
     """
     import geosynth
-    from geosynth.backend import describe_devices
+    from geosynth.compute.backend import describe_devices
 
     print(f"Machine: {machine()}")
     for name, desc in describe_devices():
@@ -155,7 +155,7 @@ def finish(body: str, args: argparse.Namespace, *, title: str | None = None) -> 
     The report is ``title`` (if any), the machine line, the devices, then ``body``
     (Markdown). Returns 0, the benchmark's exit status.
     """
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
 
     head = [title, ""] if title else []
     head += [f"Machine: {machine()}", "", f"Devices: {', '.join(args.devices)}"

@@ -37,7 +37,7 @@ def claim(fn):
 
 
 def _spheres():
-    from geosynth.examples import spheres_field
+    from geosynth.volume.examples import spheres_field
 
     return spheres_field(20, count=7, radius=(2.0, 4.0), seed=5)
 
@@ -45,8 +45,8 @@ def _spheres():
 @claim
 def volume_beats_random_tiling(seed):
     """tests/test_volume.py::test_beats_random_tiling: block distance synthesis / random tiling."""
-    from geosynth.metrics import bidirectional_block_distance
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.quality import bidirectional_block_distance
+    from geosynth.volume.synthesis import synthesize_volume
 
     src = _spheres()
     kw = dict(size=32, levels=2, block=8, progress=False, device=ONE_DEVICE, seed=seed, method="paper")
@@ -62,7 +62,7 @@ def volume_tileable_wraps(seed):
     plain seam - tiled seam (> 0)."""
     from test_volume import _seam_and_interior_distance
 
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     src = _spheres()
     kw = dict(size=32, levels=2, block=8, progress=False, device=ONE_DEVICE, seed=seed, method="paper")
@@ -76,8 +76,8 @@ def volume_tileable_wraps(seed):
 @claim
 def methods_beat_random_tiling(seed):
     """tests/test_optimize.py::test_methods_beat_random_tiling: block distance per method / random tiling."""
-    from geosynth.metrics import bidirectional_block_distance
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.quality import bidirectional_block_distance
+    from geosynth.volume.synthesis import synthesize_volume
 
     src = _spheres()
     kw = dict(levels=2, block=8, progress=False, device="cpu", seed=seed)
@@ -92,7 +92,7 @@ def methods_beat_random_tiling(seed):
 
 
 def _geometry(name, seed, size=48, res=32):
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     r = synthesize_geometry(name, size, source_resolution=res, levels=2, block=8, quality_samples=40, seed=seed,
                             device=ONE_DEVICE, progress=False, smooth=2, iterations=[4, 2])
@@ -128,9 +128,9 @@ def geometry_balls_32(seed):
 def metrics_random_tiling_scores_low(seed):
     """tests/test_metrics.py::test_builtin_balls_and_terrain_against_random_tiling: the
     structure scores of randomly tiled balls and terrain."""
-    from geosynth.examples import balls_field, terrain_heights
-    from geosynth.metrics import structure_report
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.examples import balls_field, terrain_heights
+    from geosynth.volume.quality import structure_report
+    from geosynth.volume.synthesis import synthesize_volume
 
     ex = balls_field(resolution=48)
     h = float(ex.spacing[0])
@@ -152,7 +152,7 @@ def metrics_noise_scores_low(seed):
     from scipy import ndimage
     from test_metrics import TORI_SHAPE, tori
 
-    from geosynth.metrics import element_wholeness
+    from geosynth.volume.quality import element_wholeness
 
     noise = ndimage.gaussian_filter(np.random.default_rng(seed).standard_normal(TORI_SHAPE), 2)
     noise = (3 * noise / noise.std()).astype(np.float32)
@@ -162,7 +162,7 @@ def metrics_noise_scores_low(seed):
 @claim
 def slab_thin_plate(seed, size=96, res=48):
     """tests/test_slab.py::test_defaults_grow_a_thin_plate_that_they_refused."""
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     r = synthesize_geometry("domes", size, source_resolution=res, device=ONE_DEVICE, progress=False, seed=seed,
                             quality_samples=20, smooth=0, iterations=2)
@@ -175,7 +175,7 @@ def slab_thin_plate(seed, size=96, res=48):
 def tiled_seams(seed):
     """tests/test_tiled.py::test_seams_as_good_as_inside (threads instead of a Dask cluster:
     the bits do not depend on the engine)."""
-    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
+    from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled
 
     out = {}
     kw = dict(levels=2, block=8, seed=seed, progress=False, iterations=2, device=ONE_DEVICE, scheduler="threads",
@@ -200,8 +200,8 @@ def tiled_seams(seed):
 @claim
 def point_texture_beats_random_pasting(seed):
     """tests/test_point_texture.py::test_synthesis_beats_random_pasting (weave)."""
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_examples import point_texture_example
+    from geosynth.pointtexture.examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     tex = point_texture_example("weave", count=10_000)
     _, report, _ = synthesize_point_texture(tex, device=ONE_DEVICE, seed=seed, scale=1.2, patch=0.5, resolution=24,
@@ -216,14 +216,14 @@ def point_texture_beats_random_pasting(seed):
 def point_texture_keeps_element_size(seed):
     """Issue 32 item 2 (no test: about 20 s a seed): with the default (automatic) patch and
     resolution, the output's element size and relief amplitude over the exemplar's
-    (geosynth.element_size, printed by every run), and the patch-field distance over random
+    (geosynth.pointtexture.element_size, printed by every run), and the patch-field distance over random
     pasting's, on a bumps relief nobody tuned for (tests/test_element_size.py's _relief:
     domes of radius 0.06 on a jittered 0.2 lattice, a new layout per seed) and on flowers
     (its sampling seed)."""
     from test_element_size import _bumps, _relief
 
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_examples import point_texture_example
+    from geosynth.pointtexture.examples import point_texture_example
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     out = {}
     for name, tex in (("bumps", _relief(_bumps(0.06, 0.2, 100 + seed), n=110, seed=seed)),
@@ -242,8 +242,8 @@ def point_texture_tileable(seed):
     distance of the right border's points, moved one period, to the left border's surface, in spacings."""
     from test_point_texture import SMALL, _wavy
 
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.pointsets import pointset_distance
+    from geosynth.geometry.pointsets import pointset_distance
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
 
     pts, report, _ = synthesize_point_texture(_wavy(), device=ONE_DEVICE, tileable=True, seed=seed, **SMALL)
     w = np.asarray(report.size)
@@ -263,7 +263,7 @@ def blending_scene(seed):
     scenes drawn with rng(seed) (the tests' rng fixture is seed 1234)."""
     from test_blending import SP, flowers_edge, flowers_scene, height, scene, scene_edge
 
-    from geosynth.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
+    from geosynth.pointtexture.blending import blend_patch, cut_pieces, overlap_ramp, seam_error
 
     rng = np.random.default_rng(seed)
     out = {}
@@ -298,7 +298,7 @@ def blending_relax(seed):
     from scipy.spatial import cKDTree
     from test_blending import SP, grid_xy, height, normal
 
-    from geosynth.blending import relax_points
+    from geosynth.pointtexture.blending import relax_points
 
     rng = np.random.default_rng(seed)
     xy = grid_xy(0, 1, 0, 1, rng, 0.45)
@@ -324,9 +324,9 @@ def blending_relax(seed):
 @claim
 def texture_flat_grid(seed):
     """tests/test_texture.py::test_matching_a_flat_grid_reproduces_the_exemplar (batched): result / random."""
-    from geosynth.pointmodels import point_model  # noqa: F401
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model  # noqa: F401
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
     from test_texture import grid_points
 
     tex = texture_example("noise", 24, seed=4)
@@ -338,9 +338,9 @@ def texture_flat_grid(seed):
 @claim
 def texture_hybrid(seed):
     """tests/test_texture.py::test_hybrid_colours_every_point_and_is_close_to_parameterization."""
-    from geosynth.pointmodels import point_model
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
 
     tex = texture_example("noise", 32, seed=0)
     ps = point_model("sphere", 2500, seed=0)
@@ -353,9 +353,9 @@ def texture_hybrid(seed):
 @claim
 def texture_coherent(seed):
     """tests/test_texture.py::test_multilevel_and_coherent_matching: coherent result / random."""
-    from geosynth.pointmodels import point_model
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
 
     tex = texture_example("bricks", 64, seed=0)
     ps = point_model("torus", 1000, seed=0)
@@ -371,7 +371,7 @@ def texture_coherent(seed):
 def _wave(seed, refine=0):
     from test_completion import WAVE_REGION, _sine_fit, _wave_capture
 
-    from geosynth.completion import complete_surface
+    from geosynth.completion.synthesis import complete_surface
 
     surface, report, _ = complete_surface(_wave_capture(), fit="plane", region=WAVE_REGION, window=3,
                                           device=ONE_DEVICE, seed=seed, refine=refine)
@@ -403,7 +403,7 @@ def completion_balance(seed):
     and the offers drawn from seed (the test: case 0, picks 1, offers 2)."""
     from test_completion import _balance_case
 
-    from geosynth.relief_match import Matches
+    from geosynth.completion.matching import Matches
 
     bal, level = _balance_case(seed=seed)
     uni, _ = _balance_case(seed=seed)
@@ -421,8 +421,8 @@ def completion_balance(seed):
 @claim
 def completion_tower(seed):
     """tests/test_completion.py::test_tower_keeps_its_ledges_at_the_median_spacing."""
-    from geosynth.completion import complete_surface
-    from geosynth.completion_examples import tower_example
+    from geosynth.completion.examples import tower_example
+    from geosynth.completion.synthesis import complete_surface
 
     ex = tower_example()
     surface, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=3, rotations=1,

@@ -155,7 +155,7 @@ def volume_mesh(member: Member):
     modelling script would leave them)."""
     import trimesh
 
-    from geosynth.examples import heightfield_slab, torus_mesh, tube_mesh
+    from geosynth.volume.examples import heightfield_slab, torus_mesh, tube_mesh
 
     p, rng = member.params, np.random.default_rng(member.params["build_seed"])
     f = member.family
@@ -228,7 +228,7 @@ def volume_mesh(member: Member):
             w = rng.uniform(0.35, 0.6) / p["hills"]
             dx, dy = (x - cx + 0.5) % 1 - 0.5, (y - cy + 0.5) % 1 - 0.5
             h += rng.uniform(0.5, 1.0) * np.exp(-(dx * dx + dy * dy) / (2 * w * w))
-        from geosynth.examples import terrain_heights
+        from geosynth.volume.examples import terrain_heights
 
         h = p["hill_height"] * h / max(h.max(), 1e-9) + p["roughness"] * terrain_heights(size, p["build_seed"] % 2**31,
                                                                                          p["hurst"])
@@ -330,7 +330,7 @@ def point_mesh(member: Member):
 
     p = member.params
     if member.family == "rings":
-        from geosynth.examples import torus_mesh
+        from geosynth.volume.examples import torus_mesh
 
         rng = np.random.default_rng(p["build_seed"])
         n = int(p["width"] / p["spacing"])

@@ -5,11 +5,11 @@ The ``geosynth`` command line.
 
 Every command checks its arguments before any work: each number against the range
 the library accepts (at parse time), each input file for existence, each output path
-with :func:`geosynth.files.check_output` (never an input, a folder, a path under a
+with :func:`geosynth.io.files.check_output` (never an input, a folder, a path under a
 file, an unwritable folder or the wrong extension; two outputs of one run never the
 same file). An expected failure is one line on stderr, ``geosynth <command>:
 <message>``, exit code 2 (``--debug``: the traceback instead); Ctrl-C exits 130 and
-SIGTERM 143, quietly. One commit step per command (:func:`geosynth.files.staged_outputs`):
+SIGTERM 143, quietly. One commit step per command (:func:`geosynth.io.files.staged_outputs`):
 every output (mesh, picture, point set, store, tile meshes) waits in a temporary until
 the command has finished, and all are moved in together; an interrupt at any moment,
 even one that a library swallowed, leaves every old output as it was (exit 130/143). ``--verbose`` lets the libraries' warnings through (it sets
@@ -32,10 +32,10 @@ from pathlib import Path
 import numpy as np
 
 import geosynth
-from geosynth.config import set_verbose
-from geosynth.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
-from geosynth.examples import EXEMPLARS
-from geosynth.files import IMAGE_SUFFIXES, check_output
+from geosynth.core.config import set_verbose
+from geosynth.core.constants import M1_DEFAULT_BLOCK as DEFAULT_BLOCK, M1_DEFAULT_RESOLUTION as DEFAULT_RESOLUTION
+from geosynth.io.files import IMAGE_SUFFIXES, check_output
+from geosynth.volume.examples import EXEMPLARS
 
 MESH_OUT = (".ply", ".obj", ".stl")
 POINTS_OUT = (".ply",)
@@ -98,7 +98,7 @@ def _device_type(allow_all: bool = False) -> Callable[[str], str]:
     """An argparse ``type=``: a well-formed device string (presence is checked later)."""
 
     def parse(text: str) -> str:
-        from geosynth.backend import parse_device
+        from geosynth.compute.backend import parse_device
 
         if allow_all and text == "all":
             return text
@@ -180,7 +180,7 @@ def _picture_path(args: argparse.Namespace) -> tuple[Path, str]:
 
 def _check_device(device: str | None) -> None:
     """Refuse an absent device now, not after loading the inputs."""
-    from geosynth.backend import resolve_device
+    from geosynth.compute.backend import resolve_device
 
     try:
         resolve_device(device or "auto")
@@ -198,7 +198,7 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
     Returns:
         (size for synthesize_geometry: one int or (z, y, x); block: one int or a list).
     """
-    given_block = args.block is not None  # None: chosen from the exemplar (geosynth.volume.choose_settings)
+    given_block = args.block is not None  # None: chosen from the exemplar (geosynth.volume.synthesis.choose_settings)
     sizes, blocks, levels = list(args.size), list(args.block or [DEFAULT_BLOCK]), args.levels
     if len(sizes) not in (1, 3):
         raise ValueError(f"--size takes one number (x = y; z follows the exemplar) or three (x y z), "
@@ -242,7 +242,7 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
 
 
 def _cmd_devices(args: argparse.Namespace) -> int:
-    from geosynth.backend import describe_devices
+    from geosynth.compute.backend import describe_devices
 
     for name, desc in describe_devices():
         print(f"  {name:<14} {desc}")
@@ -271,10 +271,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if args.device != "all":
         _check_device(args.device)
 
-    from geosynth.backend import describe_devices
-    from geosynth.examples import spheres_field
-    from geosynth.volume import quantize_field
-    from geosynth.files import write_image
+    from geosynth.compute.backend import describe_devices
+    from geosynth.io.files import write_image
+    from geosynth.volume.examples import spheres_field
+    from geosynth.volume.synthesis import quantize_field
 
     say = (lambda *a, **k: None) if args.quiet else print
     say("geosynth demo: nearest-block search (M1's linear search) on a generated field\n")
@@ -336,7 +336,7 @@ MESH_EXAMPLES = ("torus", "chainmail")
 
 
 def _example_mesh(name: str):
-    from geosynth.examples import chainmail_mesh, torus_mesh
+    from geosynth.volume.examples import chainmail_mesh, torus_mesh
 
     return {"torus": torus_mesh, "chainmail": chainmail_mesh}[name]()
 
@@ -353,10 +353,10 @@ def _cmd_field(args: argparse.Namespace) -> int:
 
     import trimesh
 
-    from geosynth.files import write_image
-    from geosynth.distance import mesh_distance, pointset_distance
-    from geosynth.pointsets import read_geometry
-    from geosynth.render import field_slices_image
+    from geosynth.geometry.distance import mesh_distance, pointset_distance
+    from geosynth.geometry.pointsets import read_geometry
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import field_slices_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     t0 = time.perf_counter()
@@ -379,7 +379,7 @@ def _cmd_field(args: argparse.Namespace) -> int:
         if points.normals is None:
             if not args.estimate_normals:
                 raise ValueError(f"{args.input} has no normals; pass --estimate-normals to estimate them (PCA over k neighbours).")
-            from geosynth.pointsets import estimate_normals
+            from geosynth.geometry.pointsets import estimate_normals
 
             points.normals = estimate_normals(points.positions)
         distance, gradient = pointset_distance(points, resolution=args.resolution, padding=args.padding,
@@ -409,11 +409,11 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.files import write_image
-    from geosynth.render import render_mesh, side_by_side
-    from geosynth.surface import save_mesh
-    from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.volume import block_text, synthesize_geometry
+    from geosynth.geometry.surface import save_mesh
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_mesh, side_by_side
+    from geosynth.volume.examples import resolve_exemplar_mesh
+    from geosynth.volume.synthesis import block_text, synthesize_geometry
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -455,13 +455,13 @@ def _cmd_volume(args: argparse.Namespace) -> int:
                 f"   mean {q['mean']:9.1f}")
         structures = {k: q["structure"] for k, q in result.quality.items() if q.get("structure")}
         if structures:
-            from geosynth.metrics import format_structure
+            from geosynth.volume.quality import format_structure
 
             say("structure (what a person sees; beside random tiling):")
             for k, report in structures.items():
                 say(f"  {k:<14} {format_structure(report)}")
     if result.features:
-        from geosynth.volume_features import format_features
+        from geosynth.volume.features import format_features
 
         say("feature scale (exemplar -> output, world units; x1.00 is kept):")
         ex = result.features["exemplar"]
@@ -510,8 +510,8 @@ def _checkpoint_path(out: Path) -> Path:
 
 
 def _cmd_volume_tiled(args: argparse.Namespace) -> int:
-    """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.tiled.synthesize_volume_tiled`."""
-    from geosynth.tiled import parse_tiles
+    """``geosynth volume ... --tiles NXxNY``: :func:`geosynth.volume.tiled.synthesize_volume_tiled`."""
+    from geosynth.volume.tiled import parse_tiles
 
     exemplar, example, inputs = _file_or_example(args.exemplar, args.example, EXEMPLARS, "EXEMPLAR",
                                                  "a mesh file (.ply, .obj, .stl, ...)")
@@ -527,7 +527,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     png, png_what = _picture_path(args)
     outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
     if args.tile_meshes is not None:  # every tile's file passes the guard, not only the first
-        from geosynth.tiled import tile_mesh_paths
+        from geosynth.volume.tiled import tile_mesh_paths
 
         if os.path.exists(args.tile_meshes) and not os.path.isdir(args.tile_meshes):
             raise ValueError(f"--tile-meshes {args.tile_meshes!r} is a file; give a folder (it is created).")
@@ -549,13 +549,13 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
                                  "inside the other (a store is replaced whole); give each its own place.")
     _check_device(args.device)
 
-    from geosynth.examples import resolve_exemplar_mesh
-    from geosynth.files import write_image
-    from geosynth.memory import available_memory
-    from geosynth.render import render_mesh, side_by_side
-    from geosynth.surface import save_mesh
-    from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
-    from geosynth.volume import target_size
+    from geosynth.core.memory import available_memory
+    from geosynth.geometry.surface import save_mesh
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_mesh, side_by_side
+    from geosynth.volume.examples import resolve_exemplar_mesh
+    from geosynth.volume.synthesis import target_size
+    from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
 
     say = (lambda *a, **k: None) if args.quiet else print
     label = example or exemplar
@@ -566,10 +566,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
                   search=args.search, method=args.method)
 
-    # the untiled run's automatic source resolution, block and size (geosynth.volume.choose_settings),
+    # the untiled run's automatic source resolution, block and size (geosynth.volume.synthesis.choose_settings),
     # after the tiling is checked on the default grid's shape (no distance computed yet)
-    from geosynth.meshes import check_mesh
-    from geosynth.volume import choose_settings, exemplar_grid
+    from geosynth.geometry.meshes import check_mesh
+    from geosynth.volume.synthesis import choose_settings, exemplar_grid
 
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
     check_mesh(exemplar_mesh, "exemplar", drop_degenerate=args.drop_degenerate)
@@ -665,7 +665,7 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
                                                   if args.levels > 1 else "")
                              + "; use a larger --texture-size, a smaller -k or fewer --levels.")
     if name is not None:  # the texel search's memory, known now for a built-in texture (the model's points: later)
-        from geosynth.texturing import require_texture_memory
+        from geosynth.texturing.synthesis import require_texture_memory
 
         levels = 1 if args.method == "param" else args.levels
         require_texture_memory(args.count if model_is_sampled else args.k + 1, size, size, args.method, args.k,
@@ -673,8 +673,8 @@ def _texture_sizes(args: argparse.Namespace, model_is_sampled: bool) -> None:
 
 
 def _cmd_texture(args: argparse.Namespace) -> int:
-    from geosynth.pointmodels import POINT_MODELS
-    from geosynth.textures import TEXTURES
+    from geosynth.texturing.models import POINT_MODELS
+    from geosynth.texturing.textures import TEXTURES
 
     inputs = list(args.inputs)
     model_path = None if args.example else (inputs.pop(0) if inputs else None)
@@ -698,12 +698,12 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], used)
     _check_device(args.device)
 
-    from geosynth.files import write_image
-    from geosynth.pointmodels import load_point_model, point_model
-    from geosynth.pointsets import write_point_set
-    from geosynth.render import render_points, side_by_side
-    from geosynth.texturing import texture_points
-    from geosynth.textures import read_texture, texture_example
+    from geosynth.geometry.pointsets import write_point_set
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_points, side_by_side
+    from geosynth.texturing.models import load_point_model, point_model
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import read_texture, texture_example
 
     say = (lambda *a, **k: None) if args.quiet else print
     if args.example:
@@ -759,8 +759,8 @@ def _pointtexture_check(args: argparse.Namespace, box_min, box_max, points_in: i
                         count: bool, z_span: float, spacing: float, patch: float) -> None:
     """Every memory-scaling option of ``geosynth pointtexture`` (--count, --resolution, --scale or
     --size, --mesh-resolution) and every combination of --patch, --extra and --overlap checked
-    before the work (:func:`geosynth.geometry_texture.check_synthesis`), with the flags named."""
-    from geosynth.geometry_texture import check_synthesis
+    before the work (:func:`geosynth.pointtexture.synthesis.check_synthesis`), with the flags named."""
+    from geosynth.pointtexture.synthesis import check_synthesis
 
     try:
         check_synthesis(box_min, box_max, int(points_in), int(points_inside), size=args.size,
@@ -779,8 +779,8 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     """The exemplar, with the options checked against it before it is made (a built-in: from
     a 1,000-point sample of it; a mesh: from its box before sampling --count points) and
     again once it is there (its own numbers)."""
-    from geosynth.point_examples import POINT_EXAMPLES, point_texture_example
-    from geosynth.point_textures import read_point_texture
+    from geosynth.pointtexture.examples import POINT_EXAMPLES, point_texture_example
+    from geosynth.pointtexture.texture import read_point_texture
 
     # before the exemplar exists its element size is unknown: its memory and the options are
     # checked with a patch of 0.4 (the old default), and again once it is there with the patch
@@ -816,7 +816,7 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
     inside = int(texture.inside_mask(texture.points, texture.box_min, texture.box_max).sum())
     line = ""
     if args.patch is None:  # issue 32: the patch from the exemplar's element size, said in one line
-        from geosynth.geometry_texture import choose_patch
+        from geosynth.pointtexture.synthesis import choose_patch
 
         choice = choose_patch(texture, args.resolution)
         patch, line = choice.patch, choice.line
@@ -826,7 +826,7 @@ def _pointtexture_exemplar(args: argparse.Namespace, exemplar: str | None, examp
 
 
 def _has_colours(path) -> bool:
-    from geosynth._readers import has_colours
+    from geosynth.io.readers import has_colours
 
     return has_colours(Path(path))
 
@@ -840,7 +840,7 @@ def _m1_colour_note(exemplar, say) -> None:
 
 
 def _cmd_pointtexture(args: argparse.Namespace) -> int:
-    from geosynth.point_examples import POINT_EXAMPLES
+    from geosynth.pointtexture.examples import POINT_EXAMPLES
 
     exemplar, example, inputs = _file_or_example(args.exemplar, args.example, POINT_EXAMPLES, "EXEMPLAR",
                                                  "a PLY point set or a mesh file")
@@ -854,11 +854,11 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     _check_outputs(outputs, inputs)
     _check_device(args.device)
 
-    from geosynth.files import write_image
-    from geosynth.geometry_texture import output_mesh, synthesize_point_texture
-    from geosynth.memory import MemoryBudgetError
-    from geosynth.pointsets import write_point_set
-    from geosynth.render import render_points, side_by_side
+    from geosynth.core.memory import MemoryBudgetError
+    from geosynth.geometry.pointsets import write_point_set
+    from geosynth.io.files import write_image
+    from geosynth.io.pictures import render_points, side_by_side
+    from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
 
     say = (lambda *a, **k: None) if args.quiet else print
     texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
@@ -891,7 +891,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     coloured = " and the exemplar's colours" if points.colors is not None else ""
     say(f"written {out}: {len(points):,} points with normals{coloured}")
     if mesh is not None:
-        from geosynth.surface import save_mesh
+        from geosynth.geometry.surface import save_mesh
 
         save_mesh(mesh, args.mesh, inputs=inputs)
         say(f"mesh: {args.mesh}: {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces "
@@ -912,7 +912,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
 
 
 def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
-    from geosynth.point_examples import POINT_EXAMPLES
+    from geosynth.pointtexture.examples import POINT_EXAMPLES
 
     p = sub.add_parser("pointtexture", parents=[common],
                        help="M2: grow a larger point-set geometry texture from an exemplar (patches, warp, blend)")
@@ -962,8 +962,8 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
 
 
 def _max_error_type(text: str) -> float:
-    """An argparse ``type=`` for --max-error: geosynth.completion.check_max_error's range."""
-    from geosynth.completion import check_max_error
+    """An argparse ``type=`` for --max-error: geosynth.completion.synthesis.check_max_error's range."""
+    from geosynth.completion.synthesis import check_max_error
 
     try:
         value = float(text)
@@ -978,7 +978,7 @@ def _max_error_type(text: str) -> float:
 def _capture_colours(capture) -> str:
     """How the capture is coloured, for the run's first line: 'RGB colours', 'RGBA colours'
     or 'no colours' (then the completion matches relief only, mu 1)."""
-    from geosynth.relief_prep import as_capture
+    from geosynth.completion.prep import as_capture
 
     cap = capture if hasattr(capture, "colors") and hasattr(capture, "alpha") else None
     if cap is None and hasattr(capture, "visual"):
@@ -995,7 +995,7 @@ def _capture_colours(capture) -> str:
 
 
 def _cmd_complete(args: argparse.Namespace) -> int:
-    from geosynth.completion_examples import COMPLETION_EXAMPLES
+    from geosynth.completion.examples import COMPLETION_EXAMPLES
 
     _, _, inputs = _file_or_example(args.input, args.example, COMPLETION_EXAMPLES, "INPUT",
                                     "a mesh or PLY point set of the captured part (colours optional)",
@@ -1005,9 +1005,9 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
     _check_device(args.device)
 
-    from geosynth.completion import complete_surface, completion_picture, write_completion
-    from geosynth.completion_examples import completion_example
-    from geosynth.files import write_image
+    from geosynth.completion.examples import completion_example
+    from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
+    from geosynth.io.files import write_image
 
     say = (lambda *a, **k: None) if args.quiet else print
     region = None
@@ -1016,7 +1016,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         capture, label, region = ex.capture, f"example {args.example} ({ex.note})", ex.region
         fit = args.fit or ex.fit
     else:
-        from geosynth.pointsets import read_geometry
+        from geosynth.geometry.pointsets import read_geometry
 
         capture, label, fit = read_geometry(args.input), args.input, args.fit
     # unset options (None) are chosen from the capture's relief; the report's "automatic settings" line says how
@@ -1096,7 +1096,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
     p.add_argument("--slab", choices=["auto", "yes", "no"], default="auto",
                    help="blocks through the exemplar's full thickness, grown across only: auto (default: when the "
-                        "exemplar is at least 2.5x thinner along z than across: geosynth.volume.SLAB_RATIO), yes or "
+                        "exemplar is at least 2.5x thinner along z than across: geosynth.volume.synthesis.SLAB_RATIO), yes or "
                         "no; the same choice with --tiles")
     p.add_argument("--smooth", type=_int_type(0, MAX_SMOOTH), default=10,
                    help=f"Taubin smoothing iterations, 0 to {MAX_SMOOTH} (default 10)")
@@ -1110,7 +1110,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_volume)
-    # tiled synthesis on Dask (geosynth.tiled)
+    # tiled synthesis on Dask (geosynth.volume.tiled)
     p.add_argument("--tiles", default=None, metavar="NXxNY",
                    help="synthesize in NX x NY tiles on Dask (two-phase schedule, same result with any workers)")
     p.add_argument("--workers", type=_int_type(1, 1024), default=None,
@@ -1224,7 +1224,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the targets) (default auto: exhaustive while targets x candidates x rotations is under 4e7)")
     p.add_argument("--no-balance", action="store_true",
                    help="the paper's uniform pick among the matches within 1.1x the best (default: the "
-                        "histogram-aware pick, our extension; see geosynth.completion._Balance)")
+                        "histogram-aware pick, our extension; see geosynth.completion.synthesis._Balance)")
     p.add_argument("--png", default=None, help="picture: captured, completed, completed part tinted; .png or .jpg "
                                                "(default: OUTPUT with .png)")
     p.add_argument("--quiet", action="store_true")
@@ -1327,7 +1327,7 @@ def main(argv: list[str] | None = None, *, early: Sequence[int] = ()) -> int:
 
 def _main(argv, early: list[int]) -> int:
     """:func:`main` inside its signal handlers."""
-    from geosynth.files import staged_outputs
+    from geosynth.io.files import staged_outputs
 
     if early:  # interrupted while loading: nothing has been done
         if signal.SIGTERM in early:
@@ -1338,7 +1338,7 @@ def _main(argv, early: list[int]) -> int:
     debug = args.debug or args.global_debug
     loud = bool(args.verbose or args.global_verbose)
     if loud:
-        set_verbose(True)  # the runtimes' own messages (geosynth.config); read when they load
+        set_verbose(True)  # the runtimes' own messages (geosynth.core.config); read when they load
     name = f"geosynth {args.command}"
     line = None
     try:

@@ -67,7 +67,7 @@ def warp_cpu() -> str:
 
 
 def pytest_report_header(config):
-    from geosynth.backend import unusable_devices
+    from geosynth.compute.backend import unusable_devices
 
     unusable = "".join(f"; left out, unusable: {name} ({why})" for name, why in unusable_devices().items())
     return f"geosynth test devices: {', '.join(TEST_DEVICES)}{unusable}"

@@ -1,5 +1,5 @@
 """M2 blending's compiled host steps (geosynth.kernels.host_blend, Sec. 5.3) against their
-NumPy twins in geosynth.blending: the k nearest points of a cell grid against SciPy's k-d
+NumPy twins in geosynth.pointtexture.blending: the k nearest points of a cell grid against SciPy's k-d
 tree, counterparts and blend_patch against _counterparts_numpy / _blend_patch_numpy
 (line crossings, re-gathering, projection fallback, no neighbours, no convergence, fewer
 points than an evaluation's neighbours), pieces against SciPy's labelling."""
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import blending as B
+from geosynth.pointtexture import blending as B
 from test_blending import SP, flowers_scene, grid_xy, height, normal, scene
 
 TOL = 1e-9 * SP  # float64 tolerance on positions (world units); normals: 1e-9
@@ -87,7 +87,7 @@ def _nearest_lists(points, queries, k, reach, cell):
     """host_blend.nearest for each query: (m, k) input indices (-1 beyond the count)."""
     import warp as wp
 
-    from geosynth.host_steps import host_array, host_launch
+    from geosynth.compute.host_steps import host_array, host_launch
     from geosynth.kernels.host_blend import nearest
 
     grid = B._CellGrid(points, normal(points[:, :2]), cell)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth.blending import (
+from geosynth.pointtexture.blending import (
     PROJECTION,
     RAY,
     blend_patch,
@@ -199,7 +199,7 @@ def test_same_bits_on_every_device(device_pair, rng):
     assert np.array_equal(outs[0][0], outs[1][0]) and np.array_equal(outs[0][1], outs[1][1])
     # The host surface weighs each query's 24 nearest points, the device kernel every
     # point within 3h: the projections agree to a few hundredths of a spacing.
-    from geosynth.pointsets import project_points
+    from geosynth.geometry.pointsets import project_points
 
     kernel = project_points(nbp, nbn, x, radius=2 * SP, device=device_pair[0])
     np.testing.assert_allclose(outs[0][0][proj], kernel[proj], atol=0.05 * SP)

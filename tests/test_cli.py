@@ -38,9 +38,9 @@ def files(tmp_path_factory) -> Path:
     """Inputs of every kind in one folder: meshes, a point set, a texture, a bomb, a folder."""
     import trimesh
 
-    from geosynth.pointmodels import point_model
-    from geosynth.pointsets import write_point_set
-    from geosynth.textures import texture_example, write_texture
+    from geosynth.geometry.pointsets import write_point_set
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.textures import texture_example, write_texture
 
     d = tmp_path_factory.mktemp("cli")
     torus = trimesh.creation.torus(1.0, 0.3)
@@ -261,7 +261,7 @@ def test_debug_shows_the_traceback(files):
 
 
 def test_memory_refusal_names_the_flag():
-    from geosynth.memory import MemoryBudgetError, require
+    from geosynth.core.memory import MemoryBudgetError, require
 
     with pytest.raises(MemoryBudgetError) as info:
         require(9 << 30, option="texture_size", value=4096, largest=512, what="a 4096^2 texture", available=1 << 30)
@@ -312,9 +312,9 @@ def test_keyboard_interrupt_exits_130(files, capsys, monkeypatch):
 
 
 def test_verbose_is_passed_to_the_library_not_the_environment(files, capsys, monkeypatch):
-    """--verbose reaches geosynth.config for the run (the runtimes read it when they load) and
+    """--verbose reaches geosynth.core.config for the run (the runtimes read it when they load) and
     is taken back after it; the environment is not touched."""
-    from geosynth import config
+    from geosynth.core import config
 
     seen = {}
 
@@ -386,7 +386,7 @@ def test_good_runs_write_what_they_say(tmp_path, capsys, one_device):
 
 
 def test_sigterm_while_writing_leaves_nothing(tmp_path, capsys, monkeypatch):
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
 
     out = tmp_path / "v.ply"
 

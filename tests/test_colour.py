@@ -12,7 +12,7 @@ from PIL import Image
 from plyfile import PlyData, PlyElement
 
 from conftest import ONE_DEVICE
-from geosynth.pointsets import PointSet, read_geometry, read_point_set, write_point_set
+from geosynth.geometry.pointsets import PointSet, read_geometry, read_point_set, write_point_set
 
 _NAMES = {"long": ("red", "green", "blue", "alpha"), "short": ("r", "g", "b", "a"),
           "diffuse": ("diffuse_red", "diffuse_green", "diffuse_blue", "diffuse_alpha")}
@@ -255,7 +255,7 @@ def test_half_cylinder_completes_with_its_colours(tmp_path):
     all. Now the completed file holds red, green, blue and alpha (the capture gave one), the
     captured vertices keep their colours, and the completed part's colour histogram meets the
     capture's (intersection >= 0.8 on each of 3 seeds; measured 0.96-0.97)."""
-    from geosynth.completion import complete_surface, write_completion
+    from geosynth.completion.synthesis import complete_surface, write_completion
 
     cap = _half_cylinder(tmp_path / "cap.ply")
     src = PlyData.read(str(cap))["vertex"].data
@@ -297,8 +297,8 @@ def test_pointtexture_carries_the_exemplars_colours(tmp_path):
     the bumps, whose colour is a ramp of height, the output's colours still say its heights
     (the ramp's height read back from red agrees with z: correlation > 0.75; a shuffle of the
     same colours gives ~0), and the written file holds them."""
-    from geosynth.geometry_texture import synthesize_point_texture
-    from geosynth.point_textures import read_point_texture
+    from geosynth.pointtexture.synthesis import synthesize_point_texture
+    from geosynth.pointtexture.texture import read_point_texture
 
     texture = read_point_texture(_bumps(tmp_path / "bumps.ply"), count=3000, seed=0)
     assert texture.colors is not None and texture.colors.shape == texture.points.shape
@@ -317,8 +317,8 @@ def test_methods_that_cannot_carry_colour_say_so(tmp_path):
     """M1 works on a distance field: a coloured exemplar gets a one-line note (from the
     volume commands, before the synthesis) that the output has no colour; none for an
     exemplar without colour. has_colours reads a PLY file's header only."""
-    from geosynth._readers import has_colours
     from geosynth.cli import _m1_colour_note
+    from geosynth.io.readers import has_colours
 
     coloured = _bumps(tmp_path / "bumps.ply", n=20)
     plain = _bumps(tmp_path / "plain.ply", n=20, coloured=False)
@@ -362,7 +362,7 @@ def test_obj_colours_trimesh_would_drop_are_refused(tmp_path, body, want):
 def test_point_set_exemplar_keeps_its_colours(tmp_path):
     """A PLY point-set exemplar's colours reach the PointTexture, row for row with its points
     (coincident points merged, the first one's colour kept)."""
-    from geosynth.point_textures import read_point_texture
+    from geosynth.pointtexture.texture import read_point_texture
 
     rng = np.random.default_rng(2)
     p = np.column_stack([rng.random((400, 2)), 0.01 * rng.random(400)]).astype(np.float32)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from conftest import ONE_DEVICE
-from geosynth.completion import complete_surface, completion_picture, write_completion
-from geosynth.relief_prep import Capture
+from geosynth.completion.prep import Capture
+from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
 
 AMPLITUDE, PERIOD = 0.08, 0.5
 
@@ -105,7 +105,7 @@ def test_wave_keeps_amplitude_and_period(wave_run):
 def test_baseline_is_a_mean_over_seeded_draws(wave_run):
     """The random baseline is reported as the mean of BASELINE_DRAWS seeded draws with their
     min and max; each draw is reproducible from the seed alone."""
-    from geosynth.completion import BASELINE_DRAWS
+    from geosynth.completion.synthesis import BASELINE_DRAWS
 
     _, report, _ = wave_run
     q = report.quality
@@ -237,7 +237,7 @@ def test_cli_complete(tmp_path, capsys):
 def test_batched_classes_equal_one_target_at_a_time(one_device, monkeypatch):
     """Targets of a class lie outside each other's windows (and partners are captured
     samples only), so scoring a class in one launch equals the sequential order."""
-    import geosynth.completion as completion
+    import geosynth.completion.synthesis as completion
 
     cap, region = _small(4), ((0.0, 0.9), (0.0, 0.45))
     sa, ra, _ = complete_surface(cap, fit="plane", region=region, window=2, device=one_device, seed=2)
@@ -278,7 +278,7 @@ def test_coherence_hints_change_nothing(one_device, monkeypatch):
     """The hints (each target's candidates next to the samples that textured its
     neighbours, a row per target) only tighten FindMatches' pruning limit: the completion
     is the same bits without them, with more rings, or with the stride probes after them."""
-    import geosynth.completion as completion
+    import geosynth.completion.synthesis as completion
 
     cap, region = _small(5), ((0.0, 0.9), (0.0, 0.45))
     runs = []
@@ -297,7 +297,7 @@ def test_search_option_coherent_and_auto(one_device, monkeypatch):
     """search="coherent" completes every target from the hints and the spread probes (its
     own bits, the same on a second run) and says so; "auto" is the exhaustive search under
     AUTO_EXHAUSTIVE_WORK (the same bits as "exhaustive") and the coherent one above it."""
-    import geosynth.completion as completion
+    import geosynth.completion.synthesis as completion
 
     cap, region = _small(5), ((0.0, 0.9), (0.0, 0.45))
     kw = dict(fit="plane", region=region, window=2, device=one_device, seed=3)
@@ -323,7 +323,7 @@ def _balance_case(n0=400, seed=0):
     fall in skewed bins (60% in one bin)."""
     from types import SimpleNamespace
 
-    from geosynth.completion import _Balance
+    from geosynth.completion.synthesis import _Balance
 
     rng = np.random.default_rng(seed)
     level = np.where(rng.random(n0) < 0.6, 0, rng.integers(1, 8, n0))
@@ -336,8 +336,8 @@ def _balance_case(n0=400, seed=0):
 
 
 def test_balanced_pick_stays_in_the_penalized_set_and_tracks_the_histogram():
-    from geosynth.completion import TOLERANCE
-    from geosynth.relief_match import Matches
+    from geosynth.completion.matching import Matches
+    from geosynth.completion.synthesis import TOLERANCE
 
     # The histogram distance of the balanced pick / the paper's uniform pick, over 3 draws (case,
     # picks and offers): measured over draws 0-19, the same under native, AVX2 and SSE4, 0.131
@@ -376,7 +376,7 @@ def test_fit_frames_follow_the_axis_and_keep_same_bits_on_every_device(device_pa
     """frames='fit' on a cylinder: u around it, v along its axis at every vertex (the paper's
     frames turn by 90 degrees where the normal's smallest component switches); the same
     seed gives the same bits on every device."""
-    from geosynth.surface_fit import fit_frames, fit_surface
+    from geosynth.completion.fit import fit_frames, fit_surface
 
     cap = _small_cylinder(2)
     sf = fit_surface(cap.positions, "cylinder")
@@ -448,11 +448,11 @@ def test_median_spacing_lays_the_targets_in_the_capture_rows():
     the capture's edges on the fit, as dense as the capture; the paper's minimum edge (0.0522,
     in the arch recesses 5% inside the wall) gives 40 rows over the tower's height against the
     capture's 38, so its one-row ledges (4 rows in both) lose a twentieth of their share."""
-    from geosynth.completion_examples import tower_example
-    from geosynth.relief_prep import prepare_relief
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.examples import tower_example
+    from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import prepare_relief
 
-    from geosynth.completion import choose_settings
+    from geosynth.completion.synthesis import choose_settings
 
     ex = tower_example()
     sf = fit_surface(ex.capture.positions, ex.fit)
@@ -480,7 +480,7 @@ def test_tower_keeps_its_ledges_at_the_median_spacing():
     the random baseline's 0.23 mean, 0.60 worst as native and AVX2, but 0.52 mean, 2.19 worst
     as SSE4: worse than random on seeds 0 (2.19) and 6 (1.26) there. The volume claim holds on
     average only (seeds 0-2 as SSE4: 0.88), and M4 is not the same bits on every CPU (#40)."""
-    from geosynth.completion_examples import tower_example
+    from geosynth.completion.examples import tower_example
 
     ex = tower_example()
     ledges, volumes = [], []
@@ -520,7 +520,7 @@ def test_a_bad_spacing_rule_is_refused_before_any_work():
 
 
 def test_max_error_outside_the_scores_range_is_refused_before_any_work():
-    from geosynth.completion import MAX_MAX_ERROR, MIN_MAX_ERROR, check_max_error
+    from geosynth.completion.synthesis import MAX_MAX_ERROR, MIN_MAX_ERROR, check_max_error
 
     cap = _wave_capture()
     for bad in (1e-30, 0.0, -1.0, float("nan"), float("inf"), 1e9, True, "0.1"):
@@ -531,7 +531,7 @@ def test_max_error_outside_the_scores_range_is_refused_before_any_work():
 
 
 def test_a_window_wider_than_the_capture_is_refused_with_the_range_that_works():
-    from geosynth.completion_examples import completion_example
+    from geosynth.completion.examples import completion_example
 
     ex = completion_example("flat")  # its deepest vertex lies 6 target spacings from the border
     with pytest.raises(ValueError, match=r"^window 8 is larger than the capture: .* use a window from 1 to 6,"):
@@ -539,7 +539,7 @@ def test_a_window_wider_than_the_capture_is_refused_with_the_range_that_works():
 
 
 def test_the_report_says_how_many_vertices_hold_a_whole_window(one_device):
-    from geosynth.completion_examples import completion_example
+    from geosynth.completion.examples import completion_example
 
     ex = completion_example("flat")
     _, report, _ = complete_surface(ex.capture, fit=ex.fit, region=ex.region, window=6, device=one_device)
@@ -567,7 +567,7 @@ def test_cli_refuses_meaningless_complete_options_in_one_line(tmp_path, options,
     on a small capture ran with no word. Now: one line, exit 2, in seconds, nothing written."""
     import time
 
-    from geosynth.pointsets import PointSet, write_point_set
+    from geosynth.geometry.pointsets import PointSet, write_point_set
 
     q = _hex(1.5, 1.5, 0.05)
     q = q[(q[:, 0] < 0.2) | (q[:, 1] < 0.2)]  # an L, 4 rows wide: many points, none deep inside
@@ -608,14 +608,14 @@ def _ply_points(path, pts, normals=None, colors=None):
 @given(shape=st.sampled_from(["grid", "duplicates", "collinear", "coplanar", "few"]),
        nan_normals=st.booleans(), nan_colours=st.booleans(), seed=st.integers(0, 2**16))
 def test_fuzz_complete_reader_point_sets(tmp_path, shape, nan_normals, nan_colours, seed):
-    """Degenerate captures read by `complete` (geosynth.pointsets.read_geometry), fitted and
+    """Degenerate captures read by `complete` (geosynth.geometry.pointsets.read_geometry), fitted and
     prepared: each is handled or refused in one ValueError line naming the problem; never a
     NumPy warning, IndexError, LinAlgError or negative-dimension error."""
     import warnings
 
-    from geosynth.pointsets import read_geometry
-    from geosynth.relief_prep import as_capture, capture_depth, prepare_relief
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import as_capture, capture_depth, prepare_relief
+    from geosynth.geometry.pointsets import read_geometry
 
     rng = np.random.default_rng(seed)
     q = _hex(0.6, 0.5, 0.05)
@@ -689,9 +689,9 @@ def test_knurled_half_cylinder_keeps_its_period_and_orientation():
 
 def test_automatic_settings_follow_the_relief_and_explicit_options_override():
     """choose_settings on two reliefs and the explicit options' precedence."""
-    from geosynth.completion import choose_settings
-    from geosynth.completion_examples import completion_example
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.examples import completion_example
+    from geosynth.completion.fit import fit_surface
+    from geosynth.completion.synthesis import choose_settings
 
     knurl = _knurled_half_cylinder()
     a = choose_settings(knurl, fit_surface(knurl.positions, "cylinder"))
@@ -730,9 +730,9 @@ def test_irregular_sampling_puts_the_targets_at_the_median_edge_and_a_sphere_in_
     7,298 captured points, 309 s): the automatic settings take the median edge on the fit
     instead, which :func:`target_spacing` reports as :func:`prepare_relief` makes it. Ridges
     along a sphere's latitudes get R 4 in the latitude frames."""
-    from geosynth.completion import choose_settings
-    from geosynth.relief_prep import prepare_relief, target_spacing
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import prepare_relief, target_spacing
+    from geosynth.completion.synthesis import choose_settings
 
     cap = _latitude_sphere()
     sf = fit_surface(cap.positions, "sphere")
@@ -747,7 +747,7 @@ def test_irregular_sampling_puts_the_targets_at_the_median_edge_and_a_sphere_in_
 def test_latitude_frames_complete_a_sphere(device_pair):
     """frames='fit' on a sphere (the latitude frames about the measured axis): the ridges along
     the latitudes come out with their period and orientation, the same bits on every device."""
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.fit import fit_surface
 
     cap = _latitude_sphere()
     sf = fit_surface(cap.positions, "sphere")
@@ -766,7 +766,7 @@ def test_latitude_axis_follows_the_stripes_not_the_world():
     """The latitude frames' axis is measured from the relief: the same striped capture turned
     by 0.7 rad about x gives the turned axis (share ~0: stripes), a relief without stripes a
     share near 1/3; the frames then run along the turned stripes."""
-    from geosynth.surface_fit import fit_frames, fit_surface, latitude_axis
+    from geosynth.completion.fit import fit_frames, fit_surface, latitude_axis
 
     cap = _latitude_sphere()
     turn = np.array([[1, 0, 0], [0, np.cos(0.7), -np.sin(0.7)], [0, np.sin(0.7), np.cos(0.7)]])
@@ -806,8 +806,8 @@ def test_sparse_bumps_sampled_densely_get_targets_by_their_size(seed):
     (a zoo sphere at 20,000 vertices grew worms). Their correlation length L sets the targets
     instead once it spans more than 4 of them: L / 3, the same whatever the capture's density;
     a capture already near that keeps its own edge."""
-    from geosynth.completion import AUTO_PER_FEATURE, choose_settings
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.fit import fit_surface
+    from geosynth.completion.synthesis import AUTO_PER_FEATURE, choose_settings
 
     size = 2 * math.sqrt(math.log(2)) * 0.06
     spacings = []

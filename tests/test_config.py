@@ -1,4 +1,4 @@
-"""geosynth.config owns every environment variable geosynth reads or sets (issue 33)."""
+"""geosynth.core.config owns every environment variable geosynth reads or sets (issue 33)."""
 
 import ast
 import os
@@ -6,16 +6,16 @@ from pathlib import Path
 
 import pytest
 
-from geosynth import config
+from geosynth.core import config
 
 PACKAGE = Path(__file__).resolve().parents[1] / "geosynth"
 
 
 def test_only_config_touches_the_environment():
-    """No module but geosynth.config reads or sets os.environ (or calls os.getenv / putenv)."""
+    """No module but geosynth.core.config reads or sets os.environ (or calls os.getenv / putenv)."""
     offenders = []
     for path in sorted(PACKAGE.rglob("*.py")):
-        if path.name == "config.py" and path.parent == PACKAGE:
+        if path.name == "config.py" and path.parent == PACKAGE / "core":
             continue
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if isinstance(node, ast.Attribute) and node.attr in ("environ", "getenv", "putenv", "unsetenv") \
@@ -90,10 +90,10 @@ def _makes_state(value) -> bool:
 
 def test_process_wide_caches_and_locks_are_made_in_config():
     """Every module-level cache (an empty container filled at run time) and lock is made in
-    geosynth.config and named in its table; the modules that use one hold a reference."""
+    geosynth.core.config and named in its table; the modules that use one hold a reference."""
     offenders = []
     for path in sorted(PACKAGE.rglob("*.py")):
-        if (path.name == "config.py" and path.parent == PACKAGE) or path.name in _CLI_ONLY:
+        if (path.name == "config.py" and path.parent == PACKAGE / "core") or path.name in _CLI_ONLY:
             continue
         for node in ast.parse(path.read_text(), str(path)).body:
             value = node.value if isinstance(node, (ast.Assign, ast.AnnAssign)) else None

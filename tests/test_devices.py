@@ -11,7 +11,7 @@ import pytest
 
 import geosynth
 from conftest import TEST_DEVICES
-from geosynth.backend import parse_device, resolve_device
+from geosynth.compute.backend import parse_device, resolve_device
 
 
 def test_devices_lists_warp_cpu_and_opencl():
@@ -87,7 +87,7 @@ def test_to_device_refuses_another_devices_array():
 
 
 def test_no_top_level_kernels_package():
-    """kernels/ installs as geosynth.kernels, never as a top-level `kernels`."""
+    """The kernels live in geosynth/kernels/ and import as geosynth.kernels, never as a top-level `kernels`."""
     code = "import importlib.util, sys; sys.path = [p for p in sys.path if p not in ('', '.')]; " \
            "print(importlib.util.find_spec('kernels') is None, importlib.util.find_spec('geosynth.kernels') is not None)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", check=True)
@@ -95,7 +95,7 @@ def test_no_top_level_kernels_package():
 
 
 def test_an_opencl_device_whose_compiler_fails_is_left_out_and_refused(monkeypatch):
-    from geosynth import backend
+    from geosynth.compute import backend
 
     fake = (
         ("opencl:0:0", "OpenCL PoCL 3.0: pthread-AMD EPYC", "error: unknown target CPU 'generic'"),
@@ -190,7 +190,7 @@ def test_pocl_threads_pinned_only_when_every_core_is_ours(monkeypatch):
     may not run on every core (PoCL would pin its threads to CPUs 0..n-1)."""
     import os
 
-    from geosynth import config
+    from geosynth.core import config
 
     monkeypatch.delenv("POCL_AFFINITY", raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 4)

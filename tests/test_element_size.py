@@ -1,4 +1,4 @@
-"""M2's element size (geosynth.element_size) and the patch size chosen from it (issue 32,
+"""M2's element size (geosynth.pointtexture.element_size) and the patch size chosen from it (issue 32,
 items 1 and 2): measured periods of relief nobody tuned for, the same choice for a built-in
 and a file, --patch overriding, the output's element size and amplitude kept, the same
 numbers on an SSE4 CPU."""
@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geosynth.element_size import relief_scale
-from geosynth.geometry_texture import PATCH_PERIODS, choose_patch, synthesize_point_texture
-from geosynth.point_examples import point_texture_example
-from geosynth.point_textures import PointTexture, read_point_texture, texture_from_points
+from geosynth.pointtexture.element_size import relief_scale
+from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.synthesis import PATCH_PERIODS, choose_patch, synthesize_point_texture
+from geosynth.pointtexture.texture import PointTexture, read_point_texture, texture_from_points
 
 
 def _relief(fn, n=150, width=1.5, pad=0.25, seed=0) -> PointTexture:
@@ -88,7 +88,7 @@ def test_patch_follows_the_element_size():
 def test_a_file_gets_what_its_built_in_gets(tmp_path):
     """flowers written as a PLY and read back (another box B: 0.2 of the extent as padding)
     gets the same patch size in world units as the built-in, which has no setting of its own."""
-    from geosynth.pointsets import PointSet, write_point_set
+    from geosynth.geometry.pointsets import PointSet, write_point_set
 
     t = point_texture_example("flowers", count=12_000)
     path = tmp_path / "flowers.ply"
@@ -155,7 +155,7 @@ def test_cli_says_the_patch_it_chose(tmp_path, capsys):
     """`geosynth pointtexture FILE` with no --patch: the header says "(automatic)" and the
     next line what was measured; the report has the element size line."""
     from geosynth.cli import main
-    from geosynth.pointsets import PointSet, write_point_set
+    from geosynth.geometry.pointsets import PointSet, write_point_set
 
     tex = _relief(_ridges(0.2, 30), n=70)
     path = tmp_path / "ridges.ply"

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from geosynth import examples
-from geosynth.examples import EXEMPLARS, exemplar_field, exemplar_mesh
+from geosynth.volume import examples
+from geosynth.volume.examples import EXEMPLARS, exemplar_field, exemplar_mesh
 
 NAMES = sorted(EXEMPLARS)
 SLABS = {"domes", "rings"}  # the thin slab exemplars
-GROWN_AS_SLABS = SLABS | {"chainmail"}  # geosynth.volume.is_slab at the default resolution
+GROWN_AS_SLABS = SLABS | {"chainmail"}  # geosynth.volume.synthesis.is_slab at the default resolution
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +71,7 @@ def test_balls_field_is_the_exact_distance():
     exact = (np.linalg.norm(pts[:, None, :] - centres[None], axis=-1) - radii).min(1)
     np.testing.assert_allclose(field.values.ravel(), exact, atol=1e-5)
     # the same grid as mesh_distance(exemplar_mesh("balls"), resolution=24)
-    from geosynth.field import cubic_grid
+    from geosynth.geometry.field import cubic_grid
 
     grid = cubic_grid(exemplar_mesh("balls").bounds, 24, 0.1)
     np.testing.assert_allclose(field.origin, grid.origin)
@@ -107,9 +107,9 @@ def test_exemplar_field_from_the_mesh(device):
 
 
 def test_slab_exemplars_are_slabs_and_the_others_are_not():
-    """The automatic slab choice (geosynth.volume.is_slab) on every built-in exemplar's
+    """The automatic slab choice (geosynth.volume.synthesis.is_slab) on every built-in exemplar's
     source grid at the default resolution; the rings are separate pieces."""
-    from geosynth.volume import _exemplar_grid_geometry, is_slab, target_size
+    from geosynth.volume.synthesis import _exemplar_grid_geometry, is_slab, target_size
 
     for name in NAMES:
         shape = _exemplar_grid_geometry(exemplar_mesh(name), 64, multiple=4)[0]

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-import geosynth.volume as volume
-from geosynth.volume import choose_settings, match_histogram, synthesize_volume
-from geosynth.volume_features import compare_features, element_features
+import geosynth.volume.synthesis as volume
+from geosynth.volume.features import compare_features, element_features
+from geosynth.volume.synthesis import choose_settings, match_histogram, synthesize_volume
 
 SEEDS = (0, 1, 2)
 
@@ -144,7 +144,7 @@ def test_settings_follow_the_thinnest_feature():
 def test_border_slivers_dropped():
     """Loose pieces reaching at most 2 samples in from an x/y face go; the main piece,
     pieces reaching further in and pieces away from the faces stay."""
-    from geosynth.volume import drop_border_slivers, quantize_field
+    from geosynth.volume.synthesis import drop_border_slivers, quantize_field
 
     z, y, x = np.mgrid[0:8, 0:32, 0:32].astype(np.float32)
     tube = np.sqrt((z - 3.6) ** 2 + (y - 16.3) ** 2) - 2.0  # across the whole field: the main piece
@@ -193,7 +193,7 @@ def test_spanning_share_of_tubes():
 def test_auto_method_optimizes_a_terrain_slab_and_cuts_a_plate():
     """is_terrain: a relief with no flat ground (graphcut's seams crease it) -> texture
     optimization under "auto"; a plate with bumps and a layer of discs stay graphcut slabs."""
-    from geosynth.volume import choose_volume_settings, is_terrain
+    from geosynth.volume.synthesis import choose_volume_settings, is_terrain
 
     terrain = _terrain(n=48, zs=12)
     z, y, x = np.mgrid[0:12, 0:48, 0:48].astype(np.float32)
@@ -209,7 +209,7 @@ def test_auto_method_optimizes_tubes_across_and_cuts_discs_and_broken_tubes():
     """is_tubes_across: separate tubes over the footprint (graphcut's stitches break or fuse
     them) -> texture optimization under "auto", from quantized codes too; a layer of discs,
     tubes cut in two and one tube stay graphcut slabs."""
-    from geosynth.volume import choose_volume_settings, is_tubes_across, optimizes_better, quantize_field
+    from geosynth.volume.synthesis import choose_volume_settings, is_tubes_across, optimizes_better, quantize_field
 
     n, zs = 40, 8
     z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)
@@ -246,7 +246,7 @@ def test_tubes_run_between_breaks():
     the lower): whole, no end counts as a break (the lower rods stop short of the upper layer:
     cut, not broken); a gap across one rod is one break; the connection to the exemplar falls
     below 1 only when the breaks come more often than once an exemplar's length."""
-    from geosynth.volume_features import tube_connection
+    from geosynth.volume.features import tube_connection
 
     n, zs = 64, 16
     z, y, x = np.mgrid[0:zs, 0:n, 0:n].astype(np.float32)

@@ -1,7 +1,7 @@
 """Files in and out: the readers (PLY through plyfile, meshes through trimesh unprocessed,
 textures, fields) accept the files people have and turn every bad one into a one-line
 error naming it; the output guard, atomic writes (also under SIGTERM and Ctrl-C) and
-pictures by suffix (geosynth.files)."""
+pictures by suffix (geosynth.io.files)."""
 
 from __future__ import annotations
 
@@ -20,12 +20,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
-from geosynth.field import Field
-from geosynth.files import atomic_write, check_input, check_output, note_input, write_image
-from geosynth.meshes import load_mesh
-from geosynth.pointmodels import load_point_model
-from geosynth.pointsets import PointSet, read_geometry, read_point_set, write_point_set
-from geosynth.textures import read_texture
+from geosynth.geometry.field import Field
+from geosynth.geometry.meshes import load_mesh
+from geosynth.geometry.pointsets import PointSet, read_geometry, read_point_set, write_point_set
+from geosynth.io.files import atomic_write, check_input, check_output, note_input, write_image
+from geosynth.texturing.models import load_point_model
+from geosynth.texturing.textures import read_texture
 
 
 def _cloud(n=60, seed=0):
@@ -646,8 +646,8 @@ def test_a_corrupt_stl_is_refused_saying_what_is_wrong_with_it(tmp_path):
 
 
 def test_every_writer_refuses_non_finite_values_before_creating_a_file(tmp_path):
-    from geosynth.completion import CompletedSurface, write_completion
-    from geosynth.surface import save_mesh
+    from geosynth.completion.synthesis import CompletedSurface, write_completion
+    from geosynth.geometry.surface import save_mesh
 
     p, n, c = _cloud(300)
     p[7, 1], p[9] = np.nan, np.inf
@@ -851,7 +851,7 @@ def test_atomic_write_keeps_the_old_file_when_the_writer_fails(tmp_path):
 
 _INTERRUPTED = textwrap.dedent("""
     import signal, sys, time
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
     signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started with SIGINT ignored
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
@@ -910,7 +910,7 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
     out = tmp_path / "out.ply"
     script = textwrap.dedent(f"""
         import time
-        from geosynth.files import atomic_write
+        from geosynth.io.files import atomic_write
         def slow(tmp):
             open(tmp, "wb").write(b"partial")
             print("writing", flush=True)
@@ -927,7 +927,7 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
     left = [p.name for p in tmp_path.iterdir()]
     assert len(left) == 1 and left[0].startswith(f".out.ply.geosynth-{proc.pid}-"), left
     # a live writer's temporary (this process, just written) must survive another run's cleanup
-    from geosynth.files import temporary_path
+    from geosynth.io.files import temporary_path
 
     live = temporary_path(tmp_path / "out.ply", ".ply")
     live.write_bytes(b"still being written")

@@ -1,7 +1,7 @@
 """The search's compiled host steps (Sec. 5.1, D(S)): the float64 host projection kernel
 (geosynth.kernels.host_search) against its NumPy oracle (patch_search._iterate), the
 host recomputation host_mls both ways, the device kernel's tolerance stop, and the host
-selection of the patch search against geosynth.selection's device reductions."""
+selection of the patch search against geosynth.compute.selection's device reductions."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from geosynth.patch_search import (FIXED_STEPS, FIXED_TOL, RESIDUAL_TOL, PatchSearch, _HostCells, _iterate,
+from geosynth.geometry.pointsets import MLS_REACH, CellGrid
+from geosynth.pointtexture.patch_search import (FIXED_STEPS, FIXED_TOL, RESIDUAL_TOL, PatchSearch, _HostCells, _iterate,
                                    host_mls, kernel_mls)
-from geosynth.pointsets import MLS_REACH, CellGrid
 
 
 def _wavy(n_side=50, seed=0, offset=(0.0, 0.0, 0.0)):
@@ -155,7 +155,7 @@ def test_kernel_tolerance_stop_and_its_residual(device, rng):
 def test_quantized_fields_flags_unconverged_sheets(one_device):
     """Between two sheets 1.2 h apart the projections do not converge: quantized_fields
     sends them to the host (the residual test), and its codes are the host's there."""
-    from geosynth.patch_search import _codes, _round_codes, quantized_fields
+    from geosynth.pointtexture.patch_search import _codes, _round_codes, quantized_fields
 
     p, n, h = _sheets(1.2)
     q = np.random.default_rng(0).uniform([0.1, 0.1, -h], [0.9, 0.9, 2 * h], (50, 3))
@@ -171,8 +171,8 @@ def test_quantized_fields_flags_unconverged_sheets(one_device):
 def test_host_choice_equals_the_device_selection(one_device):
     """PatchSearch.choose selects on the host: the same candidate set, best score and pick
     as selection.argmin / within_tolerance on the device scores, for several eps."""
-    from geosynth.point_textures import PointTexture
-    from geosynth.selection import argmin, random_pick, within_tolerance
+    from geosynth.compute.selection import argmin, random_pick, within_tolerance
+    from geosynth.pointtexture.texture import PointTexture
 
     p, n, h = _wavy()
     tex = PointTexture(p, n, [0, 0, -0.04], [1, 1, 0.04], name="wavy")

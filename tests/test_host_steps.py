@@ -1,4 +1,4 @@
-"""geosynth.host_steps: the compiled host steps' wrappers (Warp's cpu device for every run):
+"""geosynth.compute.host_steps: the compiled host steps' wrappers (Warp's cpu device for every run):
 zero-copy views both ways, empty arrays, dtypes, and a launch that writes into NumPy memory."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from geosynth.host_steps import host_array, host_launch, host_threads, part_bounds, run_parts
+from geosynth.compute.host_steps import host_array, host_launch, host_threads, part_bounds, run_parts
 
 
 @wp.kernel

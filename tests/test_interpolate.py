@@ -1,13 +1,13 @@
-"""The one resampler (geosynth.interpolate), the one quantizer and the mesh components."""
+"""The one resampler (geosynth.core.interpolate), the one quantizer and the mesh components."""
 
 import numpy as np
 import pytest
 
-from geosynth.interpolate import lerp_axis, linear_taps
-from geosynth.meshes import _components, orient_faces
-from geosynth.render import _bilinear
-from geosynth.textures import sample_bilinear_grid
-from geosynth.volume import dequantize_field, quantize_field, upsample
+from geosynth.core.interpolate import lerp_axis, linear_taps
+from geosynth.geometry.meshes import _components, orient_faces
+from geosynth.io.pictures import _bilinear
+from geosynth.texturing.textures import sample_bilinear_grid
+from geosynth.volume.synthesis import dequantize_field, quantize_field, upsample
 
 
 def test_linear_taps_edges():

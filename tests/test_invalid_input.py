@@ -7,7 +7,7 @@ import pytest
 
 import geosynth
 from conftest import TEST_DEVICES
-from geosynth.backend import resolve_device
+from geosynth.compute.backend import resolve_device
 
 X = np.zeros((10, 4), np.float32)
 Q = np.zeros((2, 4), np.float32)
@@ -186,7 +186,7 @@ def test_inputs_on_different_devices(device_pair):
 
 def test_synthesize_volume_invalid_input():
     """Every option is checked before any work: no truncation, no constant fields."""
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     source = RNG.standard_normal((16, 16, 16)).astype(np.float32)
 
@@ -230,7 +230,7 @@ def test_synthesize_volume_invalid_input():
 
 
 def test_synthesize_geometry_invalid_input():
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     def run(**options):
         synthesize_geometry("terrain", **{"size": 32, "progress": False, **options})
@@ -260,7 +260,7 @@ def test_synthesize_geometry_invalid_input():
 
 
 def test_estimate_normals_invalid_input():
-    from geosynth.pointsets import estimate_normals
+    from geosynth.geometry.pointsets import estimate_normals
 
     plane = np.c_[RNG.random((60, 2)), np.zeros(60)]
     with pytest.raises(ValueError, match="points: all 10 points coincide, so no point has a defined normal"):
@@ -280,7 +280,7 @@ def test_estimate_normals_invalid_input():
 
 
 def test_pointset_distance_invalid_input(device):
-    from geosynth.pointsets import pointset_distance, project_points, smallest_radius
+    from geosynth.geometry.pointsets import pointset_distance, project_points, smallest_radius
 
     g = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1, 1, 21)), -1).reshape(-1, 2)
     pts = np.c_[g, np.zeros(len(g))]
@@ -305,7 +305,7 @@ def test_pointset_distance_invalid_input(device):
 def test_mesh_distance_invalid_input(one_device):
     import trimesh
 
-    from geosynth.meshes import mesh_distance
+    from geosynth.geometry.meshes import mesh_distance
 
     box = trimesh.creation.box()
     p = np.zeros((1, 3), np.float32)
@@ -359,7 +359,7 @@ def test_import_and_devices_print_nothing():
 
 
 def test_pocl_cache_does_not_grow_on_a_second_run(tmp_path):
-    from geosynth.backend import _opencl_status
+    from geosynth.compute.backend import _opencl_status
 
     cl, _ = _opencl_status()
     names = [p.name for p in cl.get_platforms()] if cl is not None else []

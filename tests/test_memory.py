@@ -1,4 +1,4 @@
-"""Memory refused up front (geosynth.memory): the estimates against measured peaks, and
+"""Memory refused up front (geosynth.core.memory): the estimates against measured peaks, and
 the refusals (fast, naming the option, with a largest value that really fits).
 
 What is measured, per operation:
@@ -25,7 +25,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from geosynth.memory import (
+from geosynth.core.memory import (
     ENV_LIMIT, MemoryBudgetError, available_memory, format_bytes, largest_fitting, parse_bytes, require,
 )
 
@@ -40,7 +40,7 @@ _RUNNER = textwrap.dedent('''
     def rss():
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    from geosynth.memory import peak_resident_bytes as high_water
+    from geosynth.core.memory import peak_resident_bytes as high_water
     def reset_high_water():
         try:  # Linux >= 4.0: "5" resets the peak RSS to the current RSS
             with open("/proc/self/clear_refs", "w") as f:
@@ -159,9 +159,9 @@ def test_require_finds_the_largest_by_bisection():
 
 _FIELDS_SETUP = """
 import trimesh
-from geosynth.meshes import grid_distance_bytes, mesh_distance
-from geosynth.pointmodels import point_model
-from geosynth.pointsets import default_radius, grid_mls_bytes, pointset_distance
+from geosynth.geometry.meshes import grid_distance_bytes, mesh_distance
+from geosynth.texturing.models import point_model
+from geosynth.geometry.pointsets import default_radius, grid_mls_bytes, pointset_distance
 mesh = trimesh.creation.icosphere(3)
 ps = point_model("sphere", 2000)
 h = default_radius(ps.positions)
@@ -190,7 +190,7 @@ def test_point_model_estimates_match_rss():
     RSS, as scipy's kd-tree is outside NumPy."""
     setup = """
     import trimesh
-    from geosynth.pointmodels import POINT_MODELS, point_model, sample_mesh_points, _MESH_SAMPLE_BYTES, _MESH_FACE_BYTES
+    from geosynth.texturing.models import POINT_MODELS, point_model, sample_mesh_points, _MESH_SAMPLE_BYTES, _MESH_FACE_BYTES
     mesh = trimesh.creation.icosphere(4)
     """
     cases = []
@@ -209,9 +209,9 @@ def test_texture_points_estimates_match_rss(device):
     texel search (param with the quality numbers, 2k points, m = 8 and 16 on 32^2: 4x the
     supersampled pixels): RSS, as the kernels' buffers and pykdtree's tree are outside NumPy."""
     setup = f"""
-    from geosynth.pointmodels import point_model
-    from geosynth.texturing import texture_bytes, texture_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_bytes, texture_points
+    from geosynth.texturing.textures import texture_example
     DEVICE = {device!r}
     tex16, tex32 = texture_example("noise", 16), texture_example("noise", 32)
     models = {{n: point_model("blob", n) for n in (300, 2000, 4000, 16000)}}
@@ -232,7 +232,7 @@ def test_texture_points_estimates_match_rss(device):
 def test_volume_estimate_matches_traced_peak(device):
     """synthesize_volume, targets 8 x 48 x 48 and 8 x 96 x 96: tracemalloc (the target,
     its upsampling and the scan are NumPy; the 16^3 source's device buffers are small)."""
-    from geosynth.volume import synthesize_volume, volume_bytes
+    from geosynth.volume.synthesis import synthesize_volume, volume_bytes
 
     z, y, x = np.mgrid[:16, :16, :16]
     src = (np.sin(x / 2.5) * np.cos(y / 3.0) * 4 + (z - 8)).astype(np.float32)
@@ -250,8 +250,8 @@ def test_geometry_estimate_matches_traced_peak(warp_cpu, name, kind):
     """synthesize_geometry at source resolution 16, sizes 32 and 64 (4x the samples), with
     the quality numbers and each kind of structure metrics: tracemalloc (fields, marching
     cubes, smoothing and the metrics are NumPy)."""
-    from geosynth.examples import exemplar_mesh
-    from geosynth.volume import _exemplar_grid_geometry, geometry_bytes, synthesize_geometry
+    from geosynth.volume.examples import exemplar_mesh
+    from geosynth.volume.synthesis import _exemplar_grid_geometry, geometry_bytes, synthesize_geometry
 
     mesh = exemplar_mesh(name, seed=0)
     synthesize_geometry(mesh, 16, source_resolution=16, levels=2, block=8, iterations=2, device=warp_cpu,
@@ -272,7 +272,7 @@ def test_geometry_estimate_matches_traced_peak(warp_cpu, name, kind):
 
 @pytest.mark.parametrize("name", ["bricks", "checker", "noise"])
 def test_texture_example_estimate_matches_traced_peak(name):
-    from geosynth.textures import TEXTURES, texture_example
+    from geosynth.texturing.textures import TEXTURES, texture_example
 
     for size in (256, 512):
         peak, _ = _traced_peak(lambda: texture_example(name, size))
@@ -314,8 +314,8 @@ def test_device_free_huge_inputs_are_refused_quickly_with_the_largest_that_fits(
     """The host-only operations (no device argument), once."""
     import trimesh
 
-    from geosynth.pointmodels import point_model, sample_mesh_points
-    from geosynth.textures import texture_example
+    from geosynth.texturing.models import point_model, sample_mesh_points
+    from geosynth.texturing.textures import texture_example
 
     mesh = trimesh.creation.icosphere(2)
     _check_refusals(monkeypatch, [
@@ -328,12 +328,12 @@ def test_device_free_huge_inputs_are_refused_quickly_with_the_largest_that_fits(
 def test_huge_inputs_are_refused_quickly_with_the_largest_that_fits(monkeypatch, device):
     import trimesh
 
-    from geosynth.meshes import mesh_distance
-    from geosynth.pointmodels import point_model
-    from geosynth.pointsets import pointset_distance
-    from geosynth.texturing import texture_points
-    from geosynth.textures import texture_example
-    from geosynth.volume import synthesize_geometry, synthesize_volume
+    from geosynth.geometry.meshes import mesh_distance
+    from geosynth.geometry.pointsets import pointset_distance
+    from geosynth.texturing.models import point_model
+    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.textures import texture_example
+    from geosynth.volume.synthesis import synthesize_geometry, synthesize_volume
 
     mesh = trimesh.creation.icosphere(2)
     ps = point_model("sphere", 1000)

@@ -1,5 +1,5 @@
 """Mesh distance fields on every present device, against the brute-force oracles of
-geosynth.reference and analytic cases."""
+geosynth.geometry.reference and analytic cases."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import trimesh
 
 import geosynth
 from conftest import TEST_DEVICES
-from geosynth import reference
-from geosynth.examples import chainmail_mesh
-from geosynth.field import Field, cubic_grid
-from geosynth.distance import mesh_distance
-from geosynth.meshes import check_mesh, load_mesh, orient_faces
+from geosynth.geometry import reference
+from geosynth.geometry.distance import mesh_distance
+from geosynth.geometry.field import Field, cubic_grid
+from geosynth.geometry.meshes import check_mesh, load_mesh, orient_faces
+from geosynth.volume.examples import chainmail_mesh
 
 # float32 kernels against a float64 oracle: relative to the mesh size
 ATOL = 2e-6
@@ -299,7 +299,7 @@ def test_grid_matches_points_larger_mesh(device):
 
 
 def test_tri_lanes_layout():
-    from geosynth.meshes import tri_lanes_layout
+    from geosynth.geometry.meshes import tri_lanes_layout
 
     tri = np.array([[[0, 0, 0], [2, 0, 0], [0, 1, 0]], [[0, 0, 0], [1e-30, 0, 0], [0, 1e-30, 0]]], np.float64)
     lanes = tri_lanes_layout(tri)
@@ -394,8 +394,8 @@ def test_points_order_and_duplicates(device, rng):
 
 def test_synthesize_geometry_same_file_on_every_device(tmp_path):
     # end to end from a mesh: the same exemplar and seed write byte-identical PLY files
-    from geosynth.surface import save_mesh
-    from geosynth.volume import synthesize_geometry
+    from geosynth.geometry.surface import save_mesh
+    from geosynth.volume.synthesis import synthesize_geometry
 
     pairs = _device_pairs()
     mesh = chainmail_mesh(2, major_sections=24, minor_sections=12)
@@ -451,7 +451,7 @@ def test_distance_is_the_minimum_over_every_triangle(device, rng, name):
     # the pruned searches (per point on Warp, 16 lanes at once on OpenCL) never miss the
     # triangle with the smallest float32 distance: the result is that minimum, bit for
     # bit, also on symmetric grids full of ties, and for points 10^3 extents away
-    from geosynth.meshes import prepare_mesh
+    from geosynth.geometry.meshes import prepare_mesh
 
     mesh = chainmail_mesh(2, major_sections=16, minor_sections=8) if name == "chainmail" else SMALL_MESHES[name]()
     bvh = prepare_mesh(mesh)
@@ -548,7 +548,7 @@ def test_the_volume_pipelines_exemplar_field_does_not_depend_on_the_mesh_units(t
     # issue 37 item 4: the volume pipeline (the exemplar's field at a source resolution, in
     # samples) gives the same signs for the plate at 1e-6, 1 and 1e6 (measured: 0 flips,
     # distances within 2e-6 samples)
-    from geosynth.tiled import exemplar_source
+    from geosynth.volume.tiled import exemplar_source
 
     fields, spacings = {}, {}
     for s in (1e-6, 1.0, 1e6):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from geosynth.field import Field
-from geosynth.metrics import (element_wholeness, exemplar_structure, format_structure, pick_refinement,
+from geosynth.geometry.field import Field
+from geosynth.volume.quality import (element_wholeness, exemplar_structure, format_structure, pick_refinement,
                               structure_kind, structure_report, surface_structure)
 
 
@@ -259,7 +259,7 @@ def test_bad_inputs_are_clear_errors():
 
 
 def test_refinement_lowered_for_a_large_output(monkeypatch):
-    from geosynth import metrics
+    from geosynth.volume import quality as metrics
 
     shape = (16, 40, 40)
     d = np.minimum(torus(shape, (8, 10.3, 10.6), 7, 1.0), torus(shape, (8, 29.2, 28.7), 7, 1.0)).astype(np.float32)
@@ -290,8 +290,8 @@ def test_builtin_balls_and_terrain_against_random_tiling():
     0.406 mean, 0.604 worst (seed 2; sd 0.100), so the old "< 0.6" on seed 0 was a draw;
     terrain's slopes 0 on every seed; its overhangs above the exemplar's by 0.829 on average,
     0.792 at least (sd 0.027)."""
-    from geosynth.examples import balls_field, terrain_heights
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.examples import balls_field, terrain_heights
+    from geosynth.volume.synthesis import synthesize_volume
 
     ex = balls_field(resolution=48)  # the exact distance of the "balls" exemplar, 29 x 48 x 48
     h = float(ex.spacing[0])

@@ -1,4 +1,4 @@
-"""Texture optimization (geosynth.optimize), the minimum-error cut (geosynth.graphcut)
+"""Texture optimization (geosynth.volume.optimize), the minimum-error cut (geosynth.volume.graphcut)
 and the synthesis methods end to end, on every present device."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 import geosynth
-from geosynth.examples import spheres_field
-from geosynth.graphcut import cut_cost, min_cut, must_keep
-from geosynth.optimize import falloff, irls_weights, lattice_positions, optimize_level, vote
-from geosynth.cascade_search import CascadeSearch
-from geosynth.volume import METHODS, synthesize_volume
+from geosynth.volume.cascade import CascadeSearch
+from geosynth.volume.examples import spheres_field
+from geosynth.volume.graphcut import cut_cost, min_cut, must_keep
+from geosynth.volume.optimize import falloff, irls_weights, lattice_positions, optimize_level, vote
+from geosynth.volume.synthesis import METHODS, synthesize_volume
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,7 @@ def source():
 
 @pytest.fixture(scope="module")
 def codes(source):
-    from geosynth.volume import quantize_field
+    from geosynth.volume.synthesis import quantize_field
 
     return quantize_field(source, 4.0)
 
@@ -196,7 +196,7 @@ BEATS = {"graphcut": (0.7, 0.65), "optimize": (0.35, 0.3)}
 
 
 def test_methods_beat_random_tiling(source):
-    from geosynth.metrics import bidirectional_block_distance
+    from geosynth.volume.quality import bidirectional_block_distance
 
     ratios = {m: [] for m in BEATS}
     for seed in range(3):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth.point_grid import PointGrid
+from geosynth.pointtexture.output_grid import PointGrid
 
 
 def _cloud(rng, n, lo=0.0, hi=1.0):

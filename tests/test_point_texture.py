@@ -11,11 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from geosynth.geometry_texture import synthesize_point_texture
-from geosynth.patch_search import PatchSearch, brute_force_scores, host_mls, quantized_fields
-from geosynth.point_examples import point_texture_example
-from geosynth.point_textures import PointTexture, texture_from_image, texture_from_points
-from geosynth.pointsets import MLS_REACH, pointset_distance
+from geosynth.geometry.pointsets import MLS_REACH, pointset_distance
+from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.patch_search import PatchSearch, brute_force_scores, host_mls, quantized_fields
+from geosynth.pointtexture.synthesis import synthesize_point_texture
+from geosynth.pointtexture.texture import PointTexture, texture_from_image, texture_from_points
 
 SMALL = dict(scale=1.2, patch=0.5, resolution=24, quality=False)
 
@@ -83,7 +83,7 @@ def test_fixed_step_kernel_residual_and_projection(wavy, device, rng):
     they converge, and the residual, computed in the same launch, is f at the returned
     projection (NumPy reference; what a fresh one-step launch from there gives), reach
     where no point is within reach."""
-    from geosynth.patch_search import FIXED_STEPS, RESIDUAL_TOL, kernel_mls
+    from geosynth.pointtexture.patch_search import FIXED_STEPS, RESIDUAL_TOL, kernel_mls
 
     h = 2 * wavy.spacing
     reach = MLS_REACH * h
@@ -180,7 +180,7 @@ def test_the_seed_decides_the_points(one_device, small_weave):
 def test_no_device_given_runs_on_auto(small_weave):
     # device=None (the CLI without --device) means "auto", resolved once for every stage (it once
     # reached the gather scorer as None and failed)
-    from geosynth.backend import resolve_device
+    from geosynth.compute.backend import resolve_device
 
     auto = resolve_device("auto")
     a, report, _ = synthesize_point_texture(small_weave, device=None, seed=5, **SMALL)
@@ -218,7 +218,7 @@ def test_synthesis_beats_random_pasting(one_device, small_weave):
 def test_only_the_flowers_have_disconnected_pieces(name, expected):
     """The overlap is cut rather than blended only for an exemplar with disconnected pieces
     (blending.has_pieces): the flowers; the other built-ins' outputs are left as they were."""
-    from geosynth.blending import has_pieces
+    from geosynth.pointtexture.blending import has_pieces
 
     tex = point_texture_example(name, count=10_000)
     assert has_pieces(tex.points, tex.spacing) is expected
@@ -314,7 +314,7 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path):
 
 
 def test_mesh_of_the_output_is_watertight(one_device, wavy):
-    from geosynth.geometry_texture import output_mesh
+    from geosynth.pointtexture.synthesis import output_mesh
 
     pts, report, _ = synthesize_point_texture(wavy, device=one_device, **SMALL)
     mesh = output_mesh(pts.positions, pts.normals, report.spacing, resolution=40, device=one_device)
@@ -324,7 +324,7 @@ def test_mesh_of_the_output_is_watertight(one_device, wavy):
 
 
 def test_an_output_that_cannot_fit_is_refused(wavy, one_device):
-    from geosynth.memory import MemoryBudgetError
+    from geosynth.core.memory import MemoryBudgetError
 
     with pytest.raises(MemoryBudgetError, match="size"):
         synthesize_point_texture(wavy, size=(3e4, 3e4), device=one_device, quality=False)
@@ -387,8 +387,8 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
     projections do not converge)."""
     from scipy.spatial import cKDTree
 
-    from geosynth.patch_search import FIXED_STEPS, FIXED_TOL, _iterate
-    from geosynth.pointsets import MLS_MAX_ITER, MLS_TOL
+    from geosynth.geometry.pointsets import MLS_MAX_ITER, MLS_TOL
+    from geosynth.pointtexture.patch_search import FIXED_STEPS, FIXED_TOL, _iterate
 
     h = 2 * wavy.spacing
     sheet = wavy.points[::2] * [1, 1, 0]
@@ -410,7 +410,7 @@ def test_host_projection_gathers_once_with_the_same_bits(wavy, rng, fixed):
 def test_two_rows_at_once_give_one_threads_bits(one_device, monkeypatch, name):
     """The growth's two threads (even and odd rows, the lower row a few patches behind)
     give the points one thread gives, bit for bit; the two-row path is really taken."""
-    import geosynth.geometry_texture as gt
+    import geosynth.pointtexture.synthesis as gt
 
     tex = point_texture_example(name, count=6000)
     opts = dict(scale=2.0, resolution=24, quality=False)
@@ -431,7 +431,7 @@ def test_row_lag_keeps_the_rows_reads_and_writes_apart():
     """The lag: L patch steps cover a box (patch + extra) and the reads beyond it."""
     from types import SimpleNamespace
 
-    from geosynth.geometry_texture import _row_lag
+    from geosynth.pointtexture.synthesis import _row_lag
 
     lay = SimpleNamespace(cell=1.0, patch=19, extra=4, step=14)
     assert _row_lag(lay, reach=3.0, margin=2.0, cut=False) == 3  # (23 + 8) / 14 -> 3
@@ -442,7 +442,7 @@ def test_row_lag_keeps_the_rows_reads_and_writes_apart():
 
 
 def test_a_bad_host_thread_count_is_refused_before_any_work(monkeypatch, small_weave):
-    import geosynth.patch_search as ps
+    import geosynth.pointtexture.patch_search as ps
 
     monkeypatch.setattr(ps, "PatchSearch", lambda *a, **k: pytest.fail("work started"))
     monkeypatch.setenv("GEOSYNTH_HOST_THREADS", "0")

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import reference
-from geosynth.field import Field, cubic_grid
-from geosynth.distance import pointset_distance as distance_pointset_distance
-from geosynth.pointsets import (
+from geosynth.geometry import reference
+from geosynth.geometry.distance import pointset_distance as distance_pointset_distance
+from geosynth.geometry.field import Field, cubic_grid
+from geosynth.geometry.pointsets import (
     MLS_REACH,
     PointSet,
     default_radius,

@@ -21,10 +21,10 @@ from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from geosynth.cli import main
-from geosynth.geometry_texture import check_synthesis, synthesize_point_texture
-from geosynth.memory import MemoryBudgetError
-from geosynth.point_examples import point_texture_example
-from geosynth.point_textures import PointTexture, read_point_texture, texture_from_points
+from geosynth.core.memory import MemoryBudgetError
+from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.synthesis import check_synthesis, synthesize_point_texture
+from geosynth.pointtexture.texture import PointTexture, read_point_texture, texture_from_points
 
 GIB = 1 << 30
 
@@ -328,7 +328,7 @@ def test_a_files_padding_is_what_the_border_needs_and_the_rest_is_texture(tmp_pa
     padding is kept."""
     import trimesh
 
-    from geosynth.point_textures import FILE_PADDING_SPACINGS, _area_fixed, file_padding, read_point_texture
+    from geosynth.pointtexture.texture import FILE_PADDING_SPACINGS, _area_fixed, file_padding, read_point_texture
 
     g = np.stack(np.meshgrid(np.arange(200.0), np.arange(100.0), indexing="ij"), -1).reshape(-1, 2) * 0.01
     pts = np.c_[g, 0.02 * np.sin(9 * g[:, 0])]

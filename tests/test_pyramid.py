@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import reference
-from geosynth.examples import spheres_field
-from geosynth.volume import quantize_field
-from geosynth.pyramid import build_pyramid, compare_level
+from geosynth.volume import reference
+from geosynth.volume.examples import spheres_field
+from geosynth.volume.pyramid import build_pyramid, compare_level
+from geosynth.volume.synthesis import quantize_field
 
 
 def _real_field(size: int = 24) -> np.ndarray:
@@ -72,7 +72,7 @@ def test_pyramid_invalid_input(one_device):
 
 
 def test_pyramid_memory_refused(monkeypatch, one_device):
-    import geosynth.pyramid as pyramid
+    import geosynth.volume.pyramid as pyramid
 
     monkeypatch.setattr(pyramid, "available_memory", lambda: 1000)
     with pytest.raises(MemoryError, match=r"estimated [0-9.]+ MiB"):

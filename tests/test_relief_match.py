@@ -1,4 +1,4 @@
-"""M4 FindMatches (geosynth.relief_match, kernels/relief.*): the kernel equals the NumPy
+"""M4 FindMatches (geosynth.completion.matching, kernels/relief.*): the kernel equals the NumPy
 oracle bit for bit on every device and rotation, partners that are not samples make a
 match invalid, a copied neighbourhood scores 0 where it came from, devices agree bit for
 bit, the pruned find_matches() selects what an unpruned score() would, and bad input
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from geosynth import relief_match as rm
-from geosynth.reference import relief_scores_reference
+from geosynth.completion import matching as rm
+from geosynth.completion.reference import relief_scores_reference
 
 
 def _plane(n=13, jitter=0.2, seed=0, split=0.5):
@@ -382,7 +382,7 @@ def test_bad_input_one_line_errors(one_device):
 
 
 def test_too_many_queries_for_memory_is_refused_up_front(one_device, monkeypatch):
-    from geosynth import memory
+    from geosynth.core import memory
 
     kw = _plane(n=8)
     index = rm.ReliefIndex.build(**kw, device=one_device)

@@ -1,11 +1,11 @@
-"""geosynth.relief_spectrum: period, orientation, amplitude and anisotropy of gridded reliefs (issue 32)."""
+"""geosynth.completion.spectrum: period, orientation, amplitude and anisotropy of gridded reliefs (issue 32)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from geosynth.relief_spectrum import heights_on_grid, relief_spectrum
+from geosynth.completion.spectrum import heights_on_grid, relief_spectrum
 
 
 def _wave(h, w, sx, sy, period, deg, phase=0.7):
@@ -77,7 +77,7 @@ def _gaussian_bumps(n: int, sigma: float, count: int, seed: int) -> np.ndarray:
 def test_correlation_length_is_the_bumps_size_not_their_spacing(seed):
     """Sparse Gaussian bumps of sigma: their autocorrelation is a Gaussian of variance 2 sigma^2,
     1/2 at 2 sqrt(ln 2) sigma, whatever their spacing (which the spectrum's peak reports)."""
-    from geosynth.relief_spectrum import correlation_length
+    from geosynth.completion.spectrum import correlation_length
 
     sigma = 4.0
     expected = 2 * math.sqrt(math.log(2)) * sigma

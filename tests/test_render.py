@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from geosynth.render import (View, render_mesh, render_mesh_png, render_points, render_points_png, side_by_side,
+from geosynth.io.pictures import (View, render_mesh, render_mesh_png, render_points, render_points_png, side_by_side,
                              text_image)
 
 SIZE = (96, 72)

@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import geosynth
-from geosynth import reference
-from geosynth.constants import tol
+from geosynth.compute import reference
+from geosynth.core.constants import tol
 
 DTYPES = [np.float32, np.uint8]
 
@@ -175,14 +175,14 @@ def test_gather_strided_multichannel_3d(device, rng, dtype, wrap):
     stride = (2, 3, 4)
     want = reference.score_gather_naive(grid, off, vals, stride=stride, wrap=wrap)
     gd = geosynth.to_device(grid, device)
-    scorer = geosynth.scoring.GatherScorer(gd, off, stride=stride, wrap=wrap)
+    scorer = geosynth.compute.scoring.GatherScorer(gd, off, stride=stride, wrap=wrap)
     assert_scores(scorer(vals), want, dtype)
     thr = float(np.sort(want)[want.size // 3])
     got = scorer(vals, threshold=thr)
     kept = want <= thr
     assert_scores(got[kept], want[kept], dtype)
     assert (got[~kept] > thr).all()
-    origins = geosynth.scoring.candidate_origins(grid.shape, off, stride, wrap)[::-1]
+    origins = geosynth.compute.scoring.candidate_origins(grid.shape, off, stride, wrap)[::-1]
     assert_scores(scorer(vals, origins=origins), want[::-1], dtype)
 
 
@@ -301,7 +301,7 @@ def test_gather_threshold_invalid(device):
 @pytest.mark.parametrize("channels", [1, 3])
 def test_gather_scorer_bases_equal_origins(device, rng, channels):
     """score_bases over lattice_bases / flat_bases gives what origins give."""
-    from geosynth.scoring import GatherScorer
+    from geosynth.compute.scoring import GatherScorer
 
     shape = (9, 11, 13) + ((channels,) if channels > 1 else ())
     grid = rng.integers(0, 256, shape, dtype=np.uint8)
@@ -325,7 +325,7 @@ def test_gather_scorer_bases_equal_origins(device, rng, channels):
 def test_gather_explicit_origins_of_block_rows(device, rng, dtype, block, channels):
     """Block offsets come in x runs (16-lane loads on OpenCL); explicit origins, with and
     without a threshold, give the oracle's scores (the argmin stays exact)."""
-    from geosynth.scoring import GatherScorer, offset_run
+    from geosynth.compute.scoring import GatherScorer, offset_run
 
     shape = (block + 3, block + 2, block + 5) + ((channels,) if channels > 1 else ())
     grid = random_data(rng, shape, dtype)

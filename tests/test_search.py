@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 import geosynth
-from geosynth import reference
-from geosynth import tree_search as tree_search_mod
-from geosynth.blocks import block_offsets, block_origins, box_sums
-from geosynth.cascade_search import CascadeSearch
-from geosynth.examples import spheres_field
-from geosynth.tree_search import BlockSearch
-from geosynth.volume import quantize_field
+from geosynth.volume import reference
+from geosynth.volume import tree as tree_search_mod
+from geosynth.volume.blocks import block_offsets, block_origins, box_sums
+from geosynth.volume.cascade import CascadeSearch
+from geosynth.volume.examples import spheres_field
+from geosynth.volume.synthesis import quantize_field
+from geosynth.volume.tree import BlockSearch
 
 # (block size, source side): small enough for CI, block sizes 2 to 16.
 CASES = [(2, 12), (4, 16), (8, 24), (16, 32)]
@@ -72,7 +72,7 @@ def test_cascade_search_equals_linear(device, rng, kind, block, side):
 def test_cascade_with_three_stages_equals_linear(device, rng):
     """Any chain of bound stages (here cells 16, 8, 4) gives the exact answer."""
     field = _field("real", 36, rng)
-    from geosynth.backend import get_backend
+    from geosynth.compute.backend import get_backend
 
     default = CascadeSearch(field, 32, device=device, min_work=0)  # N = 8, 16: fused; 32: staged
     assert not default.fused and default.stages == [32 // n for n in get_backend(device).bound_cells_per_side]
@@ -105,7 +105,7 @@ def test_fused_cascade_on_thin_and_wide_fields(device, rng, shape, items, monkey
     """Rows shorter and longer than the kernel's 16 lanes, one-block-thick axes, one
     work-item, the device's default and one per row (sharing the best SSD and ties
     between items): always the linear answer; blocks scored exactly are counted."""
-    from geosynth.backend import get_backend
+    from geosynth.compute.backend import get_backend
 
     if items is not None:
         monkeypatch.setattr(get_backend(device), "search_items", items)
@@ -126,7 +126,7 @@ def test_fused_batch_is_one_launch_and_equals_linear(device, rng, block, items, 
     """A batch of queries in one fused launch, shared out over any number of work-items per
     query, with thresholds that are good, too low or absent: every answer is the linear one.
     A search small enough to score one query directly still runs a batch fused."""
-    from geosynth.backend import get_backend
+    from geosynth.compute.backend import get_backend
 
     be = get_backend(device)
     if items is not None:
@@ -156,7 +156,7 @@ def test_dense_batch_is_one_launch_and_equals_linear(device, rng, block, monkeyp
     """A small search without stages or fused kernel (cube N = 4, a slab's box) scores a
     batch in one dense launch: the linear answers, lowest index on ties, whatever the
     thresholds; the rows are unpacked once for the search."""
-    from geosynth.backend import get_backend
+    from geosynth.compute.backend import get_backend
 
     field = _field("real", 16, rng)
     field[:, :, 8:] = field[:, :, :8]  # repeated blocks: ties, won by the lowest index
@@ -321,7 +321,7 @@ def test_search_invalid_input(monkeypatch, one_device):
     for cells in ([3], [8], [1], [2, 4], [2, 2]):
         with pytest.raises(ValueError, match="cells must"):
             CascadeSearch(field, 8, device=one_device, cells=cells)
-    import geosynth.pyramid as pyramid
+    import geosynth.volume.pyramid as pyramid
 
     monkeypatch.setattr(pyramid, "available_memory", lambda: 10_000)
     with pytest.raises(MemoryError, match=r"estimated [0-9.]+ MiB"):

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import geosynth
-from geosynth import reference
+from geosynth.compute import reference
 
 
 def scores_with_ties(rng, n, dtype):

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth import reference
-from geosynth.cascade_search import CascadeSearch
-from geosynth.examples import spheres_field
-from geosynth.volume import quantize_field
+from geosynth.volume import reference
+from geosynth.volume.cascade import CascadeSearch
+from geosynth.volume.examples import spheres_field
+from geosynth.volume.synthesis import quantize_field
 
 
 def _slab_field(rng, shape=(6, 30, 27)) -> np.ndarray:
@@ -67,9 +67,9 @@ def test_anisotropic_block_larger_than_field_is_refused(one_device):
 @pytest.fixture(scope="module")
 def domes_source():
     """The domes slab exemplar's signed distance at 32 samples across (in samples)."""
-    from geosynth.examples import exemplar_mesh
-    from geosynth.meshes import mesh_distance
-    from geosynth.volume import exemplar_grid
+    from geosynth.geometry.meshes import mesh_distance
+    from geosynth.volume.examples import exemplar_mesh
+    from geosynth.volume.synthesis import exemplar_grid
 
     mesh = exemplar_mesh("domes")
     field = mesh_distance(mesh, field=exemplar_grid(mesh, 32, multiple=2), device="cpu")
@@ -78,14 +78,14 @@ def domes_source():
 
 @pytest.mark.parametrize("method", ["optimize", "graphcut", "paper"])
 def test_slab_synthesis_is_chosen_and_spans_the_thickness(one_device, domes_source, method):
-    from geosynth.volume import is_slab, synthesize_volume
+    from geosynth.volume.synthesis import is_slab, synthesize_volume
 
     z = domes_source.shape[0]
     assert is_slab(domes_source.shape, (z, 48, 48))
     r = synthesize_volume(domes_source, (z, 48, 48), levels=2, block=8, seed=1, device=one_device, progress=False,
                           method=method, iterations=2)
     assert r.slab and r.quantized.shape == (z, 48, 48)
-    from geosynth.blocks import block_shape
+    from geosynth.volume.blocks import block_shape
 
     # every level's block: its full thickness along z, B x B across (a cube where they agree)
     assert [block_shape(lv.block) for lv in r.levels] == [(z // 2, 4, 4), (z, 8, 8)]
@@ -96,7 +96,7 @@ def test_slab_synthesis_is_chosen_and_spans_the_thickness(one_device, domes_sour
 
 
 def test_slab_synthesis_same_bits_on_every_device(device_pair, domes_source):
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     z = domes_source.shape[0]
     a, b = (synthesize_volume(domes_source, (z, 48, 48), levels=2, block=8, seed=2, device=d, progress=False,
@@ -105,7 +105,7 @@ def test_slab_synthesis_same_bits_on_every_device(device_pair, domes_source):
 
 
 def test_slab_refusals(one_device, domes_source):
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     z = domes_source.shape[0]
     with pytest.raises(ValueError, match="no thicker than its source"):
@@ -120,7 +120,7 @@ def test_defaults_grow_a_thin_plate_that_they_refused(one_device):
     """The domes plate with the default block 16 and 3 levels (12 samples thick at 48
     across: the coarsest level is 3 thick): once "block 16 at level 3 is larger than the
     source", now a slab grown across, one piece, slopes like the exemplar's."""
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     # Over seeds 0-2, on the mean and the worst. Measured over seeds 0-9, the same under native,
     # AVX2 and SSE4 (M1 is exact; bench/RESULTS.md): debris 0 on every seed; slopes score 0.980
@@ -143,7 +143,7 @@ def test_defaults_grow_a_thin_plate_that_they_refused(one_device):
 def test_random_tiling_baseline_is_one_whatever_the_method(one_device, domes_source):
     """The baseline tiles random blocks by the paper's overwrite rule for every method
     (the default's graphcut on a slab included): one baseline to compare against."""
-    from geosynth.volume import synthesize_volume
+    from geosynth.volume.synthesis import synthesize_volume
 
     z = domes_source.shape[0]
     runs = [synthesize_volume(domes_source, (z, 48, 48), levels=2, block=8, seed=3, device=one_device,

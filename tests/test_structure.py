@@ -1,16 +1,22 @@
 """The package's structure, read from its source with ``ast`` (nothing is imported).
 
-The modules are every ``.py`` file of ``geosynth/`` and of ``kernels/`` (installed as
-``geosynth.kernels``). Only module-level imports are read: statements at the top of a
+The modules are every ``.py`` file of ``geosynth/`` (the kernels included:
+``geosynth/kernels/``). Only module-level imports are read: statements at the top of a
 module, including those inside top-level ``if``/``try`` blocks, but not those inside a
 function or class body. A module-level import runs while the importing module is half
 initialised, so a cycle of them can fail with "partially initialized module" or hand out
 names that do not exist yet, depending on which module is imported first. An import
 inside a function runs when the function is called, after every module has finished
 loading, so it cannot cause that; the code uses it deliberately to break a dependency
-(the backends are imported that way by ``geosynth.backend``). A second graph counts those
+(the backends are imported that way by ``geosynth.compute.backend``). A second graph counts those
 imports too: it must have no cycle either (issue 33). ``if TYPE_CHECKING:`` blocks never run
 and are skipped.
+
+The layout (issue 33): the top level holds only the public API and the command line; every
+other module lives in one subpackage per shared layer (core, io, kernels, _backends, compute,
+geometry) or per method (volume, pointtexture, texturing, completion). Counting the imports
+inside functions, a module imports only its own subpackage and lower layers, and no method
+imports another.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"geosynth": ROOT / "geosynth", "geosynth.kernels": ROOT / "kernels"}
+PACKAGES = {"geosynth": ROOT / "geosynth"}
 
 
 def _modules() -> dict[str, Path]:
@@ -178,7 +184,7 @@ def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_modules_found():
-    for name in ("geosynth", "geosynth.arrays", "geosynth.backend", "geosynth._backends.base",
+    for name in ("geosynth", "geosynth.core.arrays", "geosynth.compute.backend", "geosynth._backends.base",
                  "geosynth.kernels.ssd"):
         assert name in MODULES
 
@@ -205,18 +211,79 @@ def test_no_import_cycle_even_through_function_level_imports():
 
 
 def test_arrays_is_a_leaf():
-    """geosynth.arrays, imported by the API and the backends alike, imports no geosynth module,
+    """geosynth.core.arrays, imported by the API and the backends alike, imports no geosynth module,
     not even inside a function."""
-    assert _graph()["geosynth.arrays"] == set()
-    assert _graph(inside_functions=True)["geosynth.arrays"] == set()
+    assert _graph()["geosynth.core.arrays"] == set()
+    assert _graph(inside_functions=True)["geosynth.core.arrays"] == set()
 
 
 def test_backends_do_not_import_the_device_switch():
-    """The backends take DeviceArray from geosynth.arrays, never from geosynth.backend."""
+    """The backends take DeviceArray from geosynth.core.arrays, never from geosynth.compute.backend."""
     graph = _graph()
     for name in MODULES:
         if name.startswith("geosynth._backends."):
-            assert "geosynth.backend" not in graph[name], f"{name} imports geosynth.backend at module level"
+            assert "geosynth.compute.backend" not in graph[name], f"{name} imports geosynth.compute.backend at module level"
+
+
+
+# -- the layout: one subpackage per shared layer and per method (issue 33) -----------
+
+TOP_LEVEL = {"__init__.py", "__main__.py", "_launch.py", "cli.py"}  # the public API and the command line
+METHODS = {"volume": "M1", "pointtexture": "M2", "texturing": "M3", "completion": "M4"}
+# Each subpackage's layer, lowest first. A module imports only modules of its own subpackage and
+# of subpackages of a lower layer, counting the imports inside functions; the top level
+# (geosynth/__init__, cli, _launch, __main__) stands above them all and nothing below imports it.
+LAYERS = {"core": 0, "io": 1, "kernels": 1, "_backends": 2, "compute": 3, "geometry": 4, **{m: 5 for m in METHODS}}
+
+
+def _layer_of(module: str) -> str | None:
+    """The subpackage ``module`` belongs to (``geosynth.volume.tiled`` -> ``volume``); None for
+    the top level."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_top_level_is_the_api_and_the_command_line():
+    """``ls geosynth/`` shows the architecture: the four top-level modules, then one folder per
+    shared layer and per method, each a package."""
+    folder = PACKAGES["geosynth"]
+    assert {p.name for p in folder.glob("*.py")} == TOP_LEVEL
+    folders = {p.name for p in folder.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert folders == set(LAYERS)
+    assert all((folder / name / "__init__.py").is_file() for name in LAYERS)
+
+
+def test_each_layer_imports_only_layers_below_it():
+    """core imports nothing of geosynth outside core; io only core; the backends only core and
+    the kernels; compute adds the backends; geometry adds compute and io; a method any shared
+    layer. Nothing imports the top level. Imports inside functions count."""
+    bad = []
+    for module, targets in _graph(inside_functions=True).items():
+        mine = _layer_of(module)
+        if mine is None:
+            continue
+        for target in sorted(targets):
+            theirs = _layer_of(target)
+            if theirs != mine and (theirs is None or LAYERS[theirs] >= LAYERS[mine]):
+                bad.append(f"{module} ({mine}) -> {target} ({theirs or 'top level'})")
+    assert not bad, "imports against the layer order:\n" + "\n".join(bad)
+
+
+def test_no_method_imports_another_method():
+    """Each method's subpackage (M1 volume, M2 pointtexture, M3 texturing, M4 completion)
+    imports no other method's, not even inside a function: what they share lives in a shared layer."""
+    bad = sorted(f"{METHODS[_layer_of(m)]}: {m} -> {t}" for m, targets in _graph(inside_functions=True).items()
+                 for t in targets if _layer_of(m) in METHODS and _layer_of(t) in METHODS and _layer_of(t) != _layer_of(m))
+    assert not bad, "\n".join(bad)
+
+
+def test_subpackages_import_nothing_when_imported():
+    """A subpackage's ``__init__`` only documents it: importing ``geosynth.volume`` loads none of
+    its modules (``import geosynth`` and each folder stay cheap)."""
+    for name in MODULES:
+        if name != "geosynth" and _is_package(name):
+            tree = ast.parse(MODULES[name].read_text())
+            assert not [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))], name
 
 
 # -- private names ------------------------------------------------------------------
@@ -227,7 +294,7 @@ def _private_uses(module: str):
     ``from geosynth.m import _name`` (at any depth: imports inside functions count too,
     since the rule is about whose name it is, not when it is loaded), and ``m._name`` where
     ``m`` is a name bound to a geosynth module by an import. A private module imported as
-    a module (``from geosynth import _checks``, ``geosynth._backends.base``) is not a
+    a module (``from geosynth import _backends``, ``geosynth._backends.base``) is not a
     private name: such modules are private to the package and shared inside it by design.
     """
     tree = ast.parse(MODULES[module].read_text(), filename=str(MODULES[module]))
@@ -260,7 +327,7 @@ def _private_uses(module: str):
 
 
 def _dotted(node: ast.expr, bound: dict[str, str]) -> str | None:
-    """The geosynth module an expression such as ``volume`` or ``geosynth.backend`` names, if any."""
+    """The geosynth module an expression such as ``volume`` or ``geosynth.compute.backend`` names, if any."""
     if isinstance(node, ast.Name):
         return bound.get(node.id)
     if isinstance(node, ast.Attribute):
@@ -269,7 +336,7 @@ def _dotted(node: ast.expr, bound: dict[str, str]) -> str | None:
     return None
 
 
-# Private names of geosynth.parameterize still imported while R2's split of texture.py
+# Private names of geosynth.texturing.parameterize still imported while R2's split of texture.py
 # (issue 15) is in flight: that split makes them public. Each entry must still match a
 # use, so the lead deletes the entry once the merge has removed it.
 PENDING_PRIVATE_USES: set[tuple[str, str]] = set()
@@ -278,8 +345,8 @@ PENDING_PRIVATE_USES: set[tuple[str, str]] = set()
 def test_private_use_finder(tmp_path):
     """The finder on planted source: a private name imported or read through a module is
     found; a private module imported as a module, and a module's own names, are not."""
-    source = ("from geosynth import _checks\nfrom geosynth.volume import _x, y\nimport geosynth.backend as b\n"
-              "def f():\n    from geosynth.pyramid import _z\n    return b._w, _checks.ok\n")
+    source = ("from geosynth import _backends\nfrom geosynth.volume.synthesis import _x, y\nimport geosynth.compute.backend as b\n"
+              "def f():\n    from geosynth.volume.pyramid import _z\n    return b._w, _backends.base\n")
     path = tmp_path / "planted.py"
     path.write_text(source)
     MODULES["geosynth._planted"] = path
@@ -287,7 +354,7 @@ def test_private_use_finder(tmp_path):
         found = [text for _, text in _private_uses("geosynth._planted")]
     finally:
         del MODULES["geosynth._planted"]
-    assert found == ["from geosynth.volume import _x", "from geosynth.pyramid import _z", "geosynth.backend._w"]
+    assert found == ["from geosynth.volume.synthesis import _x", "from geosynth.volume.pyramid import _z", "geosynth.compute.backend._w"]
 
 
 def test_no_module_imports_a_private_name():
@@ -295,8 +362,8 @@ def test_no_module_imports_a_private_name():
 
     The rule: a name is private to the module that defines it. Another module that needs
     it gets it made public (no underscore, documented) in its home module. Private
-    *modules* (``geosynth._checks``, ``geosynth._readers``, ``geosynth._backends.*``) are
-    shared inside the package by design: importing them, and their public names, is fine.
+    *modules* (``geosynth._backends.*``) are shared inside the package by design: importing
+    them, and their public names, is fine.
     Tests are not held to this (they may reach into internals to test them).
     """
     found = {(m, text): line for m in MODULES for line, text in _private_uses(m)}

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from geosynth.volume import quantize_field
-from geosynth.field import Field
-from geosynth.surface import field_to_mesh, save_mesh, smooth_mesh
+from geosynth.geometry.field import Field
+from geosynth.geometry.surface import field_to_mesh, save_mesh, smooth_mesh
+from geosynth.volume.synthesis import quantize_field
 
 ORIGIN = np.array([-1.3, 2.1, 0.4])
 SPACING = np.array([0.05, 0.04, 0.06])  # x, y, z: anisotropic on purpose

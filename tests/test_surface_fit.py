@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from geosynth.relief_prep import Capture, prepare_relief, ring_neighbourhoods
-from geosynth.surface_fit import fit_surface, tangent_frames
+from geosynth.completion.fit import fit_surface, tangent_frames
+from geosynth.completion.prep import Capture, prepare_relief, ring_neighbourhoods
 
 
 def _unit(v):

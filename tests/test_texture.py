@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 import geosynth
-from geosynth.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
-from geosynth.reference import colour_parameterization_reference, parameterize_reference
-from geosynth.pointmodels import knn_table, load_point_model, point_model
-from geosynth.pointsets import PointSet, read_point_set, write_point_set
-from geosynth.texel_search import TexelSearch
-from geosynth.texturing import texture_points
-from geosynth.textures import (
+from geosynth.geometry.pointsets import PointSet, read_point_set, write_point_set
+from geosynth.texturing.models import knn_table, load_point_model, point_model
+from geosynth.texturing.parameterize import PATCH, colour_parameterization, parameterize_points, parameterize_with_device_arrays
+from geosynth.texturing.reference import colour_parameterization_reference, parameterize_reference
+from geosynth.texturing.synthesis import texture_points
+from geosynth.texturing.texel_search import TexelSearch
+from geosynth.texturing.textures import (
     as_texture, read_texture, sample_bilinear, sample_bilinear_grid, supersample, texture_example, texture_pyramid,
     write_texture,
 )
@@ -123,7 +123,7 @@ def test_point_models():
 def test_knn_threads_sleep_when_idle_unless_the_user_chose(monkeypatch):
     import os
 
-    from geosynth import pointmodels
+    from geosynth.texturing import models as pointmodels
 
     monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
     pointmodels.passive_openmp_threads()
@@ -184,7 +184,7 @@ def test_parameterization_of_a_sphere_near_the_seed(device):
                                                ("torus", 9, {"up": None, "threshold": 0.9})])
 def test_parameterization_kernel_equals_the_python_growth(device, model, k, options):
     # the kernel's growth order, arithmetic and results against the plain-Python loop of
-    # geosynth.reference (same operations in the same order: the same bits, NaN included)
+    # geosynth.texturing.reference (same operations in the same order: the same bits, NaN included)
     ps = point_model(model, 2500, seed=2)
     ref = parameterize_reference(ps, k, seed=4, **options)
     par = parameterize_points(ps, k, seed=4, device=device, **options)
@@ -383,10 +383,10 @@ def test_multilevel_and_coherent_matching(one_device):
 def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, m, prefilled):
     # the one-launch coherent matching against its plain-Python twin (same order, same
     # integer scores, same random draws): the same texels and colours on every device
-    from geosynth.parameterize import frames_from_up
-    from geosynth.reference import match_coherent_reference
-    from geosynth.matching import match_coherent_level
-    from geosynth.point_hierarchy import build_hierarchy
+    from geosynth.texturing.hierarchy import build_hierarchy
+    from geosynth.texturing.matching import match_coherent_level
+    from geosynth.texturing.parameterize import frames_from_up
+    from geosynth.texturing.reference import match_coherent_reference
 
     ps = point_model("blob", 1500, seed=5)
     tex = texture_example("noise", 24, seed=2)
@@ -416,7 +416,7 @@ def test_coherent_kernel_equals_the_python_matching(device, tileable, subtexel, 
 def test_colours_follow_the_points_whatever_their_order(one_device):
     # texture_points works in a spatial order of its own: the same points given in another
     # order get the same colours, in that order
-    from geosynth.pointmodels import spatial_order
+    from geosynth.texturing.models import spatial_order
 
     tex = texture_example("noise", 32, seed=1)
     ps = point_model("blob", 900, seed=3)
@@ -589,8 +589,8 @@ def test_gap_widening_stops_when_the_gaps_stop_growing(one_device):
 
 
 def test_the_texture_memory_refusal_names_every_option_that_makes_the_size():
-    from geosynth.memory import MemoryBudgetError
-    from geosynth.texturing import require_texture_memory
+    from geosynth.core.memory import MemoryBudgetError
+    from geosynth.texturing.synthesis import require_texture_memory
 
     with pytest.raises(MemoryBudgetError) as info:
         require_texture_memory(20_000, 8192, 8192, "match", 25, 2, 32, True)

@@ -1,4 +1,4 @@
-"""Tiled M1 synthesis on Dask (geosynth.tiling, geosynth.tiled): one tile is the untiled
+"""Tiled M1 synthesis on Dask (geosynth.volume.tiles, geosynth.volume.tiled): one tile is the untiled
 result, the bits do not depend on the engine or the number of workers, seams are as good
 as the tiles' insides, a killed worker changes nothing, bad input is refused before work."""
 
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from conftest import ONE_DEVICE
-from geosynth.memory import MemoryBudgetError
-from geosynth.tiled import exemplar_source, seam_report, synthesize_volume_tiled
-from geosynth.tiling import PHASE_A, PHASE_B, Region, TileGrid, upsample_window
-from geosynth.volume import synthesize_volume, upsample
+from geosynth.core.memory import MemoryBudgetError
+from geosynth.volume.synthesis import synthesize_volume, upsample
+from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled
+from geosynth.volume.tiles import PHASE_A, PHASE_B, Region, TileGrid, upsample_window
 
 distributed = pytest.importorskip("distributed")
 
@@ -86,10 +86,10 @@ def test_upsample_window_is_the_whole_upsampling_cut(rng):
 
 def test_one_tile_is_the_untiled_result(terrain, monkeypatch):
     # the untiled synthesis of a height field matches each slice's histogram after its coarse
-    # levels (geosynth.volume.match_histogram, a whole-level step); the tiles do not (yet)
-    import geosynth.volume
+    # levels (geosynth.volume.synthesis.match_histogram, a whole-level step); the tiles do not (yet)
+    import geosynth.volume.synthesis
 
-    monkeypatch.setattr(geosynth.volume, "HISTOGRAM_MATCH", False)
+    monkeypatch.setattr(geosynth.volume.synthesis, "HISTOGRAM_MATCH", False)
     shape = _shape(terrain, 2, 2)
     ref = synthesize_volume(terrain, shape, **KW)
     one = synthesize_volume_tiled(terrain, shape, (1, 1), scheduler="threads", **KW)
@@ -242,13 +242,13 @@ def test_tiles_smaller_than_a_block_plus_margin(terrain):
 
 
 def test_cli_tiles_too_small_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
-    import geosynth.meshes
+    import geosynth.geometry.meshes
     from geosynth.cli import main
 
     def computed(*args, **kwargs):
         raise AssertionError("the exemplar's distance field was computed before the tiles were checked")
 
-    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    monkeypatch.setattr(geosynth.geometry.meshes, "mesh_distance", computed)
     argv = ["volume", "--example", "terrain", "-o", str(tmp_path / "t.ply"), "--size", "32", "--levels", "2",
             "--block", "8", "--source-resolution", "32", "--quiet", "--device", ONE_DEVICE, "--tiles", "4x4"]
     assert main(argv) == 2
@@ -333,7 +333,7 @@ def test_corner_windows_resynthesize_only_the_b_b_corners(terrain):
 
 
 def test_resume_after_a_lost_run_gives_the_uninterrupted_bits(terrain, tmp_path, monkeypatch):
-    import geosynth.tiled as tiled
+    import geosynth.volume.tiled as tiled
 
     shape = _shape(terrain, 3, 2)
     kw = dict(FAST, scheduler="threads", workers=1, mesh=True, gather=True)
@@ -471,13 +471,13 @@ def test_cli_interrupted_tiled_run_resumes_to_the_same_bytes(tmp_path):
 
 def test_cli_tree_search_with_a_slab_refused_before_the_exemplar_field(tmp_path, capsys, monkeypatch):
     # issue 37: each tile refused it on a worker, whose traceback reached the user
-    import geosynth.meshes
+    import geosynth.geometry.meshes
     from geosynth.cli import main
 
     def computed(*args, **kwargs):
         raise AssertionError("the exemplar's distance field was computed before the search was checked")
 
-    monkeypatch.setattr(geosynth.meshes, "mesh_distance", computed)
+    monkeypatch.setattr(geosynth.geometry.meshes, "mesh_distance", computed)
     rc = main(["volume", "--example", "domes", "-o", str(tmp_path / "d.ply"), "--size", "64", "--levels", "2",
                "--block", "8", "--tiles", "2x2", "--search", "tree", "--quiet", "--device", ONE_DEVICE])
     err = capsys.readouterr().err

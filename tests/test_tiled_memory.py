@@ -1,4 +1,4 @@
-"""Memory of the tiled M1 synthesis (geosynth.tiled): the estimate of a tile task against
+"""Memory of the tiled M1 synthesis (geosynth.volume.tiled): the estimate of a tile task against
 the traced peak of every task of a run (phase A and B, coarse and finest level), and a
 worker memory limit below the estimate refused before any tile runs, in one line."""
 
@@ -9,10 +9,10 @@ import tracemalloc
 
 import pytest
 
-import geosynth.tiled as tiled
+import geosynth.volume.tiled as tiled
 from conftest import ONE_DEVICE
-from geosynth.memory import MemoryBudgetError, format_bytes
-from geosynth.tiled import corner_task_bytes, exemplar_source, synthesize_volume_tiled, tile_bytes, tile_task_bytes
+from geosynth.core.memory import MemoryBudgetError, format_bytes
+from geosynth.volume.tiled import corner_task_bytes, exemplar_source, synthesize_volume_tiled, tile_bytes, tile_task_bytes
 
 distributed = pytest.importorskip("distributed")
 

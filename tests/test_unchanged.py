@@ -15,11 +15,11 @@ against the one recorded hash.
 
 M2 (synthesize_point_texture) is the same bytes on every device and, since issue 40, on
 every x86-64 CPU: its host steps that NumPy or OpenBLAS would round by the CPU's SIMD
-width are done in fixed-order elementwise arithmetic (geosynth.cpu_exact). ``make
+width are done in fixed-order elementwise arithmetic (geosynth.core.exact). ``make
 test-cpus`` runs these tests with NumPy and OpenBLAS acting as an AVX2 and an SSE4
 machine (tools/cpu_matrix.sh); the last test here checks SSE4 from any ``make test``.
 M4 (complete_surface) likewise since issue 40 (branch h40-m4): its fits and host
-arithmetic are fixed-order (geosynth.cpu_exact), and an SSE4 test covers the small golf.
+arithmetic are fixed-order (geosynth.core.exact), and an SSE4 test covers the small golf.
 (The M2 hashes were recorded on branch h40-cpus, before the blend decision of issue 40
 item 3 changed: a change of that decision re-records them; re-recorded in issue 32 when the
 warp's spline became smoothed and height-keeping.)
@@ -37,13 +37,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geosynth.examples import exemplar_field
-from geosynth.geometry_texture import synthesize_point_texture
-from geosynth.point_examples import point_texture_example
-from geosynth.pointmodels import point_model
-from geosynth.textures import texture_example
-from geosynth.texturing import texture_points
-from geosynth.volume import synthesize_volume
+from geosynth.pointtexture.examples import point_texture_example
+from geosynth.pointtexture.synthesis import synthesize_point_texture
+from geosynth.texturing.models import point_model
+from geosynth.texturing.synthesis import texture_points
+from geosynth.texturing.textures import texture_example
+from geosynth.volume.examples import exemplar_field
+from geosynth.volume.synthesis import synthesize_volume
 
 
 def _digest(*arrays: np.ndarray) -> str:
@@ -133,7 +133,7 @@ def _as_sse4(expression: str) -> str:
 # M4 (complete_surface) at small sizes, one case per fit: (built-in, its options, digests of the
 # completed mesh's positions, normals, colours, faces and completed mask). Every host step before
 # the integer match codes is fixed-order arithmetic since issue 40 (the fits' eigenvectors and
-# least squares, every product and length: geosynth.cpu_exact), so these are the same bytes on
+# least squares, every product and length: geosynth.core.exact), so these are the same bytes on
 # every device and every x86-64 CPU.
 M4_CASES = [
     ("golf", dict(delta=0.13, dimples=24),
@@ -146,8 +146,8 @@ M4_CASES = [
 
 
 def _m4_digests(name: str, options: dict, device: str) -> tuple[str, ...]:
-    from geosynth.completion import complete_surface
-    from geosynth.completion_examples import completion_example
+    from geosynth.completion.examples import completion_example
+    from geosynth.completion.synthesis import complete_surface
 
     ex = completion_example(name, seed=0, **options)
     # the settings these hashes were pinned with, given explicitly (the built-ins' own settings before

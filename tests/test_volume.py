@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth.examples import spheres_field
-from geosynth.metrics import bidirectional_block_distance
-from geosynth.volume import block_offsets, downsample, scan_positions, synthesize_volume
+from geosynth.volume.examples import spheres_field
+from geosynth.volume.quality import bidirectional_block_distance
+from geosynth.volume.synthesis import block_offsets, downsample, scan_positions, synthesize_volume
 
 
 @pytest.fixture(scope="module")
@@ -63,9 +63,9 @@ def test_every_target_sample_comes_from_the_source_at_one_level(device, source):
 
 def _seam_and_interior_distance(out, src, block, device):
     """Mean nearest-source distance of blocks straddling the wrap seam vs interior blocks."""
-    from geosynth.backend import to_device
-    from geosynth.scoring import score_gather
-    from geosynth.selection import argmin
+    from geosynth.compute.backend import to_device
+    from geosynth.compute.scoring import score_gather
+    from geosynth.compute.selection import argmin
 
     grid = to_device(src, device)
     off = block_offsets(block)
@@ -135,7 +135,7 @@ def test_invalid_input(source, monkeypatch, one_device):
 def test_geometry_refuses_bad_meshes():
     import trimesh
 
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     with pytest.raises(ValueError, match="empty"):
         synthesize_geometry(trimesh.Trimesh(), 32, progress=False)
@@ -170,7 +170,7 @@ def test_geometry_beats_random_tiling_on_built_in_exemplars(name, one_device):
     """Mesh in, mesh out on a built-in exemplar (small settings for CI): a closed surface,
     and matched blocks closer to the exemplar's than randomly tiled ones, over 3 seeds on
     the mean and the worst (GEOMETRY_BEATS)."""
-    from geosynth.volume import synthesize_geometry
+    from geosynth.volume.synthesis import synthesize_geometry
 
     ratios = []
     for seed in SEEDS:
@@ -192,7 +192,7 @@ def test_geometry_beats_random_tiling_on_built_in_exemplars(name, one_device):
 def test_exemplar_grid_and_target_size():
     import trimesh
 
-    from geosynth.volume import exemplar_grid, target_size
+    from geosynth.volume.synthesis import exemplar_grid, target_size
 
     box = trimesh.creation.box(extents=(2.0, 1.0, 0.5))
     g = exemplar_grid(box, 32, margin=2, multiple=4)

@@ -1,11 +1,11 @@
-"""geosynth.volume_features on analytic fields of known size (issue #32)."""
+"""geosynth.volume.features on analytic fields of known size (issue #32)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from geosynth.volume_features import ElementFeatures, compare_features, element_features, format_features
+from geosynth.volume.features import ElementFeatures, compare_features, element_features, format_features
 
 Z, Y, X = np.mgrid[0:24, 0:64, 0:64].astype(np.float32)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geosynth.warping import (
+from geosynth.pointtexture.warping import (
     WARP_PRESETS,
     ThinPlateSpline,
     WarpWeights,
@@ -294,9 +294,9 @@ def test_one_pass_clustering_with_fallback_equals_two_runs(name):
     with coincident points (clusters that cannot be split)."""
     import math
 
-    import geosynth.warping
+    import geosynth.pointtexture.warping
 
-    _adaptive_clusters = getattr(geosynth.warping, name)
+    _adaptive_clusters = getattr(geosynth.pointtexture.warping, name)
     rng = np.random.default_rng(5)
     fallbacks = firsts = 0
     for trial in range(60):
@@ -328,7 +328,7 @@ def test_one_pass_clustering_with_fallback_equals_two_runs(name):
 def test_greedy_match_is_the_sequential_scan():
     """_greedy_match (vectorized rounds of "first remaining edge of its q and its s") takes
     exactly the edges a sequential scan in the given order takes, in that order."""
-    from geosynth.warping import _greedy_match_numpy as _greedy_match
+    from geosynth.pointtexture.warping import _greedy_match_numpy as _greedy_match
 
     rng = np.random.default_rng(11)
     for trial in range(40):
@@ -347,7 +347,7 @@ def test_greedy_match_is_the_sequential_scan():
 
 
 def test_neighbour_mean_is_the_mean_bit_for_bit(rng):
-    from geosynth.warping import _neighbour_mean
+    from geosynth.pointtexture.warping import _neighbour_mean
 
     p = rng.normal(size=(500, 3)) * [3.0, 1.0, 0.01] + 100.0
     for k in (1, 2, 7, 16):
@@ -406,7 +406,7 @@ def test_cluster_kernel_equals_numpy():
     without the limit and the size-only fallback, and None where both give up."""
     import math
 
-    from geosynth.warping import _adaptive_clusters, _adaptive_clusters_numpy
+    from geosynth.pointtexture.warping import _adaptive_clusters, _adaptive_clusters_numpy
 
     rng = np.random.default_rng(21)
     nones = 0
@@ -433,7 +433,7 @@ def test_cluster_kernel_splits_coincident_grids_sensibly():
     """On points with many exact ties (a coarse grid) the split of a point on the plane
     may differ from LAPACK's axis sign; the clusterings still have about as many clusters
     and valid, distinct representatives."""
-    from geosynth.warping import _adaptive_clusters, _adaptive_clusters_numpy
+    from geosynth.pointtexture.warping import _adaptive_clusters, _adaptive_clusters_numpy
 
     rng = np.random.default_rng(4)
     for _ in range(10):
@@ -459,7 +459,7 @@ def test_pairing_kernel_equals_numpy():
     float64 rounding); they may part only where rounding decides between two pairings of
     equal cost (a later pass whose cost equals the last one's to ~1e-15): then the pairs
     of the common passes agree."""
-    from geosynth.warping import _greedy_pairing
+    from geosynth.pointtexture.warping import _greedy_pairing
 
     rng = np.random.default_rng(8)
     w = WarpWeights(1, 2, 15, 6, 5)
@@ -497,7 +497,7 @@ def test_pairing_kernel_equals_numpy():
 def test_jacobian_normals_kernel_equals_numpy(rng):
     """The compiled normals from Jacobians equal the NumPy form to float64 rounding,
     including normals near +-x (the other tangent helper) and collapsed Jacobians."""
-    from geosynth.warping import _jacobian_normals, _jacobian_normals_numpy
+    from geosynth.pointtexture.warping import _jacobian_normals, _jacobian_normals_numpy
 
     m = 500
     n = rng.normal(size=(m, 3))
@@ -516,7 +516,7 @@ def test_variation_and_outskirt_kernels_equal_numpy(rng):
     """The compiled surface variation and outskirt test equal their NumPy forms (float64
     rounding; the outskirt flags exactly away from the threshold), on a bumpy sheet, a
     blob, and degenerate neighbourhoods (coincident points: variation 0; a line: 0)."""
-    from geosynth.warping import _outskirts, _outskirts_numpy, _variation_of, _variation_of_numpy
+    from geosynth.pointtexture.warping import _outskirts, _outskirts_numpy, _variation_of, _variation_of_numpy
 
     p, _ = bumpy_patch()
     blob = rng.normal(size=(400, 3))
@@ -541,7 +541,7 @@ def test_float32_transform_kernel_equals_the_numpy_jacobian_normals(rng):
     """With float32 kernel matrices, transform assembles each Jacobian from its kernel sums
     inside the compiled host step; the NumPy route (jacobian(), then the normals' NumPy
     form) gives the same positions and normals to float64 rounding, points on centres included."""
-    from geosynth.warping import _jacobian_normals_numpy
+    from geosynth.pointtexture.warping import _jacobian_normals_numpy
 
     c = rng.uniform(0, 1, (80, 3)) * [1, 1, 0.1]
     y = c + rng.normal(scale=0.3 * SP, size=c.shape)
@@ -579,7 +579,7 @@ def test_compiled_nearest_neighbours_are_pykdtrees(rng, monkeypatch):
     grid's exact ties the same distances, ties ordered by lower index."""
     from pykdtree.kdtree import KDTree
 
-    from geosynth.warping import _kdtree
+    from geosynth.pointtexture.warping import _kdtree
 
     xy = rng.uniform(0, 1, (3000, 2))
     p = np.c_[xy, 0.05 * np.sin(7 * xy[:, 0])]

@@ -47,7 +47,7 @@ def test_members_are_drawn_again_for_the_same_seed_and_cover_every_family():
 
 @pytest.mark.parametrize("index", [0, 1, 2, 3])  # one capture per writer: trimesh PLY, plyfile ASCII, OBJ, plyfile binary
 def test_every_capture_writer_reads_back_with_its_positions_and_colours(tmp_path, index):
-    from geosynth.pointsets import read_geometry
+    from geosynth.geometry.pointsets import read_geometry
 
     member = zoo.zoo("complete", 4)[index]
     verts, faces, colours, _ = zoo.capture_surface(member)
@@ -115,9 +115,9 @@ def test_random_bumps_on_a_cylinder_are_not_a_directed_relief():
     """The zoo's bumped cylinder: its spectrum's anisotropy reads 0.22 (a handful of bumps),
     above the directed threshold, but its slopes point every way (slope order ~0.06, the
     tower's arches 0.54): R 4 in the paper's frames, not one unturned copy (1.18x its size)."""
-    from geosynth.completion import choose_settings
-    from geosynth.relief_prep import Capture
-    from geosynth.surface_fit import fit_surface
+    from geosynth.completion.fit import fit_surface
+    from geosynth.completion.prep import Capture
+    from geosynth.completion.synthesis import choose_settings
 
     member = zoo.zoo("complete", 5)[4]
     verts, faces, _, _ = zoo.capture_surface(member)

@@ -18,7 +18,7 @@ import subprocess
 import sys
 
 _QUERY = (
-    "import json; from geosynth.backend import devices, unusable_devices; "
+    "import json; from geosynth.compute.backend import devices, unusable_devices; "
     "print(json.dumps([[d for d in devices() if d.startswith('opencl')], unusable_devices()]))"
 )
 

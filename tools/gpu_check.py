@@ -43,7 +43,7 @@ BENCH_FLOOR = 20  # each benchmark gets at least this much, so the budget is not
 _PROBE = """
 import json, sys
 import geosynth, geosynth.kernels
-from geosynth.backend import describe_devices
+from geosynth.compute.backend import describe_devices
 print(json.dumps({"geosynth": geosynth.__file__, "kernels": list(geosynth.kernels.__path__)[0],
                   "devices": geosynth.devices(), "describe": describe_devices()}))
 """
@@ -66,7 +66,7 @@ def probe(env: dict) -> dict:
         raise CheckError(f"gpu-check: {sys.executable} cannot import geosynth ({last}); "
                          "run `make test` first (it builds .venv) or give a Python that has it: make gpu-check GPU_PYTHON=...")
     info = json.loads(run.stdout.strip().splitlines()[-1])
-    for name, want in (("geosynth", ROOT / "geosynth"), ("geosynth.kernels", ROOT / "kernels")):
+    for name, want in (("geosynth", ROOT / "geosynth"), ("geosynth.kernels", ROOT / "geosynth" / "kernels")):
         got = Path(info["geosynth"]).parent if name == "geosynth" else Path(info["kernels"])
         if got.resolve() != want.resolve():
             raise CheckError(f"gpu-check: {sys.executable} imports {name} from {got}, not from this checkout ({want}); "
@@ -77,7 +77,7 @@ def probe(env: dict) -> dict:
 def check_devices(wanted: list[str], present: list[str], what: str) -> None:
     """Every device in ``wanted`` is present; a CUDA one asked for where none is present
     is the one-line 'no CUDA device' error."""
-    from geosynth.backend import parse_device
+    from geosynth.compute.backend import parse_device
 
     for dev in wanted:
         spec = parse_device(dev)
@@ -146,7 +146,7 @@ def main(argv=None) -> int:
         share = (deadline - time.perf_counter()) / (len(scripts) - i)
         steps += run_benchmarks([script], args.bench_devices, work, quick=True,
                                 timeout=max(BENCH_FLOOR, min(BENCH_SECONDS, share)))
-    from geosynth.files import atomic_write
+    from geosynth.io.files import atomic_write
 
     text = summary(steps, info, args, [work / f"{s.stem}.md" for s in scripts], time.perf_counter() - t0)
     written = atomic_write(OUT / "gpu-check.md", lambda tmp: Path(tmp).write_text(text))

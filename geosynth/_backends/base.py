@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from geosynth.arrays import NONFINITE_SCORES, DeviceArray
+from geosynth.core.arrays import NONFINITE_SCORES, DeviceArray
 
 
 class Backend(ABC):
@@ -108,7 +108,7 @@ class Backend(ABC):
     def count_selected(self, scores: DeviceArray, n: int, chunk: int, thr: DeviceArray, mode: int,
                        counts: DeviceArray) -> None:
         """counts[t] (int32) <- how many scores in chunk t (entries [t * chunk, (t + 1) * chunk)
-        of n) the threshold thr (1,) selects (mode: SELECT_* of geosynth.arrays)."""
+        of n) the threshold thr (1,) selects (mode: SELECT_* of geosynth.core.arrays)."""
 
     @abstractmethod
     def compact_selected(self, scores: DeviceArray, n: int, chunk: int, thr: DeviceArray, mode: int,

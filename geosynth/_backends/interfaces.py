@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class ArrayGroup:
 
 @dataclass(frozen=True)
 class MeshArrays(ArrayGroup):
-    """A prepared mesh (geosynth.meshes.MeshBVH) on a device, flat, in kernel order.
+    """A prepared mesh (geosynth.geometry.meshes.MeshBVH) on a device, flat, in kernel order.
 
     Attributes:
         sbox: (nodes * 8,) float32 search boxes.
@@ -72,7 +72,7 @@ class MeshOps(ABC):
     """Distance to a triangle mesh at points and on grids (float32, world units)."""
 
     def mesh_handle(self, bvh) -> MeshArrays:
-        """The device arrays of a prepared mesh (geosynth.meshes.MeshBVH), uploaded once
+        """The device arrays of a prepared mesh (geosynth.geometry.meshes.MeshBVH), uploaded once
         per mesh and device (kept in ``bvh.device_cache``)."""
         handle = bvh.device_cache.get(self.name)
         if handle is None:
@@ -475,7 +475,7 @@ class CascadeOps(ABC):
 # ------------------------------------------------------------------ M4 FindMatches (kernels/relief.*)
 # Breckon and Fisher, "3D Surface Relief and Colour Completion", Sec. 3, 6 and Appendix A.
 # Integer positions (quanta), frames (FRAME_ONE = 2^14 scale) and colours; the arithmetic
-# is geosynth.relief_match's (and docs/relief_match.md's).
+# is geosynth.completion.matching's (and docs/relief_match.md's).
 
 
 @dataclass(frozen=True)
@@ -550,7 +550,7 @@ class ReliefOps(ABC):
         slots, (n_cand,) shared by every query with cand_stride 0, or (n_query * n_cand,)
         one row per query with cand_stride n_cand; a slot -1 is no candidate: OVER) at
         rotation r, at (q * n_cand + c) * rotations + r: a score code, OVER or INVALID
-        (geosynth.relief_match); n_samples: S, the stencil's row length."""
+        (geosynth.completion.matching); n_samples: S, the stencil's row length."""
 
     @abstractmethod
     def relief_update(self, ids: DeviceArray, pos: DeviceArray, colour: DeviceArray, n: int, mark: int,

@@ -24,8 +24,8 @@ from geosynth._backends.opencl_points import OpenCLPointsOps
 from geosynth._backends.opencl_pyramid import OpenCLPyramidOps
 from geosynth._backends.opencl_relief import OpenCLReliefOps
 from geosynth._backends.opencl_texel import OpenCLTexelOps
-from geosynth.arrays import DeviceArray
-from geosynth.config import OPENCL_CONTEXTS, verbose
+from geosynth.core.arrays import DeviceArray
+from geosynth.core.config import OPENCL_CONTEXTS, verbose
 
 _SPARE_BYTES = 64  # >= 16 elements of the widest type read by a 16-wide load
 # Work-group sizes are always given: with none, PoCL picks the largest divisor of the
@@ -72,7 +72,7 @@ def _read_source(name: str) -> str:
 
 # Every program the backend builds: (family, u8) is kernels/{family}.cl built with -DGS_U8
 # (uint8 data, uint32 scores) or without it (float32; float64 for growth). A device is
-# usable only if its compiler builds them all (see geosynth.backend).
+# usable only if its compiler builds them all (see geosynth.compute.backend).
 PROGRAMS: tuple[tuple[str, bool], ...] = (
     ("ssd", False), ("ssd", True), ("growth", False), ("sdf_mesh", False), ("sdf_points", False),
     ("pyramid", True), ("cascade", True), ("texel", True),
@@ -142,7 +142,7 @@ def build_program(context: cl.Context, family: str, u8: bool) -> cl.Program:
 def device_context(platform_index: int, device_index: int) -> tuple[cl.Device, cl.Context, dict]:
     """(device, context, programs by (family, u8)) of one OpenCL device, made once: the one
     context geosynth uses on it and the programs built in it (kept in
-    ``geosynth.config.OPENCL_CONTEXTS``), shared by the usability check (geosynth.backend) and
+    ``geosynth.core.config.OPENCL_CONTEXTS``), shared by the usability check (geosynth.compute.backend) and
     the backend, so that a program is built once per process."""
     key = (platform_index, device_index)
     if key not in OPENCL_CONTEXTS:

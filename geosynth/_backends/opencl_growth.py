@@ -16,7 +16,7 @@ from geosynth._backends.interfaces import (
     BlendInputs, BlendOutputs, BlendScratch, GrowthInputs, GrowthOps, GrowthOutputs, GrowthScratch, MatchInputs,
     MatchScratch, MatchState, PatchFrames,
 )
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 
 class OpenCLGrowthOps(GrowthOps):

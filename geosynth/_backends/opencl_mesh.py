@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from geosynth._backends.interfaces import MeshArrays, MeshOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 # Work-group shapes: small groups, so that PoCL spreads the work over every core
 # (the cost per point varies a lot with its distance to the mesh).

@@ -15,7 +15,7 @@ import numpy as np
 import pyopencl as cl
 
 from geosynth._backends.interfaces import PyramidOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 _LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
 

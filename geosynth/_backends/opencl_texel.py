@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from geosynth._backends.interfaces import TexelOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 
 _LOCAL = 64  # work-items per group; always explicit (see opencl_backend._LOCAL_1D)
 

@@ -19,7 +19,7 @@ from geosynth._backends.warp_points import WarpPointsOps
 from geosynth._backends.warp_pyramid import WarpPyramidOps
 from geosynth._backends.warp_relief import WarpReliefOps
 from geosynth._backends.warp_texel import WarpTexelOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.kernels import ssd as ssd_kernels
 
 _WARP_DTYPES = {

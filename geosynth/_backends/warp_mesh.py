@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from geosynth._backends.interfaces import MeshArrays, MeshOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.kernels import sdf_mesh as sdf_kernels
 
 # Points (and grid samples along x) per thread: each search starts from the previous

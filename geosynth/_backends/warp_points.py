@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from geosynth._backends.interfaces import PointsOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.kernels import sdf_points as points_kernels
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from geosynth._backends.interfaces import PyramidOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.kernels import pyramid as pyramid_kernels
 
 _WIDE = {np.dtype(np.int64): wp.int64, np.dtype(np.uint64): wp.uint64}

@@ -10,7 +10,7 @@ kernels of ``geosynth.kernels.relief``.
 from __future__ import annotations
 
 from geosynth._backends.interfaces import ReliefIndexArrays, ReliefOps, ReliefQueryArrays
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.kernels import relief as relief_kernels
 
 

@@ -10,7 +10,7 @@ kernels of ``geosynth.kernels.texel``.
 from __future__ import annotations
 
 from geosynth._backends.interfaces import TexelOps
-from geosynth.arrays import DeviceArray
+from geosynth.core.arrays import DeviceArray
 from geosynth.kernels import texel as texel_kernels
 
 

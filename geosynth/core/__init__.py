@@ -1,0 +1,15 @@
+"""The leaves every layer stands on: settings, constants, device arrays, exact host arithmetic,
+memory estimates and the one resampler. Implements no paper section.
+
+Nothing here imports anything of geosynth outside ``geosynth.core``.
+
+- config.py       what does the environment say, and which state is process-wide? every environment
+                  variable geosynth reads or sets and every module-level cache and lock, in two tables
+- constants.py    why these tolerances and tuning values? each constant with its reason
+- arrays.py       what is an array on a device? DeviceArray, the SELECT_* modes (imports nothing of geosynth)
+- exact.py        host arithmetic with the same bits on every x86-64 CPU (issue 40)
+- memory.py       will this run fit in memory? available_memory(), require(), MemoryBudgetError
+- interpolate.py  what is a grid's value between samples? the one (bi/tri)linear resampler
+
+The modules are imported on first use, never by this package (``import geosynth`` stays cheap).
+"""
