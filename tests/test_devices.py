@@ -115,7 +115,7 @@ def test_an_opencl_device_whose_compiler_fails_is_left_out_and_refused(monkeypat
 
 BROKEN_PROGRAM = r"""
 import json, sys
-from geosynth import backend
+from geosynth.compute import backend
 from geosynth._backends import opencl_backend
 from geosynth.cli import main
 
