@@ -120,9 +120,8 @@ def latitude_axis(fit: "SurfaceFit", points: np.ndarray, neighbours: int = 12) -
         eigenvalue over their sum, 0 for perfect stripes about the axis, 1/3 for a relief
         with no such axis).
     """
-    from scipy.spatial import cKDTree
-
     from geosynth.core.exact import eigh3_fixed, gram_fixed
+    from geosynth.core.neighbours import nearest
 
     p = np.asarray(points, np.float64).reshape(-1, 3)
     d0 = p - np.asarray(fit.center, np.float64)[None, :]
@@ -130,7 +129,7 @@ def latitude_axis(fit: "SurfaceFit", points: np.ndarray, neighbours: int = 12) -
     n = d0 / np.maximum(r, 1e-300)[:, None]
     u, v = tangent_frames(n)
     k = min(int(neighbours), len(p) - 1)
-    nb = cKDTree(p).query(p, k + 1)[1][:, 1:]
+    nb = nearest(p, k=k)[1]
     suu = np.zeros(len(p))
     suv, svv, sub, svb = suu.copy(), suu.copy(), suu.copy(), suu.copy()
     for j in range(k):  # the 2x2 normal equations of the slope, summed neighbour by neighbour

@@ -299,7 +299,7 @@ class ReliefIndex:
         fan_start, _ = _csr(keys[order], pairs[order], v)
         fan = pairs[order]
         # walk starts (a hint only: any start gives a deterministic partner, the same on every device)
-        from pykdtree.kdtree import KDTree
+        from geosynth.core.neighbours import nearest
 
         cell = float(np.median(norm3(base[e[:, 0]] - base[e[:, 1]])))
         cell = cell if cell > 0 else quantum
@@ -307,7 +307,7 @@ class ReliefIndex:
         a, b = np.meshgrid(k, k, indexing="ij")
         pts = (base[samples, None, :] + a.reshape(1, -1, 1) * frames[samples, None, 0]
                + b.reshape(1, -1, 1) * frames[samples, None, 1])
-        stencil = KDTree(base).query(pts.reshape(-1, 3), k=1)[1].reshape(len(samples), -1)
+        stencil = nearest(base, pts.reshape(-1, 3), 1)[1].reshape(len(samples), -1)
         return _Host(bq, fq, pq, cq, usable.copy(), adj_start, adj.astype(np.int32), fan_start, fan.astype(np.int32),
                      samples.astype(np.int32), stencil.astype(np.int32), cell)
 

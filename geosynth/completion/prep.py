@@ -297,14 +297,14 @@ def capture_depth(rs: "ReliefSurface") -> np.ndarray:
     neighbourhood reaches about W target spacings, so a candidate whose depth is below
     ``W * rs.spacing`` is matched partly against the border's samples, not against captured
     relief (:func:`geosynth.completion.synthesis.complete_surface` counts and checks them)."""
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     f = np.sort(rs.faces.astype(np.int64), axis=1)
     edges, count = np.unique(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [0, 2]]]), axis=0, return_counts=True)
     sources = np.union1d(np.arange(rs.n_samples, rs.n_vertices), edges[count == 1].ravel())
     if len(sources) == 0:
         return np.full(rs.n_original, np.inf)
-    return cKDTree(rs.base[sources]).query(rs.base[: rs.n_original])[0]
+    return nearest(rs.base[sources], rs.base[: rs.n_original])[0][:, 0]
 
 
 # ---------------------------------------------------------------------- targets
@@ -370,11 +370,10 @@ def _capture_faces(cap: Capture, fit: SurfaceFit, base: np.ndarray, param: np.nd
 
 
 def _gaussian_knn_colours(points: np.ndarray, colors: np.ndarray, queries: np.ndarray, sigma: float) -> np.ndarray:
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     k = min(_KNN, len(points))
-    d, i = cKDTree(points).query(queries, k=k)
-    d, i = d.reshape(len(queries), k), i.reshape(len(queries), k)
+    d, i = nearest(points, queries, k)
     w = exp_fixed(-(d / sigma) ** 2)  # not np.exp: AVX-512's rounds otherwise (issue 40)
     w /= w.sum(1, keepdims=True)
     return np.clip(np.round((w[:, :, None] * colors[i].astype(np.float64)).sum(1)), 0, 255).astype(np.uint8)
@@ -506,7 +505,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
         ValueError: the region is malformed or holds no missing part; the capture has no
             triangle; too many targets.
     """
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     if oversample not in ("butterfly", "midpoint", "none"):
         raise ValueError(f"oversample must be 'butterfly', 'midpoint' or 'none', got {oversample!r}.")
@@ -539,7 +538,7 @@ def prepare_relief(capture: Capture, fit: SurfaceFit, region=None, max_targets: 
     tq = _lattice(fit, region, delta, periodic)
     tbase = fit.from_param(tq)
     if len(tbase):
-        dist, _ = cKDTree(sample_base).query(tbase)
+        dist = nearest(sample_base, tbase)[0][:, 0]
         tbase, tq = tbase[dist > _MISSING * delta], tq[dist > _MISSING * delta]
     if len(tbase) == 0:
         raise ValueError(f"the region to complete {tuple(region)} is empty: the capture already covers it (or it "

@@ -258,7 +258,7 @@ def heights_on_grid(uv: np.ndarray, h: np.ndarray, spacing: float | tuple[float,
     3 s on a 21,600-point capture on a regular grid (cocircular points). Grids beyond 4096
     cells a side are refused.
     """
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import NeighbourIndex
 
     uv = np.asarray(uv, np.float64)
     h = np.asarray(h, np.float64)
@@ -277,8 +277,8 @@ def heights_on_grid(uv: np.ndarray, h: np.ndarray, spacing: float | tuple[float,
         raise ValueError(f"a {hh} x {w} grid at spacing {(sx, sy)}: give a coarser spacing")
     cu, cv = np.meshgrid(lo[0] + sx * np.arange(w), lo[1] + sy * np.arange(hh))
     cells = np.stack([cu.ravel(), cv.ravel()], axis=1)
-    tree = cKDTree(uv)
-    nn = tree.query(uv, k=2)[0][:, 1]
+    tree = NeighbourIndex(uv)
+    nn = tree.around(1)[0][:, 0]
     reach = 1.5 * max(float(np.median(nn)), sx, sy)
     d, i = tree.query(cells, k=4)
     wgt = 1.0 / np.maximum(d * d, 1e-300)

@@ -370,13 +370,12 @@ class AutoSettings:
 def _relief_grid(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
     """(grid, mask, step, nn spacing, regularity, cut): points' heights in the fit's unrolled frame
     on a grid of ``spacing`` (None: their median nearest-neighbour spacing), at most 1024 a side."""
-    from scipy.spatial import cKDTree
-
     from geosynth.completion.fit import relief_frame
     from geosynth.completion.spectrum import heights_on_grid
+    from geosynth.core.neighbours import nearest
 
     uv, h, cut = relief_frame(fit, points, cut)
-    nn = cKDTree(uv).query(uv, 2)[0][:, 1]
+    nn = nearest(uv, k=1)[0][:, 0]
     med = float(np.median(nn))
     regular = float(np.quantile(nn, 0.1)) / med if med > 0 else 0.0
     step = med if spacing is None else float(spacing)
@@ -989,13 +988,13 @@ def _pairs(rs: ReliefSurface, part: np.ndarray):
     """(i, j, length): the pairs of the part's vertices whose base positions lie 0.7 to 1.3
     target spacings apart (one scale for every part, so that the oversampled capture and
     the coarser targets compare); None when there are none."""
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import pairs_within
 
     ids = np.flatnonzero(part)
     if len(ids) < 2:
         return None
     b = rs.base[ids]
-    pairs = cKDTree(b).query_pairs(1.3 * rs.spacing, output_type="ndarray")
+    pairs = pairs_within(b, 1.3 * rs.spacing)
     length = norm3(b[pairs[:, 0]] - b[pairs[:, 1]]) if len(pairs) else np.zeros(0)
     keep = length >= 0.7 * rs.spacing
     if not keep.any():

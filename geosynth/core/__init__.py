@@ -10,6 +10,7 @@ Nothing here imports anything of geosynth outside ``geosynth.core``.
 - exact.py        host arithmetic with the same bits on every x86-64 CPU (issue 40)
 - memory.py       will this run fit in memory? available_memory(), require(), MemoryBudgetError
 - interpolate.py  what is a grid's value between samples? the one (bi/tri)linear resampler
+- neighbours.py   which points are nearest? the one k-nearest-neighbour path (pykdtree; pairs by SciPy)
 
 The modules are imported on first use, never by this package (``import geosynth`` stays cheap).
 """

@@ -275,13 +275,10 @@ def write_point_set(path: str | os.PathLike, ps: PointSet) -> Path:
 # ------------------------------------------------------------------------- normals
 
 
-def _kdtree(points: np.ndarray, balanced: bool = True):
-    try:
-        from scipy.spatial import cKDTree
-    except ImportError as exc:  # pragma: no cover - scipy is a dependency
-        raise ImportError("geosynth.geometry.pointsets needs scipy (pip install scipy) for neighbour search.") from exc
-    # An unbalanced tree builds about 2x faster; fine for one nearest-neighbour query.
-    return cKDTree(points) if balanced else cKDTree(points, balanced_tree=False, compact_nodes=False)
+def _kdtree(points: np.ndarray):
+    from geosynth.core.neighbours import NeighbourIndex
+
+    return NeighbourIndex(points)
 
 
 # eigh's second eigenvalue below this fraction of the largest: rank < 2, to rounding.
@@ -331,7 +328,7 @@ def estimate_normals(points, k: int = 16) -> np.ndarray:
     k = int(min(k, n))
 
     # 1. PCA over the k nearest neighbours.
-    _, idx = _kdtree(p).query(p, k=k)
+    _, idx = _kdtree(p).query(p, k)
     nb = p[idx]  # (N, k, 3)
     centred = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", centred, centred)
@@ -404,7 +401,7 @@ def default_radius(points) -> float:
         raise ValueError("the default radius needs at least 2 points; pass radius= (the kernel width h).")
     # The mean over an even subsample of at most ~20k points: the same estimate, cheaper.
     sample = p[:: max(1, len(p) // 20_000)]
-    dist, _ = _kdtree(p, balanced=False).query(sample, k=2, workers=-1)
+    dist, _ = _kdtree(p).query(sample, 2)
     h = MLS_WIDTH_FACTOR * float(np.mean(dist[:, 1]))
     if not h > 0:
         raise ValueError("all points coincide, so the point spacing is 0; pass radius= (the kernel width h).")
@@ -579,12 +576,12 @@ def _fill_far(p, nrm, h, device, coords, d, g) -> None:
     far = np.flatnonzero(~g.any(axis=1))
     if far.size == 0:
         return
-    tree = _kdtree(p, balanced=False)
+    tree = _kdtree(p)
     cells = _CellGrid(p, nrm, MLS_REACH * h)  # built once for every pass
     for start in range(0, far.size, _FAR_CHUNK):
         idx = far[start:start + _FAR_CHUNK]
         x = coords(idx)
-        _, nearest = tree.query(x, k=1, workers=-1)
+        nearest = tree.query(x, 1)[1][:, 0]
         used, inverse = np.unique(nearest, return_inverse=True)  # many queries share a point
         _, normal, proj = _run_mls(p, nrm, h, device, queries=p[used], want_proj=True, grid=cells)
         y, n = proj[inverse].astype(np.float64), normal[inverse].astype(np.float64)

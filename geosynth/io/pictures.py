@@ -619,13 +619,13 @@ def _default_splat_radius(points: np.ndarray) -> float:
     """0.75 x the median distance to the 6th nearest neighbour (over up to 20,000 evenly
     picked points): about 1.1 / sqrt(density) for surface samples, enough to close the
     surface even for random samples (their nearest neighbours clump)."""
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     k = min(6, len(points) - 1)
     if k < 1:
         return 0.05
     pick = points[np.linspace(0, len(points) - 1, min(len(points), 20_000)).astype(np.int64)]
-    d, _ = cKDTree(points).query(pick, k=k + 1)
+    d, _ = nearest(points, pick, k + 1)
     nn = d[:, k][d[:, k] > 0]
     if len(nn) == 0:
         return 1e-3

@@ -169,19 +169,14 @@ class MLSSurface:
     """
 
     def __init__(self, points, normals, radius: float, neighbours: int = MLS_NEIGHBOURS):
-        from geosynth.core.config import passive_openmp_threads
-
-        passive_openmp_threads()  # pykdtree's OpenMP threads sleep after a query (see there)
-        from pykdtree.kdtree import KDTree
+        from geosynth.core.neighbours import NeighbourIndex
 
         self.p = as_points3("neighbourhood_points", points)
         self.n = as_unit_vectors("neighbourhood_normals", as_points3("neighbourhood_normals", normals, len(self.p))) if len(self.p) else np.zeros((0, 3))
         self.h = check_positive("radius", radius)
         self.reach = _REACH * self.h
         self.k = int(max(1, min(neighbours, len(self.p))))
-        # pykdtree (float64, exact): the same neighbours, in the same order, as SciPy's cKDTree
-        # on every built-in's blend queries, in about half the CPU time (bench/RESULTS.md, M2)
-        self.tree = KDTree(self.p, leafsize=16) if len(self.p) else None
+        self.tree = NeighbourIndex(self.p) if len(self.p) else None
         self.pn = np.concatenate([self.p, self.n], axis=1)
 
     def neighbours(self, x: np.ndarray):
@@ -190,8 +185,7 @@ class MLSSurface:
         |p|^2 (reused by every evaluation with these neighbours; inf where not valid). Any rows of the three
         (:func:`_rows`) are the neighbours of those queries."""
         m = len(x)
-        _, idx = self.tree.query(np.ascontiguousarray(x, np.float64), k=self.k, distance_upper_bound=self.reach)
-        idx = idx.reshape(m, self.k).astype(np.int64)
+        _, idx = self.tree.query(x, self.k, upper=self.reach)
         valid = idx < len(self.p)
         # np.take: the same rows as fancy indexing, several times faster on (K, 6) arrays
         nb = np.take(self.pn, np.where(valid, idx, 0), axis=0)
@@ -725,7 +719,7 @@ def relax_points(points, normals, spacing: float, iterations: int = 2, *, device
         ``(points, normals)``: (M, 3) float64 relaxed positions and their unit normals
         (the input's).
     """
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     p = as_points3("points", points)
     n = as_unit_vectors("normals", as_points3("normals", normals, len(p))) if len(p) else np.zeros((0, 3))
@@ -739,8 +733,7 @@ def relax_points(points, normals, spacing: float, iterations: int = 2, *, device
     x, nx = p.copy(), n.copy()
     k = int(min(9, len(p)))
     for _ in range(int(iterations)):
-        dist, idx = cKDTree(x).query(x, k=k)
-        dist, idx = dist[:, 1:], idx[:, 1:]
+        dist, idx = nearest(x, k=k - 1)
         push = np.clip(spacing - dist, 0.0, None) / np.where(dist > 0, dist, 1.0)  # overlap / distance
         push = np.where(dist > 0, push, 0.0)
         move = 0.5 * np.einsum("mk,mkj->mj", push, x[:, None, :] - x[idx])
@@ -769,20 +762,20 @@ def seam_errors(candidates, points_b, normals_b, samples, spacing: float) -> lis
     Returns:
         One RMS difference in spacings per candidate (NaN where no sample has support in both).
     """
-    from pykdtree.kdtree import KDTree
+    from geosynth.core.neighbours import NeighbourIndex
 
     spacing = check_positive("spacing", spacing)
     x = as_points3("samples", samples)
     h = 2.0 * spacing
     if len(x) == 0:
         return [float("nan")] * len(candidates)
-    near = KDTree(x, leafsize=16)
+    near = NeighbourIndex(x)
 
     def within_reach(points, normals):
         p = as_points3("points", points)
         if len(p) == 0:
             return p, np.asarray(normals, np.float64).reshape(-1, 3)
-        d, _ = near.query(p, k=1, distance_upper_bound=_REACH * h * (1 + 1e-9))
+        d = near.query(p, 1, upper=_REACH * h * (1 + 1e-9))[0][:, 0]
         keep = np.isfinite(d)
         return p[keep], np.asarray(normals)[keep]
 
@@ -880,13 +873,13 @@ def has_pieces(points, spacing: float, *, link: float = 3.5, min_points: int = M
     components reaching the bounds). :func:`cut_pieces` is for exemplars that have them."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import pairs_within
 
     p = as_points3("points", points)
     r = check_positive("link", link) * check_positive("spacing", spacing)
     if len(p) == 0:
         return False
-    pairs = cKDTree(p).query_pairs(r, output_type="ndarray")
+    pairs = pairs_within(p, r)
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(p), len(p)))
     _, labels = connected_components(graph, directed=False)
     big = np.bincount(labels) >= int(min_points)
@@ -974,7 +967,7 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
     drop, unblend, restore = np.zeros(len(p), bool), np.zeros(len(p), bool), np.zeros(len(q), bool)
     if len(p) == 0 or len(q) == 0:
         return drop, unblend, restore
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     def bounds(x):
         return x[:, :2].min(axis=0), x[:, :2].max(axis=0)
@@ -989,8 +982,7 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
         local = other[((other >= lo_x) & (other <= hi_x)).all(axis=1)]  # a small tree: only near x
         if len(local) == 0:
             return np.zeros(len(x), bool)
-        d, _ = cKDTree(local).query(x, distance_upper_bound=match)
-        return np.isfinite(d)
+        return np.isfinite(nearest(local, x, 1, upper=match)[0][:, 0])
 
     inb_p, inb_q = in_box(p), in_box(q)
     sides = []  # per set: labels, whole, unmatched, mean ramp, reaches outside the box
@@ -1026,7 +1018,7 @@ def cut_pieces(points, ramp, neighbourhood_points, neighbourhood_ramp, box_min, 
     may_go = (_whole(p, lp, window or bounds(p), link) & ~drop_piece)[lp]  # only these are asked
     if stays.any() and may_go.any():
         ask = np.flatnonzero(may_go)
-        d, i = cKDTree(q[stays]).query(p[ask], distance_upper_bound=link)
+        d, i = (a[:, 0] for a in nearest(q[stays], p[ask], 1, upper=link))
         hit = np.isfinite(d)
         n_lab = lp.max() + 1
         touch_restored = np.zeros(n_lab, bool)

@@ -41,7 +41,7 @@ def _rng(seed):
 def stones_image(size: int = 256, cells: float = 9.0, seed: int = 0) -> np.ndarray:
     """A grey picture of rounded cobblestones (size x size float64 in [0, 1]): the
     Worley F2 - F1 distance of jittered cell centres, shaped into domes, each stone its own height."""
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     rng = _rng(seed)
     g = int(np.ceil(cells)) + 2
@@ -50,7 +50,7 @@ def stones_image(size: int = 256, cells: float = 9.0, seed: int = 0) -> np.ndarr
     heights = rng.uniform(0.6, 1.0, len(centres))
     u = (np.arange(size) + 0.5) / size
     px, py = np.meshgrid(u, u)
-    d, i = cKDTree(centres).query(np.stack([px.ravel(), py.ravel()], 1), k=2)
+    d, i = nearest(centres, np.stack([px.ravel(), py.ravel()], 1), 2)
     edge = (d[:, 1] - d[:, 0]) * cells  # 0 on the cell border
     dome = np.sqrt(np.clip(edge / 0.55, 0, 1))
     img = (dome * heights[i[:, 0]]).reshape(size, size)

@@ -220,9 +220,9 @@ class PointGrid:
         p, n = self.in_box(q[:, :2].min(axis=0) - radius, q[:, :2].max(axis=0) + radius)
         if len(p) == 0:
             return p, n
-        from scipy.spatial import cKDTree
+        from geosynth.core.neighbours import nearest
 
-        d, _ = cKDTree(q).query(p, k=1, distance_upper_bound=radius * (1 + 1e-12))
+        d = nearest(q, p, 1, upper=radius * (1 + 1e-12))[0][:, 0]
         keep = np.isfinite(d)
         return p[keep], n[keep]
 

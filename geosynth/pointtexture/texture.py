@@ -134,10 +134,10 @@ class PointTexture:
 
 def _nearest_distances(points: np.ndarray) -> np.ndarray:
     """The nearest-neighbour distances ((k,) float64) of up to 20,000 evenly picked points."""
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     pick = points[np.linspace(0, len(points) - 1, min(len(points), 20_000)).astype(np.int64)]
-    return cKDTree(points).query(pick, k=2)[0][:, 1]
+    return nearest(points, pick, 2)[0][:, 1]
 
 
 def _first_of_each_position(points: np.ndarray) -> np.ndarray | None:

@@ -128,11 +128,10 @@ class _Blob:
 
 def _relax(shape, p: np.ndarray, rounds: int = RELAX_ROUNDS) -> np.ndarray:
     """Spread points by repulsion from their nearest neighbours, projected back each round."""
-    from scipy.spatial import cKDTree
+    from geosynth.core.neighbours import nearest
 
     for _ in range(rounds):
-        d, idx = cKDTree(p).query(p, k=RELAX_NEIGHBOURS + 1)
-        d, idx = d[:, 1:], idx[:, 1:]
+        d, idx = nearest(p, k=RELAX_NEIGHBOURS)
         h = 1.5 * float(np.mean(d[:, 0]))  # repulsion reach
         away = p[:, None, :] - p[idx]
         w = np.clip(1 - d / h, 0, None) ** 2
@@ -301,13 +300,9 @@ def spatial_order(positions: np.ndarray) -> np.ndarray:
     return np.argsort(key)  # unique keys: any sort algorithm gives this order
 
 
-KNN_LEAF_SIZE = 32  # measured on the M3 models: 8 -> 32 is 10% faster, beyond that flat
-
-
 def knn_table(positions: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The k nearest neighbours of every point (itself excluded), by pykdtree's k-d tree
-    (exact, float64; its OpenMP query uses every core: 1.3-1.5x faster than scipy's
-    cKDTree with all workers on the M3 models, bench/RESULTS.md).
+    """The k nearest neighbours of every point (itself excluded;
+    :func:`geosynth.core.neighbours.nearest`).
 
     Args:
         positions: (N, 3) float positions, N > k.
@@ -315,23 +310,9 @@ def knn_table(positions: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
     Returns:
         (distances (N, k) float64 (possibly a view), indices (N, k) int32 (the kernels'
-        index type; N < 2^31)), nearest first.
+        index type; N < 2^31)), nearest first, ties by lower index.
     """
-    passive_openmp_threads()
-    from pykdtree.kdtree import KDTree
+    from geosynth.core.neighbours import nearest
 
-    p = np.ascontiguousarray(positions, np.float64)
-    d, idx = KDTree(p, leafsize=KNN_LEAF_SIZE).query(p, k=k + 1)
-    own = np.arange(len(p))
-    if (idx[:, 0] == own).all():  # the usual case: each point first in its own list
-        # (few new arrays: fresh pages cost ~1 ms per 4 MB here; the distances stay a view)
-        out = np.empty((len(p), k), np.int32)
-        out[:] = idx[:, 1:]
-        return d[:, 1:], out
-    # with duplicates the point itself may come later: drop it where it is
-    idx = idx.astype(np.int32)
-    self_col = idx == own[:, None]
-    drop = np.where(self_col.any(1), np.argmax(self_col, 1), k)
-    keep = np.ones(idx.shape, bool)
-    keep[own, drop] = False
-    return d[keep].reshape(len(p), k), idx[keep].reshape(len(p), k)
+    d, idx = nearest(positions, k=k)
+    return d, idx.astype(np.int32)

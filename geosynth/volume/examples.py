@@ -335,7 +335,8 @@ def fibers_mesh(seed: int = 0, count: int = 14, radius: float = 0.03, height: fl
         of the footprint by up to a radius).
     """
     import trimesh
-    from scipy.spatial import cKDTree
+
+    from geosynth.core.neighbours import nearest
 
     rng = np.random.default_rng(seed)
     placed: list[np.ndarray] = []
@@ -359,7 +360,7 @@ def fibers_mesh(seed: int = 0, count: int = 14, radius: float = 0.03, height: fl
             centre = np.column_stack([xy, z])[first:last]
             if len(centre) < 8:
                 continue
-            if placed and cKDTree(np.vstack(placed)).query(centre, distance_upper_bound=2 * radius + gap)[0].min() < np.inf:
+            if placed and nearest(np.vstack(placed), centre, 1, upper=2 * radius + gap)[0].min() < np.inf:
                 continue
             placed.append(centre)
             tubes.append(tube_mesh(centre, radius, sections))
