@@ -37,7 +37,8 @@ import numpy as np
 
 from geosynth.io.files import atomic_write, check_output
 
-__all__ = ["HTML_SUFFIXES", "ViewModel", "as_view_model", "decimate_mesh", "decode_payload", "write_viewer"]
+__all__ = ["HTML_SUFFIXES", "ViewModel", "as_view_model", "decimate_mesh", "decode_payload", "gallery_index_html",
+           "viewer_html", "write_gallery_index", "write_viewer"]
 
 HTML_SUFFIXES = (".html", ".htm")
 MESH_COLOUR = (172, 186, 212)  # pictures.MESH_COLOR: the same light steel blue as the PNGs
@@ -603,3 +604,66 @@ def write_viewer(path: str | os.PathLike, left, right, *, labels: Sequence[str],
             f.write(text)
 
     return atomic_write(out, write, inputs=inputs)
+
+
+_INDEX_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:16px;color:#222;background:#fafafa}
+h1{font-size:20px;margin:0 0 6px 0}
+p{font-size:13px;color:#444;margin:4px 0 12px 0}
+table{border-collapse:collapse;width:100%;background:#fff}
+td,th{border:1px solid #ddd;padding:6px;vertical-align:top;font-size:13px;text-align:left}
+th{background:#f0f0f0}
+td.thumb{width:340px}
+td.thumb img{max-width:330px;max-height:200px;display:block}
+td.time{white-space:nowrap;text-align:right}
+code{font-size:12px;word-break:break-word}
+.failed{color:#b00;font-weight:600}
+"""
+
+
+def gallery_index_html(rows: Sequence[dict], *, title: str, note: str = "") -> str:
+    """The gallery's index page, as text.
+
+    Args:
+        rows: one per run, in order: ``name``, ``command``, ``seconds``, ``summary`` (the
+            quality line), ``error`` (None, or the one-line failure), ``page`` and
+            ``picture`` (file names beside the index, or None when not written).
+        title: the heading.
+        note: a line under it (how the gallery was run, its total time).
+    """
+    e = html.escape
+    ok = sum(1 for r in rows if not r.get("error"))
+    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           f"<title>{e(title)}</title><style>{_INDEX_CSS}</style></head><body>",
+           f"<h1>{e(title)}</h1>",
+           f"<p>{e(note)} {ok} of {len(rows)} runs succeeded. Each picture opens the run's page "
+           "(the models in 3D: drag to turn, wheel to zoom).</p>",
+           '<table id="gallery"><tr><th>picture</th><th>run</th><th>time</th><th>quality</th></tr>']
+    for r in rows:
+        if r.get("error"):
+            thumb = '<span class="failed">failed</span>'
+            quality = f'<span class="failed">{e(r["error"])}</span>'
+        else:
+            img = (f'<img src="{e(r["picture"])}" alt="{e(r["name"])}" loading="lazy">' if r.get("picture")
+                   else "(no picture)")
+            thumb = f'<a href="{e(r["page"])}">{img}</a>' if r.get("page") else img
+            quality = e(r.get("summary") or "(no quality numbers)")
+        name = (f'<a href="{e(r["page"])}">{e(r["name"])}</a>' if r.get("page") and not r.get("error")
+                else e(r["name"]))
+        out.append(f'<tr class="entry" data-name="{e(r["name"])}" data-status="{"failed" if r.get("error") else "ok"}">'
+                   f'<td class="thumb">{thumb}</td><td><b>{name}</b><br><code>{e(r["command"])}</code></td>'
+                   f'<td class="time">{r["seconds"]:.1f} s</td><td>{quality}</td></tr>')
+    out.append("</table></body></html>")
+    return "\n".join(out) + "\n"
+
+
+def write_gallery_index(path: str | os.PathLike, rows: Sequence[dict], *, title: str, note: str = "") -> Path:
+    """Write :func:`gallery_index_html` to ``path`` (.html), atomically."""
+    out = check_output(path, suffixes=HTML_SUFFIXES, what="the gallery's index")
+    text = gallery_index_html(rows, title=title, note=note)
+
+    def write(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+
+    return atomic_write(out, write)
