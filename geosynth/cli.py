@@ -220,7 +220,7 @@ def _command_text(args: argparse.Namespace) -> str:
 
 
 def _write_page(args: argparse.Namespace, left, right, labels: Sequence[str], quality: Sequence[str],
-                summary: str, inputs: Sequence[str], say) -> None:
+                summary: str, inputs: Sequence[str], say, same_scale: bool = False) -> None:
     """``--html``: the viewer page of ``left`` (exemplar or capture) and ``right`` (the result);
     the quality lines and the summary are kept on ``args`` for the gallery either way."""
     args.quality_lines, args.quality_summary = list(quality), summary
@@ -229,7 +229,7 @@ def _write_page(args: argparse.Namespace, left, right, labels: Sequence[str], qu
     from geosynth.io.viewer import write_viewer
 
     write_viewer(args.html, left, right, labels=labels, quality_lines=quality, command=_command_text(args),
-                 inputs=inputs, title=f"geosynth {args.command}: {labels[1]}")
+                 inputs=inputs, title=f"geosynth {args.command}: {labels[1]}", same_scale=same_scale)
     say(f"page: {args.html} ({labels[0]} left, {labels[1]} right; open it in a browser: drag to turn, wheel to zoom)")
 
 
@@ -531,8 +531,8 @@ def _cmd_volume(args: argparse.Namespace) -> int:
                            labels=["exemplar", "synthesized"])
     write_image(png, picture, inputs=inputs)
     say(f"picture: {png} (exemplar left, result right, at the same scale)")
-    _write_page(args, exemplar_mesh, result.mesh, [f"exemplar ({label})", "synthesized"], quality,
-                _volume_summary(result.quality), inputs, say)
+    _write_page(args, exemplar_mesh, result.mesh, [f"exemplar ({label})", "synthesized (same scale)"], quality,
+                _volume_summary(result.quality), inputs, say, same_scale=True)
     return 0
 
 
@@ -1007,8 +1007,8 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     say(f"picture: {png} ({', '.join(labels)})")
     exemplar_points = (texture.points[inside], None if texture.colors is None else texture.colors[inside],
                        texture.normals[inside])
-    _write_page(args, exemplar_points, points, [f"exemplar {texture.name} (inside B)", "synthesized"], quality,
-                _summary(quality, "patch-field distance"), inputs, say)
+    _write_page(args, exemplar_points, points, [f"exemplar {texture.name} (inside B)", "synthesized (same scale)"],
+                quality, _summary(quality, "patch-field distance"), inputs, say, same_scale=True)
     return 0
 
 
@@ -1175,8 +1175,8 @@ _README_SIZES = {"volume-terrain": ["--size", "64"], "pointtexture-heightfield":
 def gallery_entries(full: bool = False) -> list[tuple[str, list[str]]]:
     """Every built-in of every method, as ``(name, arguments)`` of one run each (outputs not
     yet named): each command's defaults, at small sizes (M1 --size 32, M2 --count 4000, M3
-    --count 5000; M4's built-ins have no size option), or with ``full`` at the README's
-    sizes (the defaults where it names none)."""
+    --count 5000; M4's built-ins have no size option: --search coherent, the cost that grows
+    with the capture), or with ``full`` at the README's sizes (the defaults where it names none)."""
     from geosynth.completion.examples import COMPLETION_EXAMPLES
     from geosynth.pointtexture.examples import POINT_EXAMPLES
 
@@ -1185,7 +1185,8 @@ def gallery_entries(full: bool = False) -> list[tuple[str, list[str]]]:
              for name in POINT_EXAMPLES]
     runs += [(f"texture-{model}-{texture}", ["texture", "--example", model, "--texture-example", texture],
               ["--count", "5000"]) for model, texture in _TEXTURE_RUNS]
-    runs += [(f"complete-{name}", ["complete", "--example", name], []) for name in COMPLETION_EXAMPLES]
+    runs += [(f"complete-{name}", ["complete", "--example", name], ["--search", "coherent"])
+             for name in COMPLETION_EXAMPLES]
     return [(name, argv + (_README_SIZES.get(name, []) if full else small)) for name, argv, small in runs]
 
 

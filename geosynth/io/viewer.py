@@ -319,7 +319,7 @@ var VS = [
 "varying vec3 vN; varying vec3 vCol; varying float vZ;",
 "void main(){ vec4 p = uMV * vec4(aPos, 1.0); gl_Position = uP * p;",
 "  vN = uR * aNrm; vCol = aCol; vZ = -p.z;",
-"  gl_PointSize = clamp(uPointScale / max(-p.z, 1e-6), 1.5, 64.0); }"].join("\n");
+"  gl_PointSize = clamp(uPointScale / max(-p.z, 1e-6), 1.5, 96.0); }"].join("\n");
 var FS = [
 "precision mediump float;",
 "uniform vec3 uL; uniform vec3 uF; uniform vec3 uH; uniform float uLit; uniform float uPoints;",
@@ -434,7 +434,7 @@ View.prototype.draw = function(){
   var m = this.model;
   if (m.kind === "points") {
     var focal = h / 2 / Math.tan(FOV / 2);  // pixels per unit at distance 1
-    gl.uniform1f(this.u.uPointScale, 1.6 * m.spacing * focal);
+    gl.uniform1f(this.u.uPointScale, 2.4 * m.spacing * focal);
     gl.drawArrays(gl.POINTS, 0, m.count);
   } else {
     gl.drawElements(gl.TRIANGLES, m.triangles * 3, gl.UNSIGNED_INT, 0);
@@ -493,6 +493,10 @@ function start(){
       var v = new View(i, canvases[i], header.models[i], bytes);
       views.push(v); attach(v);
     }
+    if (header.sameScale) {  // frame the larger model in both: the same world scale side by side
+      var largest = Math.max.apply(null, views.map(function(v){ return v.radius; }));
+      views.forEach(function(v){ v.radius = largest; });
+    }
     T.marks.uploaded = performance.now();
     linkBox.addEventListener("change", function(){ if (linkBox.checked && views.length) linked(views[0]); });
     window.addEventListener("resize", function(){ views.forEach(function(v){ v.request(); }); });
@@ -520,13 +524,15 @@ def _describe(m: ViewModel) -> str:
 
 
 def viewer_html(left, right, *, labels: Sequence[str], quality_lines: Sequence[str], command: str,
-                max_triangles: int = 200_000, link_cameras: bool = False, title: str | None = None) -> str:
+                max_triangles: int = 200_000, link_cameras: bool = False, title: str | None = None,
+                same_scale: bool = False) -> str:
     """The page :func:`write_viewer` writes, as text (nothing is written)."""
     if len(labels) != 2:
         raise ValueError(f"labels must name the two views (left, right), got {len(labels)}.")
     models = [as_view_model(left, max_triangles), as_view_model(right, max_triangles)]
     blob, headers = _pack(models)
-    header = json.dumps({"models": headers, "meshColour": list(MESH_COLOUR), "pointColour": list(POINT_COLOUR)},
+    header = json.dumps({"models": headers, "meshColour": list(MESH_COLOUR), "pointColour": list(POINT_COLOUR),
+                         "sameScale": bool(same_scale)},
                         separators=(",", ":")).replace("</", "<\\/")
     payload = base64.b64encode(blob).decode("ascii")
     e = html.escape
@@ -571,7 +577,8 @@ def viewer_html(left, right, *, labels: Sequence[str], quality_lines: Sequence[s
 
 def write_viewer(path: str | os.PathLike, left, right, *, labels: Sequence[str], quality_lines: Sequence[str],
                  command: str, max_triangles: int = 200_000, link_cameras: bool = False,
-                 title: str | None = None, inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
+                 title: str | None = None, same_scale: bool = False,
+                 inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Write the self-contained viewer page of ``left`` (the exemplar or capture) and
     ``right`` (the result), atomically.
 
@@ -586,6 +593,9 @@ def write_viewer(path: str | os.PathLike, left, right, *, labels: Sequence[str],
         max_triangles: larger models are decimated for viewing (the page says so).
         link_cameras: the "link cameras" box starts checked.
         title: the page's heading (default: "geosynth: " + the right label).
+        same_scale: both views frame the larger model's bounding sphere, so that the two are
+            drawn at the same world scale (an exemplar beside a larger synthesized piece);
+            default: each view frames its own model.
         inputs: files the page must never replace.
 
     Returns:
@@ -597,7 +607,7 @@ def write_viewer(path: str | os.PathLike, left, right, *, labels: Sequence[str],
     """
     out = check_output(path, inputs=inputs, suffixes=HTML_SUFFIXES, what="--html")
     text = viewer_html(left, right, labels=labels, quality_lines=quality_lines, command=command,
-                       max_triangles=max_triangles, link_cameras=link_cameras, title=title)
+                       max_triangles=max_triangles, link_cameras=link_cameras, title=title, same_scale=same_scale)
 
     def write(tmp: str) -> None:
         with open(tmp, "w", encoding="utf-8") as f:
