@@ -200,12 +200,13 @@ def _recorder(quiet: bool) -> tuple[Callable[..., None], list[str]]:
 
 
 def _summary(lines: Sequence[str], *prefixes: str) -> str:
-    """The first of ``lines`` that starts (after its indent) with one of ``prefixes``, squeezed
-    to single spaces; "" when none does."""
-    for line in lines:
-        text = " ".join(line.split())
-        if text.startswith(prefixes):
-            return text
+    """The first of ``lines`` that starts (after its indent) with the first of ``prefixes``
+    any line starts with, squeezed to single spaces; "" when none does."""
+    squeezed = [" ".join(line.split()) for line in lines]
+    for prefix in prefixes:
+        for text in squeezed:
+            if text.startswith(prefix):
+                return text
     return ""
 
 
