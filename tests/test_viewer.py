@@ -308,3 +308,21 @@ def test_browser_opens_a_200k_triangle_page_quickly(tmp_path, browser):
     # 2-core machine took 1.1 to 3.2 s (docs/viewer.md): a margin for a loaded machine
     assert open_ms < 6000, f"the 200k-triangle page took {open_ms:.0f} ms to draw both views"
     assert _canvas_pixels(page, 1).mean(axis=2).std() > 10
+
+
+def test_staged_section_drops_only_a_failed_sections_outputs(tmp_path):
+    from geosynth.io.files import atomic_write, staged_outputs, staged_section
+
+    def text(value):
+        return lambda tmp: open(tmp, "w").write(value)
+
+    with staged_outputs():
+        atomic_write(tmp_path / "kept.txt", text("kept"))
+        with pytest.raises(RuntimeError):
+            with staged_section():
+                atomic_write(tmp_path / "dropped.txt", text("half of a failed run"))
+                raise RuntimeError("the run failed after writing")
+        with staged_section():
+            atomic_write(tmp_path / "later.txt", text("later"))
+        assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == []  # all still staged
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.txt", "later.txt"]  # no temporary left either
