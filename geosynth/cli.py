@@ -1175,13 +1175,13 @@ _README_SIZES = {"volume-terrain": ["--size", "64"], "pointtexture-heightfield":
 
 def gallery_entries(full: bool = False) -> list[tuple[str, list[str]]]:
     """Every built-in of every method, as ``(name, arguments)`` of one run each (outputs not
-    yet named): each command's defaults, at small sizes (M1 --size 32, M2 --count 4000, M3
+    yet named): each command's defaults, at small sizes (M1 --size 64, M2 --count 4000, M3
     --count 5000; M4's built-ins have no size option: --search coherent, the cost that grows
     with the capture), or with ``full`` at the README's sizes (the defaults where it names none)."""
     from geosynth.completion.examples import COMPLETION_EXAMPLES
     from geosynth.pointtexture.examples import POINT_EXAMPLES
 
-    runs = [(f"volume-{name}", ["volume", "--example", name], ["--size", "32"]) for name in EXEMPLARS]
+    runs = [(f"volume-{name}", ["volume", "--example", name], ["--size", "64"]) for name in EXEMPLARS]
     runs += [(f"pointtexture-{name}", ["pointtexture", "--example", name], ["--count", "4000"])
              for name in POINT_EXAMPLES]
     runs += [(f"texture-{model}-{texture}", ["texture", "--example", model, "--texture-example", texture],

@@ -175,8 +175,10 @@ def test_gallery_entries_cover_every_built_in():
         runs = [n.split("-")[1:] for n in names if n.startswith("texture-")]
         assert {m for m, _ in runs} == set(POINT_MODELS) and {t for _, t in runs} == set(TEXTURES)
     small = dict(cli.gallery_entries(False))
-    assert small["volume-terrain"][-2:] == ["--size", "32"]
-    assert dict(cli.gallery_entries(True))["volume-terrain"][-2:] == ["--size", "64"]  # the README's
+    assert small["volume-chainmail"][-2:] == ["--size", "64"]
+    full = dict(cli.gallery_entries(True))
+    assert full["volume-terrain"][-2:] == ["--size", "64"] and "--size" not in full["volume-chainmail"]  # the README's
+    assert "--count" not in full["pointtexture-weave"] and "--search" not in full["complete-golf"]
 
 
 def test_gallery_shows_a_failure_and_goes_on(tmp_path):
