@@ -159,6 +159,18 @@ def test_cli_html_is_checked_before_the_work(tmp_path, capsys):
         assert not out.exists()
 
 
+def test_cli_html_on_a_tiled_volume(tmp_path, capsys):
+    page = tmp_path / "t.html"
+    code = cli.main(["volume", "--example", "terrain", "--size", "64", "--tiles", "2x1", "--scheduler", "threads",
+                     "--quality-samples", "0", "-o", str(tmp_path / "t.ply"), "--html", str(page), "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    exemplar, result = decode_payload(page.read_text())
+    written = trimesh.load(tmp_path / "t.ply", process=False)
+    assert exemplar["kind"] == result["kind"] == "mesh"
+    assert len(result["positions"]) == len(written.vertices) and len(result["indices"]) == len(written.faces)
+    assert "2x1 tiles" in page.read_text()
+
+
 def test_gallery_entries_cover_every_built_in():
     from geosynth.completion.examples import COMPLETION_EXAMPLES
     from geosynth.pointtexture.examples import POINT_EXAMPLES
