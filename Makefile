@@ -26,7 +26,10 @@ demo: $(STAMP)
 	$(BIN)/geosynth devices
 	$(BIN)/geosynth volume --example terrain -o demo_out/terrain.ply --png demo_out/terrain.png
 
+# the viewer's browser tests need a headless Chromium: found, installed by apt-get when
+# running as root (CI), or skipped with their reason (tools/ensure_chromium.py never fails)
 test: $(STAMP)
+	-$(BIN)/python tools/ensure_chromium.py
 	$(BIN)/python -m pytest -q
 
 # test-cpus: the tests of outputs that must not depend on the CPU (pinned hashes of M1, M2,

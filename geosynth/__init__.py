@@ -15,7 +15,7 @@ The public API; everything else is private. Every operation takes ``device=``
 - M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`).
 - Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
   :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
-  ``Field.load`` / ``Field.save``.
+  :func:`write_viewer` (a self-contained HTML page to turn two models in 3D), ``Field.load`` / ``Field.save``.
 - Built-in inputs: :func:`point_model`, :func:`load_point_model`, :func:`texture_example`,
   :func:`exemplar_mesh`, :func:`exemplar_field`.
 - :class:`MemoryBudgetError`: an operation's memory estimate exceeds what is available.
@@ -65,6 +65,7 @@ _LAZY = {
     "write_texture": "geosynth.texturing.textures",
     "texture_example": "geosynth.texturing.textures",
     "write_image": "geosynth.io.files",
+    "write_viewer": "geosynth.io.viewer",
     "point_model": "geosynth.texturing.models",
     "load_point_model": "geosynth.texturing.models",
     "exemplar_mesh": "geosynth.volume.examples",

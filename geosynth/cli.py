@@ -178,6 +178,62 @@ def _picture_path(args: argparse.Namespace) -> tuple[Path, str]:
     return Path(args.output).with_suffix(".png"), "the default --png (OUTPUT with .png)"
 
 
+def _html_outputs(args: argparse.Namespace) -> list[tuple[Path, Sequence[str], str]]:
+    """``--html``'s (path, suffixes, what) for :func:`_check_outputs`, or nothing."""
+    from geosynth.io.viewer import HTML_SUFFIXES
+
+    return [(Path(args.html), HTML_SUFFIXES, "--html")] if getattr(args, "html", None) else []
+
+
+def _recorder(quiet: bool) -> tuple[Callable[..., None], list[str]]:
+    """A command's ``say``: prints unless ``quiet``, and records every line it is given
+    either way (the page and the gallery show them)."""
+    lines: list[str] = []
+
+    def say(*parts, **kwargs) -> None:
+        text = " ".join(str(p) for p in parts)
+        lines.extend(line for line in text.split("\n") if line.strip())
+        if not quiet:
+            print(*parts, **kwargs)
+
+    return say, lines
+
+
+def _summary(lines: Sequence[str], *prefixes: str) -> str:
+    """The first of ``lines`` that starts (after its indent) with the first of ``prefixes``
+    any line starts with, squeezed to single spaces; "" when none does."""
+    squeezed = [" ".join(line.split()) for line in lines]
+    for prefix in prefixes:
+        for text in squeezed:
+            if text.startswith(prefix):
+                return text
+    return ""
+
+
+def _command_text(args: argparse.Namespace) -> str:
+    """The command line that ran, as a shell would take it."""
+    import shlex
+
+    argv = getattr(args, "argv", None)
+    if argv is None:
+        return f"geosynth {args.command}"
+    return "geosynth " + shlex.join(str(a) for a in argv)
+
+
+def _write_page(args: argparse.Namespace, left, right, labels: Sequence[str], quality: Sequence[str],
+                summary: str, inputs: Sequence[str], say, same_scale: bool = False) -> None:
+    """``--html``: the viewer page of ``left`` (exemplar or capture) and ``right`` (the result);
+    the quality lines and the summary are kept on ``args`` for the gallery either way."""
+    args.quality_lines, args.quality_summary = list(quality), summary
+    if not getattr(args, "html", None):
+        return
+    from geosynth.io.viewer import write_viewer
+
+    write_viewer(args.html, left, right, labels=labels, quality_lines=quality, command=_command_text(args),
+                 inputs=inputs, title=f"geosynth {args.command}: {labels[1]}", same_scale=same_scale)
+    say(f"page: {args.html} ({labels[0]} left, {labels[1]} right; open it in a browser: drag to turn, wheel to zoom)")
+
+
 def _check_device(device: str | None) -> None:
     """Refuse an absent device now, not after loading the inputs."""
     from geosynth.compute.backend import resolve_device
@@ -406,7 +462,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     size, block = _volume_shape(args)
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    _check_outputs([(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)] + _html_outputs(args), inputs)
     _check_device(args.device)
 
     from geosynth.geometry.surface import save_mesh
@@ -415,7 +471,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     from geosynth.volume.examples import resolve_exemplar_mesh
     from geosynth.volume.synthesis import block_text, synthesize_geometry
 
-    say = (lambda *a, **k: None) if args.quiet else print
+    say, printed = _recorder(args.quiet)
     label = example or exemplar
     shape_text = (f"{args.size[0]} x {args.size[1]} x {args.size[2]}" if len(args.size) == 3
                   else f"{args.size[0]} x {args.size[0]} x (the exemplar's thickness)")
@@ -448,6 +504,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
     say("timings:")
     for k, v in result.timings.items():
         say(f"  {k:<34} {v:8.2f} s")
+    first_quality = len(printed)
     if result.quality:
         say("quality (bidirectional block distance, squared uint8 units per sample; lower is better):")
         for k, q in result.quality.items():
@@ -468,13 +525,24 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         for k, f in result.features.items():
             if k != "exemplar":
                 say(f"  {k:<14} {format_features(ex, f)}")
+    quality = printed[first_quality:]
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
     boxes = same_scale_bounds([exemplar_mesh, result.mesh])
     picture = side_by_side([render_mesh(exemplar_mesh, bounds=boxes[0]), render_mesh(result.mesh, bounds=boxes[1])],
                            labels=["exemplar", "synthesized"])
     write_image(png, picture, inputs=inputs)
     say(f"picture: {png} (exemplar left, result right, at the same scale)")
+    _write_page(args, exemplar_mesh, result.mesh, [f"exemplar ({label})", "synthesized (same scale)"], quality,
+                _volume_summary(result.quality), inputs, say, same_scale=True)
     return 0
+
+
+def _volume_summary(quality: dict | None) -> str:
+    """M1's one quality line: the mean bidirectional block distance, beside random tiling's."""
+    if not quality:
+        return ""
+    parts = [f"{k} {q['mean']:.1f}" for k, q in quality.items()]
+    return "block distance (mean, lower is better): " + ", ".join(parts)
 
 
 # The options that only a tiled run reads, with the value that means "not given".
@@ -525,7 +593,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     block = DEFAULT_BLOCK if block is None else block  # the parse-time checks; the exemplar may choose another
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
+    outputs = [(out, MESH_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)] + _html_outputs(args)
     if args.tile_meshes is not None:  # every tile's file passes the guard, not only the first
         from geosynth.volume.tiled import tile_mesh_paths
 
@@ -536,7 +604,8 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     checkpoint = _checkpoint_path(out)
     if args.tile_meshes is not None:  # the folder itself must not be another output's path
         folder = os.path.realpath(args.tile_meshes)
-        for path, what in ((out, "-o/--output"), (png, png_what), (checkpoint, "the checkpoint (beside -o/--output)")):
+        for path, what in ((out, "-o/--output"), (png, png_what), (checkpoint, "the checkpoint (beside -o/--output)"),
+                           *((p, w) for p, _, w in _html_outputs(args))):
             if os.path.realpath(path) == folder:
                 raise ValueError(f"--tile-meshes {args.tile_meshes!r} is the path of {what}; give the tile meshes a "
                                  "folder of their own.")
@@ -557,7 +626,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     from geosynth.volume.synthesis import target_size
     from geosynth.volume.tiled import exemplar_source, seam_report, synthesize_volume_tiled, tile_grid
 
-    say = (lambda *a, **k: None) if args.quiet else print
+    say, printed = _recorder(args.quiet)
     label = example or exemplar
     _m1_colour_note(exemplar, say)
     slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
@@ -620,8 +689,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         say(f"store {result.store}: the uint8 field, chunks of {result.grid.core[1]} x {result.grid.core[0]} (x y)")
     if result.tile_meshes:
         say(f"tile meshes: {len(result.tile_meshes)} PLY files in {args.tile_meshes}")
+    first_quality = len(printed)
     for line in result.lines():
         say("  " + line)
+    quality = printed[first_quality:]
     say("timings:")
     for k, v in result.timings.items():
         say(f"  {k:<34} {v:8.2f} s")
@@ -631,11 +702,14 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         say(f"seams (block distance, squared uint8 units per sample; interior blocks are the baseline): across tile "
             f"borders {q['seam']:.1f}, inside tiles {q['interior']:.1f} (ratio {q['ratio']:.2f}); step across "
             f"borders {q['step_seam']:.2f}, elsewhere {q['step_interior']:.2f}")
+        quality.append(printed[-1])
     exemplar_mesh = resolve_exemplar_mesh(example or exemplar, args.seed)
     picture = side_by_side([render_mesh(exemplar_mesh), render_mesh(result.mesh)],
                            labels=["exemplar", f"synthesized, {tiles[0]}x{tiles[1]} tiles"])
     write_image(png, picture, inputs=inputs)
     say(f"picture: {png} (exemplar left, result right)")
+    _write_page(args, exemplar_mesh, result.mesh, [f"exemplar ({label})", f"synthesized, {tiles[0]}x{tiles[1]} tiles"],
+                quality, _summary(quality, "seams"), inputs, say)
     return 0
 
 
@@ -695,7 +769,7 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     _texture_sizes(args, model_is_sampled=args.example is not None)
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], used)
+    _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)] + _html_outputs(args), used)
     _check_device(args.device)
 
     from geosynth.geometry.pointsets import write_point_set
@@ -705,7 +779,7 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     from geosynth.texturing.synthesis import texture_points
     from geosynth.texturing.textures import read_texture, texture_example
 
-    say = (lambda *a, **k: None) if args.quiet else print
+    say, printed = _recorder(args.quiet)
     if args.example:
         model, model_label = point_model(args.example, args.count, seed=args.seed), f"example {args.example}"
     else:
@@ -729,7 +803,8 @@ def _cmd_texture(args: argparse.Namespace) -> int:
         quality_samples=max(1, args.quality_samples), device=args.device, seed=args.seed, progress=not args.quiet,
     )
     write_point_set(out, coloured)
-    for line in report.lines():
+    quality = list(report.lines())
+    for line in quality:
         say(line)
     say(f"written {out}")
     azimuths = (-60, 60, 180, -150)[:args.views]
@@ -740,7 +815,29 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     labels = ["texture"] + [f"view {i + 1}" for i in range(len(views))]
     write_image(png, side_by_side([tex_big] + views, labels=labels), inputs=used)
     say(f"picture: {png} (the texture, then {len(views)} view(s))")
+    _write_page(args, _texture_plane(texture), coloured, [f"texture ({tex_label})", f"{model_label}, {args.method}"],
+                quality, _summary(quality, "mean eq. 5 error"), used, say)
     return 0
+
+
+def _texture_plane(texture: np.ndarray, largest: int = 256):
+    """M3's exemplar in 3D: the texture image as a flat mesh in the xy plane, one vertex per
+    texel (at most ``largest`` along a side) coloured by it, 1 unit wide."""
+    import trimesh
+
+    image = np.asarray(texture)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, -1)
+    step = max(1, -(-max(image.shape[:2]) // largest))
+    image = image[::step, ::step, :3]
+    h, w = image.shape[:2]
+    x, y = np.meshgrid(np.arange(w) / max(w - 1, 1), -np.arange(h) / max(w - 1, 1))
+    vertices = np.stack([x, y, np.zeros_like(x)], -1).reshape(-1, 3)
+    index = np.arange(h * w).reshape(h, w)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+    colours = np.clip(image, 0, 255).astype(np.uint8).reshape(-1, 3)
+    return trimesh.Trimesh(vertices, faces, vertex_colors=colours, process=False)
 
 
 # ------------------------------------------------------------------ M2: pointtexture
@@ -848,7 +945,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
         raise ValueError("give --scale or --size, not both.")
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    outputs = [(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)]
+    outputs = [(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)] + _html_outputs(args)
     if args.mesh:
         outputs.append((Path(args.mesh), MESH_OUT, "--mesh"))
     _check_outputs(outputs, inputs)
@@ -860,7 +957,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.io.pictures import render_points, side_by_side
     from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
 
-    say = (lambda *a, **k: None) if args.quiet else print
+    say, printed = _recorder(args.quiet)
     texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
     scale = 2.0 if args.scale is None else args.scale
     say(f"geosynth pointtexture: {texture.name} ({len(texture):,} points) -> "
@@ -883,7 +980,8 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
             raise MemoryBudgetError(str(exc).replace("resolution", "--mesh-resolution"), option="mesh_resolution",
                                     largest=exc.largest, estimate=exc.estimate, available=exc.available) from None
     write_point_set(out, points)
-    for line in report.lines():
+    quality = list(report.lines())
+    for line in quality:
         say(line)
     say("timings (s): " + "  ".join(f"{k} {timings[k]:.2f}" for k in
                                     ("precompute", "search", "warp", "blend", "other", "total", "quality")
@@ -908,6 +1006,10 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
         labels.append("random pasting")
     write_image(png, side_by_side(pics, labels=labels), inputs=inputs)
     say(f"picture: {png} ({', '.join(labels)})")
+    exemplar_points = (texture.points[inside], None if texture.colors is None else texture.colors[inside],
+                       texture.normals[inside])
+    _write_page(args, exemplar_points, points, [f"exemplar {texture.name} (inside B)", "synthesized (same scale)"],
+                quality, _summary(quality, "patch-field distance"), inputs, say, same_scale=True)
     return 0
 
 
@@ -954,6 +1056,8 @@ def _add_pointtexture_parser(sub, common, seed: dict, device: dict) -> None:
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture of exemplar and result, .png or .jpg "
                                                "(default: OUTPUT with .png)")
+    p.add_argument("--html", default=None, metavar="FILE",
+                   help="also write a page that shows the exemplar and the result in 3D, turnable with the mouse (self-contained: no network), .html")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_pointtexture)
 
@@ -1002,14 +1106,14 @@ def _cmd_complete(args: argparse.Namespace) -> int:
                                     name_as_path=False)
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    _check_outputs([(out, POINTS_OUT, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)] + _html_outputs(args), inputs)
     _check_device(args.device)
 
     from geosynth.completion.examples import completion_example
     from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
     from geosynth.io.files import write_image
 
-    say = (lambda *a, **k: None) if args.quiet else print
+    say, printed = _recorder(args.quiet)
     region = None
     if args.example:  # a built-in gets what a file gets: its scene (capture, fit, region), no method settings
         ex = completion_example(args.example, seed=args.seed)
@@ -1035,7 +1139,8 @@ def _cmd_complete(args: argparse.Namespace) -> int:
                                                 device=args.device, seed=args.seed, progress=not args.quiet,
                                                 balance=not args.no_balance, frames=frames, refine=refine,
                                                 spacing=spacing, search=args.search)
-    for line in report.lines():
+    quality = list(report.lines())
+    for line in quality:
         say(line)
     say("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items() if k != "targets_per_s")
         + f"; {timings['targets_per_s']:.1f} targets/s")
@@ -1044,6 +1149,143 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         f"{len(surface.faces):,} faces")
     write_image(png, completion_picture(surface), inputs=inputs)
     say(f"picture: {png} (captured part, completion, completed part tinted)")
+    if args.html:
+        import trimesh
+
+        colours = surface.colors
+        keep = ~surface.completed[surface.faces].any(1)  # the captured part: faces of captured vertices only
+        captured = trimesh.Trimesh(surface.positions, surface.faces[keep], vertex_colors=colours, process=False)
+        completed = trimesh.Trimesh(surface.positions, surface.faces, vertex_colors=colours, process=False)
+    else:
+        captured = completed = None
+    _write_page(args, captured, completed, ["captured part", "completed"], quality,
+                _summary(quality, "relief slope", "volume integral"), inputs, say)
+    return 0
+
+
+# ------------------------------------------------------------------ gallery
+
+
+# (name, model, texture) of M3's gallery runs: every built-in model and every built-in texture once
+_TEXTURE_RUNS = (("blob", "bricks"), ("sphere", "checker"), ("torus", "noise"))
+# the README's sizes (--full) where the README names one; the command's defaults otherwise
+_README_SIZES = {"volume-terrain": ["--size", "64"], "pointtexture-heightfield": ["--count", "10000"],
+                 "texture-blob-bricks": ["--count", "10000"]}
+
+
+def gallery_entries(full: bool = False) -> list[tuple[str, list[str]]]:
+    """Every built-in of every method, as ``(name, arguments)`` of one run each (outputs not
+    yet named): each command's defaults, at small sizes (M1 --size 64, M2 --count 4000, M3
+    --count 5000; M4's built-ins have no size option: --search coherent, the cost that grows
+    with the capture), or with ``full`` at the README's sizes (the defaults where it names none)."""
+    from geosynth.completion.examples import COMPLETION_EXAMPLES
+    from geosynth.pointtexture.examples import POINT_EXAMPLES
+
+    runs = [(f"volume-{name}", ["volume", "--example", name], ["--size", "64"]) for name in EXEMPLARS]
+    runs += [(f"pointtexture-{name}", ["pointtexture", "--example", name], ["--count", "4000"])
+             for name in POINT_EXAMPLES]
+    runs += [(f"texture-{model}-{texture}", ["texture", "--example", model, "--texture-example", texture],
+              ["--count", "5000"]) for model, texture in _TEXTURE_RUNS]
+    runs += [(f"complete-{name}", ["complete", "--example", name], ["--search", "coherent"])
+             for name in COMPLETION_EXAMPLES]
+    return [(name, argv + (_README_SIZES.get(name, []) if full else small)) for name, argv, small in runs]
+
+
+def run_gallery(folder: str | os.PathLike, entries: Sequence[tuple[str, list[str]]], *, device: str | None = None,
+                progress: bool = True, title: str = "geosynth gallery", note: str = "") -> list[dict]:
+    """Run each entry in this process and write its outputs into ``folder`` (NAME.ply, the
+    command's picture NAME.png, its page NAME.html), then ``folder``/index.html: one row per
+    entry with its picture, time and quality line. A failing entry (bad arguments, an error
+    of the run) is caught, its files dropped, and shown on the index; the others go on.
+
+    Args:
+        folder: the gallery's folder (created).
+        entries: ``(name, arguments)`` pairs (:func:`gallery_entries`, or a subset).
+        device: passed to every run as --device (None: each run's default, auto).
+        progress: a tqdm bar over the runs, on stderr.
+
+    Returns:
+        The index's rows: ``name``, ``command``, ``seconds``, ``summary``, ``error``, ``page``, ``picture``.
+    """
+    import contextlib
+    import io
+
+    from tqdm import tqdm
+
+    from geosynth.io.files import staged_section
+    from geosynth.io.viewer import write_gallery_index
+
+    folder = Path(folder)
+    rows = []
+    bar = tqdm(total=len(entries), desc="gallery", unit="run", file=sys.stderr, disable=not progress, leave=True)
+    t_all = time.perf_counter()
+    try:
+        for name, arguments in entries:
+            bar.set_postfix_str(name)
+            files = {kind: folder / f"{name}{suffix}" for kind, suffix in
+                     (("output", ".ply"), ("picture", ".png"), ("page", ".html"))}
+            argv = list(arguments) + ["-o", str(files["output"]), "--png", str(files["picture"]),
+                                      "--html", str(files["page"]), "--quiet"]
+            if device is not None:
+                argv += ["--device", device]
+            row = {"name": name, "command": "geosynth " + " ".join(argv), "seconds": 0.0, "summary": "",
+                   "error": None, "page": files["page"].name, "picture": files["picture"].name}
+            t0 = time.perf_counter()
+            command = arguments[0] if arguments else "?"
+            try:
+                with staged_section():
+                    errors = io.StringIO()
+                    try:
+                        with contextlib.redirect_stderr(errors):
+                            args = build_parser().parse_args(argv)
+                    except SystemExit:
+                        raise ValueError(" ".join(errors.getvalue().split()) or "bad arguments") from None
+                    args.argv = argv
+                    row["command"] = _command_text(args)
+                    command = args.command
+                    code = args.func(args)
+                    row["summary"] = getattr(args, "quality_summary", "") or ""
+                    if code:
+                        raise RuntimeError(f"exit code {code}")
+            except Exception as exc:  # one entry's failure is shown on the index, not fatal
+                row["error"] = f"{type(exc).__name__}: {_message(exc, command)}"
+                row["page"] = row["picture"] = None
+            row["seconds"] = time.perf_counter() - t0
+            rows.append(row)
+            bar.update(1)
+    finally:
+        bar.close()
+    total = time.perf_counter() - t_all
+    write_gallery_index(folder / "index.html", rows, title=title,
+                        note=(note + " " if note else "") + f"{len(rows)} runs in {total:.0f} s.")
+    return rows
+
+
+def _cmd_gallery(args: argparse.Namespace) -> int:
+    folder = Path(args.output)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"-o/--output {args.output!r} is a file; the gallery writes a folder of pages: give a "
+                         "folder name (it is created).")
+    from geosynth.io.viewer import HTML_SUFFIXES
+
+    entries = gallery_entries(args.full)
+    if args.only:
+        known = {name for name, _ in entries}
+        unknown = [n for n in args.only if n not in known]
+        if unknown:
+            raise ValueError(f"--only {' '.join(unknown)}: no such gallery entry; the entries: {', '.join(sorted(known))}.")
+        entries = [(name, argv) for name, argv in entries if name in args.only]
+    _check_outputs([(folder / "index.html", HTML_SUFFIXES, "the index in -o/--output")], [])
+    _check_device(args.device)
+    say = (lambda *a, **k: None) if args.quiet else print
+    say(f"geosynth gallery: {len(entries)} runs ({'the README sizes' if args.full else 'small sizes'}) into {folder}")
+    rows = run_gallery(folder, entries, device=args.device, progress=not args.quiet,
+                       note=f"{'README sizes (--full)' if args.full else 'Small sizes'}, device {args.device or 'auto'}.")
+    for r in rows:
+        say(f"  {r['name']:<28} {r['seconds']:6.1f} s  " + (f"FAILED: {r['error']}" if r["error"] else r["summary"]))
+    failed = sum(1 for r in rows if r["error"])
+    say(f"index: {folder / 'index.html'} ({len(rows) - failed} of {len(rows)} runs succeeded; "
+        f"{sum(r['seconds'] for r in rows):.0f} s)")
     return 0
 
 
@@ -1108,6 +1350,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture of exemplar and result, .png or .jpg "
                                                "(default: OUTPUT with .png)")
+    p.add_argument("--html", default=None, metavar="FILE",
+                   help="also write a page that shows the exemplar and the result in 3D, turnable with the mouse (self-contained: no network), .html")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_volume)
     # tiled synthesis on Dask (geosynth.volume.tiled)
@@ -1160,6 +1404,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture: the texture and the views, .png or .jpg "
                                                "(default: OUTPUT with .png)")
+    p.add_argument("--html", default=None, metavar="FILE",
+                   help="also write a page that shows the texture and the coloured model in 3D, turnable with the mouse (self-contained: no network), .html")
     p.add_argument("--views", type=_int_type(1, 4), default=3, help="views of the result in the picture, 1 to 4 (default 3)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_texture)
@@ -1227,6 +1473,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "histogram-aware pick, our extension; see geosynth.completion.synthesis._Balance)")
     p.add_argument("--png", default=None, help="picture: captured, completed, completed part tinted; .png or .jpg "
                                                "(default: OUTPUT with .png)")
+    p.add_argument("--html", default=None, metavar="FILE",
+                   help="also write a page that shows the captured part and the completed surface in 3D, turnable with the mouse (self-contained: no network), .html")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_complete)
 
@@ -1243,6 +1491,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)
     _add_pointtexture_parser(sub, common, seed, device)
+
+    p = sub.add_parser("gallery", parents=[common],
+                       help="run every built-in of every method; a viewer page per result and an index page")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="the gallery's folder (created): per run NAME.ply, NAME.png, NAME.html; and index.html")
+    p.add_argument("--full", action="store_true", help="the README's sizes (default: small sizes, a few minutes)")
+    p.add_argument("--only", nargs="+", default=None, metavar="NAME",
+                   help="only these entries (e.g. volume-terrain complete-golf); default all")
+    p.add_argument("--device", **device)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_gallery)
     return parser
 
 
@@ -1335,6 +1594,7 @@ def _main(argv, early: list[int]) -> int:
         print("geosynth: interrupted (while starting; nothing was written)", file=sys.stderr)
         return 130
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     debug = args.debug or args.global_debug
     loud = bool(args.verbose or args.global_verbose)
     if loud:

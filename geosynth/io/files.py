@@ -43,7 +43,7 @@ import numpy as np
 from geosynth.core.config import INPUT_PATHS
 
 __all__ = ["IMAGE_SUFFIXES", "atomic_write", "check_finite_output", "check_input", "check_output", "defer", "note_input", "noted_inputs",
-           "remove_stale_temporaries", "staged_outputs",
+           "remove_stale_temporaries", "staged_outputs", "staged_section",
            "temporary_path", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -337,6 +337,29 @@ def staged_outputs(interrupted: Callable[[], bool] = lambda: False):
     finally:
         if main:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextmanager
+def staged_section():
+    """Inside :func:`staged_outputs` (on its thread): the outputs written in this block are
+    dropped, their temporaries removed, when the block raises; the exception goes on. The
+    other outputs of the command stay staged (a gallery's failed entry leaves no half of
+    its files behind). Elsewhere it does nothing."""
+    stage = _STAGE
+    if stage is None or threading.get_ident() != stage.thread:
+        yield
+        return
+    start = len(stage.pending)
+    try:
+        yield
+    except BaseException:
+        for _, abort in reversed(stage.pending[start:]):
+            try:
+                abort()
+            except OSError:
+                pass
+        del stage.pending[start:]
+        raise
 
 
 class _Terminated(BaseException):
