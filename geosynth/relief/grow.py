@@ -17,7 +17,7 @@ __all__ = ["METHODS", "ReliefResult", "grow_relief"]
 
 METHODS = ("synth", "project")
 _BYTES_PER_VERTEX = 4096  # peak bytes per refined vertex (measured ~2.5 kB: W-rings, CSRs, the index, copies)
-_FINE = 12  # an example with more than 12 cells on its period is resampled to period / 6 (M4's rule)
+_FINE = 8  # an example with more than 8 cells on its period is resampled to period / 6 (M4's rule, from 12)
 
 
 @dataclass
@@ -104,6 +104,19 @@ def _as_mesh(mesh):
     return mesh, v, f, colours
 
 
+def _merged(v: np.ndarray, f: np.ndarray):
+    """(vertices, faces, inverse): coincident vertices merged (an STL stores a triangle soup: unmerged,
+    its triangles would part when displaced), ``inverse`` (V0,) the merged vertex of each input vertex."""
+    import trimesh
+
+    unique, inverse = trimesh.grouping.unique_rows(v)
+    order = np.argsort(unique, kind="stable")  # keep the first occurrences' order: deterministic ids
+    rank = np.empty(len(unique), np.int64)
+    rank[order] = np.arange(len(unique))
+    inv = rank[inverse]
+    return v[np.sort(unique)], inv[f], inv
+
+
 def _check_number(name: str, value, *, positive: bool = True) -> float:
     try:
         x = float(value)
@@ -129,7 +142,7 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
             and built-ins, as captured for a patch).
         scale: multiplies the example's lateral size (> 0; an image spans a quarter of the mesh's size).
         resolution: the refined mesh's longest edge, mesh units (default: 1.4 x the example's spacing,
-            so that the median edge is about the spacing; an example with over 12 cells on its period
+            so that the median edge is about the spacing; an example with over 8 cells on its period
             is first resampled to period / 6, M4's rule).
         method: "synth" (synthesis on the surface, M4's growth) or "project" (triplanar projection).
         mask: None, (V0,) or (F0,) bools over the input's vertices or faces (True: bare), or an
@@ -192,7 +205,20 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
                                 f"about {format_bytes(need)}, more than the {format_bytes(avail)} available; raise "
                                 f"--resolution to at least {_three(fits * 1.01):.4g} or use a larger --scale.",
                                 option="resolution", largest=None, estimate=need, available=avail)
-    watertight = bool(tm.is_watertight)
+    v0, f0, inverse = _merged(v0, f0)
+    if len(v0) < len(inverse):
+        if in_colours is not None:
+            first = np.zeros(len(v0), np.int64)
+            first[inverse[::-1]] = np.arange(len(inverse))[::-1]
+            in_colours = in_colours[first]
+        m = None if mask is None else np.asarray(mask)
+        if m is not None and m.dtype == bool and m.shape == (len(inverse),) and len(inverse) != len(f0):
+            merged_mask = np.zeros(len(v0), bool)
+            np.logical_or.at(merged_mask, inverse, m)
+            mask = merged_mask
+    import trimesh
+
+    watertight = bool(trimesh.Trimesh(v0, f0, process=False, validate=False).is_watertight)
     timings["load"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
