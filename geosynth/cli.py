@@ -1084,6 +1084,10 @@ def _cmd_relief(args: argparse.Namespace) -> int:
     from geosynth.relief.write import RELIEF_SUFFIXES
 
     inputs = [str(check_input(args.mesh, "mesh"))]
+    named = Path(args.example)
+    if args.example not in BUILTINS and not named.exists() and not named.suffix and len(named.parts) == 1:
+        raise FileNotFoundError(f"example {args.example!r} is neither a built-in ({', '.join(BUILTINS)}) nor an "
+                                "existing file.")
     if args.example not in BUILTINS or Path(args.example).exists():
         inputs.append(str(check_input(args.example, "example")))
     if args.colour:

@@ -96,9 +96,11 @@ def clearance(vertices: np.ndarray, normals: np.ndarray, reach: float, resolutio
     another part of the surface (the far side of a concave groove, the next arm of a knot), ``inf``
     when nothing lies within ``reach``.
 
-    Points are stepped out along the normal (t = reach x 1/8, 1/4, 1/2, 3/4, 1); at the first t whose
-    nearest mesh vertex is closer than t - resolution (nearer than the vertex it started from,
-    beyond the sampling's slack), another surface lies about 2 t ahead (the point is half way).
+    Points are stepped out along the normal (t = reach x 1/16, 2/16, ..., 16/16); at the first t where
+    one of the 8 vertices nearest the point faces away from the vertex's normal (n_q . n < 0.7: another
+    part of the surface, or the far wall of a groove; the vertex's own neighbourhood faces the same
+    way) and lies within t + resolution / 2 (its vertices sample a surface up to about half an edge
+    from the point), another surface lies about 2 t ahead (the point is half way).
     A nearest-vertex query per step (pykdtree), not a ray cast: trimesh's ray intersector without
     Embree took 48 s for the 10,242 inward rays of a sphere; this is linear and vectorized.
 
@@ -109,12 +111,17 @@ def clearance(vertices: np.ndarray, normals: np.ndarray, reach: float, resolutio
     from pykdtree.kdtree import KDTree
 
     v = np.ascontiguousarray(vertices, np.float64)
+    nrm = np.asarray(normals, np.float64)
     tree = KDTree(v)
+    k = min(8, len(v))
     out = np.full(len(v), np.inf)
-    for share in (0.125, 0.25, 0.5, 0.75, 1.0):
-        t = share * reach
-        d, _ = tree.query(np.ascontiguousarray(v + t * normals), k=1)
-        blocked = np.isinf(out) & (d < t - resolution)
+    for step in range(1, 17):
+        t = step * reach / 16
+        d, i = tree.query(np.ascontiguousarray(v + t * nrm), k=k)
+        d, i = d.reshape(len(v), k), i.reshape(len(v), k)
+        facing = np.einsum("vkj,vj->vk", nrm[i], nrm) < 0.7
+        near = np.where(facing, d, np.inf).min(1)
+        blocked = np.isinf(out) & (near < t + 0.5 * resolution)
         out[blocked] = 2.0 * t
     return out
 

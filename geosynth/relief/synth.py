@@ -23,14 +23,15 @@ sample's height (along its own normal) and colour. Every match is accepted (MaxE
 the example always holds a whole neighbourhood, so a rejected target would only wait for the same
 candidates), which keeps one pass per list. Same seed, same bytes on every device.
 
-M4's own growth helpers are reused by name (``geosynth.completion``'s classes, hint table and
-batched FindMatches call), so that the two growths cannot drift apart.
+The growth's steps follow :func:`geosynth.completion.complete_surface`'s (its public constants:
+the 1.1x tolerance, the coherent search's 128 probes and 4 best); the coherence hints are simpler
+here, because the example is a regular grid: the candidates within 2 cells (rows and columns) of
+the cells the target's textured neighbours copied.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -38,7 +39,10 @@ from geosynth.relief.examples import ReliefExample
 
 __all__ = ["SynthResult", "WINDOW", "synthesize"]
 
+HINT_CELLS = 2  # coherence hints: the candidates within 2 rows and columns of a neighbour's source cell
 WINDOW = 3  # W-ring neighbourhoods (37 vertices on a regular mesh; M4 chooses 3 to 5 from the period)
+_MAX_BATCH = 64  # targets per launch at most (as M4's growth)
+_BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
 MU_COLOUR = 0.7  # shape weight with colours: a printed relief is judged by its shape first
 
 
@@ -87,6 +91,145 @@ def _padded(example: ReliefExample, pad: int):
     heights = example.heights[yy, xx]
     colours = None if example.colours is None else example.colours[yy, xx]
     return heights, colours, (yy * w + xx), inner
+
+
+class _FlatQueries:
+    """M4's FindMatches calls with each target's neighbourhood laid flat on its tangent plane.
+
+    The M4 kernels move a target's neighbours (their base positions relative to the target, in its
+    frame) into a candidate's frame. In M4 samples and targets lie on one fitted surface, so both
+    neighbourhoods bend alike; here the example is a plane and the mesh is curved, and a W-ring of
+    radius W s on a surface of radius R sags by (W s)^2 / 2R below the tangent plane: on a unit
+    sphere with s = 0.16 and W = 3, 0.115, six times a 0.02-deep relief, and the matches copied
+    the tops whose surroundings looked lowest (the relief's amplitude came out 54% low). So the
+    moved base's normal component (``rel[..., 2]``, the same for every rotation) is set to 0:
+    each neighbour keeps its tangent-plane offset and its height; host arithmetic on the integer
+    queries, so every device still gets the same input. ``find_matches`` is M4's own."""
+
+    def __init__(self, rm):
+        self.find_matches = rm.find_matches
+        self._queries = rm.neighbourhood_queries
+
+    def neighbourhood_queries(self, *args, **kwargs):
+        import dataclasses
+
+        q = self._queries(*args, **kwargs)
+        rel = q.rel.copy()
+        rel[..., 2] = 0
+        return dataclasses.replace(q, rel=rel)
+
+
+class _Classes:
+    """Greedy colouring, in id order, of targets none of which lies in another's window: a class is
+    scored in one launch with the same result as one target at a time (as M4's growth does)."""
+
+    @staticmethod
+    def split(members: np.ndarray, w_t, ring_ptr, ring_idx, ring_d, slot_of) -> list[np.ndarray]:
+        colour: dict[int, int] = {}
+        classes: list[list[int]] = []
+        for t in np.sort(members).tolist():
+            k = slot_of[t]
+            lo, hi = ring_ptr[k], ring_ptr[k + 1]
+            banned = set()
+            for a, d in zip(ring_idx[lo:hi].tolist(), ring_d[lo:hi].tolist()):
+                c = colour.get(a)
+                if c is not None and d <= max(w_t[k], w_t[slot_of[a]]):
+                    banned.add(c)
+            c = 0
+            while c in banned:
+                c += 1
+            colour[t] = c
+            if c == len(classes):
+                classes.append([])
+            classes[c].append(t)
+        return [np.asarray(c, np.int64) for c in classes]
+
+
+class _GridHints:
+    """Coherence hints on the example's grid (Ashikhmin's idea, as M4's growth uses it): a target
+    next to a vertex that copied cell x likely matches near x. Only a tighter pruning limit for
+    the exhaustive search (never a different match); the coherent search picks among them."""
+
+    def __init__(self, shape: tuple[int, int], candidates: np.ndarray, n_example: int, adj_all):
+        self.h, self.w = shape
+        self.slot = np.full(n_example, -1, np.int64)
+        self.slot[candidates] = np.arange(len(candidates))
+        self.candidates = candidates
+        self.n = n_example
+        self.adj = adj_all
+        d = np.arange(-HINT_CELLS, HINT_CELLS + 1)
+        dy, dx = np.meshgrid(d, d, indexing="ij")
+        self.dy, self.dx = dy.ravel(), dx.ravel()
+
+    def _near(self, row: np.ndarray, cells: np.ndarray, n_rows: int) -> np.ndarray:
+        """(n_rows, k) int64 candidate slots within HINT_CELLS of each cells[i] for row[i], each once, ascending,
+        padded with -1."""
+        r = cells[:, None] // self.w + self.dy[None, :]
+        c = cells[:, None] % self.w + self.dx[None, :]
+        ok = (r >= 0) & (r < self.h) & (c >= 0) & (c < self.w)
+        slots = np.where(ok, self.slot[np.clip(r * self.w + c, 0, self.n - 1)], -1)
+        pairs = np.stack([np.repeat(row, slots.shape[1]), slots.ravel()], 1)
+        pairs = np.unique(pairs[pairs[:, 1] >= 0], axis=0)
+        if len(pairs) == 0:
+            return np.full((n_rows, 0), -1, np.int64)
+        counts = np.bincount(pairs[:, 0], minlength=n_rows)
+        col = np.arange(len(pairs)) - np.repeat(np.cumsum(counts) - counts, counts)
+        grid = np.full((n_rows, int(counts.max())), -1, np.int64)
+        grid[pairs[:, 0], col] = pairs[:, 1]
+        return grid
+
+    def for_targets(self, chunk: np.ndarray, picked: np.ndarray, textured: np.ndarray) -> np.ndarray | None:
+        indptr, indices = self.adj
+        deg = indptr[chunk + 1] - indptr[chunk]
+        row = np.repeat(np.arange(len(chunk)), deg)
+        nb = indices[np.repeat(indptr[chunk] - np.cumsum(deg) + deg, deg) + np.arange(int(deg.sum()))]
+        src = picked[nb]
+        keep = textured[nb] & (src >= 0)
+        return None if not keep.any() else self._near(row[keep], src[keep], len(chunk))
+
+    def around(self, best: np.ndarray) -> np.ndarray:
+        q, m = best.shape
+        row = np.repeat(np.arange(q), m)
+        flat = best.reshape(-1)
+        keep = flat >= 0
+        if not keep.any():
+            return np.full((q, 0), -1, np.int64)
+        return self._near(row[keep], self.candidates[flat[keep]], q)
+
+
+def _match(index, flat, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err, hints,
+           picked, textured, search):
+    """FindMatches for a chunk of one class, one launch per window size; matches in chunk order (the
+    calls :func:`geosynth.completion.complete_surface`'s growth makes)."""
+    from geosynth import completion as m4
+
+    out = [None] * len(chunk)
+    hint_rows = hints.for_targets(chunk, picked, textured)
+    ks = slot_of[chunk]
+    n_s = len(index.samples)
+    for w in np.unique(w_t[ks]):
+        pos = np.flatnonzero(w_t[ks] == w)
+        starts, lists = [0], []
+        for p in pos:
+            k = ks[p]
+            lo, hi = ring_ptr[k], ring_ptr[k + 1]
+            nbr = ring_idx[lo:hi][ring_d[lo:hi] <= w]
+            lists.append(nbr)
+            starts.append(starts[-1] + len(nbr))
+        queries = flat.neighbourhood_queries(index, chunk[pos], np.asarray(starts, np.int64),
+                                             np.concatenate(lists).astype(np.int64), sigmas[int(w)],
+                                             rotations=rotations, mu=mu)
+        rows = None if hint_rows is None else hint_rows[pos]
+        if search == "coherent":
+            probes = (max(1, -(-n_s // m4.COHERENT_PROBES)),)
+        else:
+            probes = () if rows is not None and (rows >= 0).any() else None
+        around = hints.around if search == "coherent" else None
+        for p, m in zip(pos, flat.find_matches(index, queries, err, tolerance=m4.TOLERANCE, probes=probes, hints=rows,
+                                               exhaustive=search == "exhaustive", around=around,
+                                               around_best=m4.COHERENT_AROUND)):
+            out[p] = m
+    return out
 
 
 def _counts(textured: np.ndarray, slots: np.ndarray, ring_ptr, ring_idx, ring_d, w_t) -> np.ndarray:
@@ -213,10 +356,10 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
         textured[patch] = True
         seeds.append(sv)
 
-    rs = SimpleNamespace(n_samples=ne, n_vertices=ne + nv, adjacency=all_adj)  # what M4's hint table reads
-    hints = m4._HintTable(rs, index) if m4.HINT_RINGS > 0 else None
-    per_launch = max(1, min(m4._MAX_BATCH, m4._BATCH_CODES // max(1, len(candidates) * rotations)))
+    hints = _GridHints((hp, wp), candidates, ne, all_adj)
+    per_launch = max(1, min(_MAX_BATCH, _BATCH_CODES // max(1, len(candidates) * rotations)))
     accept_all = rm.CODE_CAP / rm.SCORE_ONE
+    flat = _FlatQueries(rm)
     stats = dict(lists=0, launches=0, seeds=len(seeds), failed=0, search=chosen, search_why=why)
     bar = None
     if progress:
@@ -239,12 +382,11 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
             counts = _counts(textured, slot_of[boundary], ring_ptr, ring_idx, ring_d, w_t)
             for level in np.unique(counts)[::-1]:
                 members = boundary[counts == level]
-                for cls in m4._classes(members, w_t, ring_ptr, ring_idx, ring_d, slot_of):
+                for cls in _Classes.split(members, w_t, ring_ptr, ring_idx, ring_d, slot_of):
                     for start in range(0, len(cls), per_launch):
                         chunk = cls[start:start + per_launch]
-                        got = m4._match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d,
-                                              sigmas, rotations, mu, accept_all, hints, picked, textured,
-                                              m4.TOLERANCE, chosen)
+                        got = _match(index, flat, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
+                                     rotations, mu, accept_all, hints, picked, textured, chosen)
                         stats["launches"] += 1
                         at, src = [], []
                         for t, m in zip(chunk, got):  # picks in list order, one draw per target
