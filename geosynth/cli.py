@@ -1123,7 +1123,7 @@ def _cmd_relief(args: argparse.Namespace) -> int:
         f"device {args.device or 'auto'}")
     result = grow_relief(mesh, args.example, depth=args.depth, scale=args.scale, resolution=args.resolution,
                          method=args.method, mask=mask, colour=args.colour, field=args.field, seed=args.seed,
-                         device=args.device, progress=not args.quiet, search=args.search)
+                         device=args.device, progress=not args.quiet, search=args.search, refine=args.refine)
     for line in result.lines():
         say(line)
     write_relief(out, result.vertices, result.faces, result.colours, inputs=inputs)
@@ -1344,6 +1344,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "smoothed principal directions)")
     p.add_argument("--search", choices=["auto", "exhaustive", "coherent"], default="auto",
                    help="FindMatches' candidates, as geosynth complete's --search (default auto)")
+    p.add_argument("--refine", type=_int_type(0, 8), default=1,
+                   help="passes after the growth matching every vertex again with its whole window, 0 to 8 (default 1)")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture: input, result, close-up; .png or .jpg (default: OUTPUT "

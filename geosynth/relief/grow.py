@@ -130,7 +130,7 @@ def _check_number(name: str, value, *, positive: bool = True) -> float:
 def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0, resolution: float | None = None,
                 method: str = "synth", mask=None, colour=None, field: str = "auto", seed: int = 0,
                 device: str | None = None, progress: bool = True, baseline: bool = True,
-                search: str = "auto") -> ReliefResult:
+                search: str = "auto", refine: int = 1) -> ReliefResult:
     """Grow an example's relief (and colour) over a mesh's surface (issue 34).
 
     Args:
@@ -154,6 +154,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         progress: a progress bar on stderr.
         baseline: with method "synth", also measure the projection on the same mesh.
         search: FindMatches' search, "auto", "exhaustive" or "coherent".
+        refine: re-matching passes after the growth (method "synth"; 0 to 8; default 1: on the vase's
+            cobbles the mortar lines ran on instead of breaking into dots, at about 2x the time).
 
     Returns:
         :class:`ReliefResult`.
@@ -180,6 +182,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         depth = _check_number("depth", depth, positive=False)
     if resolution is not None:
         resolution = _check_number("resolution", resolution)
+    if not isinstance(refine, (int, np.integer)) or isinstance(refine, bool) or not 0 <= refine <= 8:
+        raise ValueError(f"refine must be an integer from 0 to 8, got {refine!r}.")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     tm, v0, f0, in_colours = _as_mesh(mesh)
@@ -242,11 +246,12 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
 
         frames, how, rotations = tangent_frames(v, normals, adj, field)
         res = synthesize(ex_m, v, f, adj, normals, frames, rotations, seed=int(seed), device=device, search=search,
-                         progress=progress)
+                         progress=progress, refine=int(refine))
         heights, colours, source = res.heights, res.colours, res.source
         st = res.stats
         settings.append(f"synthesis: M4's growth, window {WINDOW} rings, R {rotations}, {st['search']} search, "
-                        f"{st['seeds']} seed(s), {st['lists']} boundary lists, {st['launches']} launches, "
+                        f"{st['seeds']} seed(s), {st['lists']} boundary lists, {refine} refinement pass(es) ({st['refined']:,} "
+                        f"vertices changed), {st['launches']} launches, "
                         f"{st['unreached']} unreached; device {device or 'auto'}, seed {seed}")
         settings.append(how)
     else:
