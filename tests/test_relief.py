@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 import geosynth
+from conftest import ONE_DEVICE
 from geosynth.cli import main
 from geosynth.files import write_image
 from geosynth.relief.examples import BUILTINS, builtin_heights, builtin_image, load_example
@@ -222,3 +223,19 @@ def test_synthesis_is_the_same_on_every_device(device_pair):
     rb = geosynth.grow_relief(_sphere(), "cobbles", device=b, **SPHERE, **fast)
     np.testing.assert_array_equal(ra.vertices, rb.vertices)
     np.testing.assert_array_equal(ra.colours, rb.colours)
+
+
+def test_patch_example_grows_with_its_colour(files, one_device):
+    r = geosynth.grow_relief(_sphere(), files / "patch.ply", device=one_device, **FAST)
+    assert r.colours is not None and (r.colours == [120, 80, 40]).all()
+    assert r.to_mesh().is_watertight and r.heights.max() > 0.5 * r.example.depth
+
+
+def test_cli_synth_with_an_image_and_its_colours(files, tmp_path, capsys):
+    out = tmp_path / "ball.3mf"
+    rc = main(["relief", str(files / "sphere.stl"), str(files / "cobbles.png"), "--colour", str(files / "cobbles_rgb.png"),
+               "-o", str(out), "--scale", "16", "--search", "coherent", "--refine", "0", "--device", ONE_DEVICE])
+    text = capsys.readouterr().out
+    assert rc == 0 and "synthesis: M4's growth" in text and "project: amplitude" in text
+    v, f, col = read_3mf(out)
+    assert trimesh.Trimesh(v, f, process=False).is_watertight and col is not None and len(np.unique(col, axis=0)) > 5
