@@ -131,6 +131,16 @@ def test_mask_keeps_faces_bare(one_device):
     assert np.all(r.heights[top] == 0) and r.heights[r.base[:, 2] < 0].max() > 0
 
 
+def test_colour_mask_keeps_vertices_bare(one_device):
+    mesh = _sphere()
+    col = np.tile([200, 200, 200, 255], (len(mesh.vertices), 1)).astype(np.uint8)
+    col[mesh.vertices[:, 2] > 0.3] = (255, 0, 0, 255)
+    mesh.visual.vertex_colors = col
+    for mask in (np.array([250, 10, 5]), mesh.vertices[:, 2] > 0.3):  # a colour, then vertex booleans
+        r = geosynth.grow_relief(mesh, "knurl", method="project", mask=mask, device=one_device, **SPHERE, **FAST)
+        assert np.all(r.heights[r.base[:, 2] > 0.5] == 0) and r.heights[r.base[:, 2] < 0].max() > 0
+
+
 def test_clearance_limits_relief_in_a_narrow_gap():
     # two parallel plates 0.02 apart, relief 0.05 deep: the two facing sides never meet (each moves less
     # than half the gap)

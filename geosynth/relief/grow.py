@@ -232,7 +232,7 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     med = float(np.median(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)))
     ex_m = ex.resampled(med)
-    weights = bare_weights(mask, len(v0), len(f0), in_colours, f, src, len(v), adj)
+    weights = bare_weights(mask, f0, len(v0), in_colours, f, src, len(v))
     timings["refine"] = time.perf_counter() - t0
     settings = [f"example: {ex.note}; x{scale:g}; spacing on the mesh {med:.4g} ({ex_m.shape[1]} x {ex_m.shape[0]} "
                 f"cells)",

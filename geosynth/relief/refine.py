@@ -126,17 +126,17 @@ def clearance(vertices: np.ndarray, normals: np.ndarray, reach: float, resolutio
     return out
 
 
-def bare_weights(mask, n_input_vertices: int, n_input_faces: int, input_colours: np.ndarray | None,
-                 faces: np.ndarray, source: np.ndarray, n_vertices: int, adj) -> np.ndarray:
+def bare_weights(mask, input_faces: np.ndarray, n_input_vertices: int, input_colours: np.ndarray | None,
+                 faces: np.ndarray, source: np.ndarray, n_vertices: int) -> np.ndarray:
     """(V,) float64 in [0, 1]: how much relief each refined vertex takes (0: kept bare).
 
     Args:
         mask: None (relief everywhere); (n_input_vertices,) or (n_input_faces,) bools, True = bare;
             or an (r, g, b) colour in 0..255: input vertices of about that colour (each channel
             within 40) are bare (the vertex-colour mask of printing tools).
-        n_input_vertices, n_input_faces: the input mesh's counts; input_colours: its (V0, 3)
-            uint8 vertex colours or None.
-        faces, source: the refined faces and the input face of each; n_vertices: V; adj: its CSR.
+        input_faces: the input mesh's (F0, 3) faces; n_input_vertices: its vertex count; input_colours:
+            its (V0, 3) uint8 vertex colours or None.
+        faces, source: the refined faces and the input face of each; n_vertices: V.
 
     Raises:
         ValueError: a mask of another length, a colour mask on a mesh without vertex colours,
@@ -144,6 +144,7 @@ def bare_weights(mask, n_input_vertices: int, n_input_faces: int, input_colours:
     """
     if mask is None:
         return np.ones(n_vertices)
+    n_input_faces = len(input_faces)
     m = np.asarray(mask)
     if m.dtype != bool and m.shape == (3,) and np.issubdtype(m.dtype, np.number):
         if input_colours is None:
@@ -157,16 +158,10 @@ def bare_weights(mask, n_input_vertices: int, n_input_faces: int, input_colours:
     else:
         raise ValueError(f"mask must be ({n_input_vertices},) vertex or ({n_input_faces},) face booleans, or an "
                          f"(r, g, b) colour; got shape {m.shape} {m.dtype}.")
-    if bare_f is None:  # a face is bare when any corner is: the relief stops short of the masked vertices
-        # (the input's faces are the refined faces' sources; their corners are the first n_input_vertices)
-        bare_f = np.zeros(n_input_faces, bool)
+    if bare_f is None:  # an input face is bare when any corner is: the relief stops short of the masked vertices
+        bare_f = bare_v[np.asarray(input_faces, np.int64)].any(1)
     f = np.asarray(faces, np.int64)
-    face_bare = bare_f[source]
-    if bare_v is not None:
-        corner_bare = np.zeros(n_vertices, bool)
-        corner_bare[:n_input_vertices] = bare_v
-        # an input vertex is bare: its refined faces that came from a face touching it are bare
-        face_bare |= corner_bare[f].any(1)
+    face_bare = bare_f[source]  # every refined face lies in one input face
     textured_share = np.zeros(n_vertices)
     count = np.zeros(n_vertices)
     for k in range(3):
