@@ -105,7 +105,8 @@ def _row(shape, example, method, n_in, r, seconds) -> str:
     wa, wp = q.worst()
     watertight = r.to_mesh().is_watertight
     return (f"| {shape} | {example} | {method} | {n_in:,} -> {len(r.vertices):,} | {seconds:.1f} | "
-            f"{np.nanmedian(a):.2f} ({100 * wa:.0f}%) | {np.nanmedian(p):.2f} ({100 * wp:.0f}%) | {100 * q.within:.0f}% | "
+            f"{np.nanmedian(a):.2f} ({100 * wa:.0f}%) | {np.nanmedian(p):.2f} ({100 * wp:.0f}%) | "
+            f"{100 * q.within:.0f}% | "
             f"{100 * q.seam_projection:+.1f}% | {100 * q.seam_synthesis:+.1f}% | {'yes' if watertight else 'NO'} |")
 
 
@@ -121,7 +122,8 @@ def main(argv=None) -> int:
     shapes = ["vase"] if args.quick else [s for s in args.shapes.split(",") if s]
     makers = {"vase": vase, "knot": torus_knot}
     OUT.mkdir(exist_ok=True)
-    lines = [f"Command: `python bench/bm_relief.py{' --quick' if args.quick else ''} --devices {device} --scale {scale:g}`"
+    quick = " --quick" if args.quick else ""
+    lines = [f"Command: `python bench/bm_relief.py{quick} --devices {device} --scale {scale:g}`"
              f" ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}); examples at scale {scale:g}, seed 0.", "",
              "Ratios are result / example, per k-means region: median (worst region's deviation); within: the share of "
              "the surface in regions within 10% on both; seams: local amplitude on the border / inside - 1.", "",

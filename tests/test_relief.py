@@ -243,7 +243,8 @@ def test_patch_example_grows_with_its_colour(files, one_device):
 
 def test_cli_synth_with_an_image_and_its_colours(files, tmp_path, capsys):
     out = tmp_path / "ball.3mf"
-    rc = main(["relief", str(files / "sphere.stl"), str(files / "cobbles.png"), "--colour", str(files / "cobbles_rgb.png"),
+    rc = main(["relief", str(files / "sphere.stl"), str(files / "cobbles.png"),
+               "--colour", str(files / "cobbles_rgb.png"),
                "-o", str(out), "--scale", "16", "--search", "coherent", "--refine", "0", "--device", ONE_DEVICE])
     text = capsys.readouterr().out
     assert rc == 0 and "synthesis: M4's growth" in text and "project: amplitude" in text

@@ -70,7 +70,8 @@ class ReliefExample:
         if abs(spacing - self.spacing) <= 1e-9 * self.spacing:
             return self
         h, w = self.shape
-        span_y, span_x = (h - (0 if self.periodic else 1)) * self.spacing, (w - (0 if self.periodic else 1)) * self.spacing
+        edge = 0 if self.periodic else 1  # a tiling grid spans its cells, another its cell centres
+        span_y, span_x = (h - edge) * self.spacing, (w - edge) * self.spacing
         ny = max(4, int(round(span_y / spacing)) + (0 if self.periodic else 1))
         nx = max(4, int(round(span_x / spacing)) + (0 if self.periodic else 1))
         # cell centres of the new grid in old cell units (the new spacing exact along each axis, rounded to fit)
@@ -311,7 +312,8 @@ def _from_capture(path: Path, name: str) -> ReliefExample:
     colours = None
     if cap.colors is not None:
         lo = uv.min(0)
-        yy, xx = np.meshgrid(np.arange(grid.shape[0]) + rows.start, np.arange(grid.shape[1]) + cols.start, indexing="ij")
+        yy, xx = np.meshgrid(np.arange(grid.shape[0]) + rows.start, np.arange(grid.shape[1]) + cols.start,
+                             indexing="ij")
         cells = np.stack([lo[0] + xx.ravel() * spacing, lo[1] + yy.ravel() * spacing], 1)
         colours = cap.colors[cKDTree(uv).query(cells)[1]].reshape(grid.shape + (3,))
     heights = grid - grid.min()
@@ -362,7 +364,8 @@ def load_example(example, *, size: float, depth: float | None = None, colour=Non
     if path.suffix.lower() in _IMAGE_SUFFIXES:
         grey = _read_grey(path, "example image")
         if min(grey.shape) < 8:
-            raise ValueError(f"example image {text!r} is {grey.shape[1]} x {grey.shape[0]} pixels; give at least 8 x 8.")
+            raise ValueError(f"example image {text!r} is {grey.shape[1]} x {grey.shape[0]} pixels; give at least "
+                             "8 x 8.")
         col = None if colour is None else _read_rgb(Path(colour), grey.shape)
         d = DEFAULT_DEPTH_SHARE * size if depth is None else depth
         spacing = IMAGE_WIDTH_SHARE * size / grey.shape[1]

@@ -16,7 +16,9 @@ from geosynth.relief.quality import QualityReport
 __all__ = ["METHODS", "ReliefResult", "grow_relief"]
 
 METHODS = ("synth", "project")
-_BYTES_PER_VERTEX = 4096  # refused above 4 kB a vertex; measured peak RSS growth ~1 kB a vertex beyond ~100 MB (vase: synth 12k-30k vertices, projection 235k)
+# refused above 4 kB a vertex; measured: peak RSS grows ~1 kB a vertex beyond ~100 MB (the vase, synth at
+# 12k-30k vertices, projection at 235k)
+_BYTES_PER_VERTEX = 4096
 _FINE = 8  # an example with more than 8 cells on its period is resampled to period / 6 (M4's rule, from 12)
 
 
@@ -73,7 +75,8 @@ class ReliefResult:
         if self.baseline is not None:
             out.append(self.baseline.line())
         out.append(f"{len(self.vertices):,} vertices, {len(self.faces):,} faces; {self.limited:,} vertices' relief "
-                   f"limited by the clearance to the surface ahead; input {'closed' if self.input_watertight else 'open'}")
+                   f"limited by the clearance to the surface ahead; input "
+                   f"{'closed' if self.input_watertight else 'open'}")
         out.append("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in self.timings.items()))
         return out
 
@@ -250,8 +253,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         heights, colours, source = res.heights, res.colours, res.source
         st = res.stats
         settings.append(f"synthesis: M4's growth, window {WINDOW} rings, R {rotations}, {st['search']} search, "
-                        f"{st['seeds']} seed(s), {st['lists']} boundary lists, {refine} refinement pass(es) ({st['refined']:,} "
-                        f"vertices changed), {st['launches']} launches, "
+                        f"{st['seeds']} seed(s), {st['lists']} boundary lists, {refine} refinement pass(es) "
+                        f"({st['refined']:,} vertices changed), {st['launches']} launches, "
                         f"{st['unreached']} unreached; device {device or 'auto'}, seed {seed}")
         settings.append(how)
     else:

@@ -67,7 +67,8 @@ class QualityReport:
         a = self.amplitude / self.example_amplitude - 1
         p = self.period / self.example_period - 1
         wa, wp = self.worst()
-        return (f"{self.method:>7}: amplitude {np.nanmedian(self.amplitude):.4g} ({100 * np.nanmedian(a):+.1f}% median, "
+        return (f"{self.method:>7}: amplitude {np.nanmedian(self.amplitude):.4g} "
+                f"({100 * np.nanmedian(a):+.1f}% median, "
                 f"worst region {100 * wa:.1f}%), period {np.nanmedian(self.period):.4g} "
                 f"({100 * np.nanmedian(p):+.1f}% median, worst {100 * wp:.1f}%), within 10% on "
                 f"{100 * self.within:.0f}% of the surface; seams: local amplitude at projection blends "

@@ -44,7 +44,8 @@ def estimated_faces(area: float, resolution: float) -> int:
     return int(math.ceil(area / (0.2 * resolution * resolution)))
 
 
-def refine_mesh(vertices: np.ndarray, faces: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def refine_mesh(vertices: np.ndarray, faces: np.ndarray,
+                resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bisect every edge longer than ``resolution`` until none is.
 
     Args:
