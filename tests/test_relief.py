@@ -139,6 +139,8 @@ def test_colour_mask_keeps_vertices_bare(one_device):
     for mask in (np.array([250, 10, 5]), mesh.vertices[:, 2] > 0.3):  # a colour, then vertex booleans
         r = geosynth.grow_relief(mesh, "knurl", method="project", mask=mask, device=one_device, **SPHERE, **FAST)
         assert np.all(r.heights[r.base[:, 2] > 0.5] == 0) and r.heights[r.base[:, 2] < 0].max() > 0
+        # the knurl has no colour: the mesh keeps its own (red cap, grey below)
+        assert (r.colours[r.base[:, 2] > 0.5] == [255, 0, 0]).all() and (r.colours[r.base[:, 2] < -0.6] == 200).all()
 
 
 def test_clearance_limits_relief_in_a_narrow_gap():

@@ -28,7 +28,7 @@ class ReliefResult:
 
     Attributes:
         vertices: (V, 3) float64 displaced positions; faces: (F, 3) int64 (the refined mesh's).
-        colours: (V, 3) uint8 vertex colours, or None (the example had none).
+        colours: (V, 3) uint8 vertex colours: the example's, else the input mesh's carried over, else None.
         base: (V, 3) float64 the refined, un-displaced positions; normals: (V, 3) float64 the smoothed
             normals the relief moved along.
         heights: (V,) float64 the displacement applied (after the mask and the clearance limit).
@@ -172,8 +172,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     from geosynth.relief.orient import tangent_frames
     from geosynth.relief.project import project
     from geosynth.relief.quality import measure
-    from geosynth.relief.refine import (CLEARANCE_SHARE, adjacency, bare_weights, clearance, estimated_faces,
-                                        refine_mesh, smoothed_normals)
+    from geosynth.relief.refine import (CLEARANCE_SHARE, adjacency, bare_weights, carried_colours, clearance,
+                                        estimated_faces, refine_mesh, smoothed_normals)
     from geosynth.relief_spectrum import relief_spectrum
 
     if method not in METHODS:
@@ -260,6 +260,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     else:
         heights, colours = project(ex, v, normals)
         settings.append("projection: triplanar, weights |n|^4 (the baseline)")
+    if colours is None and in_colours is not None:  # the example has none: the mesh keeps its own
+        colours = carried_colours(v0, f0, in_colours, v, f, src)
     timings[method] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-__all__ = ["CLEARANCE_SHARE", "adjacency", "bare_weights", "clearance", "estimated_faces", "refine_mesh",
+__all__ = ["CLEARANCE_SHARE", "adjacency", "bare_weights", "carried_colours", "clearance", "estimated_faces", "refine_mesh",
            "smoothed_normals"]
 
 CLEARANCE_SHARE = 0.45  # a vertex moves at most 0.45 x its clearance: the opposite side may move toward it too
@@ -125,6 +125,34 @@ def clearance(vertices: np.ndarray, normals: np.ndarray, reach: float, resolutio
         blocked = np.isinf(out) & (near < t + 0.5 * resolution)
         out[blocked] = 2.0 * t
     return out
+
+
+def carried_colours(vertices0: np.ndarray, faces0: np.ndarray, colours0: np.ndarray, vertices: np.ndarray,
+                    faces: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """(V, 3) uint8: the input's vertex colours carried to the refined vertices, each interpolated
+    (barycentric) in the input face it lies in (an example without colour keeps the mesh's own, so
+    that a coloured print file stays coloured).
+
+    Args:
+        vertices0, faces0, colours0: the input's (V0, 3) positions, (F0, 3) faces, (V0, 3) uint8 colours.
+        vertices, faces, source: the refined (V, 3) positions, (F, 3) faces and each face's input face.
+    """
+    f0 = np.asarray(faces0, np.int64)[source]
+    a, b, c = (np.asarray(vertices0, np.float64)[f0[:, i]] for i in range(3))
+    e0, e1 = b - a, c - a
+    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
+    denom = d00 * d11 - d01 * d01
+    denom = np.where(np.abs(denom) > 1e-300, denom, 1.0)  # a degenerate input face: its first corner's colour
+    col0 = np.asarray(colours0, np.float64)
+    out = np.zeros((len(vertices), 3))
+    f = np.asarray(faces, np.int64)
+    for k in range(3):
+        p = np.asarray(vertices, np.float64)[f[:, k]] - a
+        d20, d21 = (p * e0).sum(1), (p * e1).sum(1)
+        y = np.clip((d11 * d20 - d01 * d21) / denom, 0, 1)
+        z = np.clip((d00 * d21 - d01 * d20) / denom, 0, 1 - y)
+        out[f[:, k]] = (1 - y - z)[:, None] * col0[f0[:, 0]] + y[:, None] * col0[f0[:, 1]] + z[:, None] * col0[f0[:, 2]]
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
 def bare_weights(mask, input_faces: np.ndarray, n_input_vertices: int, input_colours: np.ndarray | None,
