@@ -233,6 +233,19 @@ def _match(index, flat, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
     return out
 
 
+def _within(ptr, idx, ring, rows, base, reach: float):
+    """The W-ring lists (CSR ptr, idx, ring) without the entries farther than ``reach`` from their row's
+    vertex. Refining a sliver by bisection (a cylinder's side faces, as tall as the cylinder) leaves fans:
+    an input vertex joined by edges to vertices all along the old long edge, so a 1-ring can span the
+    whole height, and such neighbourhoods were matched as if they were a few cells across (a cylinder's
+    cobbles came out as streaks and bands)."""
+    own = np.repeat(rows, np.diff(ptr))
+    keep = np.linalg.norm(base[idx] - base[own], axis=1) <= reach
+    counts = np.add.reduceat(keep.astype(np.int64), ptr[:-1]) if len(idx) else np.zeros(len(rows), np.int64)
+    counts[np.diff(ptr) == 0] = 0
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), idx[keep], ring[keep]
+
+
 def _counts(textured: np.ndarray, slots: np.ndarray, ring_ptr, ring_idx, ring_d, w_t) -> np.ndarray:
     """(len(slots),) textured vertices in each slot's W_t-ring (vectorized over the rows)."""
     lo, hi = ring_ptr[slots], ring_ptr[slots + 1]
@@ -326,6 +339,7 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
     slot_of = np.full(ne + nv, -1, np.int64)
     slot_of[targets] = np.arange(nv)
     ring_ptr, ring_idx, ring_d = ring_neighbourhoods(all_adj, targets, window)
+    ring_ptr, ring_idx, ring_d = _within(ring_ptr, ring_idx, ring_d, targets, base, (window + 1) * s)
     w_t = np.full(nv, window, np.int64)
     sigmas = {w: (2 * w + 1) * s / 6.4 for w in range(1, window + 1)}  # M4's Gaussian (complete_surface)
     picked = np.full(ne + nv, -1, np.int64)
@@ -408,7 +422,9 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
         at0 = int(inner_cells[rng.integers(len(inner_cells))])
         ci, cj = divmod(at0, wp)
         ptr, ids, _ = ring_neighbourhoods(all_adj, np.array([ne + sv]), window)
-        patch = np.concatenate([[ne + sv], ids[ptr[0]:ptr[1]]])
+        ids = ids[ptr[0]:ptr[1]]
+        ids = ids[np.linalg.norm(base[ids] - base[ne + sv], axis=1) <= (window + 1) * s]
+        patch = np.concatenate([[ne + sv], ids])
         rel = base[patch] - base[ne + sv]
         x = np.rint(rel @ fr[ne + sv, 0] / s).astype(np.int64)
         y = np.rint(rel @ fr[ne + sv, 1] / s).astype(np.int64)
