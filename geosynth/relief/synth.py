@@ -41,6 +41,7 @@ from geosynth.relief.examples import ReliefExample
 __all__ = ["SynthResult", "WINDOW", "synthesize"]
 
 HINT_CELLS = 2  # coherence hints: the candidates within 2 rows and columns of a neighbour's source cell
+REACH = 1.5  # W-rings are cut at 1.5 (W + 1) cells (edges reach 1.4 cells: an even mesh loses none; see _within)
 WINDOW = 3  # W-ring neighbourhoods (37 vertices on a regular mesh; M4 chooses 3 to 5 from the period)
 _MAX_BATCH = 64  # targets per launch at most (as M4's growth)
 _BATCH_CODES = 1 << 25  # codes (Q x S x R) one launch may hold at most
@@ -339,7 +340,7 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
     slot_of = np.full(ne + nv, -1, np.int64)
     slot_of[targets] = np.arange(nv)
     ring_ptr, ring_idx, ring_d = ring_neighbourhoods(all_adj, targets, window)
-    ring_ptr, ring_idx, ring_d = _within(ring_ptr, ring_idx, ring_d, targets, base, (window + 1) * s)
+    ring_ptr, ring_idx, ring_d = _within(ring_ptr, ring_idx, ring_d, targets, base, REACH * (window + 1) * s)
     w_t = np.full(nv, window, np.int64)
     sigmas = {w: (2 * w + 1) * s / 6.4 for w in range(1, window + 1)}  # M4's Gaussian (complete_surface)
     picked = np.full(ne + nv, -1, np.int64)
@@ -423,7 +424,7 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
         ci, cj = divmod(at0, wp)
         ptr, ids, _ = ring_neighbourhoods(all_adj, np.array([ne + sv]), window)
         ids = ids[ptr[0]:ptr[1]]
-        ids = ids[np.linalg.norm(base[ids] - base[ne + sv], axis=1) <= (window + 1) * s]
+        ids = ids[np.linalg.norm(base[ids] - base[ne + sv], axis=1) <= REACH * (window + 1) * s]
         patch = np.concatenate([[ne + sv], ids])
         rel = base[patch] - base[ne + sv]
         x = np.rint(rel @ fr[ne + sv, 0] / s).astype(np.int64)
