@@ -13,6 +13,7 @@ The public API; everything else is private. Every operation takes ``device=``
   :class:`PointTexture` (:func:`point_texture_example` for the built-ins).
 - M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
 - M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`).
+- Relief grown from an example over any mesh (issue 34): :func:`grow_relief`.
 - Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
   :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
   :func:`write_viewer` (a self-contained HTML page to turn two models in 3D), ``Field.load`` / ``Field.save``.
@@ -80,6 +81,8 @@ _LAZY = {
     "CompletionReport": "geosynth.completion.synthesis",
     "synthesize_volume_tiled": "geosynth.volume.tiled",
     "exemplar_source": "geosynth.volume.tiled",
+    # issue 34: relief grown from an example over any mesh
+    "grow_relief": "geosynth.relief.grow",
 }
 
 __all__ = sorted(_LAZY)

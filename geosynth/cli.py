@@ -1289,6 +1289,94 @@ def _cmd_gallery(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------ relief (issue 34)
+
+
+def _mask_arg(text: str | None):
+    """--mask: None, an (r, g, b) vertex colour ("#rrggbb" or "r,g,b"), or a file of face indices
+    (.txt, whitespace-separated, or .npy) as geosynth.relief.grow.grow_relief's mask."""
+    import numpy as np
+
+    if text is None:
+        return None, None
+    t = text.strip()
+    if t.startswith("#") and len(t) == 7:
+        try:
+            return np.array([int(t[i:i + 2], 16) for i in (1, 3, 5)]), None
+        except ValueError:
+            pass
+    parts = t.split(",")
+    if len(parts) == 3 and all(p.strip().isdigit() for p in parts):
+        rgb = np.array([int(p) for p in parts])
+        if rgb.max() <= 255:
+            return rgb, None
+    from geosynth.io.files import check_input
+
+    path = check_input(t, "--mask face list")
+    try:
+        ids = np.load(path) if path.suffix.lower() == ".npy" else np.loadtxt(path, dtype=np.int64, ndmin=1)
+    except ValueError as exc:
+        raise ValueError(f"--mask {t!r}: not a list of face indices ({exc}).") from None
+    return np.asarray(ids, np.int64).reshape(-1), str(path)
+
+
+def _cmd_relief(args: argparse.Namespace) -> int:
+    from geosynth.io.files import check_input
+    from geosynth.relief.examples import BUILTINS
+    from geosynth.relief.write import RELIEF_SUFFIXES
+
+    inputs = [str(check_input(args.mesh, "mesh"))]
+    named = Path(args.example)
+    if args.example not in BUILTINS and not named.exists() and not named.suffix and len(named.parts) == 1:
+        raise FileNotFoundError(f"example {args.example!r} is neither a built-in ({', '.join(BUILTINS)}) nor an "
+                                "existing file.")
+    if args.example not in BUILTINS or Path(args.example).exists():
+        inputs.append(str(check_input(args.example, "example")))
+    if args.colour:
+        inputs.append(str(check_input(args.colour, "--colour image")))
+    out = Path(args.output)
+    png, png_what = _picture_path(args)
+    _check_outputs([(out, RELIEF_SUFFIXES, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    mask, mask_file = _mask_arg(args.mask)
+    if mask_file:
+        inputs.append(mask_file)
+    if args.method == "synth":
+        _check_device(args.device)
+
+    import numpy as np
+
+    from geosynth.io.files import write_image
+    from geosynth.geometry.meshes import load_mesh
+    from geosynth.relief.grow import grow_relief
+    from geosynth.relief.quality import relief_picture
+    from geosynth.relief.write import write_relief
+
+    say = (lambda *a, **k: None) if args.quiet else print
+    mesh = load_mesh(args.mesh)
+    if mask is not None and mask.shape != (3,):  # face indices -> a face selection
+        if mask.size and (mask.min() < 0 or mask.max() >= len(mesh.faces)):
+            raise ValueError(f"--mask: face indices must be in 0..{len(mesh.faces) - 1}.")
+        sel = np.zeros(len(mesh.faces), bool)
+        sel[mask] = True
+        mask = sel
+    say(f"geosynth relief: {args.mesh} ({len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces), example "
+        f"{args.example}, method {args.method}, depth {args.depth if args.depth is not None else 'auto'}, scale "
+        f"{args.scale:g}, resolution {args.resolution if args.resolution is not None else 'auto'}, seed {args.seed}, "
+        f"device {args.device or 'auto'}")
+    result = grow_relief(mesh, args.example, depth=args.depth, scale=args.scale, resolution=args.resolution,
+                         method=args.method, mask=mask, colour=args.colour, field=args.field, seed=args.seed,
+                         device=args.device, progress=not args.quiet, search=args.search, refine=args.refine)
+    for line in result.lines():
+        say(line)
+    write_relief(out, result.vertices, result.faces, result.colours, inputs=inputs)
+    say(f"written {out}: {len(result.vertices):,} vertices, {len(result.faces):,} faces"
+        f"{', vertex colours' if result.colours is not None and out.suffix.lower() != '.stl' else ''}")
+    write_image(png, relief_picture((mesh.vertices, mesh.faces), (result.vertices, result.faces), result.colours),
+                inputs=inputs)
+    say(f"picture: {png} (input, result, close-up)")
+    return 0
+
+
 # ------------------------------------------------------------------ the parser
 
 
@@ -1477,6 +1565,41 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write a page that shows the captured part and the completed surface in 3D, turnable with the mouse (self-contained: no network), .html")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_complete)
+
+    p = sub.add_parser("relief", parents=[common],
+                       help="issue 34: grow an example's relief (and colour) over a mesh, printable")
+    p.add_argument("mesh", help="the mesh to texture (.ply, .obj, .stl, .off, .glb, .gltf)")
+    p.add_argument("example", help="a built-in (knurl, bark, hammered, cobbles, scales, weave), a grey height image "
+                                   "(white high), or a captured patch (a mesh or PLY point set)")
+    p.add_argument("-o", "--output", required=True, help="the textured mesh: .stl, .ply, .obj, .glb or .3mf (colours "
+                                                         "in all but .stl)")
+    p.add_argument("--depth", type=_float_type(0, inclusive=True), default=None,
+                   help="the relief's height range in mesh units (default: 1%% of the mesh's size for images and "
+                        "built-ins; a captured patch's own)")
+    p.add_argument("--scale", type=_float_type(0, inclusive=False), default=1.0,
+                   help="multiplies the example's size (an image spans a quarter of the mesh's size) (default 1)")
+    p.add_argument("--resolution", type=_float_type(0, inclusive=False), default=None,
+                   help="the refined mesh's longest edge, mesh units (default: 1.4 x the example's spacing)")
+    p.add_argument("--method", choices=["synth", "project"], default="synth",
+                   help="synth: grown on the surface (M4's growth, default); project: triplanar projection (the "
+                        "baseline)")
+    p.add_argument("--colour", default=None, help="an RGB image of the same size as a height-image example")
+    p.add_argument("--mask", default=None,
+                   help="parts kept bare: a vertex colour of the mesh ('#rrggbb' or 'r,g,b') or a file of face "
+                        "indices (.txt or .npy)")
+    p.add_argument("--field", choices=["auto", "axis", "principal"], default="auto",
+                   help="the tangent field the example follows (default auto: a body of revolution's axis, else "
+                        "smoothed principal directions)")
+    p.add_argument("--search", choices=["auto", "exhaustive", "coherent"], default="auto",
+                   help="FindMatches' candidates, as geosynth complete's --search (default auto)")
+    p.add_argument("--refine", type=_int_type(0, 8), default=1,
+                   help="passes after the growth matching every vertex again with its whole window, 0 to 8 (default 1)")
+    p.add_argument("--device", **device)
+    p.add_argument("--seed", **seed)
+    p.add_argument("--png", default=None, help="picture: input, result, close-up; .png or .jpg (default: OUTPUT "
+                                               "with .png)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_relief)
 
     p = sub.add_parser("demo", parents=[common], help="nearest-block search on a generated field, on every device")
     p.add_argument("--device", type=_device_type(allow_all=True), default="all",

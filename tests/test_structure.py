@@ -14,9 +14,9 @@ and are skipped.
 
 The layout (issue 33): the top level holds only the public API and the command line; every
 other module lives in one subpackage per shared layer (core, io, kernels, _backends, compute,
-geometry) or per method (volume, pointtexture, texturing, completion). Counting the imports
-inside functions, a module imports only its own subpackage and lower layers, and no method
-imports another.
+geometry), per method (volume, pointtexture, texturing, completion) or per application built
+on the methods (relief). Counting the imports inside functions, a module imports only its own
+subpackage and lower layers, and no method imports another.
 """
 
 from __future__ import annotations
@@ -233,7 +233,11 @@ METHODS = {"volume": "M1", "pointtexture": "M2", "texturing": "M3", "completion"
 # Each subpackage's layer, lowest first. A module imports only modules of its own subpackage and
 # of subpackages of a lower layer, counting the imports inside functions; the top level
 # (geosynth/__init__, cli, _launch, __main__) stands above them all and nothing below imports it.
-LAYERS = {"core": 0, "io": 1, "kernels": 1, "_backends": 2, "compute": 3, "geometry": 4, **{m: 5 for m in METHODS}}
+# Above the methods, the applications built from them: relief over any mesh (issue 34) grows with M4's
+# matching, so it stands on the methods' layer instead of beside them.
+APPLICATIONS = {"relief": "relief over any mesh (M4's growth)"}
+LAYERS = {"core": 0, "io": 1, "kernels": 1, "_backends": 2, "compute": 3, "geometry": 4, **{m: 5 for m in METHODS},
+          **{a: 6 for a in APPLICATIONS}}
 
 
 def _layer_of(module: str) -> str | None:
