@@ -1336,7 +1336,8 @@ def _cmd_relief(args: argparse.Namespace) -> int:
         inputs.append(str(check_input(args.colour, "--colour image")))
     out = Path(args.output)
     png, png_what = _picture_path(args)
-    _check_outputs([(out, RELIEF_SUFFIXES, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)], inputs)
+    _check_outputs([(out, RELIEF_SUFFIXES, "-o/--output"), (png, IMAGE_SUFFIXES, png_what)] + _html_outputs(args),
+                   inputs)
     mask, mask_file = _mask_arg(args.mask)
     if mask_file:
         inputs.append(mask_file)
@@ -1366,7 +1367,8 @@ def _cmd_relief(args: argparse.Namespace) -> int:
     result = grow_relief(mesh, args.example, depth=args.depth, scale=args.scale, resolution=args.resolution,
                          method=args.method, mask=mask, colour=args.colour, field=args.field, seed=args.seed,
                          device=args.device, progress=not args.quiet, search=args.search, refine=args.refine)
-    for line in result.lines():
+    quality = list(result.lines())
+    for line in quality:
         say(line)
     write_relief(out, result.vertices, result.faces, result.colours, inputs=inputs)
     say(f"written {out}: {len(result.vertices):,} vertices, {len(result.faces):,} faces"
@@ -1374,6 +1376,15 @@ def _cmd_relief(args: argparse.Namespace) -> int:
     write_image(png, relief_picture((mesh.vertices, mesh.faces), (result.vertices, result.faces), result.colours),
                 inputs=inputs)
     say(f"picture: {png} (input, result, close-up)")
+    if args.html:
+        import trimesh
+
+        grown = trimesh.Trimesh(result.vertices, result.faces, process=False,
+                                vertex_colors=result.colours if result.colours is not None else None)
+    else:
+        mesh = grown = None
+    _write_page(args, mesh, grown, ["input mesh", f"relief ({args.method})"], quality,
+                _summary(quality, args.method), inputs, say)
     return 0
 
 
@@ -1598,6 +1609,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture: input, result, close-up; .png or .jpg (default: OUTPUT "
                                                "with .png)")
+    p.add_argument("--html", default=None, metavar="FILE",
+                   help="also write a page that shows the input mesh and the result in 3D, turnable with the mouse (self-contained: no network), .html")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_relief)
 

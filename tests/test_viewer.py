@@ -340,3 +340,21 @@ def test_staged_section_drops_only_a_failed_sections_outputs(tmp_path):
             atomic_write(tmp_path / "later.txt", text("later"))
         assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == []  # all still staged
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.txt", "later.txt"]  # no temporary left either
+
+
+def test_cli_html_on_relief(tmp_path, capsys):
+    """`geosynth relief --html`: the input mesh left, the grown relief right, its quality lines under them."""
+    import trimesh
+
+    mesh = tmp_path / "ball.stl"
+    trimesh.creation.icosphere(1).export(mesh)
+    page = tmp_path / "r.html"
+    code = cli.main(["relief", str(mesh), "knurl", "--method", "project", "--resolution", "0.08",
+                     "-o", str(tmp_path / "r.ply"), "--html", str(page), "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    text = page.read_text()
+    _assert_self_contained(text)
+    given, grown = decode_payload(text)
+    assert given["kind"] == grown["kind"] == "mesh"
+    assert len(grown["positions"]) > len(given["positions"])  # refined to the resolution
+    assert "geosynth relief" in text and "project: amplitude" in text
