@@ -1168,6 +1168,9 @@ def _cmd_complete(args: argparse.Namespace) -> int:
 
 # (name, model, texture) of M3's gallery runs: every built-in model and every built-in texture once
 _TEXTURE_RUNS = (("blob", "bricks"), ("sphere", "checker"), ("torus", "noise"))
+# (mesh, example) of the relief runs: every built-in example once, on the body of revolution or the knot
+_RELIEF_RUNS = (("vase", "knurl"), ("vase", "bark"), ("vase", "weave"), ("vase", "scales"), ("knot", "cobbles"),
+                ("knot", "hammered"))
 # the README's sizes (--full) where the README names one; the command's defaults otherwise
 _README_SIZES = {"volume-terrain": ["--size", "64"], "pointtexture-heightfield": ["--count", "10000"],
                  "texture-blob-bricks": ["--count", "10000"]}
@@ -1177,7 +1180,8 @@ def gallery_entries(full: bool = False) -> list[tuple[str, list[str]]]:
     """Every built-in of every method, as ``(name, arguments)`` of one run each (outputs not
     yet named): each command's defaults, at small sizes (M1 --size 64, M2 --count 4000, M3
     --count 5000; M4's built-ins have no size option: --search coherent, the cost that grows
-    with the capture), or with ``full`` at the README's sizes (the defaults where it names none)."""
+    with the capture; relief --scale 8, examples 8x their size: ~5,000 vertices), or with ``full``
+    at the README's sizes (the defaults where it names none)."""
     from geosynth.completion.examples import COMPLETION_EXAMPLES
     from geosynth.pointtexture.examples import POINT_EXAMPLES
 
@@ -1188,6 +1192,7 @@ def gallery_entries(full: bool = False) -> list[tuple[str, list[str]]]:
               ["--count", "5000"]) for model, texture in _TEXTURE_RUNS]
     runs += [(f"complete-{name}", ["complete", "--example", name], ["--search", "coherent"])
              for name in COMPLETION_EXAMPLES]
+    runs += [(f"relief-{mesh}-{example}", ["relief", mesh, example], ["--scale", "8"]) for mesh, example in _RELIEF_RUNS]
     return [(name, argv + (_README_SIZES.get(name, []) if full else small)) for name, argv, small in runs]
 
 
@@ -1323,9 +1328,11 @@ def _mask_arg(text: str | None):
 def _cmd_relief(args: argparse.Namespace) -> int:
     from geosynth.io.files import check_input
     from geosynth.relief.examples import BUILTINS
+    from geosynth.relief.shapes import SHAPES
     from geosynth.relief.write import RELIEF_SUFFIXES
 
-    inputs = [str(check_input(args.mesh, "mesh"))]
+    built_in_mesh = args.mesh in SHAPES and not Path(args.mesh).exists()  # a file of that name wins
+    inputs = [] if built_in_mesh else [str(check_input(args.mesh, "mesh"))]
     named = Path(args.example)
     if args.example not in BUILTINS and not named.exists() and not named.suffix and len(named.parts) == 1:
         raise FileNotFoundError(f"example {args.example!r} is neither a built-in ({', '.join(BUILTINS)}) nor an "
@@ -1350,10 +1357,11 @@ def _cmd_relief(args: argparse.Namespace) -> int:
     from geosynth.geometry.meshes import load_mesh
     from geosynth.relief.grow import grow_relief
     from geosynth.relief.quality import relief_picture
+    from geosynth.relief.shapes import shape_mesh
     from geosynth.relief.write import write_relief
 
     say = (lambda *a, **k: None) if args.quiet else print
-    mesh = load_mesh(args.mesh)
+    mesh = shape_mesh(args.mesh) if built_in_mesh else load_mesh(args.mesh)
     if mask is not None and mask.shape != (3,):  # face indices -> a face selection
         if mask.size and (mask.min() < 0 or mask.max() >= len(mesh.faces)):
             raise ValueError(f"--mask: face indices must be in 0..{len(mesh.faces) - 1}.")
@@ -1384,7 +1392,7 @@ def _cmd_relief(args: argparse.Namespace) -> int:
     else:
         mesh = grown = None
     _write_page(args, mesh, grown, ["input mesh", f"relief ({args.method})"], quality,
-                _summary(quality, args.method), inputs, say)
+                _summary(quality, f"{args.method}: amplitude"), inputs, say)
     return 0
 
 
@@ -1579,7 +1587,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("relief", parents=[common],
                        help="issue 34: grow an example's relief (and colour) over a mesh, printable")
-    p.add_argument("mesh", help="the mesh to texture (.ply, .obj, .stl, .off, .glb, .gltf)")
+    p.add_argument("mesh", help="the mesh to texture (.ply, .obj, .stl, .off, .glb, .gltf), or a built-in: vase "
+                                "(a body of revolution), knot (a (2, 3) torus knot)")
     p.add_argument("example", help="a built-in (knurl, bark, hammered, cobbles, scales, weave), a grey height image "
                                    "(white high), or a captured patch (a mesh or PLY point set)")
     p.add_argument("-o", "--output", required=True, help="the textured mesh: .stl, .ply, .obj, .glb or .3mf (colours "

@@ -174,6 +174,8 @@ def test_cli_html_on_a_tiled_volume(tmp_path, capsys):
 def test_gallery_entries_cover_every_built_in():
     from geosynth.completion.examples import COMPLETION_EXAMPLES
     from geosynth.pointtexture.examples import POINT_EXAMPLES
+    from geosynth.relief.examples import BUILTINS as RELIEF_EXAMPLES
+    from geosynth.relief.shapes import SHAPES
     from geosynth.texturing.models import POINT_MODELS
     from geosynth.texturing.textures import TEXTURES
     from geosynth.volume.examples import EXEMPLARS
@@ -186,6 +188,8 @@ def test_gallery_entries_cover_every_built_in():
             assert {n.split("-", 1)[1] for n in names if n.startswith(prefix + "-")} == set(builtins)
         runs = [n.split("-")[1:] for n in names if n.startswith("texture-")]
         assert {m for m, _ in runs} == set(POINT_MODELS) and {t for _, t in runs} == set(TEXTURES)
+        reliefs = [n.split("-")[1:] for n in names if n.startswith("relief-")]
+        assert {e for _, e in reliefs} == set(RELIEF_EXAMPLES) and {m for m, _ in reliefs} == set(SHAPES)
     small = dict(cli.gallery_entries(False))
     assert small["volume-chainmail"][-2:] == ["--size", "64"]
     full = dict(cli.gallery_entries(True))
