@@ -12,7 +12,8 @@ The public API; everything else is private. Every operation takes ``device=``
 - M2, point-set geometry textures: :func:`synthesize_point_texture` (:class:`PointTextureReport`) from a
   :class:`PointTexture` (:func:`point_texture_example` for the built-ins).
 - M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
-- M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`).
+- M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`; its settings in one
+  :class:`CompletionOptions`).
 - Relief grown from an example over any mesh (issue 34): :func:`grow_relief`.
 - Files: :func:`read_point_set`, :func:`write_point_set`, :func:`read_geometry`, :func:`load_mesh`,
   :func:`save_mesh`, :func:`read_texture`, :func:`write_texture`, :func:`write_image`,
@@ -79,6 +80,7 @@ _LAZY = {
     "point_texture_example": "geosynth.pointtexture.examples",
     "complete_surface": "geosynth.completion.synthesis",
     "CompletionReport": "geosynth.completion.synthesis",
+    "CompletionOptions": "geosynth.completion.synthesis",
     "synthesize_volume_tiled": "geosynth.volume.tiled",
     "exemplar_source": "geosynth.volume.tiled",
     # issue 34: relief grown from an example over any mesh

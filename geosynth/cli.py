@@ -1110,7 +1110,7 @@ def _cmd_complete(args: argparse.Namespace) -> int:
     _check_device(args.device)
 
     from geosynth.completion.examples import completion_example
-    from geosynth.completion.synthesis import complete_surface, completion_picture, write_completion
+    from geosynth.completion.synthesis import CompletionOptions, complete_surface, completion_picture, write_completion
     from geosynth.io.files import write_image
 
     say, printed = _recorder(args.quiet)
@@ -1134,11 +1134,10 @@ def _cmd_complete(args: argparse.Namespace) -> int:
         f"captured points ({_capture_colours(capture)}), fit {fit or 'by residual'}, window {shown(window)}, "
         f"rotations {shown(rotations)}, frames {shown(frames)}, mu {mu:g}, refine {shown(refine)}, "
         f"spacing {shown(spacing)}, search {args.search}, seed {args.seed}, device {args.device or 'auto'}")
-    surface, report, timings = complete_surface(capture, fit=fit, region=region, window=window,
-                                                rotations=rotations, mu=mu, max_error=args.max_error,
-                                                device=args.device, seed=args.seed, progress=not args.quiet,
-                                                balance=not args.no_balance, frames=frames, refine=refine,
-                                                spacing=spacing, search=args.search)
+    options = CompletionOptions(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing,
+                                mu=mu, max_error=args.max_error, search=args.search, balance=not args.no_balance)
+    surface, report, timings = complete_surface(capture, fit=fit, region=region, device=args.device, seed=args.seed,
+                                                progress=not args.quiet, options=options)
     quality = list(report.lines())
     for line in quality:
         say(line)

@@ -4,6 +4,7 @@ amplitude and period, a flat capture completes flat, seeds and devices, bad inpu
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -823,3 +824,28 @@ def test_sparse_bumps_sampled_densely_get_targets_by_their_size(seed):
     cap = _bumps_plane(0.05, seed)
     a = choose_settings(cap, fit_surface(cap.positions, "plane"))
     assert not a.coarse and a.spacing == "minimum", a.reason
+
+
+def test_completion_options_are_checked_once_and_equal_the_keywords():
+    """CompletionOptions (issue 33 item 2): every setting checked when made, before any work; the
+    options object and the keyword form give the same completion; not both at once."""
+    from geosynth.completion.synthesis import CompletionOptions
+
+    for bad, word in [(dict(window=0), "window must be"), (dict(rotations=65), "rotations must be"),
+                      (dict(mu=2), "mu must be"), (dict(frames="axis"), "frames must be"),
+                      (dict(refine=9), "refine must be"), (dict(spacing="mean"), "spacing must be"),
+                      (dict(search="fast"), "search must be"), (dict(balance=-1), "balance must be"),
+                      (dict(candidates="all"), "candidates must be"), (dict(oversample="cubic"), "oversample must"),
+                      (dict(max_targets=0), "max_targets must"), (dict(max_error=0), "max_error must")]:
+        with pytest.raises(ValueError, match=word):
+            CompletionOptions(**bad)
+    opts = CompletionOptions(window=3, rotations=2, frames="paper", refine=0, spacing="median", search="exhaustive")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.window = 4  # type: ignore[misc]
+    cap = _wave_capture(seed=1)
+    a = complete_surface(cap, fit="plane", region=WAVE_REGION, seed=2, device=ONE_DEVICE, options=opts)[0]
+    b = complete_surface(cap, fit="plane", region=WAVE_REGION, seed=2, device=ONE_DEVICE, window=3, rotations=2,
+                         frames="paper", refine=0, spacing="median", search="exhaustive")[0]
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.completed, b.completed)
+    with pytest.raises(ValueError, match="either as options= or as keywords"):
+        complete_surface(cap, fit="plane", region=WAVE_REGION, window=4, options=opts)

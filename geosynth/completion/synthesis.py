@@ -76,8 +76,8 @@ from geosynth.completion.prep import (ReliefSurface, as_capture, capture_depth, 
                                   ring_neighbourhoods, target_spacing)
 from geosynth.core.exact import exp_fixed, norm3
 
-__all__ = ["AutoSettings", "CompletedSurface", "CompletionReport", "check_max_error", "choose_settings",
-           "complete_surface", "completion_picture", "write_completion"]
+__all__ = ["AutoSettings", "CompletedSurface", "CompletionOptions", "CompletionReport", "check_max_error",
+           "choose_settings", "complete_surface", "completion_picture", "write_completion"]
 
 DEFAULT_WINDOW = 3
 DEFAULT_ROTATIONS = 4
@@ -322,16 +322,107 @@ def check_max_error(max_error, name: str | None = "max_error") -> float:
     return float(max_error)
 
 
-def _check_params(window, rotations, mu, max_error, seed) -> None:
-    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
-        raise ValueError(f"window must be an integer >= 1 (edge rings), got {window!r}.")
-    if isinstance(rotations, bool) or not isinstance(rotations, (int, np.integer)) or not 1 <= rotations <= 64:
-        raise ValueError(f"rotations must be an integer from 1 to 64, got {rotations!r}.")
-    if not isinstance(mu, (int, float, np.floating)) or not 0 <= float(mu) <= 1:
-        raise ValueError(f"mu must be a number in [0, 1] (1: relief only), got {mu!r}.")
-    check_max_error(max_error)
+def _check_seed(seed) -> None:
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
+
+
+@dataclass(frozen=True)
+class CompletionOptions:
+    """M4's settings, declared, checked and documented once (issue 33): :func:`complete_surface`
+    takes them as keywords or as ``options=``, and ``geosynth complete`` builds one from its
+    options. Every value is checked when the object is made, before any work (a bad one is a
+    ``ValueError`` naming it).
+
+    Attributes:
+        window: W, the neighbourhood radius in edge rings (>= 1); None: chosen from the
+            relief (:func:`choose_settings`, as are ``rotations``, ``frames``, ``refine`` and
+            ``spacing`` when None; explicit values override, the report names both).
+        rotations: R, orientations tried about the normal (1..64).
+        frames: the tangent frames the R rotations start from: "paper" (Sec. 3: per-normal,
+            deterministic, locally consistent) or "fit" (our option: the fit's own orientation,
+            on a cylinder u around it and v along its axis, on a plane its u and v axes, on a
+            sphere along its latitudes about the relief's axis when it has one
+            (:func:`geosynth.completion.fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
+            the fit's polar axis, :func:`geosynth.completion.fit.fit_frames`). With "fit" a
+            relief with a preferred direction keeps it at R = 1 (R = 2 when a half turn is a
+            symmetry of the relief).
+        refine: refinement passes after the growth (our extension; 0 is the paper's single
+            pass): every completed target matched again against its whole window, textured on
+            every side by then (:func:`_refine`). 0 to 8.
+        spacing: the target lattice's spacing: "minimum" (Sec. 4: the capture's minimum edge
+            length) or "median" (our option: the median length of its edges on the fit, targets
+            as dense as the capture; see :func:`geosynth.completion.prep.prepare_relief`), or a
+            length (world units). When the automatic choice coarsens the targets, the
+            candidates are thinned to one a target spacing in the fit's frame.
+        mu: weight of shape against colour in [0, 1] (1: relief only).
+        max_error: the initial MaxErrThreshold on the [0, 1] normalized ssd, from 2^-24 (about
+            6e-8, one step of the integer scores) to 128 (the largest score); each list
+            without progress raises it 10%, so the lists are bounded (module docstring).
+        search: FindMatches' candidates: "exhaustive" (the paper: every candidate, cost
+            targets x candidates), "coherent" (our option: the coherence hints and
+            ``COHERENT_PROBES`` candidates spread evenly over the capture, then the candidates
+            around each target's ``COHERENT_AROUND`` best of those; linear in the targets, the
+            same selection rule among them), or "auto": exhaustive while targets x
+            candidates x R is under ``AUTO_EXHAUSTIVE_WORK``, else coherent.
+        balance: True: the histogram-aware pick among the matches within 1.1x the best (our
+            extension, :class:`_Balance`, strength ``BALANCE_STRENGTH``); a number > 0: the
+            same with that strength; False: the paper's uniform pick.
+        candidates: "capture": only the capture's own vertices are candidate matches (their
+            displacements and colours are copied), the oversampling's vertices serve as
+            neighbour partners only; "samples": every sample, the oversampled ones included
+            (the paper, Sec. 5). See the module docstring.
+        oversample: "butterfly", "midpoint" (the paper's coplanar midpoints) or "none"; see
+            :func:`geosynth.completion.prep.prepare_relief`. None: "butterfly", or "none" when
+            the automatic spacing makes the targets coarser than the capture.
+        max_targets: refuse a completion with more targets (None: no limit).
+    """
+
+    window: int | None = None
+    rotations: int | None = None
+    frames: str | None = None
+    refine: int | None = None
+    spacing: str | float | None = None
+    mu: float = DEFAULT_MU
+    max_error: float = DEFAULT_MAX_ERROR
+    search: str = "auto"
+    balance: bool | float = True
+    candidates: str = "capture"
+    oversample: str | None = None
+    max_targets: int | None = 200_000
+
+    def __post_init__(self) -> None:
+        window, rotations, mu = self.window, self.rotations, self.mu
+        if window is not None and (isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1):
+            raise ValueError(f"window must be an integer >= 1 (edge rings), got {window!r}.")
+        if rotations is not None and (isinstance(rotations, bool) or not isinstance(rotations, (int, np.integer))
+                                      or not 1 <= rotations <= 64):
+            raise ValueError(f"rotations must be an integer from 1 to 64, got {rotations!r}.")
+        if not isinstance(mu, (int, float, np.floating)) or not 0 <= float(mu) <= 1:
+            raise ValueError(f"mu must be a number in [0, 1] (1: relief only), got {mu!r}.")
+        check_max_error(self.max_error)
+        if self.frames is not None and (not isinstance(self.frames, str) or self.frames not in ("paper", "fit")):
+            raise ValueError(f"frames must be 'paper' or 'fit', got {self.frames!r}.")
+        refine = self.refine
+        if refine is not None and (isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer))
+                                   or not 0 <= refine <= 8):
+            raise ValueError(f"refine must be an integer from 0 to 8 (refinement passes), got {refine!r}.")
+        if self.spacing is not None:
+            check_spacing_rule(self.spacing)
+        if not isinstance(self.search, str) or self.search not in SEARCHES + ("auto",):
+            raise ValueError(f"search must be one of {', '.join(SEARCHES + ('auto',))}, got {self.search!r}.")
+        balance = self.balance
+        if isinstance(balance, (bool, np.bool_)):
+            object.__setattr__(self, "balance", bool(balance))
+        elif not isinstance(balance, (int, float, np.integer, np.floating)) or not 0 < float(balance) < math.inf:
+            raise ValueError(f"balance must be True, False or a finite strength > 0, got {balance!r}.")
+        if self.candidates not in ("capture", "samples"):
+            raise ValueError(f"candidates must be 'capture' or 'samples', got {self.candidates!r}.")
+        if self.oversample is not None and self.oversample not in ("butterfly", "midpoint", "none"):
+            raise ValueError(f"oversample must be 'butterfly', 'midpoint' or 'none', got {self.oversample!r}.")
+        mt = self.max_targets
+        if mt is not None and (isinstance(mt, bool) or not isinstance(mt, (int, np.integer)) or mt < 1):
+            raise ValueError(f"max_targets must be an integer >= 1 or None, got {mt!r}.")
 
 
 @dataclass(frozen=True)
@@ -1153,7 +1244,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                      device: str | None = None, seed: int = 0, progress: bool = False,
                      max_targets: int | None = 200_000, oversample: str | None = None,
                      candidates: str = "capture", balance: bool | float = True, frames: str | None = None,
-                     refine: int | None = None, spacing: str | float | None = None, search: str = "auto"):
+                     refine: int | None = None, spacing: str | float | None = None, search: str = "auto", *,
+                     options: CompletionOptions | None = None):
     """Complete the relief and colour of a partly captured surface (Sec. 3-6, Appendix A).
 
     Args:
@@ -1165,52 +1257,14 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
             lengths with u = x, v = y for a plane z = c; sphere: azimuth and polar angle,
             radians; cylinder: angle (radians) and height), or None: the plane's bounding
             box, the cylinder's full circle over the captured height, the whole sphere.
-        window: W, the neighbourhood radius in edge rings (>= 1); None: chosen from the
-            relief (:func:`choose_settings`, as are ``rotations``, ``frames``, ``refine`` and
-            ``spacing`` when None; explicit values override, the report names both).
-        rotations: R, orientations tried about the normal (1..64).
-        mu: weight of shape against colour in [0, 1] (1: relief only).
-        max_error: the initial MaxErrThreshold on the [0, 1] normalized ssd, from 2^-24 (about
-            6e-8, one step of the integer scores) to 128 (the largest score); each list
-            without progress raises it 10%, so the lists are bounded (module docstring).
+        window, rotations, mu, max_error, max_targets, oversample, candidates, balance, frames,
+            refine, spacing, search: the settings, each documented and checked once in
+            :class:`CompletionOptions` (None: chosen from the relief where it says so).
         device: the matching device ("cpu", "opencl", "cuda", "auto"/None).
         seed: seed of the random picks (an int >= 0).
         progress: show a progress bar over the targets.
-        max_targets: refuse a completion with more targets (None: no limit).
-        oversample: "butterfly", "midpoint" (the paper's coplanar midpoints) or "none"; see
-            :func:`geosynth.completion.prep.prepare_relief`. None: "butterfly", or "none" when the
-            automatic spacing makes the targets coarser than the capture.
-        candidates: "capture" (default): only the capture's own vertices are candidate
-            matches (their displacements and colours are copied), the oversampling's
-            vertices serve as neighbour partners only; "samples": every sample, the
-            oversampled ones included (the paper, Sec. 5). See the module docstring.
-        balance: True (default): the histogram-aware pick among the matches within 1.1x
-            the best (our extension, :class:`_Balance`, strength ``BALANCE_STRENGTH``); a
-            number > 0: the same with that strength; False: the paper's uniform pick.
-        frames: the tangent frames the R rotations start from: "paper" (default, Sec. 3:
-            per-normal, deterministic, locally consistent) or "fit" (our option: the fit's
-            own orientation, on a cylinder u around it and v along its axis, on a plane its
-            u and v axes, on a sphere along its latitudes about the relief's axis when it has one
-            (:func:`geosynth.completion.fit.latitude_axis`, share under ``LATITUDE_SHARE``), else
-            the fit's polar axis, :func:`geosynth.completion.fit.fit_frames`). With
-            "fit" a relief with a preferred direction keeps it at R = 1 (R = 2 when a half
-            turn is a symmetry of the relief).
-        refine: refinement passes after the growth (our extension; 0, the default, is
-            the paper's single pass): every completed target matched again against its
-            whole window, textured on every side by then (:func:`_refine`). 0 to 8.
-        spacing: the target lattice's spacing: "minimum" (default, Sec. 4: the capture's
-            minimum edge length) or "median" (our option: the median length of its edges on
-            the fit, targets as dense as the capture, so that features one sample thick keep
-            their share of the vertices; see :func:`geosynth.completion.prep.prepare_relief`), or a
-            length (world units). When the automatic choice coarsens the targets (a capture
-            with over 12 samples on its relief's period), the candidates are thinned to one a
-            target spacing in the fit's frame.
-        search: FindMatches' candidates: "exhaustive" (the paper: every candidate, cost
-            targets x candidates), "coherent" (our option: the coherence hints and
-            ``COHERENT_PROBES`` candidates spread evenly over the capture, then the candidates
-            around each target's ``COHERENT_AROUND`` best of those; linear in the targets, the
-            same selection rule among them), or "auto" (default): exhaustive while targets x
-            candidates x R is under ``AUTO_EXHAUSTIVE_WORK``, else coherent.
+        options: the settings as one :class:`CompletionOptions` instead of the keywords
+            (then the keywords must keep their defaults).
 
     Returns:
         (surface, report, timings): the :class:`CompletedSurface`, the
@@ -1229,17 +1283,24 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     from geosynth.compute.backend import resolve_device
 
     t0 = time.perf_counter()
-    _check_params(DEFAULT_WINDOW if window is None else window, DEFAULT_ROTATIONS if rotations is None else rotations,
-                  mu, max_error, seed)
-    if frames is not None and (not isinstance(frames, str) or frames not in ("paper", "fit")):
-        raise ValueError(f"frames must be 'paper' or 'fit', got {frames!r}.")
-    if refine is not None and (isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer))
-                               or not 0 <= refine <= 8):
-        raise ValueError(f"refine must be an integer from 0 to 8 (refinement passes), got {refine!r}.")
-    if spacing is not None:
-        check_spacing_rule(spacing)  # before the fit's work
-    if not isinstance(search, str) or search not in SEARCHES + ("auto",):
-        raise ValueError(f"search must be one of {', '.join(SEARCHES + ('auto',))}, got {search!r}.")
+    given = dict(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing, mu=mu,
+                 max_error=max_error, search=search, balance=balance, candidates=candidates, oversample=oversample,
+                 max_targets=max_targets)
+    if options is None:
+        options = CompletionOptions(**given)  # every setting checked here, before any work
+    elif not isinstance(options, CompletionOptions):
+        raise TypeError(f"options must be a CompletionOptions, got {type(options).__name__}.")
+    else:
+        defaults = CompletionOptions()
+        changed = sorted(k for k, v in given.items() if v is not getattr(defaults, k) and v != getattr(defaults, k))
+        if changed:
+            raise ValueError(f"give the settings either as options= or as keywords, not both ({', '.join(changed)} "
+                             "given beside options=).")
+    _check_seed(seed)
+    window, rotations, frames, refine, spacing = (options.window, options.rotations, options.frames, options.refine,
+                                                  options.spacing)
+    mu, max_error, search, balance = options.mu, options.max_error, options.search, options.balance
+    candidates, oversample, max_targets = options.candidates, options.oversample, options.max_targets
     cap = as_capture(capture)
     need = 3 * DEFAULT_WINDOW * (DEFAULT_WINDOW + 1) + 1 if window is None else 3 * window * (window + 1) + 1
     if len(cap) < need:  # vertices of one W-ring neighbourhood of a regular triangulation
@@ -1292,12 +1353,6 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                          + (f"use a window from 1 to {int(deepest)}, or a larger capture." if deepest >= 1 else
                             "give a larger capture (the capture is thinner than one target spacing)."))
     t2 = time.perf_counter()
-    if isinstance(balance, (bool, np.bool_)):
-        balance = bool(balance)
-    elif not isinstance(balance, (int, float, np.integer, np.floating)) or not 0 < float(balance) < math.inf:
-        raise ValueError(f"balance must be True, False or a finite strength > 0, got {balance!r}.")
-    if candidates not in ("capture", "samples"):
-        raise ValueError(f"candidates must be 'capture' or 'samples', got {candidates!r}.")
     frame_rows = None
     frame_axis = None
     if frames == "fit":
