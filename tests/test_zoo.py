@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import ONE_DEVICE
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -135,28 +137,35 @@ def test_a_slice_of_the_zoo_meets_the_target_on_every_device(tmp_path, capsys, d
     Measured over seeds 1-6 (opencl; bench/RESULTS.md, the zoo): M1 size 1.03-1.11, height
     0.94-1.05, 0.10-0.16 of random; M2 (member 06, whose height the paper's spline squashed
     to 0.82-0.89) size 0.94-0.98, height 0.94-0.98; M4 size 0.93, height 1.00, 0.26 degrees
-    on every seed."""
+    on every seed. The seeds run on ONE_DEVICE (cuda where present, else OpenCL: the quality
+    claim over seeds); every other device runs the first seed of each (the same path on that
+    device; it keeps `make test` within its 10 minutes)."""
     from geosynth.cli import main
 
     bm = _load("bm_zoo")
+    all_seeds = device == ONE_DEVICE
+
+    def seeds(*s):
+        return s if all_seeds else s[:1]
+
     plate = zoo.zoo("volume", 1)[0]
     src = plate.write(tmp_path / "inputs")
     (tmp_path / "outputs").mkdir()
-    for seed in (1, 2, 3):
+    for seed in seeds(1, 2, 3):
         out = tmp_path / "outputs" / f"plate-{seed}.ply"
         assert main(["volume", str(src), "-o", str(out), "--size", "64", "--device", device, "--seed", str(seed)]) == 0
         row = bm.measure_volume(plate, src, out, capsys.readouterr().out)
         assert row["kind"] == "relief" and bm.verdict(row), (seed, row)
     bumps = zoo.zoo("pointtexture", 7)[6]  # bumps of several sizes on a plane, a plyfile ASCII file
     ex = bumps.write(tmp_path / "inputs")
-    for seed, quality in ((1, []), (2, ["--no-quality"])):  # (random pasting's baseline once: ~6 s on cpu)
+    for seed, quality in seeds((1, []), (2, ["--no-quality"])):  # (random pasting's baseline once: ~6 s on cpu)
         out = tmp_path / "outputs" / f"bumps-{seed}.ply"
         assert main(["pointtexture", str(ex), "-o", str(out), "--device", device, "--seed", str(seed), *quality]) == 0
         row = bm.measure_points(bumps, ex, out, capsys.readouterr().out)
         assert bm.verdict(row) and (quality or row["vs_random"] < 0.9), (seed, row)
     ridges = zoo.zoo("complete", 10)[9]  # a ridged plane without colour, missing a band across its middle
     cap = ridges.write(tmp_path / "inputs")
-    for seed in (1, 2):
+    for seed in seeds(1, 2):
         done = tmp_path / "outputs" / f"ridges-{seed}.ply"
         assert main(["complete", str(cap), "-o", str(done), "--device", device, "--seed", str(seed), "--quiet"]) == 0
         row = bm.measure_complete(ridges, done, cap)
