@@ -77,7 +77,7 @@ from geosynth.completion.prep import (ReliefSurface, as_capture, capture_depth, 
 from geosynth.core.exact import exp_fixed, norm3
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionOptions", "CompletionReport", "check_max_error",
-           "choose_settings", "complete_surface", "completion_picture", "write_completion"]
+           "choose_settings", "complete_surface", "completion_picture", "match_chunk", "write_completion"]
 
 DEFAULT_WINDOW = 3
 DEFAULT_ROTATIONS = 4
@@ -774,7 +774,7 @@ def _grow(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float, 
                 for cls in _classes(members, w_t, ring_ptr, ring_idx, ring_d, slot_of):
                     for start in range(0, len(cls), per_launch):
                         chunk = cls[start:start + per_launch]
-                        got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
+                        got = match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
                                            rotations, mu, err, hints, picked, textured,
                                            TOLERANCE if balance is None else TOLERANCE * (1.0 + balance.penalty),
                                            search)
@@ -847,7 +847,7 @@ def _refine(rs: ReliefSurface, index, rm, window: int, rotations: int, mu: float
         for cls in _classes(todo, w_t, ring_ptr, ring_idx, ring_d, slot_of):
             for start in range(0, len(cls), per_launch):
                 chunk = cls[start:start + per_launch]
-                got = _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
+                got = match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas,
                                    rotations, mu, accept_all, hints, picked, textured, tolerance, search)
                 at, src, rot = [], [], []
                 for t, m in zip(chunk, got):  # picks in list order, one draw each
@@ -1030,10 +1030,14 @@ class _HintTable:
         return grid
 
 
-def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err,
-                 hints=None, picked=None, textured=None, tolerance=TOLERANCE, search="exhaustive"):
-    """find_matches for a chunk of one class, one launch per window size; in chunk order.
-    ``search``: one of SEARCHES."""
+def match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err,
+                 hints=None, picked=None, textured=None, tolerance=TOLERANCE, search="exhaustive",
+                 hint_probes=HINT_PROBES):
+    """find_matches for a chunk of one class, one launch per window size; in chunk order (the calls
+    the growth makes; :mod:`geosynth.relief` grows over any mesh through it too). ``rm``: the module
+    (or an object) with ``neighbourhood_queries`` and ``find_matches``; ``hints``: with
+    ``for_targets(chunk, picked, textured)`` and ``around(index, best)``; ``search``: one of SEARCHES;
+    ``hint_probes``: the exhaustive search's probes when hints exist."""
     out = [None] * len(chunk)
     hint_slots = None if hints is None else hints.for_targets(chunk, picked, textured)
     ks = slot_of[chunk]
@@ -1053,7 +1057,7 @@ def _match_chunk(rs, index, rm, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d,
         if search == "coherent":
             probes = (max(1, -(-len(index.samples) // COHERENT_PROBES)),)
         else:
-            probes = HINT_PROBES if hint_rows is not None and (hint_rows >= 0).any() else None
+            probes = hint_probes if hint_rows is not None and (hint_rows >= 0).any() else None
         around = None if hints is None or search != "coherent" else (lambda best: hints.around(index, best))
         for p, m in zip(pos, rm.find_matches(index, queries, err, tolerance=tolerance, probes=probes,
                                              hints=hint_rows, exhaustive=search == "exhaustive", around=around,

@@ -189,7 +189,7 @@ class _GridHints:
         keep = textured[nb] & (src >= 0)
         return None if not keep.any() else self._near(row[keep], src[keep], len(chunk))
 
-    def around(self, best: np.ndarray) -> np.ndarray:
+    def around(self, index, best: np.ndarray) -> np.ndarray:  # index: match_chunk's signature (unused here)
         q, m = best.shape
         row = np.repeat(np.arange(q), m)
         flat = best.reshape(-1)
@@ -201,37 +201,13 @@ class _GridHints:
 
 def _match(index, flat, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu, err, hints,
            picked, textured, search):
-    """FindMatches for a chunk of one class, one launch per window size; matches in chunk order (the
-    calls :func:`geosynth.completion.complete_surface`'s growth makes)."""
+    """FindMatches for a chunk of one class, one launch per window size; matches in chunk order:
+    :func:`geosynth.completion.synthesis.match_chunk` with the flattened queries (no hint probes)."""
     from geosynth.completion import synthesis as m4
 
-    out = [None] * len(chunk)
-    hint_rows = hints.for_targets(chunk, picked, textured)
-    ks = slot_of[chunk]
-    n_s = len(index.samples)
-    for w in np.unique(w_t[ks]):
-        pos = np.flatnonzero(w_t[ks] == w)
-        starts, lists = [0], []
-        for p in pos:
-            k = ks[p]
-            lo, hi = ring_ptr[k], ring_ptr[k + 1]
-            nbr = ring_idx[lo:hi][ring_d[lo:hi] <= w]
-            lists.append(nbr)
-            starts.append(starts[-1] + len(nbr))
-        queries = flat.neighbourhood_queries(index, chunk[pos], np.asarray(starts, np.int64),
-                                             np.concatenate(lists).astype(np.int64), sigmas[int(w)],
-                                             rotations=rotations, mu=mu)
-        rows = None if hint_rows is None else hint_rows[pos]
-        if search == "coherent":
-            probes = (max(1, -(-n_s // m4.COHERENT_PROBES)),)
-        else:
-            probes = () if rows is not None and (rows >= 0).any() else None
-        around = hints.around if search == "coherent" else None
-        for p, m in zip(pos, flat.find_matches(index, queries, err, tolerance=m4.TOLERANCE, probes=probes, hints=rows,
-                                               exhaustive=search == "exhaustive", around=around,
-                                               around_best=m4.COHERENT_AROUND)):
-            out[p] = m
-    return out
+    return m4.match_chunk(None, index, flat, chunk, w_t, slot_of, ring_ptr, ring_idx, ring_d, sigmas, rotations, mu,
+                          err, hints=hints, picked=picked, textured=textured, tolerance=m4.TOLERANCE, search=search,
+                          hint_probes=())
 
 
 def _within(ptr, idx, ring, rows, base, reach: float):
