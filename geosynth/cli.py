@@ -485,11 +485,14 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
         slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
+        lattice={"auto": None, "yes": True, "no": False}[getattr(args, "lattice", "auto")],
     )
     if result.settings:
         say(result.settings)
     for line in result.volume.settings.lines(result.volume.source.shape):  # the tiled run prints the same
         say(line)
+    if result.volume.lattice_text:
+        say(result.volume.lattice_text)
     if result.cleanup:
         say(result.cleanup)
     save_mesh(result.mesh, out, inputs=inputs)
@@ -1442,6 +1445,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "minimum-error cuts; paper: the paper's scan-order copying")
     p.add_argument("--search", choices=["cascade", "tree", "linear"], default="cascade",
                    help="exact block search: cascade of lower bounds (default, fastest), the paper's tree, or linear")
+    p.add_argument("--lattice", choices=["auto", "yes", "no"], default="auto",
+                   help="a slab's blocks come from source positions congruent to theirs modulo the exemplar's "
+                        "lattice, so that linked rings close: auto (default: for a network of linked elements with a "
+                        "lattice), yes (whenever the exemplar has one) or no")
     p.add_argument("--slab", choices=["auto", "yes", "no"], default="auto",
                    help="blocks through the exemplar's full thickness, grown across only: auto (default: when the "
                         "exemplar is at least 2.5x thinner along z than across: geosynth.volume.synthesis.SLAB_RATIO), yes or "

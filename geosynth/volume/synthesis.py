@@ -353,6 +353,9 @@ class VolumeResult:
         method: the method that made it (:data:`METHODS`, "auto" resolved), or "random tiling".
         slab: whether the blocks spanned the full thickness (:func:`is_slab`).
         settings: what was chosen from the input (:func:`choose_volume_settings`).
+        lattice: the exemplar's lattice the scan followed
+            (:class:`geosynth.volume.lattice.Lattice`), or None.
+        lattice_text: one line on the lattice ("" when none was looked for).
     """
 
     quantized: np.ndarray
@@ -364,6 +367,8 @@ class VolumeResult:
     method: str = "optimize"
     slab: bool = False
     settings: VolumeSettings | None = None
+    lattice: object = None
+    lattice_text: str = ""
 
 
 SEARCHES = ("cascade", "tree", "linear")
@@ -550,13 +555,16 @@ class Matcher:
 
 
 def synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False,
-                      fixed=None):
+                      fixed=None, lattice=None):
     """One level of the scan (the paper's copying, or graphcut with ``cut``), in place on
     ``target``; returns (blocks matched, mean SSD per sample). ``fixed``: None, or a
     (Z, Y, X) bool mask of given samples (a tiled run's neighbouring results): they count
     as synthesized, enter the matches and never change; blocks made only of them are skipped,
     and the scan runs away from them along y and x (from the side that holds more of them), so
-    that a block meets given samples where the untiled scan meets synthesized ones."""
+    that a block meets given samples where the untiled scan meets synthesized ones.
+    ``lattice``: None, or (2, 2) (dy, dx) lattice vectors at this level (a slab's,
+    :mod:`geosynth.volume.lattice`): each block is the exact best among the source blocks
+    whose origin is congruent to its position modulo the lattice."""
     shape = target.shape
     done = np.zeros(shape, bool) if fixed is None else fixed.copy()
     sides = block_shape(block)
@@ -590,6 +598,8 @@ def synthesize_level(source, target, block, matcher, wrap, rng, progress, label,
             if random_tiles:  # the baseline: a random source block, no matching
                 origin = np.array([rng.integers(n + 1) for n in last_origin])
                 ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
+            elif lattice is not None:
+                origin, ssd = _lattice_match(source, query, fresh, sides, pos, lattice, last_origin)
             else:
                 # Coherence guesses: the earlier neighbours' matches moved on by the same step.
                 # Their best SSD bounds the answer, so the search may drop hopeless blocks
@@ -626,6 +636,32 @@ def synthesize_level(source, target, block, matcher, wrap, rng, progress, label,
         if bar is not None:
             bar.close()
     return len(positions), ssd_sum / max(1, len(positions)) / int(np.prod(sides))
+
+
+def _lattice_match(source, query, fresh, sides, position, vectors, last_origin) -> tuple[np.ndarray, int]:
+    """The best source block among those whose (y, x) origin is congruent to ``position``
+    modulo the lattice (z from 0: a slab's block spans its thickness): the lowest SSD over
+    the block's samples already synthesized (``~fresh``), then the one nearest the source's
+    middle (the exemplar's borders break its periodicity), then the lowest origin. The
+    samples not yet synthesized hold the coarser level's guess, whose layout need not follow
+    the lattice: they do not vote. A handful of candidates: scored here on the host, in int64.
+    Returns the origin and the SSD over the whole block."""
+    from geosynth.volume.lattice import lattice_origins
+
+    yx = lattice_origins(position[1:], vectors, last_origin[1:])
+    if len(yx) == 0:  # the level's source is smaller than the lattice's cell: checked before the scan
+        raise ValueError(f"no source block congruent to {tuple(position)} under the lattice {vectors.tolist()}.")
+    q = query.astype(np.int64)
+    given = ~fresh
+    middle = np.asarray(last_origin[1:], np.int64)  # twice the middle origin: integers
+    best_key, best, best_ssd = None, None, 0
+    for y, x in yx:
+        piece = source[0:sides[0], y:y + sides[1], x:x + sides[2]].astype(np.int64)
+        diff = (piece - q) ** 2
+        key = (int(diff[given].sum()), int(abs(2 * y - middle[0]) + abs(2 * x - middle[1])), int(y), int(x))
+        if best_key is None or key < best_key:
+            best_key, best, best_ssd = key, (0, int(y), int(x)), int(diff.sum())
+    return np.array(best, np.int64), best_ssd
 
 
 # Per-block bookkeeping of a level's scan (Python objects): the position tuple and its
@@ -888,6 +924,7 @@ def synthesize_volume(
     method: str = DEFAULT_METHOD,
     iterations=None,
     slab: bool | None = None,
+    lattice: bool | None = None,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -936,6 +973,13 @@ def synthesize_volume(
             from ``block``, and the synthesis grows across only; None (default):
             chosen by :func:`is_slab` (a source ``SLAB_RATIO`` times thinner along z
             than across, a target no thicker). ``result.slab`` says which ran.
+        lattice: restrict a slab's scan ("paper", "graphcut") to source blocks congruent
+            to their target position modulo the exemplar's lattice
+            (:mod:`geosynth.volume.lattice`), so that linked rings close across stitches;
+            None (default): when the exemplar is a network with loops (linked rings: no
+            whole element, :func:`is_network`) and has a lattice; True: whenever it has
+            one; False: never. Levels whose source is smaller than the lattice's cell
+            plus a block match freely. ``result.lattice`` says what ran.
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -977,8 +1021,11 @@ def synthesize_volume(
 
     _require_size(size, target_shape, levels, estimate, "size", blocks)
 
+    if lattice is not None:
+        _checks.check_bool("lattice", lattice)
     if float_source:
         src = quantize_field(src, band)
+    found, lattice_line = _choose_lattice(src, band, lattice, slab and method in ("paper", "graphcut") and not baseline)
     sources = [src]
     for _ in range(levels - 1):
         sources.insert(0, downsample(sources[0]))
@@ -1017,20 +1064,63 @@ def synthesize_volume(
                 target = match_histogram(target, s, per_slice=True)
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
+            vectors = _level_lattice(found, levels - 1 - lvl, s.shape, b)
             count, mean_dist = synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
-                                                 cut=method == "graphcut" and not baseline)
+                                                 cut=method == "graphcut" and not baseline, lattice=vectors)
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
-                                   ("random tiling" if matcher is None else matcher.summary())
+                                   ("random tiling" if matcher is None else
+                                    "lattice: the best of the congruent source blocks" if not optimizing and
+                                    _level_lattice(found, levels - 1 - lvl, s.shape, b) is not None
+                                    else matcher.summary())
                                    + (f"\ntexture optimization: {iters} iterations, matches changed {changes}"
                                       if optimizing else ""), iters))
     timings["total"] = time.perf_counter() - t_start
     distance = dequantize_field(target, band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
     return VolumeResult(target, result_field, src, reports, float(band), timings,
-                        "random tiling" if baseline else method, slab, settings)
+                        "random tiling" if baseline else method, slab, settings, found, lattice_line)
+
+
+def is_network(values: np.ndarray) -> bool:
+    """Whether a (Z, Y, X) signed distance field (negative inside, any units) is a network
+    with loops: material that is not a relief, with no whole separate element (every
+    component touches the footprint's sides) and at least one loop (linked rings, a knit;
+    :func:`geosynth.volume.features.element_features`)."""
+    from geosynth.volume.features import element_features
+
+    f = element_features(np.asarray(values, np.float32))
+    return (not f.relief) and f.count > 0 and math.isnan(f.diameter) and math.isfinite(f.loops) and f.loops > 0
+
+
+def _choose_lattice(src: np.ndarray, band: float, wanted: bool | None, possible: bool):
+    """The lattice a slab's scan follows (None: none) and one line saying why."""
+    if wanted is False or not possible:
+        return None, ""
+    from geosynth.volume.lattice import find_lattice, lattice_text
+
+    if wanted is None and not is_network(dequantize_field(src, band)):
+        return None, ""
+    found = find_lattice(src, band)
+    if found is None:
+        return None, "lattice: none found (the exemplar is not periodic across its footprint)"
+    why = "given" if wanted else "a network of linked elements: blocks follow its lattice"
+    return found, f"{lattice_text(found)} ({why})"
+
+
+def _level_lattice(found, coarser: int, source_shape, block):
+    """The lattice vectors at a level ``coarser`` levels above the finest, or None where the
+    level's source has no room for the lattice's cell beside a block."""
+    if found is None:
+        return None
+    sides = block_shape(block)
+    room = np.array([source_shape[1] - sides[1], source_shape[2] - sides[2]], np.float64)
+    factor = 0.5 ** coarser
+    if (found.extent(factor) > room).any():
+        return None
+    return found.scaled(factor)
 
 
 def block_text(block) -> str:
@@ -1243,6 +1333,7 @@ def synthesize_geometry(
     iterations=None,
     slab: bool | None = None,
     band: float | None = None,
+    lattice: bool | None = None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -1260,7 +1351,7 @@ def synthesize_geometry(
             (:data:`geosynth.volume.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
-        levels, block, tileable, seed, device, search, progress, method, iterations, slab:
+        levels, block, tileable, seed, device, search, progress, method, iterations, slab, lattice:
             as in :func:`synthesize_volume` (a slab exemplar, e.g. a plate with relief
             or one layer of rings, is found by its source grid's shape; the blocks then
             span its full padded thickness: ``result.volume.slab``).
@@ -1329,7 +1420,7 @@ def synthesize_geometry(
     size = target_size(size, exemplar_field.shape, levels)
     vol = synthesize_volume(distance_in_samples, size, levels=levels, block=block, tileable=tileable, seed=seed,
                             device=device, search=search, spacing=spacing, progress=progress, method=method,
-                            iterations=iterations, slab=slab, band=band)
+                            iterations=iterations, slab=slab, band=band, lattice=lattice)
     timings.update({f"synthesis {k}": v for k, v in vol.timings.items()})
     t0 = time.perf_counter()
     reach = max(BORDER_SLIVER_SAMPLES, 0.5 * settings.thickness / spacing) if math.isfinite(settings.thickness) \
