@@ -485,7 +485,7 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
         quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
         slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
-        lattice={"auto": None, "yes": True, "no": False}[getattr(args, "lattice", "auto")],
+        lattice={"auto": None, "yes": True, "no": False}[args.lattice],
     )
     if result.settings:
         say(result.settings)
@@ -680,12 +680,15 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
         source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
         search=args.search, spacing=spacing, workers=workers, scheduler=args.scheduler, store=args.store,
         gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs, slab=slab,
-        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume, method=args.method)
+        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume, method=args.method,
+        lattice={"auto": None, "yes": True, "no": False}[args.lattice])
     if args.resume:
         say(f"--resume: {result.resumed} finished task(s) of the interrupted run loaded from {str(checkpoint)!r}"
             if result.resumed else "--resume: no checkpoint of an interrupted run with these settings; ran from the start")
     for line in result.settings.lines(result.source.shape):  # the untiled run's lines, from the same choices
         say(line)
+    if result.lattice_text:
+        say(result.lattice_text)
     save_mesh(result.mesh, out, inputs=inputs)
     say(f"\nwritten {out}: {len(result.mesh.vertices):,} vertices, {len(result.mesh.faces):,} faces (tiles merged)")
     if result.store:

@@ -104,3 +104,21 @@ def test_is_network_tells_linked_rings_from_separate_ones_and_a_relief():
     assert is_network(exemplar_field("chainmail", 48, device=ONE_DEVICE).values)
     assert not is_network(exemplar_field("rings", 48, device=ONE_DEVICE).values)
     assert not is_network(exemplar_field("domes", 48, device=ONE_DEVICE).values)
+
+
+def _congruent_everywhere(src: np.ndarray, out: np.ndarray, vectors: np.ndarray, step: int = 5) -> bool:
+    last = np.array(src.shape[1:]) - 1
+    return all(any((src[:, oy, ox] == out[:, y, x]).all() for oy, ox in lattice_origins((y, x), vectors, last))
+               for y in range(0, out.shape[1], step) for x in range(0, out.shape[2], step))
+
+
+def test_the_tiled_scan_follows_the_same_lattice_across_its_tiles():
+    """2 x 2 tiles on threads: the tiles' and corners' blocks are congruent in the whole
+    level's coordinates (a tile's own origin would break the lattice at every tile border)."""
+    from geosynth.volume.tiled import synthesize_volume_tiled
+
+    res = synthesize_volume_tiled(_periodic_slab(), (8, 128, 128), (2, 2), levels=2, block=16, seed=3,
+                                  device=ONE_DEVICE, band=BAND, method="graphcut", scheduler="threads", workers=1,
+                                  progress=False, lattice=True)
+    assert res.lattice is not None and res.lattice_text.startswith("lattice")
+    assert _congruent_everywhere(res.source, res.quantized, res.lattice.vectors, step=3)

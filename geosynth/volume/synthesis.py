@@ -555,7 +555,7 @@ class Matcher:
 
 
 def synthesize_level(source, target, block, matcher, wrap, rng, progress, label, random_tiles, cut=False,
-                      fixed=None, lattice=None):
+                      fixed=None, lattice=None, offset=(0, 0)):
     """One level of the scan (the paper's copying, or graphcut with ``cut``), in place on
     ``target``; returns (blocks matched, mean SSD per sample). ``fixed``: None, or a
     (Z, Y, X) bool mask of given samples (a tiled run's neighbouring results): they count
@@ -564,7 +564,8 @@ def synthesize_level(source, target, block, matcher, wrap, rng, progress, label,
     that a block meets given samples where the untiled scan meets synthesized ones.
     ``lattice``: None, or (2, 2) (dy, dx) lattice vectors at this level (a slab's,
     :mod:`geosynth.volume.lattice`): each block is the exact best among the source blocks
-    whose origin is congruent to its position modulo the lattice."""
+    whose origin is congruent to its position modulo the lattice; ``offset``: the (y, x)
+    of ``target[:, 0, 0]`` in the whole level (a tiled run's tile), for that congruence."""
     shape = target.shape
     done = np.zeros(shape, bool) if fixed is None else fixed.copy()
     sides = block_shape(block)
@@ -599,7 +600,8 @@ def synthesize_level(source, target, block, matcher, wrap, rng, progress, label,
                 origin = np.array([rng.integers(n + 1) for n in last_origin])
                 ssd = int(((piece_at(origin).astype(np.int64) - query) ** 2).sum())
             elif lattice is not None:
-                origin, ssd = _lattice_match(source, query, fresh, sides, pos, lattice, last_origin)
+                where = (pos[0], pos[1] + offset[0], pos[2] + offset[1])
+                origin, ssd = _lattice_match(source, query, fresh, sides, where, lattice, last_origin)
             else:
                 # Coherence guesses: the earlier neighbours' matches moved on by the same step.
                 # Their best SSD bounds the answer, so the search may drop hopeless blocks
@@ -1025,7 +1027,7 @@ def synthesize_volume(
         _checks.check_bool("lattice", lattice)
     if float_source:
         src = quantize_field(src, band)
-    found, lattice_line = _choose_lattice(src, band, lattice, slab and method in ("paper", "graphcut") and not baseline)
+    found, lattice_line = choose_lattice(src, band, lattice, slab and method in ("paper", "graphcut") and not baseline)
     sources = [src]
     for _ in range(levels - 1):
         sources.insert(0, downsample(sources[0]))
@@ -1064,7 +1066,7 @@ def synthesize_volume(
                 target = match_histogram(target, s, per_slice=True)
             changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
         else:
-            vectors = _level_lattice(found, levels - 1 - lvl, s.shape, b)
+            vectors = level_lattice(found, levels - 1 - lvl, s.shape, b)
             count, mean_dist = synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
                                                  cut=method == "graphcut" and not baseline, lattice=vectors)
         seconds = time.perf_counter() - t0
@@ -1073,7 +1075,7 @@ def synthesize_volume(
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
                                    ("random tiling" if matcher is None else
                                     "lattice: the best of the congruent source blocks" if not optimizing and
-                                    _level_lattice(found, levels - 1 - lvl, s.shape, b) is not None
+                                    level_lattice(found, levels - 1 - lvl, s.shape, b) is not None
                                     else matcher.summary())
                                    + (f"\ntexture optimization: {iters} iterations, matches changed {changes}"
                                       if optimizing else ""), iters))
@@ -1095,8 +1097,19 @@ def is_network(values: np.ndarray) -> bool:
     return (not f.relief) and f.count > 0 and math.isnan(f.diameter) and math.isfinite(f.loops) and f.loops > 0
 
 
-def _choose_lattice(src: np.ndarray, band: float, wanted: bool | None, possible: bool):
-    """The lattice a slab's scan follows (None: none) and one line saying why."""
+def choose_lattice(src: np.ndarray, band: float, wanted: bool | None, possible: bool):
+    """The lattice a slab's scan follows (None: none) and one line saying why, for the
+    untiled and the tiled synthesis alike.
+
+    Args:
+        src: the finest (Z, Y, X) uint8 source.
+        band: its quantization band (samples).
+        wanted: the ``lattice`` option (None: for a network, :func:`is_network`).
+        possible: whether the run is a slab's scan (graphcut or paper, not the baseline).
+
+    Returns:
+        (:class:`geosynth.volume.lattice.Lattice` or None, the line; "" when none was looked for).
+    """
     if wanted is False or not possible:
         return None, ""
     from geosynth.volume.lattice import find_lattice, lattice_text
@@ -1110,9 +1123,10 @@ def _choose_lattice(src: np.ndarray, band: float, wanted: bool | None, possible:
     return found, f"{lattice_text(found)} ({why})"
 
 
-def _level_lattice(found, coarser: int, source_shape, block):
-    """The lattice vectors at a level ``coarser`` levels above the finest, or None where the
-    level's source has no room for the lattice's cell beside a block."""
+def level_lattice(found, coarser: int, source_shape, block) -> np.ndarray | None:
+    """The (2, 2) lattice vectors at a level ``coarser`` levels above the finest, or None
+    (no lattice, or the level's (Z, Y, X) source has no room for the lattice's cell beside
+    a ``block``: that level matches freely)."""
     if found is None:
         return None
     sides = block_shape(block)

@@ -97,6 +97,7 @@ class _Exemplar:
     seed: int
     key: str  # digest of the sources and parameters: the worker's search cache key
     method: str = "optimize"  # geosynth.volume.synthesis.METHODS: texture optimization or the scan (graphcut, paper)
+    lattices: list | None = None  # per level: a slab scan's (2, 2) lattice vectors or None (synthesis.level_lattice)
 
 
 def _matcher(ex: _Exemplar, level: int):
@@ -123,10 +124,11 @@ def _info(result) -> dict:
     return result[1]
 
 
-def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, fixed) -> dict:
+def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, fixed, offset=(0, 0)) -> dict:
     """One level of ``ex.method`` on a tile's or corner's ``target`` (in place), ``fixed``
     samples given: texture optimization (:func:`geosynth.volume.optimize.optimize_level`) or the
-    scan of synthesize_volume (graphcut, paper). Returns its matches, iterations,
+    scan of synthesize_volume (graphcut, paper; ``offset``: the (y, x) of ``target``'s first
+    sample in the level, for the exemplar's lattice). Returns its matches, iterations,
     mean_distance and stopped."""
     from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
 
@@ -135,7 +137,8 @@ def _synthesize(ex: _Exemplar, grid: TileGrid, level: int, target: np.ndarray, f
         from geosynth.volume.synthesis import synthesize_level
 
         count, mean = synthesize_level(source, target, b, matcher, False, None, False, "", False,
-                                        cut=ex.method == "graphcut", fixed=fixed)
+                                        cut=ex.method == "graphcut", fixed=fixed,
+                                        lattice=ex.lattices[level] if ex.lattices else None, offset=offset)
         return {"matches": count, "iterations": 1, "mean_distance": mean, "stopped": "scan"}
     finest = level == grid.levels - 1
     return optimize_level(source, target, b, matcher, iterations=int(ex.caps[level]),
@@ -170,7 +173,7 @@ def _tile_task(ex: _Exemplar, grid: TileGrid, level: int, index: int, init: list
         mask = None
         if fixed:
             target, mask = assemble(shape[0], region, fixed, fill=target)
-        got = _synthesize(ex, grid, level, target, mask)
+        got = _synthesize(ex, grid, level, target, mask, (region.y0, region.x0))
         out = np.ascontiguousarray(target[region.local(core)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "tile": index, "phase": grid.phase(index), "start": start, "end": time.time(),
@@ -193,7 +196,7 @@ def _corner_task(ex: _Exemplar, grid: TileGrid, level: int, k: int, pieces: list
             raise RuntimeError(f"corner {k} level {level + 1}: the tiles' crops miss samples.")
         mask = np.ones(target.shape, bool)
         mask[window.local(free)] = False
-        got = _synthesize(ex, grid, level, target, mask)
+        got = _synthesize(ex, grid, level, target, mask, (window.y0, window.x0))
         out = np.ascontiguousarray(target[window.local(free)])
         seconds = time.perf_counter() - t0
     info = {"level": level, "corner": k, "phase": PHASE_C, "start": start, "end": time.time(), "seconds": seconds,
@@ -533,6 +536,9 @@ class TiledResult:
             an interrupted run instead of computed (0 without ``resume``).
         settings: the choices made from the input, the untiled synthesis's
             (:class:`geosynth.volume.synthesis.VolumeSettings`).
+        lattice: the exemplar's lattice the scans followed
+            (:class:`geosynth.volume.lattice.Lattice`), or None; lattice_text: its line
+            ("" when none was looked for), as the untiled run's.
     """
 
     quantized: np.ndarray | None
@@ -554,6 +560,8 @@ class TiledResult:
     workers: int = 0
     resumed: int = 0
     settings: object = None
+    lattice: object = None
+    lattice_text: str = ""
 
     def lines(self) -> list[str]:
         """The per-level timings and the run's figures, one line each."""
@@ -817,12 +825,13 @@ def synthesize_volume_tiled(
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
     method: str = "auto",
+    lattice: bool | None = None,
 ) -> TiledResult:
     """Tiled M1 synthesis of a field larger than one process should hold, on Dask; the
     same bits whatever the engine and number of workers.
 
     Args:
-        source, size, levels, block, seed, device, search, band, spacing, iterations, slab: as
+        source, size, levels, block, seed, device, search, band, spacing, iterations, slab, lattice: as
             :func:`geosynth.volume.synthesis.synthesize_volume`, with the same choices made from the
             input (:func:`geosynth.volume.synthesis.choose_volume_settings`: ``result.settings``);
             tileable targets are not tiled (see ``tiles``).
@@ -882,8 +891,9 @@ def synthesize_volume_tiled(
     """
     from geosynth.compute import checks as _checks
     from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume.synthesis import (check_common, check_scale, check_size, check_source_and_size, downsample,
-                                 level_blocks, max_levels, optimizes_better, quantize_field)
+    from geosynth.volume.synthesis import (check_common, check_scale, check_size, check_source_and_size, choose_lattice,
+                                           downsample, level_blocks, level_lattice, max_levels, optimizes_better,
+                                           quantize_field)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
@@ -925,11 +935,17 @@ def synthesize_volume_tiled(
             check_tile_mesh_path(path, inputs)
     _check_nesting(store_real, mesh_dir, checkpoint)
 
+    if lattice is not None:
+        _checks.check_bool("lattice", lattice)
     if src.dtype != np.uint8:
         src = quantize_field(src, band)
     sources = [np.ascontiguousarray(src)]
     for _ in range(levels - 1):
         sources.insert(0, downsample(sources[0]))
+    found, lattice_line = choose_lattice(sources[-1], band, lattice,
+                                         grid.slab and settings.method in ("paper", "graphcut"))
+    lattices = [level_lattice(found, levels - 1 - level, sources[level].shape, grid.block_shape(level))
+                for level in range(levels)]
     n_target = int(np.prod(target_shape))
     faces_per_sample = _faces_per_sample(sources[-1]) if (mesh or mesh_dir is not None) else 0.0
     # the client's share, refused before any worker starts
@@ -942,17 +958,19 @@ def synthesize_volume_tiled(
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**63))
     exemplar_bytes = b"".join(s.tobytes() for s in sources)
+    lattice_key = (() if found is None else
+                   (tuple(None if v is None else tuple(map(float, v.reshape(-1))) for v in lattices),))
     digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed),
-                                                 settings.method)).encode()).hexdigest()
+                                                 settings.method) + lattice_key).encode()).hexdigest()
     ckpt, resumed_found = None, 0
     if checkpoint is not None:  # the device is not part of the key: every device gives the same bits
         key = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, search, int(seed), tuple(target_shape),
                                                   (nx, ny), margin, coarse_whole, phases)
                                                  + ((settings.method,) if settings.method != "optimize" else ())
-                                                 ).encode()).hexdigest()
+                                                 + lattice_key).encode()).hexdigest()
         ckpt, resumed_found, _ = _open_checkpoint(checkpoint, key, resume, inputs)
     ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device,
-                   search, int(seed), digest, settings.method)
+                   search, int(seed), digest, settings.method, lattices if found is not None else None)
     estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
                           phases=phases)
     timings = {"prepare": time.perf_counter() - t_start}
@@ -1098,7 +1116,7 @@ def synthesize_volume_tiled(
                        timings, engine.name, int(workers) if scheduler in (None, "threads") else
                        len(engine.client.scheduler_info(n_workers=-1)["workers"]),
                        sum(bool(i.get("resumed")) for lv in levels_info for i in lv["tiles"] + lv["corners"]),
-                       settings)
+                       settings, found, lattice_line)
 
 
 def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int, checkpoint: str | None = None):
