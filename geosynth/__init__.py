@@ -32,6 +32,10 @@ from __future__ import annotations
 
 import importlib
 
+from geosynth.core.config import numpy_same_on_every_cpu as _numpy_same_on_every_cpu
+
+_numpy_same_on_every_cpu()  # before NumPy loads: the same bits on an AVX-512 CPU as on any other
+
 __version__ = "0.1.0"
 
 # Public name -> the module that defines it, imported when the name is first read.

@@ -20,10 +20,10 @@ from __future__ import annotations
 import itertools
 import os
 
-import numpy as np
-import pytest
+import geosynth  # first: it keeps NumPy off its AVX-512 code, as for a user (core.config)
 
-import geosynth
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 
 def _test_devices() -> list[str]:

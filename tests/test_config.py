@@ -28,7 +28,7 @@ def test_every_variable_is_in_the_table():
     """Each variable config.py reads or sets appears in its docstring's table."""
     doc = config.__doc__
     for name in (config.ENV_VERBOSE, config.ENV_HOST_THREADS, config.ENV_MEMORY_LIMIT, "XDG_CACHE_HOME",
-                 "POCL_AFFINITY", "POCL_SIGFPE_HANDLER", "OMP_WAIT_POLICY", "POCL_*"):
+                 "POCL_AFFINITY", "POCL_SIGFPE_HANDLER", "OMP_WAIT_POLICY", "POCL_*", config.ENV_NUMPY_FEATURES):
         assert f"``{name}``" in doc, name
 
 
@@ -105,3 +105,47 @@ def test_process_wide_caches_and_locks_are_made_in_config():
                  "HOST_SHARE", "HOST_WARP_DTYPES", "HOST_WARP_STATE", "BLEND_TABLES", "PATCH_SEARCH_LOCK",
                  "TILE_MATCHERS", "TILE_LOCK", "INPUT_PATHS"):
         assert f"``{name}``" in doc and hasattr(config, name), name
+
+
+def _python(code: str, env: dict | None = None) -> str:
+    import subprocess
+    import sys
+
+    full = {k: v for k, v in os.environ.items() if k != config.ENV_NUMPY_FEATURES}
+    full.update(env or {})
+    done = subprocess.run([sys.executable, "-W", "always::RuntimeWarning", "-c", code], capture_output=True,
+                          text=True, env=full, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return done.stdout + done.stderr
+
+
+def _has_avx512() -> bool:
+    import numpy as np
+
+    return any(np._core._multiarray_umath.__cpu_features__.get(k) for k in ("X86_V4", "AVX512F"))
+
+
+def test_import_geosynth_keeps_numpy_off_its_avx512_code():
+    """``import geosynth`` before NumPy: NumPy's float64 exp, log and arctan2 give the bits
+    they give with its AVX-512 code off (any CPU's); a user's own setting wins (here an empty
+    one, which on an AVX-512 CPU gives other bits)."""
+    digest = ("import numpy as np, hashlib; x = np.linspace(-20, 20, 100_001); "
+              "print(hashlib.sha1(np.exp(x).tobytes() + np.log(np.abs(x) + 1).tobytes() "
+              "+ np.arctan2(x, x[::-1]).tobytes()).hexdigest())")
+    ours = _python("import os, geosynth; print(os.environ['NPY_DISABLE_CPU_FEATURES']); " + digest).split()
+    assert " ".join(ours[:-1]) in config.NUMPY_AVX512.values()
+    off = _python(digest, {config.ENV_NUMPY_FEATURES: config.NUMPY_AVX512["new"] + " " + config.NUMPY_AVX512["old"]})
+    assert ours[-1] == off.split()[-1]
+    users = _python("import os, geosynth; print(repr(os.environ['NPY_DISABLE_CPU_FEATURES'])); " + digest,
+                    {config.ENV_NUMPY_FEATURES: ""}).split()
+    assert users[0] == "''"
+    if _has_avx512():
+        assert users[-1] != ours[-1]
+
+
+def test_numpy_loaded_first_on_an_avx512_cpu_is_named_in_a_warning():
+    out = _python("import numpy, geosynth")
+    if _has_avx512():
+        assert "NumPy was imported before geosynth" in out and "AVX-512" in out
+    else:
+        assert "NumPy was imported before geosynth" not in out

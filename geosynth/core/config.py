@@ -15,6 +15,7 @@ can all import it without a cycle.
 | ``POCL_AFFINITY`` | set (default ``1``) | :func:`default_pocl_environment` | pin PoCL's worker threads, when this process may run on every core |
 | ``POCL_SIGFPE_HANDLER`` | set (default ``0``) | :func:`default_pocl_environment` | no SIGFPE handler (PoCL's leaves a temporary file per start) |
 | ``OMP_WAIT_POLICY`` | set (default ``PASSIVE``) | :func:`passive_openmp_threads` | pykdtree's OpenMP threads sleep after a query |
+| ``NPY_DISABLE_CPU_FEATURES`` | set (default: NumPy's AVX-512 groups) | :func:`numpy_same_on_every_cpu` (``import geosynth``, before NumPy loads) | NumPy's AVX-512 code rounds float64 exp, log, arctan2, power (and SciPy's Gaussian kernels through them) differently from every other CPU's: same seed, different bits |
 
 "Set" means set only when the user has not: a value in the environment always wins.
 
@@ -44,16 +45,24 @@ current output stage (rebound per ``staged_outputs`` block); the CLI's signal li
 from __future__ import annotations
 
 import os
+import sys
 import threading
-from typing import Any
+import warnings
 
-__all__ = ["ENV_HOST_THREADS", "ENV_MEMORY_LIMIT", "ENV_VERBOSE", "cache_root", "default_pocl_environment",
-           "host_threads_setting", "memory_limit_setting", "passive_openmp_threads", "pocl_settings", "set_verbose",
-           "verbose"]
+
+__all__ = ["ENV_HOST_THREADS", "ENV_MEMORY_LIMIT", "ENV_NUMPY_FEATURES", "ENV_VERBOSE", "NUMPY_AVX512",
+           "cache_root", "default_pocl_environment", "host_threads_setting", "memory_limit_setting",
+           "numpy_same_on_every_cpu", "passive_openmp_threads", "pocl_settings", "set_verbose", "verbose"]
 
 ENV_VERBOSE = "GEOSYNTH_VERBOSE"
 ENV_HOST_THREADS = "GEOSYNTH_HOST_THREADS"
 ENV_MEMORY_LIMIT = "GEOSYNTH_MEMORY_LIMIT"
+ENV_NUMPY_FEATURES = "NPY_DISABLE_CPU_FEATURES"
+# NumPy's names of its AVX-512 code groups: 2.4 groups them as X86_V4 (+ ICL, SPR); earlier
+# releases name each set. A name a NumPy does not dispatch is skipped with an ImportWarning,
+# hidden by Python's default filters.
+NUMPY_AVX512 = {"new": "X86_V4 AVX512_ICL AVX512_SPR",
+                "old": "AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"}
 
 _verbose: bool | None = None  # set_verbose's value; None: the environment decides
 
@@ -149,11 +158,11 @@ def passive_openmp_threads() -> None:
 
 # ---------------------------------------------------------------- process-wide state (table above)
 
-OPENCL_CONTEXTS: dict[tuple[int, int], tuple[Any, Any, dict]] = {}
+OPENCL_CONTEXTS: dict[tuple[int, int], tuple[object, object, dict]] = {}
 WARP_INIT_NOTES: list[str] = []
-HOST_WARP_DTYPES: dict[Any, Any] = {}
-HOST_WARP_STATE: dict[str, Any] = {}
-HOST_POOLS: dict[int, Any] = {}
+HOST_WARP_DTYPES: dict[object, object] = {}
+HOST_WARP_STATE: dict[str, object] = {}
+HOST_POOLS: dict[int, object] = {}
 HOST_POOL_LOCK = threading.Lock()
 HOST_LOAD_LOCK = threading.RLock()
 HOST_LAUNCHED: set = set()
@@ -163,3 +172,66 @@ PATCH_SEARCH_LOCK = threading.Lock()
 TILE_MATCHERS: dict = {}
 TILE_LOCK = threading.Lock()
 INPUT_PATHS: set[str] = set()
+
+
+def _numpy_groups() -> str:
+    """The AVX-512 group names of the installed NumPy, from its ``version.py`` read as text:
+    neither NumPy nor ``importlib.metadata`` is imported (the command line catches Ctrl-C only
+    once its package has loaded)."""
+    import re
+    from importlib.util import find_spec
+
+    try:
+        spec = find_spec("numpy")
+        text = open(os.path.join(list(spec.submodule_search_locations)[0], "version.py")).read()
+        major, minor = (int(v) for v in re.search(r'version\s*[:=][^"\']*["\'](\d+)\.(\d+)', text).groups())
+    except (AttributeError, ImportError, OSError, TypeError, ValueError, IndexError):
+        return NUMPY_AVX512["new"]
+    return NUMPY_AVX512["new" if (major, minor) >= (2, 4) else "old"]
+
+
+def numpy_same_on_every_cpu() -> None:
+    """Make NumPy round as it does on every CPU: ``NPY_DISABLE_CPU_FEATURES`` set to NumPy's
+    AVX-512 groups (unless the user set it), when NumPy is not loaded yet.
+
+    Same seed and input must give the same bits on every machine. On an AVX-512 CPU NumPy
+    dispatches float64 exp, log, log10, arctan2, arccos, power and cbrt (and whatever calls
+    them: SciPy's Gaussian filter builds its kernel with exp) to code that rounds differently
+    from its AVX2 and SSE code (measured on an AVX-512 Zen VM, NumPy 2.4: M2's heightfield
+    exemplar and M4's golf ball changed bits; with these groups off every output is the
+    AVX2 machine's). Elementwise + - * / and sqrt, and NumPy's sin and cos, round alike
+    everywhere; the AVX2 code stays. Called by ``import geosynth``, which loads nothing
+    else. When NumPy was loaded first, its dispatch is fixed: a warning says so once (see
+    :func:`warn_if_numpy_differs`).
+    """
+    if "numpy" in sys.modules:
+        warn_if_numpy_differs()
+        return
+    os.environ.setdefault(ENV_NUMPY_FEATURES, _numpy_groups())
+
+
+def warn_if_numpy_differs() -> None:
+    """Warn (once per process) when the loaded NumPy runs AVX-512 code: its float64
+    transcendentals then round unlike other CPUs', and results may differ from another
+    machine's in their last bits."""
+    global _numpy_warned
+    if _numpy_warned:
+        return
+    try:
+        import numpy as np
+
+        features = np._core._multiarray_umath.__cpu_features__  # NumPy 2
+    except AttributeError:  # pragma: no cover - NumPy 1
+        import numpy as np
+
+        features = np.core._multiarray_umath.__cpu_features__
+    active = [k for k in ("X86_V4", "AVX512F", "AVX512_SKX") if features.get(k)]
+    if active:
+        _numpy_warned = True
+        warnings.warn(f"NumPy was imported before geosynth and runs its AVX-512 code ({', '.join(active)}), whose "
+                      "float64 exp/log/arctan2 round unlike other CPUs': results may differ from another machine's "
+                      f"in their last bits. Import geosynth first, or set {ENV_NUMPY_FEATURES}=\"{_numpy_groups()}\" "
+                      "before Python starts.", RuntimeWarning, stacklevel=3)
+
+
+_numpy_warned = False
