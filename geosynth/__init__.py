@@ -7,7 +7,8 @@ The public API; everything else is private. Every operation takes ``device=``
 - Block scoring and selection: :func:`score_dense`, :func:`score_gather`, :func:`candidate_origins`,
   :func:`lattice_shape`, :func:`argmin`, :func:`within_tolerance`, :func:`best_fraction`, :func:`random_pick`.
 - M1, volumes and geometry: :func:`synthesize_volume` (:class:`VolumeResult`),
-  :func:`synthesize_geometry` (:class:`GeometryResult`).
+  :func:`synthesize_geometry` (:class:`GeometryResult`), :func:`synthesize_volume_tiled`; their settings in one
+  :class:`VolumeOptions` (a tiled run's in its :class:`TileOptions`).
 - M2, distance fields: :func:`mesh_distance`, :func:`pointset_distance` (:class:`Field`).
 - M2, point-set geometry textures: :func:`synthesize_point_texture` (:class:`PointTextureReport`) from a
   :class:`PointTexture` (:func:`point_texture_example` for the built-ins).
@@ -82,6 +83,8 @@ _LAZY = {
     "CompletionReport": "geosynth.completion.synthesis",
     "CompletionOptions": "geosynth.completion.synthesis",
     "synthesize_volume_tiled": "geosynth.volume.tiled",
+    "VolumeOptions": "geosynth.volume.options",
+    "TileOptions": "geosynth.volume.options",
     "exemplar_source": "geosynth.volume.tiled",
     # issue 34: relief grown from an example over any mesh
     "grow_relief": "geosynth.relief.grow",

@@ -19,6 +19,7 @@ even one that a library swallowed, leaves every old output as it was (exit 130/1
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import re
@@ -294,6 +295,18 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
     return size, (blocks if len(blocks) > 1 else blocks[0])
 
 
+def _volume_options(args: argparse.Namespace, block, tiles: tuple[int, int] | None = None):
+    """``geosynth volume``'s settings as one :class:`geosynth.volume.options.VolumeOptions`
+    (with ``tiles``: a tiled run's, its :class:`~geosynth.volume.options.TileOptions`)."""
+    from geosynth.volume.options import TileOptions, VolumeOptions
+
+    tiling = None if tiles is None else TileOptions(tiles=tiles, workers=2 if args.workers is None else args.workers)
+    return VolumeOptions(levels=args.levels, block=block, tileable=args.tileable, search=args.search,
+                         method=args.method, slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
+                         smooth=args.smooth, source_resolution=args.source_resolution,
+                         quality_samples=args.quality_samples, tiles=tiling)
+
+
 # ------------------------------------------------------------------ commands
 
 
@@ -479,13 +492,9 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         f"block {'auto' if block is None else block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
         f"device {args.device or 'auto'}")
     _m1_colour_note(exemplar, say)
-    result = synthesize_geometry(
-        example or exemplar, size,
-        source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
-        seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
-        quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
-        slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
-    )
+    result = synthesize_geometry(example or exemplar, size, seed=args.seed, device=args.device,
+                                 progress=not args.quiet, drop_degenerate=args.drop_degenerate,
+                                 options=_volume_options(args, block))
     if result.settings:
         say(result.settings)
     for line in result.volume.settings.lines(result.volume.source.shape):  # the tiled run prints the same
@@ -629,11 +638,11 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     say, printed = _recorder(args.quiet)
     label = example or exemplar
     _m1_colour_note(exemplar, say)
-    slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
+    options = _volume_options(args, block, tiles)
 
     def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
-        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
-                  search=args.search, method=args.method)
+        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block,
+                  slab=options.slab, search=options.search, method=options.method)
 
     # the untiled run's automatic source resolution, block and size (geosynth.volume.synthesis.choose_settings),
     # after the tiling is checked on the default grid's shape (no distance computed yet)
@@ -655,7 +664,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
                                          args.device, check=check_tiling, drop_degenerate=args.drop_degenerate,
                                          field=settings.field)
     shape = target_size(size, source.shape, args.levels)
-    workers = 2 if args.workers is None else args.workers
+    workers = options.tiling.workers
     engine = args.scheduler or f"a LocalCluster of {workers} workers"
     say(f"geosynth volume: {label} -> {shape[2]} x {shape[1]} x {shape[0]} samples in {tiles[0]}x{tiles[1]} tiles on "
         f"{engine}, {args.levels} levels, block {block}, seed {args.seed}, device {args.device or 'auto'}")
@@ -674,10 +683,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     args.interrupt_note = interrupt_note
     gather = bool(args.quality_samples) and 2 * int(np.prod(shape)) < available_memory() // 4
     result = synthesize_volume_tiled(
-        source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
-        search=args.search, spacing=spacing, workers=workers, scheduler=args.scheduler, store=args.store,
-        gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs, slab=slab,
-        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume, method=args.method)
+        source, shape, seed=args.seed, device=args.device, spacing=spacing, scheduler=args.scheduler,
+        store=args.store, gather=gather, mesh=True, tile_meshes=args.tile_meshes, inputs=inputs,
+        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume,
+        options=dataclasses.replace(options, block=block))
     if args.resume:
         say(f"--resume: {result.resumed} finished task(s) of the interrupted run loaded from {str(checkpoint)!r}"
             if result.resumed else "--resume: no checkpoint of an interrupted run with these settings; ran from the start")

@@ -75,6 +75,7 @@ from geosynth.completion.fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surfa
 from geosynth.completion.prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods, target_spacing)
 from geosynth.core.exact import exp_fixed, norm3
+from geosynth.core.options import keyword_defaults, settings_from
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionOptions", "CompletionReport", "check_max_error",
            "choose_settings", "complete_surface", "completion_picture", "match_chunk", "write_completion"]
@@ -1290,16 +1291,8 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     given = dict(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing, mu=mu,
                  max_error=max_error, search=search, balance=balance, candidates=candidates, oversample=oversample,
                  max_targets=max_targets)
-    if options is None:
-        options = CompletionOptions(**given)  # every setting checked here, before any work
-    elif not isinstance(options, CompletionOptions):
-        raise TypeError(f"options must be a CompletionOptions, got {type(options).__name__}.")
-    else:
-        defaults = CompletionOptions()
-        changed = sorted(k for k, v in given.items() if v is not getattr(defaults, k) and v != getattr(defaults, k))
-        if changed:
-            raise ValueError(f"give the settings either as options= or as keywords, not both ({', '.join(changed)} "
-                             "given beside options=).")
+    # every setting checked here, before any work
+    options = settings_from(CompletionOptions, options, given, keyword_defaults(complete_surface, given))
     _check_seed(seed)
     window, rotations, frames, refine, spacing = (options.window, options.rotations, options.frames, options.refine,
                                                   options.spacing)

@@ -55,6 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.core.config import TILE_LOCK, TILE_MATCHERS
+from geosynth.core.constants import M1_DEFAULT_BLOCK
+from geosynth.volume.options import TileOptions, VolumeOptions, parse_tiles, volume_options
 from geosynth.volume.tiles import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
@@ -707,22 +709,6 @@ def _settings_and_grid(source_shape, target_shape, tiles, levels: int, block, ma
     return settings, grid
 
 
-def parse_tiles(tiles) -> tuple[int, int]:
-    if isinstance(tiles, str):
-        parts = tiles.lower().split("x")
-        if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-            raise ValueError(f"tiles must be NXxNY (e.g. 4x4), got {tiles!r}.")
-        tiles = tuple(int(p) for p in parts)
-    if np.ndim(tiles) == 0:
-        tiles = (tiles, tiles)
-    tiles = tuple(tiles)
-    if len(tiles) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in tiles):
-        raise TypeError(f"tiles must be one integer or (nx, ny), got {tiles!r}.")
-    if min(tiles) < 1:
-        raise ValueError(f"tiles must be at least 1 x 1, got {tiles[0]} x {tiles[1]}.")
-    return int(tiles[0]), int(tiles[1])
-
-
 def tile_mesh_paths(folder: str | os.PathLike, tiles) -> list[Path]:
     """Every per-tile mesh a run with ``tiles`` ((nx, ny), "NXxNY" or a TileGrid) may write
     in ``folder``: tile_x{ix}_y{iy}.ply, x fastest."""
@@ -817,23 +803,23 @@ def synthesize_volume_tiled(
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
     method: str = "auto",
+    options: VolumeOptions | None = None,
 ) -> TiledResult:
     """Tiled M1 synthesis of a field larger than one process should hold, on Dask; the
     same bits whatever the engine and number of workers.
 
     Args:
-        source, size, levels, block, seed, device, search, band, spacing, iterations, slab: as
-            :func:`geosynth.volume.synthesis.synthesize_volume`, with the same choices made from the
-            input (:func:`geosynth.volume.synthesis.choose_volume_settings`: ``result.settings``);
-            tileable targets are not tiled (see ``tiles``).
-        method: as synthesize_volume (:data:`geosynth.volume.synthesis.METHODS` or "auto": graphcut
-            for a slab, optimize otherwise). The scans (graphcut, paper) run each phase-B
-            tile and corner window with its neighbours' samples given
-            (``geosynth.volume.synthesis.synthesize_level``'s ``fixed``).
-        tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
-            tiled level's cores must hold its block plus the margin.
-        workers: workers of the LocalCluster started when ``scheduler`` is None (or
-            threads of the threaded scheduler).
+        source, size, seed, device, spacing: as :func:`geosynth.volume.synthesis.synthesize_volume`.
+        levels, block, search, band, iterations, slab, method, smooth: the settings, each
+            documented and checked once in :class:`~geosynth.volume.options.VolumeOptions`, with
+            the untiled run's choices made from the input
+            (:func:`geosynth.volume.synthesis.choose_volume_settings`: ``result.settings``);
+            tileable targets are not tiled. The scans (graphcut, paper) run each phase-B tile
+            and corner window with its neighbours' samples given
+            (``geosynth.volume.synthesis.synthesize_level``'s ``fixed``). ``smooth``: the merged
+            mesh's.
+        tiles, workers, margin, coarse_whole, phases: the tiling, documented and checked once
+            in :class:`~geosynth.volume.options.TileOptions`.
         scheduler: None (a LocalCluster of ``workers`` one-thread processes, closed at
             the end), "threads" (Dask's threaded scheduler, this process), a
             ``distributed.Client``, or a scheduler address "tcp://host:port" (refused
@@ -851,13 +837,6 @@ def synthesize_volume_tiled(
             written to a temporary folder beside it and moved in when the run succeeds.
             Every tile's file name is checked against ``inputs`` before any work.
         inputs: files the run read (the store, meshes and checkpoint never replace them).
-        margin: samples of margin at every level (default: the largest block).
-        coarse_whole: run the coarse levels that fit in one tile as one task (False:
-            tile every level; for tests of the tiled path).
-        phases: 3 (the checkerboard schedule, then a window on every interior corner
-            point, where two phase-B tiles meet diagonally: :meth:`TileGrid.corners`),
-            2 (the checkerboard only: the B-B corners chosen twice) or 1 (every tile
-            independent: the naive baseline whose seams the schedule removes).
         progress: a progress bar over the tile tasks.
         checkpoint: a folder where each finished tile and corner task's result is saved
             (None: none). Removed when the run succeeds; after an interruption it holds
@@ -867,6 +846,9 @@ def synthesize_volume_tiled(
             same settings (refused for other settings) instead of computing them; the
             result is the uninterrupted run's, bit for bit. No saved checkpoint: the run
             starts from the beginning (``TiledResult.resumed`` is 0).
+        options: the settings as one :class:`~geosynth.volume.options.VolumeOptions` (its
+            ``tiles`` the tiling; None: the defaults) instead of the keywords (then the keywords
+            must keep their defaults).
 
     Returns:
         TiledResult.
@@ -882,29 +864,34 @@ def synthesize_volume_tiled(
     """
     from geosynth.compute import checks as _checks
     from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume.synthesis import (check_common, check_scale, check_size, check_source_and_size, downsample,
-                                 level_blocks, max_levels, optimizes_better, quantize_field)
+    from geosynth.core.options import keyword_defaults
+    from geosynth.volume.synthesis import (check_run, check_scale, check_size, check_source_and_size, downsample,
+                                           optimizes_better, quantize_field, source_levels)
 
     t_start = time.perf_counter()
     src = np.asarray(source)
     if src.ndim != 3 or src.size == 0:
         raise ValueError(f"source must be a non-empty (Z, Y, X) volume, got shape {src.shape}.")
     check_size(size)
-    if slab is not None:
-        _checks.check_bool("slab", slab)
-    check_common(levels, max_levels(src.shape, slab), f" (each level halves the source {src.shape})",
-                 block, False, seed, device, search, progress)
+    volume_given = dict(levels=levels, block=block, search=search, band=band, iterations=iterations, slab=slab,
+                        method=method, smooth=smooth)
+    tile_given = dict(tiles=tiles, workers=workers, margin=margin, coarse_whole=coarse_whole, phases=phases)
+    given = {**volume_given, **tile_given}
+    opts = volume_options(options, given, keyword_defaults(synthesize_volume_tiled, given),
+                          lambda chosen: source_levels(src.shape, chosen["slab"]),
+                          build=lambda: VolumeOptions(**volume_given, tiles=TileOptions(**tile_given)))
+    if opts.tileable:
+        raise ValueError("tileable targets are not tiled yet (the tiles' margins would wrap); use synthesize_volume.")
+    tiling = opts.tiling
+    levels, search, band, iterations, slab, method = (opts.levels, opts.search, opts.band, opts.iterations, opts.slab,
+                                                      opts.method)
+    block = M1_DEFAULT_BLOCK if opts.block is None else opts.block
+    smooth = 0 if opts.smooth is None else opts.smooth
+    (nx, ny), workers, margin, coarse_whole, phases = (tiling.tiles, tiling.workers, tiling.margin,
+                                                       tiling.coarse_whole, tiling.phases)
+    check_run(seed, device, progress)
     _checks.check_bool("mesh", mesh)
-    _checks.check_bool("coarse_whole", coarse_whole)
-    if phases not in (1, 2, 3):
-        raise ValueError(f"phases must be 1, 2 or 3, got {phases!r}.")
-    if band is not None:
-        check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
     check_scale("spacing", spacing, "the world size of one sample")
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
-    nx, ny = parse_tiles(tiles)
-    level_blocks(levels, block)  # the block's own errors before the source's, as synthesize_volume
     _, target_shape = check_source_and_size(src, size, levels)
     # the untiled synthesis's choices (slab, blocks, method, band, iterations), made by the same function
     settings, grid = _settings_and_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab,
