@@ -785,7 +785,7 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     from geosynth.io.files import write_image
     from geosynth.io.pictures import render_points, side_by_side
     from geosynth.texturing.models import load_point_model, point_model
-    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.synthesis import TexturingOptions, texture_points
     from geosynth.texturing.textures import read_texture, texture_example
 
     say, printed = _recorder(args.quiet)
@@ -804,13 +804,13 @@ def _cmd_texture(args: argparse.Namespace) -> int:
         tileable = args.tileable is not False
     say(f"geosynth texture: {model_label} ({len(model):,} points) with {tex_label} "
         f"({texture.shape[1]} x {texture.shape[0]}, {'tileable' if tileable else 'not tileable'}), method {args.method}")
-    coloured, report = texture_points(
-        model, texture, method=args.method, k=args.k, levels=args.levels, coherent=args.coherent, m=args.m,
-        unit_scale=args.unit_scale, up=None if args.random_orientation else (0.0, 1.0, 0.0), tileable=tileable,
-        threshold=args.threshold, pattern_size=args.pattern_size,
-        quality=not args.no_quality and args.quality_samples > 0,
-        quality_samples=max(1, args.quality_samples), device=args.device, seed=args.seed, progress=not args.quiet,
-    )
+    options = TexturingOptions(
+        method=args.method, k=args.k, levels=args.levels, coherent=args.coherent, m=args.m, unit_scale=args.unit_scale,
+        up=None if args.random_orientation else (0.0, 1.0, 0.0), tileable=tileable, threshold=args.threshold,
+        pattern_size=args.pattern_size, quality=not args.no_quality and args.quality_samples > 0,
+        quality_samples=max(1, args.quality_samples))
+    coloured, report = texture_points(model, texture, device=args.device, seed=args.seed, progress=not args.quiet,
+                                      options=options)
     write_point_set(out, coloured)
     quality = list(report.lines())
     for line in quality:
@@ -964,7 +964,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.geometry.pointsets import write_point_set
     from geosynth.io.files import write_image
     from geosynth.io.pictures import render_points, side_by_side
-    from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
+    from geosynth.pointtexture.synthesis import PointTextureOptions, output_mesh, synthesize_point_texture
 
     say, printed = _recorder(args.quiet)
     texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
@@ -975,11 +975,11 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
           f"device {args.device or 'auto'}")
     if patch_line:
         say(patch_line)
-    points, report, timings = synthesize_point_texture(
-        texture, args.size, scale=scale, patch=patch, extra=args.extra, overlap=args.overlap,
-        resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
-        quality=not args.no_quality, device=args.device, seed=args.seed, progress=not args.quiet,
-    )
+    options = PointTextureOptions(size=args.size, scale=scale, patch=patch, extra=args.extra, overlap=args.overlap,
+                                  resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
+                                  quality=not args.no_quality)
+    points, report, timings = synthesize_point_texture(texture, device=args.device, seed=args.seed,
+                                                       progress=not args.quiet, options=options)
     mesh = None
     if args.mesh:  # made before any output is written: a refusal leaves no output behind
         try:

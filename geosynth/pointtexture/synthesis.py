@@ -35,10 +35,11 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from geosynth.compute.checks import UINT32_MAX
 from geosynth.core.config import passive_openmp_threads
+from geosynth.core.options import keyword_defaults, settings_from
 from geosynth.pointtexture.output_grid import PointGrid
 from geosynth.pointtexture.texture import PointTexture
 
-__all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
+__all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureOptions", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
            "synthesize_point_texture"]
 
 
@@ -247,15 +248,31 @@ def _overlap_samples(lay: "_Layout", layers: int, tileable: bool) -> int:
     return (pc * pc - (pc - wx) * (pc - wy)) * layers
 
 
+def _check_resolution(resolution) -> None:
+    """D(T_in)'s samples along B's longer side: an integer >= 8."""
+    if not isinstance(resolution, (int, np.integer)) or isinstance(resolution, bool) or resolution < 8:
+        raise ValueError(f"resolution must be an integer >= 8 (field samples along the exemplar box's longer side), "
+                         f"got {resolution!r}.")
+
+
+def _check_size(size) -> np.ndarray:
+    """The output's (2,) x and y extent, world units, both finite and > 0."""
+    try:
+        s = np.asarray(size, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        s = np.zeros(0)
+    if s.shape != (2,) or not (np.isfinite(s).all() and (s > 0).all()):
+        raise ValueError(f"size must be two numbers > 0 (the output's x and y extent, world units), got {size!r}.")
+    return s
+
+
 def _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution, tileable,
                 quality: bool = False) -> _Layout:
     """The patch layout for an exemplar box B (box_min, box_max), with every combination
     the growth cannot use refused in one line (see :func:`check_synthesis`)."""
     box_min, box_max = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
     ext = (box_max - box_min)[:2]
-    if not isinstance(resolution, (int, np.integer)) or isinstance(resolution, bool) or resolution < 8:
-        raise ValueError(f"resolution must be an integer >= 8 (field samples along the exemplar box's longer side), "
-                         f"got {resolution!r}.")
+    _check_resolution(resolution)
     cell = float(ext.max()) / (int(resolution) - 1)
     p = _fraction("patch", patch, 0.0, 1.0)
     pc = int(round(p * float(ext.min()) / cell))
@@ -279,9 +296,7 @@ def _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution
             f"{nx} x {ny} samples of the search grid; use a smaller patch (or a smaller extra region).")
     step = pc - oc
     if size is not None:
-        s = np.asarray(size, np.float64).reshape(-1)
-        if s.shape != (2,) or not (np.isfinite(s).all() and (s > 0).all()):
-            raise ValueError(f"size must be two numbers > 0 (the output's x and y extent, world units), got {size!r}.")
+        s = _check_size(size)
     else:
         sc = _fraction("scale", scale, 0.0, 1e4)
         s = sc * ext
@@ -932,6 +947,74 @@ def _one_thread(fn):
     return run
 
 
+@dataclass(frozen=True)
+class PointTextureOptions:
+    """M2's settings, declared, checked and documented once (issue 33):
+    :func:`synthesize_point_texture` takes them as keywords or as ``options=``, and
+    ``geosynth pointtexture`` builds one from its options. Every value is checked when the
+    object is made, before any work (a bad one is a ``ValueError`` or ``TypeError`` naming it);
+    what depends on the exemplar (a patch of at least 4 cells that fits in its box with its
+    extra region, the overlaps leaving it an interior) is checked by :func:`check_synthesis`.
+
+    Attributes:
+        size: (2,) output extent in x and y, world units, both > 0; None: ``scale`` times B's.
+        scale: output extent in units of the exemplar box B's (when ``size`` is None), in (0, 1e4].
+        patch: patch side as a fraction of B's shorter side, in (0, 1]; None: chosen from the
+            exemplar's element size (:func:`choose_patch`, the same for a built-in and a file;
+            the report's ``patch_choice`` says what it measured).
+        extra: width w_E of the extra region E_k as a fraction of the patch (the paper used
+            1/8 to 1/4), in (0, 0.5].
+        overlap: overlap width as a fraction of the patch, in (0, 0.5], leaving the patch an
+            interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
+        resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
+            51 to 84).
+        weights: a :class:`geosynth.pointtexture.warping.WarpWeights`; None: the paper's preset
+            for a built-in, else WarpWeights().
+        eps: the relative tolerance of the candidate set (step 2), finite, >= 0.
+        tileable: grow a periodic output (its opposite borders continue each other).
+        relax: relax the final point set (:func:`geosynth.pointtexture.blending.relax_points`).
+        quality: compute the quality numbers and the random-pasting baseline.
+        quality_samples: patches sampled per direction for the patch-field distance, >= 1.
+    """
+
+    size: tuple[float, float] | None = None
+    scale: float = 2.0
+    patch: float | None = None
+    extra: float = 0.2
+    overlap: float = 0.25
+    resolution: int = 48
+    weights: object | None = None
+    eps: float = 0.1
+    tileable: bool = False
+    relax: bool = False
+    quality: bool = True
+    quality_samples: int = 16
+
+    def __post_init__(self) -> None:
+        from geosynth.compute.checks import check_bool
+        from geosynth.pointtexture.warping import WarpWeights
+
+        if self.size is not None:
+            object.__setattr__(self, "size", tuple(float(v) for v in _check_size(self.size)))
+        _fraction("scale", self.scale, 0.0, 1e4)
+        if self.patch is not None:
+            _fraction("patch", self.patch, 0.0, 1.0)
+        _fraction("extra", self.extra, 0.0, 0.5)
+        _fraction("overlap", self.overlap, 0.0, 0.5)
+        _check_resolution(self.resolution)
+        if self.weights is not None and not isinstance(self.weights, WarpWeights):
+            raise TypeError(f"weights must be a geosynth.pointtexture.warping.WarpWeights, got "
+                            f"{type(self.weights).__name__}.")
+        eps = self.eps
+        if not (isinstance(eps, (int, float, np.integer, np.floating)) and np.isfinite(eps) and eps >= 0):
+            raise ValueError(f"eps must be a finite number >= 0, got {eps!r}.")
+        for name in ("tileable", "relax", "quality"):
+            object.__setattr__(self, name, check_bool(name, getattr(self, name)))
+        qs = self.quality_samples
+        if isinstance(qs, (bool, np.bool_)) or not isinstance(qs, (int, np.integer)) or qs < 1:
+            raise ValueError(f"quality_samples must be an integer >= 1, got {qs!r}.")
+
+
 @_one_thread
 def synthesize_point_texture(
     exemplar,
@@ -951,33 +1034,21 @@ def synthesize_point_texture(
     device: str | None = None,
     seed: int = 0,
     progress: bool = False,
+    options: PointTextureOptions | None = None,
 ):
     """Grow a larger point-set geometry texture from an exemplar (Sec. 4 and 5).
 
     Args:
         exemplar: a :class:`geosynth.pointtexture.texture.PointTexture`, a built-in name
             (heightfield, chainmail, weave, flowers) or a file (PLY point set or mesh).
-        size: (2,) output extent in x and y, world units; default ``scale`` times B's.
-        scale: output extent in units of the exemplar box B's (when ``size`` is None).
-        patch: patch side as a fraction of B's shorter side, in (0, 1]; default (None)
-            chosen from the exemplar's element size (:func:`choose_patch`, the same for a
-            built-in and a file; the report's ``patch_choice`` says what it measured).
-        extra: width w_E of the extra region E_k as a fraction of the patch (the paper
-            used 1/8 to 1/4), in (0, 0.5].
-        overlap: overlap width as a fraction of the patch, in (0, 0.5), leaving the patch an
-            interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
-        resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
-            51 to 84).
-        weights: a :class:`geosynth.pointtexture.warping.WarpWeights`; default the paper's preset for
-            a built-in, else WarpWeights().
-        eps: the relative tolerance of the candidate set (step 2), >= 0.
-        tileable: grow a periodic output (its opposite borders continue each other).
-        relax: relax the final point set (:func:`geosynth.pointtexture.blending.relax_points`).
-        quality: compute the quality numbers and the random-pasting baseline.
-        quality_samples: patches sampled per direction for the patch-field distance.
+        size, scale, patch, extra, overlap, resolution, weights, eps, tileable, relax, quality,
+            quality_samples: the settings, each documented and checked once in
+            :class:`PointTextureOptions`.
         device: a device string; None means "auto".
         seed: seed of every random choice.
         progress: show a progress bar on stderr.
+        options: the settings as one :class:`PointTextureOptions` instead of the keywords
+            (then the keywords must keep their defaults).
 
     Runs with one BLAS and one OpenMP thread (threadpoolctl: faster for the spline's thin
     products and the small k-d tree queries, and the output does not depend on the BLAS
@@ -1005,20 +1076,24 @@ def synthesize_point_texture(
     from geosynth.pointtexture.blending import has_pieces
     from geosynth.pointtexture.element_size import relief_scale
     from geosynth.pointtexture.patch_search import PatchSearch
-    from geosynth.pointtexture.warping import WarpWeights, surface_variation
+    from geosynth.pointtexture.warping import surface_variation
 
     t_start = time.perf_counter()
+    given = dict(size=size, scale=scale, patch=patch, extra=extra, overlap=overlap, resolution=resolution,
+                 weights=weights, eps=eps, tileable=tileable, relax=relax, quality=quality,
+                 quality_samples=quality_samples)
+    # every setting checked here, before any work
+    options = settings_from(PointTextureOptions, options, given, keyword_defaults(synthesize_point_texture, given))
+    size, scale, patch, extra, overlap, resolution = (options.size, options.scale, options.patch, options.extra,
+                                                      options.overlap, options.resolution)
+    weights, eps, tileable, relax, quality, quality_samples = (options.weights, options.eps, options.tileable,
+                                                               options.relax, options.quality, options.quality_samples)
     texture = _as_texture(exemplar, seed)
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
-    if not (isinstance(eps, (int, float, np.integer, np.floating)) and np.isfinite(eps) and eps >= 0):
-        raise ValueError(f"eps must be a finite number >= 0, got {eps!r}.")
-    tileable = _checks.check_bool("tileable", tileable)
     host_threads()  # a bad GEOSYNTH_HOST_THREADS is refused here, before any work
     if weights is None:
         weights = _default_weights(texture)
-    elif not isinstance(weights, WarpWeights):
-        raise TypeError(f"weights must be a geosynth.pointtexture.warping.WarpWeights, got {type(weights).__name__}.")
     backend = _checks.resolve_backend(device)
     device = backend.name  # the resolved device ("auto" / None made concrete): every stage runs on this one
     choice = None

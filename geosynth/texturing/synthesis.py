@@ -23,18 +23,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geosynth.compute.backend import get_backend
+from geosynth.compute.checks import check_bool
+from geosynth.core.options import keyword_defaults, settings_from
 from geosynth.geometry.pointsets import PointSet
 from geosynth.texturing.hierarchy import PointLevel, build_hierarchy
 from geosynth.texturing.matching import DEFAULT_MATCH_BATCH, match_level
 from geosynth.texturing.models import knn_table, spatial_order
 from geosynth.texturing.parameterize import (
-    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_k, check_up, colour_parameterization,
-    frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
+    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_growth_options, check_k, check_up,
+    colour_parameterization, frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
 )
 from geosynth.texturing.texel_search import DEFAULT_M, TexelSearch, pixel_offsets
 from geosynth.texturing.textures import as_texture, texture_pyramid
 
-__all__ = ["METHODS", "TextureReport", "neighbourhood_error", "texture_bytes", "texture_points"]
+__all__ = ["METHODS", "TextureReport", "TexturingOptions", "neighbourhood_error", "texture_bytes", "texture_points"]
 
 METHODS = ("param", "match", "hybrid")
 QUALITY_ROTATIONS = 8  # the quality error takes the best of this many neighbourhood rotations (45 degree steps)
@@ -197,22 +199,15 @@ def _check_scales(p: np.ndarray, unit: float, unit_scale: float, pattern_size, k
                          f"texels of a {w} x {h} texture; the model must span at least a neighbourhood "
                          f"({side:.3g} texels) and a neighbourhood at most the texture: the range that works here is "
                          f"{works}.")
-    if pattern_size is not None and not (isinstance(pattern_size, (int, float, np.integer, np.floating))
-                                         and math.isfinite(pattern_size) and pattern_size >= 0):
-        raise ValueError(f"pattern_size must be a number of texels >= 0 (or None), got {pattern_size!r}.")
     if pattern_size is not None and method == "hybrid" and float(pattern_size) > max(h, w):
         raise ValueError(f"pattern_size {float(pattern_size):g} is larger than the texture ({w} x {h} texels): a "
                          f"pattern is at most the texture; use a pattern_size from 0 to {max(h, w)}.")
 
 
-def _check_options(method, k, levels, m, n_pts, texture, coherent):
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
+def _check_options(method, k, levels, m, n_pts, texture):
+    """The settings against this model and texture (:class:`TexturingOptions` checked them alone):
+    k below the point count, a neighbourhood the coarsest texture holds."""
     k = check_k(k, n_pts)
-    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise ValueError(f"levels must be an integer >= 1, got {levels!r}.")
-    if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 32:
-        raise ValueError(f"m (supersampling) must be an integer in [1, 32], got {m!r}.")
     h, w = texture.shape[:2]
     side = math.ceil(math.sqrt(k + 1))  # a k-neighbourhood spans about sqrt(k) x sqrt(k) texels
     if method != "param" and min(h, w) >> (levels - 1) < side:
@@ -264,6 +259,85 @@ def texture_bytes(n_points: int, height: int, width: int, *, method: str = "hybr
     return max(points_stage, texture_stage + (16 * k + 40) * n) + (512 << 10)
 
 
+@dataclass(frozen=True)
+class TexturingOptions:
+    """M3's settings, declared, checked and documented once (issue 33): :func:`texture_points`
+    takes them as keywords or as ``options=``, and ``geosynth texture`` builds one from its
+    options. Every value is checked when the object is made, before any work (a bad one is a
+    ``ValueError`` or ``TypeError`` naming it); what depends on the model and the texture (k
+    below the point count, a neighbourhood the texture holds, ``unit_scale``'s and
+    ``pattern_size``'s ranges) is checked by :func:`texture_points`.
+
+    Attributes:
+        method: ``"param"`` (point parameterization), ``"match"`` (neighbourhood matching) or
+            ``"hybrid"`` (parameterization, then matching in the gaps).
+        k: neighbours per point (>= 3); 25 or 49 in the paper.
+        levels: multiresolution levels of matching (point hierarchy + texture pyramid), >= 1.
+        coherent: coherent matching (candidates near the neighbours' source texels).
+        m: supersampling factor of the texel search, 1 to 32.
+        unit_scale: one texel = ``unit_scale`` x the mean nearest-neighbour distance (larger:
+            a larger texture on the model), > 0.
+        up: up vector for the texture orientation (a non-zero 3-vector), or None for a random
+            direction.
+        tileable: the texture tiles (unbounded patches, periodic lookups); else patches are
+            capped at ``max_patch`` texels and lookups clamp at the edge.
+        weights, threshold: the distortion measure (w1..w4, each >= 0) and its bound (> 0).
+        max_patch: largest patch extent in texels when not tileable, >= 1 (None: 0.8 x the
+            texture's smaller side).
+        pattern_size: the texture's pattern size in texels, >= 0, for the hybrid's gap widening
+            (None: one widening round).
+        subtexel: refine each matched texel to the best supersampled pixel within half a texel
+            and take that pixel's colour (our addition; False: the texel's own colour, as in
+            the paper).
+        batch: points searched per kernel launch (none in another's k-neighbourhood), >= 1;
+            1 is the paper's sequential order with one :func:`geosynth.score_gather` call per
+            point (same texel choices per query; the order differs a little).
+        quality: compute the quality numbers (mean eq. 5 error of the result, of a random
+            colouring and of the pure parameterization).
+        quality_samples: points whose neighbourhoods the quality numbers average over, >= 1.
+    """
+
+    method: str = "hybrid"
+    k: int = 25
+    levels: int = 1
+    coherent: bool = False
+    m: int = DEFAULT_M
+    unit_scale: float = 1.0
+    up: tuple[float, float, float] | None = (0.0, 1.0, 0.0)
+    tileable: bool = True
+    weights: tuple[float, float, float, float] = DEFAULT_WEIGHTS
+    threshold: float = DEFAULT_THRESHOLD
+    max_patch: float | None = None
+    pattern_size: float | None = None
+    subtexel: bool = True
+    batch: int = DEFAULT_MATCH_BATCH
+    quality: bool = True
+    quality_samples: int = 200
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}.")
+        if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 3:
+            raise ValueError(f"k (neighbours per point) must be an integer >= 3, got {self.k!r}.")
+        levels, m = self.levels, self.m
+        if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
+            raise ValueError(f"levels must be an integer >= 1, got {levels!r}.")
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 32:
+            raise ValueError(f"m (supersampling) must be an integer in [1, 32], got {m!r}.")
+        check_growth_options(self.weights, self.threshold, self.unit_scale, self.max_patch)
+        check_up(self.up)
+        pattern_size = self.pattern_size
+        if pattern_size is not None and not (isinstance(pattern_size, (int, float, np.integer, np.floating))
+                                             and math.isfinite(pattern_size) and pattern_size >= 0):
+            raise ValueError(f"pattern_size must be a number of texels >= 0 (or None), got {pattern_size!r}.")
+        for name in ("coherent", "tileable", "subtexel", "quality"):
+            check_bool(name, getattr(self, name))
+        for name in ("batch", "quality_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}.")
+
+
 def texture_points(
     points: PointSet,
     texture: np.ndarray,
@@ -287,6 +361,7 @@ def texture_points(
     device: str | None = None,
     seed: int = 0,
     progress: bool = False,
+    options: TexturingOptions | None = None,
 ) -> tuple[PointSet, TextureReport]:
     """Colour every point of a point model from a sample texture (M3).
 
@@ -294,34 +369,14 @@ def texture_points(
         points: PointSet with positions and normals (estimate missing normals with
             :func:`geosynth.geometry.pointsets.estimate_normals`).
         texture: (H, W, 3) uint8 RGB texture (grey is converted; RGBA must be opaque).
-        method: ``"param"`` (point parameterization), ``"match"`` (neighbourhood
-            matching) or ``"hybrid"`` (parameterization, then matching in the gaps).
-        k: neighbours per point (>= 3); 25 or 49 in the paper.
-        levels: multiresolution levels of matching (point hierarchy + texture pyramid).
-        coherent: coherent matching (candidates near the neighbours' source texels).
-        m: supersampling factor of the texel search.
-        unit_scale: one texel = ``unit_scale`` x the mean nearest-neighbour distance
-            (larger: a larger texture on the model).
-        up: up vector for the texture orientation, or None for a random direction.
-        tileable: the texture tiles (unbounded patches, periodic lookups); else patches
-            are capped at ``max_patch`` texels and lookups clamp at the edge.
-        weights, threshold: the distortion measure (w1..w4) and its bound.
-        max_patch: largest patch extent in texels when not tileable (default 0.8 x the
-            texture's smaller side).
-        pattern_size: the texture's pattern size in texels, for the hybrid's gap widening
-            (default: one widening round).
-        subtexel: refine each matched texel to the best supersampled pixel within half
-            a texel and take that pixel's colour (our addition; False: the texel's own
-            colour, as in the paper).
-        batch: points searched per kernel launch (none in another's k-neighbourhood);
-            1 is the paper's sequential order with one :func:`geosynth.score_gather` call
-            per point (same texel choices per query; the order differs a little).
-        quality: compute the quality numbers (mean eq. 5 error of the result, of a
-            random colouring and of the pure parameterization).
-        quality_samples: points whose neighbourhoods the quality numbers average over.
+        method, k, levels, coherent, m, unit_scale, up, tileable, weights, threshold, max_patch,
+            pattern_size, subtexel, batch, quality, quality_samples: the settings, each documented
+            and checked once in :class:`TexturingOptions`.
         device: where the texel searches run (a device string; None: "auto").
         seed: seed of every random choice; the same seed gives the same colours on every device.
         progress: show progress bars.
+        options: the settings as one :class:`TexturingOptions` instead of the keywords (then
+            the keywords must keep their defaults).
 
     Returns:
         (the coloured PointSet (positions and normals as given), a :class:`TextureReport`).
@@ -335,7 +390,19 @@ def texture_points(
             available, before anything is allocated: option ``"texture_size"`` when the
             texture search alone is too large, else ``"count"`` (the points).
     """
-    tex, p, nrm, k, levels, m = _checked_inputs(points, texture, method, k, levels, m, coherent, up, batch, quality)
+    given = dict(method=method, k=k, levels=levels, coherent=coherent, m=m, unit_scale=unit_scale, up=up,
+                 tileable=tileable, weights=weights, threshold=threshold, max_patch=max_patch,
+                 pattern_size=pattern_size, subtexel=subtexel, batch=batch, quality=quality,
+                 quality_samples=quality_samples)
+    # every setting checked here, before any work
+    options = settings_from(TexturingOptions, options, given, keyword_defaults(texture_points, given))
+    method, k, levels, coherent, m, unit_scale, up, tileable = (
+        options.method, options.k, options.levels, options.coherent, options.m, options.unit_scale, options.up,
+        options.tileable)
+    weights, threshold, max_patch, pattern_size, subtexel, batch, quality, quality_samples = (
+        options.weights, options.threshold, options.max_patch, options.pattern_size, options.subtexel, options.batch,
+        options.quality, options.quality_samples)
+    tex, p, nrm, k, levels, m = _checked_inputs(points, texture, method, k, levels, m, quality)
     n_pts = len(p)
     rng = np.random.default_rng(seed)
     h, w = tex.shape[:2]
@@ -395,7 +462,7 @@ def texture_points(
     return out, report
 
 
-def _checked_inputs(points, texture, method, k, levels, m, coherent, up, batch, quality):
+def _checked_inputs(points, texture, method, k, levels, m, quality):
     """texture_points' input checks and its memory refusal, before any allocation.
 
     Returns:
@@ -404,10 +471,7 @@ def _checked_inputs(points, texture, method, k, levels, m, coherent, up, batch, 
     """
     tex = as_texture(texture)
     p, nrm = as_model(points)
-    k, levels, m = _check_options(method, k, levels, m, len(p), tex, coherent)
-    check_up(up)
-    if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
-        raise ValueError(f"batch must be an integer >= 1, got {batch!r}.")
+    k, levels, m = _check_options(method, k, levels, m, len(p), tex)
     if method == "param":
         levels = 1
     _require_texture(len(p), tex.shape[0], tex.shape[1], method, k, levels, m, quality)
