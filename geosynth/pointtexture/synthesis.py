@@ -379,8 +379,27 @@ class _Timer:
         return now
 
 
-def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer, *,
-          baseline=False, seams_wanted=True, progress=False, label="synthesis", cut=False):
+@dataclass(frozen=True)
+class _Growth:
+    """What every growth of one :func:`synthesize_point_texture` run shares (the synthesis and
+    its random-pasting baseline): the exemplar, its search structure D(T_in) and the patch
+    layout, the warp's weights and the candidates' tolerance, whether the output tiles, the
+    device, the exemplar's point spacing and MLS width h, and its surface variation."""
+
+    texture: PointTexture
+    search: object
+    lay: _Layout
+    weights: object
+    eps: float
+    tileable: bool
+    device: str
+    spacing: float
+    h: float
+    variation: np.ndarray
+
+
+def _grow(growth: _Growth, rng, timer, *, baseline=False, seams_wanted=True, progress=False, label="synthesis",
+          cut=False):
     """Steps 1 to 7 of Sec. 4; returns (PointGrid, stats dict). ``seams_wanted``: measure the
     seam errors (quality numbers; their time goes to the timer's "quality", not to a stage).
     ``cut``: the exemplar has disconnected pieces (blending.has_pieces): those one side of
@@ -397,6 +416,8 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     from geosynth.compute.host_steps import host_threads
     from geosynth.pointtexture.patch_search import quantized_fields
 
+    texture, search, lay, weights, eps = growth.texture, growth.search, growth.lay, growth.weights, growth.eps
+    tileable, device, spacing, h, variation = growth.tileable, growth.device, growth.spacing, growth.h, growth.variation
     if not baseline:
         from geosynth.pointtexture.blending import blend_patch, cut_pieces, overlap_ramp, seam_errors
         from geosynth.pointtexture.warping import warp_patch
@@ -1074,7 +1095,6 @@ def synthesize_point_texture(
     from geosynth.compute.host_steps import host_threads
     from geosynth.geometry.pointsets import MLS_REACH, PointSet
     from geosynth.pointtexture.blending import has_pieces
-    from geosynth.pointtexture.element_size import relief_scale
     from geosynth.pointtexture.patch_search import PatchSearch
     from geosynth.pointtexture.warping import surface_variation
 
@@ -1120,30 +1140,16 @@ def synthesize_point_texture(
         variation = variation_job.result()
         cut = pieces_job.result()  # disconnected pieces (flowers): cut, not blended
     timer.add("precompute", t_start)
-    rng = np.random.default_rng(seed)
-    grid, stats = _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer,
-                        seams_wanted=quality, progress=progress, cut=cut)
+    growth = _Growth(texture, search, lay, weights, eps, tileable, device, spacing, h, variation)
+    grid, stats = _grow(growth, np.random.default_rng(seed), timer, seams_wanted=quality, progress=progress, cut=cut)
     t0 = time.perf_counter()
     p, n, src = _cut(grid, lay, texture, tileable)
     if relax:
         from geosynth.pointtexture.blending import relax_points
 
         p, n = relax_points(p, n, spacing, device=device)
-    # item 2 of issue 32: the output's element size and relief amplitude beside the exemplar's
-    ex_scale = choice.scale if choice is not None else relief_scale(texture.points, texture.box_min, texture.box_max,
-                                                                    spacing)
-    out_lo = texture.box_min[:2]
-    out_hi = out_lo + np.asarray(lay.size, np.float64)
-    # near the exemplar's period (half to twice it, within what the exemplar's map measures)
-    ex_side = min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])
-    band = (0.5 * ex_scale.period, min(2.0 * ex_scale.period, 0.5 * ex_side))
-
-    def measured(points) -> tuple[float, float, bool]:
-        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], band=band,
-                          near=ex_scale.period)
-        return rs.period, rs.amplitude, rs.peak
-
-    relief = {"exemplar": (ex_scale.period, ex_scale.amplitude, ex_scale.peak), "output": measured(p)}
+    measured = _relief_measure(texture, choice, lay, spacing)
+    relief = {"exemplar": measured.exemplar, "output": measured(p)}
     timer.add("other", t0)
     timings = dict(timer.t)
     seam_time = timings.pop("quality")  # the seam errors measured during the growth
@@ -1159,30 +1165,72 @@ def synthesize_point_texture(
         relief=relief,
     )
     if quality:
-        tq = time.perf_counter()
-        base_grid, base_stats = _grow(texture, search, lay, weights, eps, tileable, np.random.default_rng(seed + 1),
-                                      device, spacing, h, variation, _Timer(), baseline=True)
-        bp, bn, bsrc = _cut(base_grid, lay, texture, tileable)
-        qrng = np.random.default_rng(seed)
-        lo = texture.box_min[:2]
-        out_codes = _field_codes(p, n, lay, search, h, device, lo, lay.size)
-        base_codes = _field_codes(bp, bn, lay, search, h, device, lo, lay.size)
-        q = report.quality
-        q["field_distance"] = _field_distance(out_codes, search.codes, lay.patch, quality_samples, qrng, device)
-        q["field_distance_baseline"] = _field_distance(base_codes, search.codes, lay.patch, quality_samples,
-                                                       np.random.default_rng(seed), device)
-        s = stats["seams"]
-        if s["before"]:
-            q["seam_before"] = float(np.sqrt(np.mean(np.square(s["before"]))))
-            q["seam_after"] = float(np.sqrt(np.mean(np.square(s["after"]))))
-            q["seam_baseline"] = float(np.sqrt(np.mean(np.square(base_stats["seams"]["baseline"]))))
-        q["stray"] = _stray_share(p, n, spacing, h, device)
-        q["stray_baseline"] = _stray_share(bp, bn, spacing, h, device)
-        report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32), _source_colors(texture, bsrc))
-        report.relief["baseline"] = measured(bp)
-        timings["quality"] = time.perf_counter() - tq + seam_time
+        timings["quality"] = _quality_numbers(growth, report, p, n, stats, seed, quality_samples, measured) + seam_time
     points = PointSet(p.astype(np.float32), n.astype(np.float32), _source_colors(texture, src))
     return points, report, timings
+
+
+class _ReliefMeasure:
+    """Item 2 of issue 32: a point set's element size and relief amplitude measured as the
+    exemplar's were (:func:`geosynth.pointtexture.element_size.relief_scale` over the output's
+    box, near the exemplar's period: half to twice it, within what the exemplar's map
+    measures). ``exemplar``: its (period, amplitude, peak); calling it on points gives theirs."""
+
+    def __init__(self, exemplar_scale, out_lo: np.ndarray, out_hi: np.ndarray, spacing: float):
+        ex_side = min(exemplar_scale.shape[0] * exemplar_scale.cell[1], exemplar_scale.shape[1] * exemplar_scale.cell[0])
+        self.scale, self.lo, self.hi, self.spacing = exemplar_scale, out_lo, out_hi, spacing
+        self.band = (0.5 * exemplar_scale.period, min(2.0 * exemplar_scale.period, 0.5 * ex_side))
+        self.exemplar = (exemplar_scale.period, exemplar_scale.amplitude, exemplar_scale.peak)
+
+    def __call__(self, points) -> tuple[float, float, bool]:
+        from geosynth.pointtexture.element_size import relief_scale
+
+        rs = relief_scale(points, self.lo, self.hi, self.spacing, cell=self.scale.cell[0], band=self.band,
+                          near=self.scale.period)
+        return rs.period, rs.amplitude, rs.peak
+
+
+def _relief_measure(texture: PointTexture, choice, lay: _Layout, spacing: float) -> _ReliefMeasure:
+    """The measure of the output's relief beside the exemplar's (the patch choice's measurement
+    of the exemplar when the patch was chosen, else measured here)."""
+    from geosynth.pointtexture.element_size import relief_scale
+
+    ex_scale = choice.scale if choice is not None else relief_scale(texture.points, texture.box_min, texture.box_max,
+                                                                    spacing)
+    out_lo = texture.box_min[:2]
+    return _ReliefMeasure(ex_scale, out_lo, out_lo + np.asarray(lay.size, np.float64), spacing)
+
+
+def _quality_numbers(growth: _Growth, report, p: np.ndarray, n: np.ndarray, stats: dict, seed: int,
+                     quality_samples: int, measured: _ReliefMeasure) -> float:
+    """The quality numbers beside random pasting's (the baseline grown with seed + 1): the
+    patch-field distance of the output's D to the exemplar's, the seam errors before and
+    after blending, the share of stray points, the relief; written into ``report`` (the
+    baseline's points too). Returns the seconds they took."""
+    from geosynth.geometry.pointsets import PointSet
+
+    tq = time.perf_counter()
+    texture, search, lay, tileable, device = growth.texture, growth.search, growth.lay, growth.tileable, growth.device
+    base_grid, base_stats = _grow(growth, np.random.default_rng(seed + 1), _Timer(), baseline=True)
+    bp, bn, bsrc = _cut(base_grid, lay, texture, tileable)
+    qrng = np.random.default_rng(seed)
+    lo = texture.box_min[:2]
+    out_codes = _field_codes(p, n, lay, search, growth.h, device, lo, lay.size)
+    base_codes = _field_codes(bp, bn, lay, search, growth.h, device, lo, lay.size)
+    q = report.quality
+    q["field_distance"] = _field_distance(out_codes, search.codes, lay.patch, quality_samples, qrng, device)
+    q["field_distance_baseline"] = _field_distance(base_codes, search.codes, lay.patch, quality_samples,
+                                                   np.random.default_rng(seed), device)
+    s = stats["seams"]
+    if s["before"]:
+        q["seam_before"] = float(np.sqrt(np.mean(np.square(s["before"]))))
+        q["seam_after"] = float(np.sqrt(np.mean(np.square(s["after"]))))
+        q["seam_baseline"] = float(np.sqrt(np.mean(np.square(base_stats["seams"]["baseline"]))))
+    q["stray"] = _stray_share(p, n, growth.spacing, growth.h, device)
+    q["stray_baseline"] = _stray_share(bp, bn, growth.spacing, growth.h, device)
+    report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32), _source_colors(texture, bsrc))
+    report.relief["baseline"] = measured(bp)
+    return time.perf_counter() - tq
 
 
 def output_mesh(points, normals, spacing: float, resolution: int = 160, device: str | None = None):

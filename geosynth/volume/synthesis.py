@@ -195,6 +195,17 @@ def source_levels(source_shape, slab: bool | None = None) -> tuple[int, str]:
     return max_levels(source_shape, slab), f" (each level halves the source {tuple(source_shape)})"
 
 
+def source_pyramid(source: np.ndarray, band: float, levels: int) -> list[np.ndarray]:
+    """The exemplar at every level, coarsest first: a float source quantized with ``band``
+    (:func:`quantize_field`), then halved ``levels - 1`` times (:func:`downsample`)."""
+    if source.dtype != np.uint8:
+        source = quantize_field(source, band)
+    sources = [np.ascontiguousarray(source)]
+    for _ in range(levels - 1):
+        sources.insert(0, downsample(sources[0]))
+    return sources
+
+
 def downsample(values: np.ndarray) -> np.ndarray:
     """2x2x2 box average of a uint8 (Z, Y, X) volume, rounded half up; odd sizes drop
     their last sample. The same averaging the block pyramids use."""
@@ -856,79 +867,134 @@ def synthesize_volume(
                  iterations=iterations, slab=slab)
     opts = volume_options(options, given, keyword_defaults(synthesize_volume, given),
                           lambda chosen: source_levels(src.shape, chosen["slab"])).untiled("synthesize_volume")
-    levels, tileable, search, band, method, iterations, slab = (opts.levels, opts.tileable, opts.search, opts.band,
-                                                                opts.method, opts.iterations, opts.slab)
-    block = M1_DEFAULT_BLOCK if opts.block is None else opts.block
-    check_run(seed, device, progress)
-    check_scale("spacing", spacing, "the world size of one sample")
-    _checks.check_bool("baseline", baseline)
-    float_source, target_shape = check_source_and_size(src, size, levels)
-    settings = choose_volume_settings(src.shape, target_shape, levels, block, slab=slab, method=method, band=band,
-                                      iterations=iterations, terrain=method == "auto" and optimizes_better(src))
-    slab, method, band, caps = settings.slab, settings.method, settings.band, list(settings.iterations)
-    blocks, shapes = list(settings.blocks), list(settings.block_shapes)
-    optimizing = method == "optimize" and not baseline
-
-    def estimate(shape) -> int:
-        return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, slab), search, float_source,
-                            baseline, method, tileable)
-
-    _require_size(size, target_shape, levels, estimate, "size", blocks)
-
-    if float_source:
-        src = quantize_field(src, band)
-    sources = [src]
-    for _ in range(levels - 1):
-        sources.insert(0, downsample(sources[0]))
+    settings, target_shape = _check_volume_run(src, size, opts, seed=seed, device=device, progress=progress,
+                                               spacing=spacing, baseline=baseline)
+    sources = source_pyramid(src, settings.band, opts.levels)
+    src = sources[-1]
+    optimizing = settings.method == "optimize" and not baseline
+    run = _VolumeRun(opts.levels, opts.tileable, settings.slab, settings.method, settings.iterations, opts.search,
+                     device, baseline, progress,
+                     relief=bool(HISTOGRAM_MATCH) and optimizing and target_shape[0] == src.shape[0]
+                     and is_height_field(src))
     rng = np.random.default_rng(seed)
     reports: list[LevelReport] = []
     target = None
-    relief = bool(HISTOGRAM_MATCH) and optimizing and target_shape[0] == src.shape[0] and is_height_field(src)
     timings = {"prepare": time.perf_counter() - t_start}
-    for lvl, (s, b, across) in enumerate(zip(sources, shapes, blocks)):
+    for lvl, (s, b, across) in enumerate(zip(sources, settings.block_shapes, settings.blocks)):
         t0 = time.perf_counter()
-        shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
-        if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
-            from geosynth.volume.optimize import random_blocks
-
-            target = random_blocks(s, shape, b, rng, tileable)
-        elif target is None:  # random samples of the source
-            target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
-        else:
-            target = upsample(target, shape, wrap=(tileable and not slab, tileable, tileable))
-            if relief and HISTOGRAM_MATCH in ("coarse+init", "all"):  # trilinear upsampling lowers it too
-                target = match_histogram(target, s, per_slice=True)
-        matcher = None if baseline else Matcher(s, b, device, search)
+        shape = tuple(n // 2 ** (run.levels - 1 - lvl) for n in target_shape)
+        target = _level_start(run, lvl, s, shape, b, target, rng)
+        matcher = None if baseline else Matcher(s, b, device, run.search)
         t_build = time.perf_counter() - t0
-        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {block_text(b)})"
-        iters = 1
-        if optimizing:
-            from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
-
-            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
-                                 stride=level_stride(across, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
-                                 final=level_final(lvl == levels - 1))
-            count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
-            if relief and (HISTOGRAM_MATCH == "all" or (HISTOGRAM_MATCH.startswith("coarse") and lvl < levels - 1)):
-                # the vote's averages lower the relief: restore each slice's code histogram (a height
-                # field's height distribution is its inside share per slice)
-                target = match_histogram(target, s, per_slice=True)
-            changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
-        else:
-            count, mean_dist = synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
-                                                 cut=method == "graphcut" and not baseline)
+        target, count, mean_dist, iters, notes = _synthesize_volume_level(run, lvl, s, target, b, across, matcher, rng)
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
-                                   ("random tiling" if matcher is None else matcher.summary())
-                                   + (f"\ntexture optimization: {iters} iterations, matches changed {changes}"
-                                      if optimizing else ""), iters))
+                                   ("random tiling" if matcher is None else matcher.summary()) + notes, iters))
     timings["total"] = time.perf_counter() - t_start
-    distance = dequantize_field(target, band) * np.float32(spacing)
+    distance = dequantize_field(target, settings.band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
-    return VolumeResult(target, result_field, src, reports, float(band), timings,
-                        "random tiling" if baseline else method, slab, settings)
+    return VolumeResult(target, result_field, src, reports, float(settings.band), timings,
+                        "random tiling" if baseline else settings.method, settings.slab, settings)
+
+
+def _check_volume_run(src: np.ndarray, size, opts: VolumeOptions, *, seed, device, progress, spacing,
+                      baseline) -> tuple[VolumeSettings, tuple[int, int, int]]:
+    """synthesize_volume's checks beside its settings' (the run's arguments, the source and
+    size) and its choices from the input (:func:`choose_volume_settings`: slab, blocks,
+    method, band, iteration caps), and the memory refusal (:func:`volume_bytes`, option
+    ``"size"``), before anything is allocated. Returns (the choices, the target's shape)."""
+    levels, block = opts.levels, M1_DEFAULT_BLOCK if opts.block is None else opts.block
+    check_run(seed, device, progress)
+    check_scale("spacing", spacing, "the world size of one sample")
+    _checks.check_bool("baseline", baseline)
+    float_source, target_shape = check_source_and_size(src, size, levels)
+    settings = choose_volume_settings(src.shape, target_shape, levels, block, slab=opts.slab, method=opts.method,
+                                      band=opts.band, iterations=opts.iterations,
+                                      terrain=opts.method == "auto" and optimizes_better(src))
+    blocks = list(settings.blocks)
+
+    def estimate(shape) -> int:
+        return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, settings.slab), opts.search,
+                            float_source, baseline, settings.method, opts.tileable)
+
+    _require_size(size, target_shape, levels, estimate, "size", blocks)
+    return settings, target_shape
+
+
+@dataclass(frozen=True)
+class _VolumeRun:
+    """What every level of one :func:`synthesize_volume` run shares.
+
+    Attributes:
+        levels, tileable, search, device, baseline, progress: as given.
+        slab, method, caps: the choices (:class:`VolumeSettings`: ``method`` resolved,
+            ``caps`` its ``iterations``).
+        relief: a height field's slices keep the exemplar's code histograms
+            (``HISTOGRAM_MATCH``, texture optimization only).
+    """
+
+    levels: int
+    tileable: bool
+    slab: bool
+    method: str
+    caps: tuple
+    search: str
+    device: str | None
+    baseline: bool
+    progress: bool
+    relief: bool
+
+    @property
+    def optimizing(self) -> bool:
+        """Texture optimization makes the levels (not the scan, not the random baseline)."""
+        return self.method == "optimize" and not self.baseline
+
+
+def _level_start(run: _VolumeRun, lvl: int, source: np.ndarray, shape, block, coarser: np.ndarray | None,
+                 rng: np.random.Generator) -> np.ndarray:
+    """A level's starting field (the multiresolution synthesis, Sec. 5.2): at the coarsest,
+    random source blocks (texture optimization, Kwatra et al. 2005) or random source samples
+    (the scan); above it, the coarser level's result upsampled, a height field's slices given
+    back the exemplar's code histograms (trilinear upsampling lowers the relief)."""
+    if coarser is None and run.optimizing:
+        from geosynth.volume.optimize import random_blocks
+
+        return random_blocks(source, shape, block, rng, run.tileable)
+    if coarser is None:
+        return source.reshape(-1)[rng.integers(0, source.size, size=int(np.prod(shape)))].reshape(shape)
+    target = upsample(coarser, shape, wrap=(run.tileable and not run.slab, run.tileable, run.tileable))
+    if run.relief and HISTOGRAM_MATCH in ("coarse+init", "all"):
+        target = match_histogram(target, source, per_slice=True)
+    return target
+
+
+def _synthesize_volume_level(run: _VolumeRun, lvl: int, source: np.ndarray, target: np.ndarray, block, across: int,
+                             matcher, rng: np.random.Generator) -> tuple[np.ndarray, int, float, int, str]:
+    """One level made from its matches: texture optimization (:func:`geosynth.volume.optimize.optimize_level`,
+    exact matches of blocks on a lattice and a robust vote, iterated) or the scan in block
+    order (the paper's Sec. 5.3 copying, graphcut pasting, or the random baseline,
+    :func:`synthesize_level`). Returns (the level's field, matches, mean match distance,
+    iterations, the search summary's extra lines)."""
+    last = lvl == run.levels - 1
+    if not run.optimizing:
+        label = (f"level {lvl + 1}/{run.levels} ({target.shape[2]}x{target.shape[1]}x{target.shape[0]}, "
+                 f"block {block_text(block)})")
+        count, mean_dist = synthesize_level(source, target, block, matcher, run.tileable, rng, run.progress, label,
+                                            run.baseline, cut=run.method == "graphcut" and not run.baseline)
+        return target, count, mean_dist, 1, ""
+    from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
+
+    got = optimize_level(source, target, block, matcher, wrap=run.tileable, iterations=int(run.caps[lvl]),
+                         stride=level_stride(across, last), sigma=level_sigma(last), final=level_final(last))
+    if run.relief and (HISTOGRAM_MATCH == "all" or (HISTOGRAM_MATCH.startswith("coarse") and not last)):
+        # the vote's averages lower the relief: restore each slice's code histogram (a height
+        # field's height distribution is its inside share per slice)
+        target = match_histogram(target, source, per_slice=True)
+    changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
+    return (target, got["matches"], got["mean_distance"], got["iterations"],
+            f"\ntexture optimization: {got['iterations']} iterations, matches changed {changes}")
 
 
 def block_text(block) -> str:
