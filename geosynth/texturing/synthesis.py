@@ -399,9 +399,9 @@ def texture_points(
     method, k, levels, coherent, m, unit_scale, up, tileable = (
         options.method, options.k, options.levels, options.coherent, options.m, options.unit_scale, options.up,
         options.tileable)
-    weights, threshold, max_patch, pattern_size, subtexel, batch, quality, quality_samples = (
-        options.weights, options.threshold, options.max_patch, options.pattern_size, options.subtexel, options.batch,
-        options.quality, options.quality_samples)
+    weights, threshold, max_patch, pattern_size, quality, quality_samples = (
+        options.weights, options.threshold, options.max_patch, options.pattern_size, options.quality,
+        options.quality_samples)
     tex, p, nrm, k, levels, m = _checked_inputs(points, texture, method, k, levels, m, quality)
     n_pts = len(p)
     rng = np.random.default_rng(seed)
@@ -421,22 +421,20 @@ def texture_points(
         threshold=threshold, max_patch=None if tileable else max_patch, tileable=tileable, rng=rng,
         neighbours=(dist, nb), device=dev_name, report=report)
 
-    colours = np.zeros((n_pts, 3), np.uint8)
-    coloured = np.zeros(n_pts, bool)
-    source = np.full(n_pts, -1, np.int64)
+    colouring = _Colouring.empty(n_pts)
+    colours = colouring.colours
     param_colours = None
     if method in ("param", "hybrid"):
         param, param_colours, patch_offsets = run_param()
         report.patches, report.gap_fraction = param.patch_count, param.gap_fraction
     if method == "param":
-        colours[:] = param_colours
-        coloured[:] = True
+        colouring.colours[:] = param_colours
+        colouring.coloured[:] = True
     else:
         # frames: the patches' own (hybrid) or from the up vector / a random direction (match)
         if method == "hybrid":
-            s_ax, t_ax = _keep_patches_outside_gaps(param, param_colours, patch_offsets, nrm, nb, tex, k, up,
-                                                    pattern_size, unit_scale, tileable, rng, colours, coloured,
-                                                    source, report)
+            s_ax, t_ax = _keep_patches_outside_gaps(param, param_colours, patch_offsets, nrm, nb, tex, options, rng,
+                                                    colouring, report)
         else:
             s_ax, t_ax = frames_from_up(nrm, up if up is not None else rng.standard_normal(3))
             report.matched_fraction = 1.0
@@ -445,8 +443,7 @@ def texture_points(
         pyramid = texture_pyramid(tex, levels)
         if levels > 1:
             _timed(report, "hierarchy + pyramid", t1, n_pts)
-        colours = _match_hierarchy(hierarchy, pyramid, method, colours, coloured, source, m, tileable, coherent,
-                                   subtexel, batch, rng, dev_name, progress, report)
+        colours = _match_hierarchy(hierarchy, pyramid, options, m, colouring, rng, dev_name, progress, report)
     sec, rates = report.seconds, report.rates
     sec["total"] = sum(v for kk, v in sec.items())
     rates["total"] = n_pts / max(sec["total"], 1e-9)
@@ -518,19 +515,35 @@ def _parameterize(model: CheckedModel, tex: np.ndarray, k: int, *, unit_scale, u
     return par, cols, offs
 
 
+@dataclass(frozen=True)
+class _Colouring:
+    """The points' colouring as the steps of :func:`texture_points` fill it in place: each
+    point's (N, 3) uint8 colour, whether it has one, and the texel it came from (-1: none)."""
+
+    colours: np.ndarray
+    coloured: np.ndarray
+    source: np.ndarray
+
+    @classmethod
+    def empty(cls, n_points: int) -> _Colouring:
+        """No point coloured yet."""
+        return cls(np.zeros((n_points, 3), np.uint8), np.zeros(n_points, bool), np.full(n_points, -1, np.int64))
+
+
 def _keep_patches_outside_gaps(param, param_colours: np.ndarray, patch_offsets: np.ndarray, nrm: np.ndarray,
-                               nb: np.ndarray, tex: np.ndarray, k: int, up, pattern_size, unit_scale,
-                               tileable: bool, rng: np.random.Generator, colours: np.ndarray, coloured: np.ndarray,
-                               source: np.ndarray, report: TextureReport) -> tuple[np.ndarray, np.ndarray]:
+                               nb: np.ndarray, tex: np.ndarray, options: TexturingOptions, rng: np.random.Generator,
+                               colouring: _Colouring, report: TextureReport) -> tuple[np.ndarray, np.ndarray]:
     """The hybrid's first step (paper Sec. 5): widen the parameterization's gaps toward the
     pattern size (each round about sqrt(k) wider), keep the patch colours and source
-    texels outside them (``colours``, ``coloured``, ``source`` updated in place), and give
-    every gap point (and any point without a frame) the frame of its nearest framed
-    neighbour.
+    texels outside them (``colouring`` updated in place), and give every gap point (and any
+    point without a frame) the frame of its nearest framed neighbour.
 
     Returns:
         (S axes (N, 3), T axes (N, 3)) float64 frames for the matching.
     """
+    k, up, pattern_size, unit_scale, tileable = (options.k, options.up, options.pattern_size, options.unit_scale,
+                                                 options.tileable)
+    colours, coloured, source = colouring.colours, colouring.coloured, colouring.source
     n_pts = len(nrm)
     h, w = tex.shape[:2]
     s_ax, t_ax = param.s_axis.copy(), param.t_axis.copy()
@@ -572,13 +585,13 @@ def _keep_patches_outside_gaps(param, param_colours: np.ndarray, patch_offsets: 
     return s_ax, t_ax
 
 
-def _level_states(hierarchy: list[PointLevel], colours: np.ndarray, coloured: np.ndarray, source: np.ndarray):
-    """Colours, coloured flags and source texels per hierarchy level, finest first: a
-    coarse point is coloured iff all its fine points are (then it takes their rounded
-    mean colour); coarse sources start unknown (-1)."""
-    lv_col = [colours]
-    lv_done = [coloured]
-    lv_src = [source]
+def _level_states(hierarchy: list[PointLevel], colouring: _Colouring):
+    """Colours, coloured flags and source texels per hierarchy level, finest first (the
+    finest: ``colouring``'s own arrays): a coarse point is coloured iff all its fine points
+    are (then it takes their rounded mean colour); coarse sources start unknown (-1)."""
+    lv_col = [colouring.colours]
+    lv_done = [colouring.coloured]
+    lv_src = [colouring.source]
     for lvl in range(1, len(hierarchy)):
         ch = hierarchy[lvl].children
         valid = ch >= 0
@@ -591,20 +604,23 @@ def _level_states(hierarchy: list[PointLevel], colours: np.ndarray, coloured: np
     return lv_col, lv_done, lv_src
 
 
-def _match_hierarchy(hierarchy: list[PointLevel], pyramid: list[np.ndarray], method: str, colours: np.ndarray,
-                     coloured: np.ndarray, source: np.ndarray, m: int, tileable: bool, coherent: bool,
-                     subtexel: bool, batch: int, rng: np.random.Generator, device: str, progress: bool,
+def _match_hierarchy(hierarchy: list[PointLevel], pyramid: list[np.ndarray], options: TexturingOptions, m: int,
+                     colouring: _Colouring, rng: np.random.Generator, device: str, progress: bool,
                      report: TextureReport) -> np.ndarray:
     """Neighbourhood matching (paper Sec. 4) of every uncoloured point, coarsest level
     first, against ``pyramid`` (the texture pyramid, finest first, of the hierarchy's
-    depth); the coarsest level of the pure matching is coloured randomly (Sec. 4.1).
+    depth), with the options' method, tileability, coherence, subtexel refinement and
+    batch, ``m`` the checked supersampling; the coarsest level of the pure matching is
+    coloured randomly (Sec. 4.1).
 
     Returns:
-        (N, 3) uint8 colours of the finest level (``coloured`` and ``source`` of that
-        level are updated in place).
+        (N, 3) uint8 colours of the finest level (``colouring``'s flags and sources are
+        updated in place).
     """
+    method, tileable, coherent, subtexel, batch = (options.method, options.tileable, options.coherent,
+                                                   options.subtexel, options.batch)
     levels = len(hierarchy)
-    lv_col, lv_done, lv_src = _level_states(hierarchy, colours, coloured, source)
+    lv_col, lv_done, lv_src = _level_states(hierarchy, colouring)
 
     t1 = time.perf_counter()
     searchers = []
