@@ -92,8 +92,8 @@ class ElementFeatures:
             of their x and y bounding-box sides, in whole inside samples), world units:
             the side a block across must have to hold a whole element (elements only;
             nan for a relief or when no element is whole).
-        loops: independent loops of the material (first Betti number: components less
-            the Euler number, no enclosed cavities) per unit of its footprint's area,
+        loops: independent loops of the material (first Betti number: components and
+            enclosed cavities less the Euler number) per unit of its footprint's area,
             world units^-2 (elements only; nan for a relief): a ring is one loop, rings
             fused at their crossings make more and smaller ones, a ring broken into an arc
             none (issue 32: "hardly a whole loop survives").
@@ -516,9 +516,10 @@ def element_features(field: np.ndarray, spacing: float = 1.0, slab: bool | None 
 
 def _loops(inside: np.ndarray, n: int) -> float:
     """Independent loops per sample^2 of the inside's (y, x) bounding box: the first Betti
-    number, components ``n`` less the Euler number (26-connected, as the components are
-    labelled; an enclosed cavity would count -1 and a solid made by synthesis has none to speak
-    of). 0 when the box is empty."""
+    number b1 = b0 + b2 - Euler number, with b0 the components ``n`` (26-connected, as they
+    are labelled) and b2 the enclosed cavities (6-connected pockets of outside that do not
+    reach the volume's sides: linked rings fused around a pocket make one, and left out they
+    would each cancel a loop). 0 when the box is empty."""
     from skimage.measure import euler_number
 
     cols = np.flatnonzero(inside.any(axis=(0, 1)))
@@ -526,7 +527,9 @@ def _loops(inside: np.ndarray, n: int) -> float:
     if len(cols) == 0:
         return 0.0
     area = float((rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1))
-    return float(n - euler_number(inside, connectivity=3)) / area
+    outside, pockets = ndimage.label(np.pad(~inside, 1, constant_values=True))
+    cavities = pockets - 1  # every pocket but the one around the padding
+    return float(n + cavities - euler_number(inside, connectivity=3)) / area
 
 
 def _ratio(a: float, b: float) -> float:
