@@ -7,11 +7,14 @@ The public API; everything else is private. Every operation takes ``device=``
 - Block scoring and selection: :func:`score_dense`, :func:`score_gather`, :func:`candidate_origins`,
   :func:`lattice_shape`, :func:`argmin`, :func:`within_tolerance`, :func:`best_fraction`, :func:`random_pick`.
 - M1, volumes and geometry: :func:`synthesize_volume` (:class:`VolumeResult`),
-  :func:`synthesize_geometry` (:class:`GeometryResult`).
+  :func:`synthesize_geometry` (:class:`GeometryResult`), :func:`synthesize_volume_tiled`; their settings in one
+  :class:`VolumeOptions` (a tiled run's in its :class:`TileOptions`).
 - M2, distance fields: :func:`mesh_distance`, :func:`pointset_distance` (:class:`Field`).
-- M2, point-set geometry textures: :func:`synthesize_point_texture` (:class:`PointTextureReport`) from a
-  :class:`PointTexture` (:func:`point_texture_example` for the built-ins).
-- M3, textured point sets: :func:`texture_points` (:class:`TextureReport`) on a :class:`PointSet`.
+- M2, point-set geometry textures: :func:`synthesize_point_texture` (:class:`PointTextureReport`; its settings
+  in one :class:`PointTextureOptions`) from a :class:`PointTexture` (:func:`point_texture_example` for the
+  built-ins).
+- M3, textured point sets: :func:`texture_points` (:class:`TextureReport`; its settings in one
+  :class:`TexturingOptions`) on a :class:`PointSet`.
 - M4, relief and colour completion: :func:`complete_surface` (:class:`CompletionReport`; its settings in one
   :class:`CompletionOptions`).
 - Relief grown from an example over any mesh (issue 34): :func:`grow_relief`.
@@ -58,6 +61,7 @@ _LAZY = {
     "GeometryResult": "geosynth.volume.synthesis",
     "texture_points": "geosynth.texturing.synthesis",
     "TextureReport": "geosynth.texturing.synthesis",
+    "TexturingOptions": "geosynth.texturing.synthesis",
     "mesh_distance": "geosynth.geometry.meshes",
     "load_mesh": "geosynth.geometry.meshes",
     "pointset_distance": "geosynth.geometry.pointsets",
@@ -80,12 +84,15 @@ _LAZY = {
     # M2: point-set geometry textures
     "synthesize_point_texture": "geosynth.pointtexture.synthesis",
     "PointTextureReport": "geosynth.pointtexture.synthesis",
+    "PointTextureOptions": "geosynth.pointtexture.synthesis",
     "PointTexture": "geosynth.pointtexture.texture",
     "point_texture_example": "geosynth.pointtexture.examples",
     "complete_surface": "geosynth.completion.synthesis",
     "CompletionReport": "geosynth.completion.synthesis",
     "CompletionOptions": "geosynth.completion.synthesis",
     "synthesize_volume_tiled": "geosynth.volume.tiled",
+    "VolumeOptions": "geosynth.volume.options",
+    "TileOptions": "geosynth.volume.options",
     "exemplar_source": "geosynth.volume.tiled",
     # issue 34: relief grown from an example over any mesh
     "grow_relief": "geosynth.relief.grow",

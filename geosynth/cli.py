@@ -19,6 +19,7 @@ even one that a library swallowed, leaves every old output as it was (exit 130/1
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import re
@@ -294,6 +295,19 @@ def _volume_shape(args: argparse.Namespace) -> tuple[int | tuple[int, int, int],
     return size, (blocks if len(blocks) > 1 else blocks[0])
 
 
+def _volume_options(args: argparse.Namespace, block, tiles: tuple[int, int] | None = None):
+    """``geosynth volume``'s settings as one :class:`geosynth.volume.options.VolumeOptions`
+    (with ``tiles``: a tiled run's, its :class:`~geosynth.volume.options.TileOptions`)."""
+    from geosynth.volume.options import TileOptions, VolumeOptions
+
+    tiling = None if tiles is None else TileOptions(tiles=tiles, workers=2 if args.workers is None else args.workers)
+    choice = {"auto": None, "yes": True, "no": False}
+    return VolumeOptions(levels=args.levels, block=block, tileable=args.tileable, search=args.search,
+                         method=args.method, slab=choice[getattr(args, "slab", "auto")], lattice=choice[getattr(args, "lattice", "auto")],
+                         smooth=args.smooth, source_resolution=args.source_resolution,
+                         quality_samples=args.quality_samples, tiles=tiling)
+
+
 # ------------------------------------------------------------------ commands
 
 
@@ -479,14 +493,9 @@ def _cmd_volume(args: argparse.Namespace) -> int:
         f"block {'auto' if block is None else block}, {'tileable, ' if args.tileable else ''}seed {args.seed}, "
         f"device {args.device or 'auto'}")
     _m1_colour_note(exemplar, say)
-    result = synthesize_geometry(
-        example or exemplar, size,
-        source_resolution=args.source_resolution, levels=args.levels, block=block, tileable=args.tileable,
-        seed=args.seed, device=args.device, search=args.search, smooth=args.smooth, method=args.method,
-        quality_samples=args.quality_samples, progress=not args.quiet, drop_degenerate=args.drop_degenerate,
-        slab={"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")],
-        lattice={"auto": None, "yes": True, "no": False}[args.lattice],
-    )
+    result = synthesize_geometry(example or exemplar, size, seed=args.seed, device=args.device,
+                                 progress=not args.quiet, drop_degenerate=args.drop_degenerate,
+                                 options=_volume_options(args, block))
     if result.settings:
         say(result.settings)
     for line in result.volume.settings.lines(result.volume.source.shape):  # the tiled run prints the same
@@ -632,11 +641,11 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     say, printed = _recorder(args.quiet)
     label = example or exemplar
     _m1_colour_note(exemplar, say)
-    slab = {"auto": None, "yes": True, "no": False}[getattr(args, "slab", "auto")]
+    options = _volume_options(args, block, tiles)
 
     def check_tiling(source_shape) -> None:  # before the exemplar's distance field: tiles too small fail at once
-        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block, slab=slab,
-                  search=args.search, method=args.method)
+        tile_grid(source_shape, target_size(size, source_shape, args.levels), tiles, args.levels, block,
+                  slab=options.slab, search=options.search, method=options.method)
 
     # the untiled run's automatic source resolution, block and size (geosynth.volume.synthesis.choose_settings),
     # after the tiling is checked on the default grid's shape (no distance computed yet)
@@ -658,7 +667,7 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
                                          args.device, check=check_tiling, drop_degenerate=args.drop_degenerate,
                                          field=settings.field)
     shape = target_size(size, source.shape, args.levels)
-    workers = 2 if args.workers is None else args.workers
+    workers = options.tiling.workers
     engine = args.scheduler or f"a LocalCluster of {workers} workers"
     say(f"geosynth volume: {label} -> {shape[2]} x {shape[1]} x {shape[0]} samples in {tiles[0]}x{tiles[1]} tiles on "
         f"{engine}, {args.levels} levels, block {block}, seed {args.seed}, device {args.device or 'auto'}")
@@ -677,11 +686,10 @@ def _cmd_volume_tiled(args: argparse.Namespace) -> int:
     args.interrupt_note = interrupt_note
     gather = bool(args.quality_samples) and 2 * int(np.prod(shape)) < available_memory() // 4
     result = synthesize_volume_tiled(
-        source, shape, tiles, levels=args.levels, block=block, seed=args.seed, device=args.device,
-        search=args.search, spacing=spacing, workers=workers, scheduler=args.scheduler, store=args.store,
-        gather=gather, mesh=True, tile_meshes=args.tile_meshes, smooth=args.smooth, inputs=inputs, slab=slab,
-        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume, method=args.method,
-        lattice={"auto": None, "yes": True, "no": False}[args.lattice])
+        source, shape, seed=args.seed, device=args.device, spacing=spacing, scheduler=args.scheduler,
+        store=args.store, gather=gather, mesh=True, tile_meshes=args.tile_meshes, inputs=inputs,
+        progress=not args.quiet, checkpoint=checkpoint, resume=args.resume,
+        options=dataclasses.replace(options, block=block))
     if args.resume:
         say(f"--resume: {result.resumed} finished task(s) of the interrupted run loaded from {str(checkpoint)!r}"
             if result.resumed else "--resume: no checkpoint of an interrupted run with these settings; ran from the start")
@@ -782,7 +790,7 @@ def _cmd_texture(args: argparse.Namespace) -> int:
     from geosynth.io.files import write_image
     from geosynth.io.pictures import render_points, side_by_side
     from geosynth.texturing.models import load_point_model, point_model
-    from geosynth.texturing.synthesis import texture_points
+    from geosynth.texturing.synthesis import TexturingOptions, texture_points
     from geosynth.texturing.textures import read_texture, texture_example
 
     say, printed = _recorder(args.quiet)
@@ -801,13 +809,13 @@ def _cmd_texture(args: argparse.Namespace) -> int:
         tileable = args.tileable is not False
     say(f"geosynth texture: {model_label} ({len(model):,} points) with {tex_label} "
         f"({texture.shape[1]} x {texture.shape[0]}, {'tileable' if tileable else 'not tileable'}), method {args.method}")
-    coloured, report = texture_points(
-        model, texture, method=args.method, k=args.k, levels=args.levels, coherent=args.coherent, m=args.m,
-        unit_scale=args.unit_scale, up=None if args.random_orientation else (0.0, 1.0, 0.0), tileable=tileable,
-        threshold=args.threshold, pattern_size=args.pattern_size,
-        quality=not args.no_quality and args.quality_samples > 0,
-        quality_samples=max(1, args.quality_samples), device=args.device, seed=args.seed, progress=not args.quiet,
-    )
+    options = TexturingOptions(
+        method=args.method, k=args.k, levels=args.levels, coherent=args.coherent, m=args.m, unit_scale=args.unit_scale,
+        up=None if args.random_orientation else (0.0, 1.0, 0.0), tileable=tileable, threshold=args.threshold,
+        pattern_size=args.pattern_size, quality=not args.no_quality and args.quality_samples > 0,
+        quality_samples=max(1, args.quality_samples))
+    coloured, report = texture_points(model, texture, device=args.device, seed=args.seed, progress=not args.quiet,
+                                      options=options)
     write_point_set(out, coloured)
     quality = list(report.lines())
     for line in quality:
@@ -961,7 +969,7 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
     from geosynth.geometry.pointsets import write_point_set
     from geosynth.io.files import write_image
     from geosynth.io.pictures import render_points, side_by_side
-    from geosynth.pointtexture.synthesis import output_mesh, synthesize_point_texture
+    from geosynth.pointtexture.synthesis import PointTextureOptions, output_mesh, synthesize_point_texture
 
     say, printed = _recorder(args.quiet)
     texture, patch, patch_line = _pointtexture_exemplar(args, exemplar, example, say)
@@ -972,11 +980,11 @@ def _cmd_pointtexture(args: argparse.Namespace) -> int:
           f"device {args.device or 'auto'}")
     if patch_line:
         say(patch_line)
-    points, report, timings = synthesize_point_texture(
-        texture, args.size, scale=scale, patch=patch, extra=args.extra, overlap=args.overlap,
-        resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
-        quality=not args.no_quality, device=args.device, seed=args.seed, progress=not args.quiet,
-    )
+    options = PointTextureOptions(size=args.size, scale=scale, patch=patch, extra=args.extra, overlap=args.overlap,
+                                  resolution=args.resolution, eps=args.eps, tileable=args.tileable, relax=args.relax,
+                                  quality=not args.no_quality)
+    points, report, timings = synthesize_point_texture(texture, device=args.device, seed=args.seed,
+                                                       progress=not args.quiet, options=options)
     mesh = None
     if args.mesh:  # made before any output is written: a refusal leaves no output behind
         try:

@@ -448,3 +448,33 @@ def test_a_bad_host_thread_count_is_refused_before_any_work(monkeypatch, small_w
     monkeypatch.setenv("GEOSYNTH_HOST_THREADS", "0")
     with pytest.raises(ValueError, match="GEOSYNTH_HOST_THREADS must be a whole number >= 1"):
         synthesize_point_texture(small_weave, seed=0, **SMALL)
+
+
+def test_point_texture_options_are_checked_once_and_equal_the_keywords(wavy, one_device):
+    """PointTextureOptions (issue 33 item 2): every setting checked when made, before any work;
+    the options object and the keyword form give the same points; not both at once."""
+    import dataclasses
+
+    from geosynth.pointtexture.synthesis import PointTextureOptions
+
+    for bad, error, words in [(dict(size=(1.0,)), ValueError, "size must be two numbers > 0"),
+                              (dict(scale=0), ValueError, r"scale must be in \(0, 10000\]"),
+                              (dict(patch=1.5), ValueError, r"patch must be in \(0, 1\]"),
+                              (dict(extra="wide"), TypeError, "extra must be a number"),
+                              (dict(overlap=0.7), ValueError, r"overlap must be in \(0, 0.5\]"),
+                              (dict(resolution=7), ValueError, "resolution must be an integer >= 8"),
+                              (dict(weights=(1, 2)), TypeError, "weights must be a geosynth.pointtexture"),
+                              (dict(eps=-1), ValueError, "eps must be a finite number >= 0"),
+                              (dict(tileable="yes"), TypeError, "tileable must be True or False"),
+                              (dict(relax=1), TypeError, "relax must be True or False"),
+                              (dict(quality_samples=0), ValueError, "quality_samples must be an integer >= 1")]:
+        with pytest.raises(error, match=words):
+            PointTextureOptions(**bad)
+    opts = PointTextureOptions(**SMALL)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.patch = 0.4  # type: ignore[misc]
+    a, _, _ = synthesize_point_texture(wavy, device=one_device, seed=3, options=opts)
+    b, _, _ = synthesize_point_texture(wavy, device=one_device, seed=3, **SMALL)
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.normals, b.normals)
+    with pytest.raises(ValueError, match=r"either as options= or as keywords, not both \(scale given"):
+        synthesize_point_texture(wavy, scale=1.5, device=one_device, options=opts)

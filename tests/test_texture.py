@@ -623,3 +623,36 @@ def test_cli_refuses_texture_sizes_in_one_line(tmp_path, options, says):
     assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("geosynth texture: "), res.stderr
     assert all(s in lines[0] for s in says), lines[0]
     assert time.perf_counter() - t0 < 30 and not (tmp_path / "t.ply").exists()
+
+
+def test_texturing_options_are_checked_once_and_equal_the_keywords(one_device):
+    """TexturingOptions (issue 33 item 2): every setting checked when made, before any work; the
+    options object and the keyword form give the same colours; not both at once."""
+    import dataclasses
+
+    from geosynth.texturing.synthesis import TexturingOptions
+
+    for bad, words in [(dict(method="paint"), "method must be one of"), (dict(k=2), "k .* must be an integer >= 3"),
+                       (dict(levels=0), "levels must be an integer >= 1"), (dict(m=33), r"m \(supersampling\)"),
+                       (dict(unit_scale=0), "unit_scale must be a number > 0"),
+                       (dict(weights=(1, 1, 1)), "weights must be four numbers"),
+                       (dict(threshold=-1), "threshold must be a number > 0"),
+                       (dict(max_patch=0.5), "max_patch must be None or a size >= 1"),
+                       (dict(up=(0, 0, 0)), "up must be a non-zero 3-vector"),
+                       (dict(pattern_size=-1), "pattern_size must be a number of texels >= 0"),
+                       (dict(batch=0), "batch must be an integer >= 1"),
+                       (dict(quality_samples=0), "quality_samples must be an integer >= 1")]:
+        with pytest.raises(ValueError, match=words):
+            TexturingOptions(**bad)
+    with pytest.raises(TypeError, match="subtexel must be True or False"):
+        TexturingOptions(subtexel="no")
+    opts = TexturingOptions(method="match", k=9, quality=False)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.k = 16  # type: ignore[misc]
+    tex = texture_example("noise", 24, seed=4)
+    ps = grid_points(12, 12, spacing=1.0)
+    a, _ = texture_points(ps, tex, device=one_device, seed=2, options=opts)
+    b, _ = texture_points(ps, tex, device=one_device, seed=2, method="match", k=9, quality=False)
+    assert np.array_equal(a.colors, b.colors)
+    with pytest.raises(ValueError, match=r"either as options= or as keywords, not both \(k given"):
+        texture_points(ps, tex, k=16, options=opts)

@@ -75,6 +75,7 @@ from geosynth.completion.fit import FIT_KINDS, SurfaceFit, fit_frames, fit_surfa
 from geosynth.completion.prep import (ReliefSurface, as_capture, capture_depth, check_spacing_rule, prepare_relief,
                                   ring_neighbourhoods, target_spacing)
 from geosynth.core.exact import exp_fixed, norm3
+from geosynth.core.options import keyword_defaults, settings_from
 
 __all__ = ["AutoSettings", "CompletedSurface", "CompletionOptions", "CompletionReport", "check_max_error",
            "choose_settings", "complete_surface", "completion_picture", "match_chunk", "write_completion"]
@@ -1290,58 +1291,139 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
     given = dict(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing, mu=mu,
                  max_error=max_error, search=search, balance=balance, candidates=candidates, oversample=oversample,
                  max_targets=max_targets)
-    if options is None:
-        options = CompletionOptions(**given)  # every setting checked here, before any work
-    elif not isinstance(options, CompletionOptions):
-        raise TypeError(f"options must be a CompletionOptions, got {type(options).__name__}.")
-    else:
-        defaults = CompletionOptions()
-        changed = sorted(k for k, v in given.items() if v is not getattr(defaults, k) and v != getattr(defaults, k))
-        if changed:
-            raise ValueError(f"give the settings either as options= or as keywords, not both ({', '.join(changed)} "
-                             "given beside options=).")
+    # every setting checked here, before any work
+    options = settings_from(CompletionOptions, options, given, keyword_defaults(complete_surface, given))
     _check_seed(seed)
-    window, rotations, frames, refine, spacing = (options.window, options.rotations, options.frames, options.refine,
-                                                  options.spacing)
-    mu, max_error, search, balance = options.mu, options.max_error, options.search, options.balance
-    candidates, oversample, max_targets = options.candidates, options.oversample, options.max_targets
     cap = as_capture(capture)
-    need = 3 * DEFAULT_WINDOW * (DEFAULT_WINDOW + 1) + 1 if window is None else 3 * window * (window + 1) + 1
-    if len(cap) < need:  # vertices of one W-ring neighbourhood of a regular triangulation
-        w_need = DEFAULT_WINDOW if window is None else window
-        raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {w_need} "
-                         f"({need} vertices); give a larger capture or a smaller window.")
+    _check_neighbourhood(cap, DEFAULT_WINDOW if options.window is None else options.window)
     dev = resolve_device(device or "auto")
-    if isinstance(fit, SurfaceFit):
-        sf = fit
-    elif fit is None or fit in FIT_KINDS:
-        sf = fit_surface(cap.positions, fit, normals=cap.normals)
-    else:
-        raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
-    auto = None
-    window_auto = window is None
-    if None in (window, rotations, frames, refine, spacing):
-        auto = choose_settings(cap, sf)
-        coarse = auto.coarse and spacing is None
-        window = auto.window if window is None else window
-        rotations = auto.rotations if rotations is None else rotations
-        frames = auto.frames if frames is None else frames
-        refine = auto.refine if refine is None else refine
-        spacing = auto.spacing if spacing is None else spacing
-        need = 3 * window * (window + 1) + 1
-        if len(cap) < need:
+    sf = _fit(cap, fit)
+    chosen = _chosen_settings(cap, sf, options)
+    t1 = time.perf_counter()
+    rs, window, auto_line, whole = _prepared_relief(cap, sf, region, options, chosen)
+    t2 = time.perf_counter()
+    frame_rows, frame_axis = _tangent_frames(cap, sf, rs, chosen)
+    samples = _candidates(sf, rs, options.candidates, chosen.coarse)
+    search, why = choose_search(options.search, rs.n_targets, len(samples), int(chosen.rotations))
+    if why:
+        auto_line = f"{auto_line}; {why}" if auto_line else f"automatic settings: {why}"
+    textured0 = np.zeros(rs.n_vertices, dtype=bool)
+    textured0[: rs.n_samples] = True
+    colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
+    use_mu = float(options.mu) if rs.colors is not None else 1.0
+    index = rm.ReliefIndex.build(rs.base, rs.normals, rs.displacement, textured0, rs.faces, samples,
+                                 colours=colours, partners=np.arange(rs.n_samples, dtype=np.int64),
+                                 frames=frame_rows, device=dev)
+    t3 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    balance, rotations, refine = options.balance, int(chosen.rotations), int(chosen.refine)
+    strength = BALANCE_STRENGTH if balance is True else float(balance) if balance is not False else 0.0
+    bal = _Balance(rs, strength, BALANCE_PENALTY) if strength > 0 else None
+    textured, stats = _grow(rs, index, rm, int(window), rotations, use_mu, float(options.max_error), rng, progress,
+                            bal, search)
+    refined = _refine(rs, index, rm, int(window), rotations, use_mu, rng, stats["picked"], textured, refine, bal,
+                      search) if refine else 0
+    t4 = time.perf_counter()
+    quality = _quality(rs, textured, int(seed), samples)
+    t5 = time.perf_counter()
+    surface = _completed_surface(rs, textured, sf)
+    spacing = chosen.spacing
+    report = CompletionReport(
+        fit=sf.describe(), samples=rs.n_samples, targets=rs.n_targets,
+        textured=int(textured[rs.n_samples:].sum()), unreached=int((~textured[rs.n_samples:]).sum()),
+        spacing=rs.spacing, window=int(window), rotations=rotations, mu=use_mu, max_error=float(options.max_error),
+        final_max_error=stats["final_max_error"], lists=stats["lists"],
+        passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
+        quality=quality, device=str(dev), n_original=rs.n_original, frames=chosen.frames, refine=refine,
+        refined=refined, spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
+        auto=auto_line, n_candidates=len(samples), frame_axis=frame_axis, search=search,
+        picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
+        if textured[rs.n_samples:].any() else float("nan"))
+    timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,
+                   total=time.perf_counter() - t0)
+    timings["targets_per_s"] = rs.n_targets / max(timings["grow"], 1e-9)
+    return surface, report, timings
+
+
+# ---------------------------------------------------------------------- complete_surface's steps
+
+
+def _check_neighbourhood(cap, window: int, chosen: bool = False) -> None:
+    """Refuse a capture with fewer points than one W-ring neighbourhood of a regular
+    triangulation (3 W (W + 1) + 1 vertices); ``chosen``: the window was chosen from its relief."""
+    need = 3 * window * (window + 1) + 1
+    if len(cap) < need:
+        if chosen:
             raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {window} "
                              f"({need} vertices, chosen from its relief); give a larger capture or pass a smaller "
                              f"window.")
-    else:
-        coarse = False
+        raise ValueError(f"the capture has {len(cap)} points, fewer than one neighbourhood of window {window} "
+                         f"({need} vertices); give a larger capture or a smaller window.")
+
+
+def _fit(cap, fit: str | SurfaceFit | None) -> SurfaceFit:
+    """The smooth surface that underlies the capture (Sec. 3): the one given, or a plane,
+    sphere or cylinder fit (chosen by residual when None)."""
+    if isinstance(fit, SurfaceFit):
+        return fit
+    if fit is None or fit in FIT_KINDS:
+        return fit_surface(cap.positions, fit, normals=cap.normals)
+    raise ValueError(f"fit must be one of {', '.join(FIT_KINDS)}, None or a SurfaceFit, got {fit!r}.")
+
+
+@dataclass(frozen=True)
+class _Chosen:
+    """The settings one completion runs with: the options', the automatic choices
+    (:func:`choose_settings`) where they were None.
+
+    Attributes:
+        window, rotations, frames, refine, spacing: the settings as run (the window may still
+            shrink to the capture's depth, :func:`_prepared_relief`).
+        auto: what :func:`choose_settings` measured and chose, or None when all were given.
+        window_auto: the window was chosen.
+        coarse: the targets are coarser than the capture (no oversampling, thinned candidates).
+    """
+
+    window: int
+    rotations: int
+    frames: str
+    refine: int
+    spacing: str | float
+    auto: AutoSettings | None
+    window_auto: bool
+    coarse: bool
+
+
+def _chosen_settings(cap, sf: SurfaceFit, options: CompletionOptions) -> _Chosen:
+    """The options' settings, those left None chosen from the capture's relief
+    (:func:`choose_settings`, issue 32), the capture checked against the chosen window."""
+    given = (options.window, options.rotations, options.frames, options.refine, options.spacing)
+    if None not in given:
+        return _Chosen(*given, auto=None, window_auto=False, coarse=False)
+    auto = choose_settings(cap, sf)
+    window, rotations, frames, refine, spacing = (auto_value if value is None else value for value, auto_value in
+                                                  zip(given, (auto.window, auto.rotations, auto.frames, auto.refine,
+                                                              auto.spacing)))
+    _check_neighbourhood(cap, window, chosen=True)
+    return _Chosen(window, rotations, frames, refine, spacing, auto, options.window is None,
+                   auto.coarse and options.spacing is None)
+
+
+def _prepared_relief(cap, sf: SurfaceFit, region, options: CompletionOptions,
+                     chosen: _Chosen) -> tuple[ReliefSurface, int, str, int]:
+    """Samples, targets and their triangulation (Sec. 4, :func:`geosynth.completion.prep.prepare_relief`);
+    a chosen window shrunk until most of the capture holds a whole one (else the candidates
+    are its border's); a window no captured vertex holds refused. Returns (the relief, the
+    window, the automatic settings' line, the vertices that hold a whole window)."""
+    oversample = options.oversample
     if oversample is None:
-        oversample = "none" if coarse else "butterfly"
-    t1 = time.perf_counter()
-    rs = prepare_relief(cap, sf, region, max_targets=max_targets, oversample=oversample, spacing=spacing)
+        oversample = "none" if chosen.coarse else "butterfly"
+    rs = prepare_relief(cap, sf, region, max_targets=options.max_targets, oversample=oversample,
+                        spacing=chosen.spacing)
     depth = capture_depth(rs) / rs.spacing  # in target spacings: a W-ring reaches about W of them
-    auto_line = "" if auto is None else auto.reason
-    if window_auto:  # a window most of the capture fills: else the candidates are its border's
+    auto_line = "" if chosen.auto is None else chosen.auto.reason
+    window = chosen.window
+    if chosen.window_auto:
         w0 = window
         while window > AUTO_WINDOW_RANGE[0] and float(np.mean(depth >= window)) < AUTO_WHOLE:
             window -= 1
@@ -1356,50 +1438,44 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
                          f"neighbourhood is all captured relief; "
                          + (f"use a window from 1 to {int(deepest)}, or a larger capture." if deepest >= 1 else
                             "give a larger capture (the capture is thinner than one target spacing)."))
-    t2 = time.perf_counter()
-    frame_rows = None
-    frame_axis = None
-    if frames == "fit":
-        axis = None
-        if sf.kind == "sphere":  # latitudes about the relief's own axis when it has one
-            measured = auto.latitude if auto is not None else None  # choose_settings measured it already
-            axis, share = measured if measured is not None else latitude_axis(sf, cap.positions)
-            if share >= LATITUDE_SHARE:
-                axis = np.asarray(sf.axis, np.float64)
-            frame_axis = (tuple(float(x) for x in axis), share)
-        fu, fv = fit_frames(sf, rs.normals, axis)
-        frame_rows = np.stack([fu, fv, rs.normals / norm3(rs.normals)[:, None]], axis=1)
-    partners = np.arange(rs.n_samples, dtype=np.int64)
+    return rs, window, auto_line, whole
+
+
+def _tangent_frames(cap, sf: SurfaceFit, rs: ReliefSurface, chosen: _Chosen):
+    """The frames the R rotations start from (Sec. 3): None for the paper's per-normal frames;
+    for "fit" the fit's own orientation (a sphere's latitudes about the relief's axis when it
+    has one), as (targets, 3, 3) rows u, v, n. Returns (rows, (axis, share) of a sphere's)."""
+    if chosen.frames != "fit":
+        return None, None
+    axis = frame_axis = None
+    if sf.kind == "sphere":  # latitudes about the relief's own axis when it has one
+        measured = chosen.auto.latitude if chosen.auto is not None else None  # choose_settings measured it already
+        axis, share = measured if measured is not None else latitude_axis(sf, cap.positions)
+        if share >= LATITUDE_SHARE:
+            axis = np.asarray(sf.axis, np.float64)
+        frame_axis = (tuple(float(x) for x in axis), share)
+    fu, fv = fit_frames(sf, rs.normals, axis)
+    return np.stack([fu, fv, rs.normals / norm3(rs.normals)[:, None]], axis=1), frame_axis
+
+
+def _candidates(sf: SurfaceFit, rs: ReliefSurface, candidates: str, coarse: bool) -> np.ndarray:
+    """The samples matches are copied from: the capture's own vertices or every sample
+    (``candidates``), thinned to one a target spacing when the targets are coarser."""
     samples = np.arange(rs.n_original if candidates == "capture" else rs.n_samples, dtype=np.int64)
-    if coarse:  # targets coarser than the capture: one candidate a target spacing is enough
+    if coarse:
         samples = samples[_thin(sf, rs.base[samples], rs.spacing)]
-    search, why = choose_search(search, rs.n_targets, len(samples), int(rotations))
-    if why:
-        auto_line = f"{auto_line}; {why}" if auto_line else f"automatic settings: {why}"
-    textured0 = np.zeros(rs.n_vertices, dtype=bool)
-    textured0[: rs.n_samples] = True
-    colours = None if rs.colors is None else rs.colors.astype(np.float64) / 255.0
-    use_mu = float(mu) if rs.colors is not None else 1.0
-    index = rm.ReliefIndex.build(rs.base, rs.normals, rs.displacement, textured0, rs.faces, samples,
-                                 colours=colours, partners=partners, frames=frame_rows, device=dev)
-    t3 = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    strength = BALANCE_STRENGTH if balance is True else float(balance) if balance is not False else 0.0
-    bal = _Balance(rs, strength, BALANCE_PENALTY) if strength > 0 else None
-    textured, stats = _grow(rs, index, rm, int(window), int(rotations), use_mu, float(max_error), rng, progress, bal,
-                            search)
-    refined = _refine(rs, index, rm, int(window), int(rotations), use_mu, rng, stats["picked"], textured,
-                      int(refine), bal, search) if refine else 0
-    t4 = time.perf_counter()
-    quality = _quality(rs, textured, int(seed), samples)
-    t5 = time.perf_counter()
-    positions = rs.positions
+    return samples
+
+
+def _completed_surface(rs: ReliefSurface, textured: np.ndarray, sf: SurfaceFit) -> CompletedSurface:
+    """The completed mesh as written: float32 positions, their normals, colours, faces and
+    which vertices were captured, completed and textured."""
     completed = np.zeros(rs.n_vertices, bool)
     completed[rs.n_samples:] = True
     captured = np.zeros(rs.n_vertices, bool)
     captured[: rs.n_original] = True
-    written = positions.astype(np.float32)
-    surface = CompletedSurface(
+    written = rs.positions.astype(np.float32)
+    return CompletedSurface(
         positions=written,
         # the normals of the mesh as written: from its float32 positions, which every CPU
         # rounds alike (the float64 ones carry the fit's last bits, which LAPACK's and
@@ -1408,21 +1484,6 @@ def complete_surface(capture, fit: str | SurfaceFit | None = None, region=None, 
         colors=None if rs.colors is None else rs.colors.copy(),
         faces=rs.faces.astype(np.int32), completed=completed, captured=captured, textured=textured.copy(), fit=sf,
         alpha=None if rs.colors is None or rs.alpha is None else rs.alpha.copy())
-    report = CompletionReport(
-        fit=sf.describe(), samples=rs.n_samples, targets=rs.n_targets,
-        textured=int(textured[rs.n_samples:].sum()), unreached=int((~textured[rs.n_samples:]).sum()),
-        spacing=rs.spacing, window=int(window), rotations=int(rotations), mu=use_mu, max_error=float(max_error),
-        final_max_error=stats["final_max_error"], lists=stats["lists"],
-        passes_without_progress=stats["passes_without_progress"], failed_matches=stats["failed_matches"],
-        quality=quality, device=str(dev), n_original=rs.n_original, frames=frames, refine=int(refine), refined=refined,
-        spacing_rule=spacing if isinstance(spacing, str) else "chosen", whole_windows=whole,
-        auto=auto_line, n_candidates=len(samples), frame_axis=frame_axis, search=search,
-        picked_original=float(np.mean(stats["picked"][rs.n_samples:][textured[rs.n_samples:]] < rs.n_original))
-        if textured[rs.n_samples:].any() else float("nan"))
-    timings = dict(fit=t1 - t0, prepare=t2 - t1, index=t3 - t2, grow=t4 - t3, quality=t5 - t4,
-                   total=time.perf_counter() - t0)
-    timings["targets_per_s"] = rs.n_targets / max(timings["grow"], 1e-9)
-    return surface, report, timings
 
 
 # ---------------------------------------------------------------------- output

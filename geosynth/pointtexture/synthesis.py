@@ -35,10 +35,11 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from geosynth.compute.checks import UINT32_MAX
 from geosynth.core.config import passive_openmp_threads
+from geosynth.core.options import keyword_defaults, settings_from
 from geosynth.pointtexture.output_grid import PointGrid
 from geosynth.pointtexture.texture import PointTexture
 
-__all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
+__all__ = ["PATCH_PERIODS", "PatchChoice", "PointTextureOptions", "PointTextureReport", "check_synthesis", "choose_patch", "output_mesh", "output_mesh_bytes", "synthesis_bytes",
            "synthesize_point_texture"]
 
 
@@ -247,15 +248,31 @@ def _overlap_samples(lay: "_Layout", layers: int, tileable: bool) -> int:
     return (pc * pc - (pc - wx) * (pc - wy)) * layers
 
 
+def _check_resolution(resolution) -> None:
+    """D(T_in)'s samples along B's longer side: an integer >= 8."""
+    if not isinstance(resolution, (int, np.integer)) or isinstance(resolution, bool) or resolution < 8:
+        raise ValueError(f"resolution must be an integer >= 8 (field samples along the exemplar box's longer side), "
+                         f"got {resolution!r}.")
+
+
+def _check_size(size) -> np.ndarray:
+    """The output's (2,) x and y extent, world units, both finite and > 0."""
+    try:
+        s = np.asarray(size, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        s = np.zeros(0)
+    if s.shape != (2,) or not (np.isfinite(s).all() and (s > 0).all()):
+        raise ValueError(f"size must be two numbers > 0 (the output's x and y extent, world units), got {size!r}.")
+    return s
+
+
 def _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution, tileable,
                 quality: bool = False) -> _Layout:
     """The patch layout for an exemplar box B (box_min, box_max), with every combination
     the growth cannot use refused in one line (see :func:`check_synthesis`)."""
     box_min, box_max = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
     ext = (box_max - box_min)[:2]
-    if not isinstance(resolution, (int, np.integer)) or isinstance(resolution, bool) or resolution < 8:
-        raise ValueError(f"resolution must be an integer >= 8 (field samples along the exemplar box's longer side), "
-                         f"got {resolution!r}.")
+    _check_resolution(resolution)
     cell = float(ext.max()) / (int(resolution) - 1)
     p = _fraction("patch", patch, 0.0, 1.0)
     pc = int(round(p * float(ext.min()) / cell))
@@ -279,9 +296,7 @@ def _layout_box(box_min, box_max, size, scale, patch, extra, overlap, resolution
             f"{nx} x {ny} samples of the search grid; use a smaller patch (or a smaller extra region).")
     step = pc - oc
     if size is not None:
-        s = np.asarray(size, np.float64).reshape(-1)
-        if s.shape != (2,) or not (np.isfinite(s).all() and (s > 0).all()):
-            raise ValueError(f"size must be two numbers > 0 (the output's x and y extent, world units), got {size!r}.")
+        s = _check_size(size)
     else:
         sc = _fraction("scale", scale, 0.0, 1e4)
         s = sc * ext
@@ -364,8 +379,27 @@ class _Timer:
         return now
 
 
-def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer, *,
-          baseline=False, seams_wanted=True, progress=False, label="synthesis", cut=False):
+@dataclass(frozen=True)
+class _Growth:
+    """What every growth of one :func:`synthesize_point_texture` run shares (the synthesis and
+    its random-pasting baseline): the exemplar, its search structure D(T_in) and the patch
+    layout, the warp's weights and the candidates' tolerance, whether the output tiles, the
+    device, the exemplar's point spacing and MLS width h, and its surface variation."""
+
+    texture: PointTexture
+    search: object
+    lay: _Layout
+    weights: object
+    eps: float
+    tileable: bool
+    device: str
+    spacing: float
+    h: float
+    variation: np.ndarray
+
+
+def _grow(growth: _Growth, rng, timer, *, baseline=False, seams_wanted=True, progress=False, label="synthesis",
+          cut=False):
     """Steps 1 to 7 of Sec. 4; returns (PointGrid, stats dict). ``seams_wanted``: measure the
     seam errors (quality numbers; their time goes to the timer's "quality", not to a stage).
     ``cut``: the exemplar has disconnected pieces (blending.has_pieces): those one side of
@@ -382,6 +416,8 @@ def _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h,
     from geosynth.compute.host_steps import host_threads
     from geosynth.pointtexture.patch_search import quantized_fields
 
+    texture, search, lay, weights, eps = growth.texture, growth.search, growth.lay, growth.weights, growth.eps
+    tileable, device, spacing, h, variation = growth.tileable, growth.device, growth.spacing, growth.h, growth.variation
     if not baseline:
         from geosynth.pointtexture.blending import blend_patch, cut_pieces, overlap_ramp, seam_errors
         from geosynth.pointtexture.warping import warp_patch
@@ -932,6 +968,74 @@ def _one_thread(fn):
     return run
 
 
+@dataclass(frozen=True)
+class PointTextureOptions:
+    """M2's settings, declared, checked and documented once (issue 33):
+    :func:`synthesize_point_texture` takes them as keywords or as ``options=``, and
+    ``geosynth pointtexture`` builds one from its options. Every value is checked when the
+    object is made, before any work (a bad one is a ``ValueError`` or ``TypeError`` naming it);
+    what depends on the exemplar (a patch of at least 4 cells that fits in its box with its
+    extra region, the overlaps leaving it an interior) is checked by :func:`check_synthesis`.
+
+    Attributes:
+        size: (2,) output extent in x and y, world units, both > 0; None: ``scale`` times B's.
+        scale: output extent in units of the exemplar box B's (when ``size`` is None), in (0, 1e4].
+        patch: patch side as a fraction of B's shorter side, in (0, 1]; None: chosen from the
+            exemplar's element size (:func:`choose_patch`, the same for a built-in and a file;
+            the report's ``patch_choice`` says what it measured).
+        extra: width w_E of the extra region E_k as a fraction of the patch (the paper used
+            1/8 to 1/4), in (0, 0.5].
+        overlap: overlap width as a fraction of the patch, in (0, 0.5], leaving the patch an
+            interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
+        resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
+            51 to 84).
+        weights: a :class:`geosynth.pointtexture.warping.WarpWeights`; None: the paper's preset
+            for a built-in, else WarpWeights().
+        eps: the relative tolerance of the candidate set (step 2), finite, >= 0.
+        tileable: grow a periodic output (its opposite borders continue each other).
+        relax: relax the final point set (:func:`geosynth.pointtexture.blending.relax_points`).
+        quality: compute the quality numbers and the random-pasting baseline.
+        quality_samples: patches sampled per direction for the patch-field distance, >= 1.
+    """
+
+    size: tuple[float, float] | None = None
+    scale: float = 2.0
+    patch: float | None = None
+    extra: float = 0.2
+    overlap: float = 0.25
+    resolution: int = 48
+    weights: object | None = None
+    eps: float = 0.1
+    tileable: bool = False
+    relax: bool = False
+    quality: bool = True
+    quality_samples: int = 16
+
+    def __post_init__(self) -> None:
+        from geosynth.compute.checks import check_bool
+        from geosynth.pointtexture.warping import WarpWeights
+
+        if self.size is not None:
+            object.__setattr__(self, "size", tuple(float(v) for v in _check_size(self.size)))
+        _fraction("scale", self.scale, 0.0, 1e4)
+        if self.patch is not None:
+            _fraction("patch", self.patch, 0.0, 1.0)
+        _fraction("extra", self.extra, 0.0, 0.5)
+        _fraction("overlap", self.overlap, 0.0, 0.5)
+        _check_resolution(self.resolution)
+        if self.weights is not None and not isinstance(self.weights, WarpWeights):
+            raise TypeError(f"weights must be a geosynth.pointtexture.warping.WarpWeights, got "
+                            f"{type(self.weights).__name__}.")
+        eps = self.eps
+        if not (isinstance(eps, (int, float, np.integer, np.floating)) and np.isfinite(eps) and eps >= 0):
+            raise ValueError(f"eps must be a finite number >= 0, got {eps!r}.")
+        for name in ("tileable", "relax", "quality"):
+            object.__setattr__(self, name, check_bool(name, getattr(self, name)))
+        qs = self.quality_samples
+        if isinstance(qs, (bool, np.bool_)) or not isinstance(qs, (int, np.integer)) or qs < 1:
+            raise ValueError(f"quality_samples must be an integer >= 1, got {qs!r}.")
+
+
 @_one_thread
 def synthesize_point_texture(
     exemplar,
@@ -951,33 +1055,21 @@ def synthesize_point_texture(
     device: str | None = None,
     seed: int = 0,
     progress: bool = False,
+    options: PointTextureOptions | None = None,
 ):
     """Grow a larger point-set geometry texture from an exemplar (Sec. 4 and 5).
 
     Args:
         exemplar: a :class:`geosynth.pointtexture.texture.PointTexture`, a built-in name
             (heightfield, chainmail, weave, flowers) or a file (PLY point set or mesh).
-        size: (2,) output extent in x and y, world units; default ``scale`` times B's.
-        scale: output extent in units of the exemplar box B's (when ``size`` is None).
-        patch: patch side as a fraction of B's shorter side, in (0, 1]; default (None)
-            chosen from the exemplar's element size (:func:`choose_patch`, the same for a
-            built-in and a file; the report's ``patch_choice`` says what it measured).
-        extra: width w_E of the extra region E_k as a fraction of the patch (the paper
-            used 1/8 to 1/4), in (0, 0.5].
-        overlap: overlap width as a fraction of the patch, in (0, 0.5), leaving the patch an
-            interior (2 x overlap < patch, in cells; see :func:`check_synthesis`).
-        resolution: samples of D(T_in) along B's longer side (>= 8; the paper's grids had
-            51 to 84).
-        weights: a :class:`geosynth.pointtexture.warping.WarpWeights`; default the paper's preset for
-            a built-in, else WarpWeights().
-        eps: the relative tolerance of the candidate set (step 2), >= 0.
-        tileable: grow a periodic output (its opposite borders continue each other).
-        relax: relax the final point set (:func:`geosynth.pointtexture.blending.relax_points`).
-        quality: compute the quality numbers and the random-pasting baseline.
-        quality_samples: patches sampled per direction for the patch-field distance.
+        size, scale, patch, extra, overlap, resolution, weights, eps, tileable, relax, quality,
+            quality_samples: the settings, each documented and checked once in
+            :class:`PointTextureOptions`.
         device: a device string; None means "auto".
         seed: seed of every random choice.
         progress: show a progress bar on stderr.
+        options: the settings as one :class:`PointTextureOptions` instead of the keywords
+            (then the keywords must keep their defaults).
 
     Runs with one BLAS and one OpenMP thread (threadpoolctl: faster for the spline's thin
     products and the small k-d tree queries, and the output does not depend on the BLAS
@@ -1003,22 +1095,25 @@ def synthesize_point_texture(
     from geosynth.compute.host_steps import host_threads
     from geosynth.geometry.pointsets import MLS_REACH, PointSet
     from geosynth.pointtexture.blending import has_pieces
-    from geosynth.pointtexture.element_size import relief_scale
     from geosynth.pointtexture.patch_search import PatchSearch
-    from geosynth.pointtexture.warping import WarpWeights, surface_variation
+    from geosynth.pointtexture.warping import surface_variation
 
     t_start = time.perf_counter()
+    given = dict(size=size, scale=scale, patch=patch, extra=extra, overlap=overlap, resolution=resolution,
+                 weights=weights, eps=eps, tileable=tileable, relax=relax, quality=quality,
+                 quality_samples=quality_samples)
+    # every setting checked here, before any work
+    options = settings_from(PointTextureOptions, options, given, keyword_defaults(synthesize_point_texture, given))
+    size, scale, patch, extra, overlap, resolution = (options.size, options.scale, options.patch, options.extra,
+                                                      options.overlap, options.resolution)
+    weights, eps, tileable, relax, quality, quality_samples = (options.weights, options.eps, options.tileable,
+                                                               options.relax, options.quality, options.quality_samples)
     texture = _as_texture(exemplar, seed)
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}.")
-    if not (isinstance(eps, (int, float, np.integer, np.floating)) and np.isfinite(eps) and eps >= 0):
-        raise ValueError(f"eps must be a finite number >= 0, got {eps!r}.")
-    tileable = _checks.check_bool("tileable", tileable)
     host_threads()  # a bad GEOSYNTH_HOST_THREADS is refused here, before any work
     if weights is None:
         weights = _default_weights(texture)
-    elif not isinstance(weights, WarpWeights):
-        raise TypeError(f"weights must be a geosynth.pointtexture.warping.WarpWeights, got {type(weights).__name__}.")
     backend = _checks.resolve_backend(device)
     device = backend.name  # the resolved device ("auto" / None made concrete): every stage runs on this one
     choice = None
@@ -1045,30 +1140,16 @@ def synthesize_point_texture(
         variation = variation_job.result()
         cut = pieces_job.result()  # disconnected pieces (flowers): cut, not blended
     timer.add("precompute", t_start)
-    rng = np.random.default_rng(seed)
-    grid, stats = _grow(texture, search, lay, weights, eps, tileable, rng, device, spacing, h, variation, timer,
-                        seams_wanted=quality, progress=progress, cut=cut)
+    growth = _Growth(texture, search, lay, weights, eps, tileable, device, spacing, h, variation)
+    grid, stats = _grow(growth, np.random.default_rng(seed), timer, seams_wanted=quality, progress=progress, cut=cut)
     t0 = time.perf_counter()
     p, n, src = _cut(grid, lay, texture, tileable)
     if relax:
         from geosynth.pointtexture.blending import relax_points
 
         p, n = relax_points(p, n, spacing, device=device)
-    # item 2 of issue 32: the output's element size and relief amplitude beside the exemplar's
-    ex_scale = choice.scale if choice is not None else relief_scale(texture.points, texture.box_min, texture.box_max,
-                                                                    spacing)
-    out_lo = texture.box_min[:2]
-    out_hi = out_lo + np.asarray(lay.size, np.float64)
-    # near the exemplar's period (half to twice it, within what the exemplar's map measures)
-    ex_side = min(ex_scale.shape[0] * ex_scale.cell[1], ex_scale.shape[1] * ex_scale.cell[0])
-    band = (0.5 * ex_scale.period, min(2.0 * ex_scale.period, 0.5 * ex_side))
-
-    def measured(points) -> tuple[float, float, bool]:
-        rs = relief_scale(points, out_lo, out_hi, spacing, cell=ex_scale.cell[0], band=band,
-                          near=ex_scale.period)
-        return rs.period, rs.amplitude, rs.peak
-
-    relief = {"exemplar": (ex_scale.period, ex_scale.amplitude, ex_scale.peak), "output": measured(p)}
+    measured = _relief_measure(texture, choice, lay, spacing)
+    relief = {"exemplar": measured.exemplar, "output": measured(p)}
     timer.add("other", t0)
     timings = dict(timer.t)
     seam_time = timings.pop("quality")  # the seam errors measured during the growth
@@ -1084,30 +1165,72 @@ def synthesize_point_texture(
         relief=relief,
     )
     if quality:
-        tq = time.perf_counter()
-        base_grid, base_stats = _grow(texture, search, lay, weights, eps, tileable, np.random.default_rng(seed + 1),
-                                      device, spacing, h, variation, _Timer(), baseline=True)
-        bp, bn, bsrc = _cut(base_grid, lay, texture, tileable)
-        qrng = np.random.default_rng(seed)
-        lo = texture.box_min[:2]
-        out_codes = _field_codes(p, n, lay, search, h, device, lo, lay.size)
-        base_codes = _field_codes(bp, bn, lay, search, h, device, lo, lay.size)
-        q = report.quality
-        q["field_distance"] = _field_distance(out_codes, search.codes, lay.patch, quality_samples, qrng, device)
-        q["field_distance_baseline"] = _field_distance(base_codes, search.codes, lay.patch, quality_samples,
-                                                       np.random.default_rng(seed), device)
-        s = stats["seams"]
-        if s["before"]:
-            q["seam_before"] = float(np.sqrt(np.mean(np.square(s["before"]))))
-            q["seam_after"] = float(np.sqrt(np.mean(np.square(s["after"]))))
-            q["seam_baseline"] = float(np.sqrt(np.mean(np.square(base_stats["seams"]["baseline"]))))
-        q["stray"] = _stray_share(p, n, spacing, h, device)
-        q["stray_baseline"] = _stray_share(bp, bn, spacing, h, device)
-        report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32), _source_colors(texture, bsrc))
-        report.relief["baseline"] = measured(bp)
-        timings["quality"] = time.perf_counter() - tq + seam_time
+        timings["quality"] = _quality_numbers(growth, report, p, n, stats, seed, quality_samples, measured) + seam_time
     points = PointSet(p.astype(np.float32), n.astype(np.float32), _source_colors(texture, src))
     return points, report, timings
+
+
+class _ReliefMeasure:
+    """Item 2 of issue 32: a point set's element size and relief amplitude measured as the
+    exemplar's were (:func:`geosynth.pointtexture.element_size.relief_scale` over the output's
+    box, near the exemplar's period: half to twice it, within what the exemplar's map
+    measures). ``exemplar``: its (period, amplitude, peak); calling it on points gives theirs."""
+
+    def __init__(self, exemplar_scale, out_lo: np.ndarray, out_hi: np.ndarray, spacing: float):
+        ex_side = min(exemplar_scale.shape[0] * exemplar_scale.cell[1], exemplar_scale.shape[1] * exemplar_scale.cell[0])
+        self.scale, self.lo, self.hi, self.spacing = exemplar_scale, out_lo, out_hi, spacing
+        self.band = (0.5 * exemplar_scale.period, min(2.0 * exemplar_scale.period, 0.5 * ex_side))
+        self.exemplar = (exemplar_scale.period, exemplar_scale.amplitude, exemplar_scale.peak)
+
+    def __call__(self, points) -> tuple[float, float, bool]:
+        from geosynth.pointtexture.element_size import relief_scale
+
+        rs = relief_scale(points, self.lo, self.hi, self.spacing, cell=self.scale.cell[0], band=self.band,
+                          near=self.scale.period)
+        return rs.period, rs.amplitude, rs.peak
+
+
+def _relief_measure(texture: PointTexture, choice, lay: _Layout, spacing: float) -> _ReliefMeasure:
+    """The measure of the output's relief beside the exemplar's (the patch choice's measurement
+    of the exemplar when the patch was chosen, else measured here)."""
+    from geosynth.pointtexture.element_size import relief_scale
+
+    ex_scale = choice.scale if choice is not None else relief_scale(texture.points, texture.box_min, texture.box_max,
+                                                                    spacing)
+    out_lo = texture.box_min[:2]
+    return _ReliefMeasure(ex_scale, out_lo, out_lo + np.asarray(lay.size, np.float64), spacing)
+
+
+def _quality_numbers(growth: _Growth, report, p: np.ndarray, n: np.ndarray, stats: dict, seed: int,
+                     quality_samples: int, measured: _ReliefMeasure) -> float:
+    """The quality numbers beside random pasting's (the baseline grown with seed + 1): the
+    patch-field distance of the output's D to the exemplar's, the seam errors before and
+    after blending, the share of stray points, the relief; written into ``report`` (the
+    baseline's points too). Returns the seconds they took."""
+    from geosynth.geometry.pointsets import PointSet
+
+    tq = time.perf_counter()
+    texture, search, lay, tileable, device = growth.texture, growth.search, growth.lay, growth.tileable, growth.device
+    base_grid, base_stats = _grow(growth, np.random.default_rng(seed + 1), _Timer(), baseline=True)
+    bp, bn, bsrc = _cut(base_grid, lay, texture, tileable)
+    qrng = np.random.default_rng(seed)
+    lo = texture.box_min[:2]
+    out_codes = _field_codes(p, n, lay, search, growth.h, device, lo, lay.size)
+    base_codes = _field_codes(bp, bn, lay, search, growth.h, device, lo, lay.size)
+    q = report.quality
+    q["field_distance"] = _field_distance(out_codes, search.codes, lay.patch, quality_samples, qrng, device)
+    q["field_distance_baseline"] = _field_distance(base_codes, search.codes, lay.patch, quality_samples,
+                                                   np.random.default_rng(seed), device)
+    s = stats["seams"]
+    if s["before"]:
+        q["seam_before"] = float(np.sqrt(np.mean(np.square(s["before"]))))
+        q["seam_after"] = float(np.sqrt(np.mean(np.square(s["after"]))))
+        q["seam_baseline"] = float(np.sqrt(np.mean(np.square(base_stats["seams"]["baseline"]))))
+    q["stray"] = _stray_share(p, n, growth.spacing, growth.h, device)
+    q["stray_baseline"] = _stray_share(bp, bn, growth.spacing, growth.h, device)
+    report.baseline = PointSet(bp.astype(np.float32), bn.astype(np.float32), _source_colors(texture, bsrc))
+    report.relief["baseline"] = measured(bp)
+    return time.perf_counter() - tq
 
 
 def output_mesh(points, normals, spacing: float, resolution: int = 160, device: str | None = None):

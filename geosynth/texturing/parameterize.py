@@ -56,8 +56,8 @@ from geosynth.geometry.pointsets import PointSet
 from geosynth.texturing.textures import as_texture, sample_bilinear
 
 __all__ = [
-    "FREE", "GAP", "PATCH", "CheckedModel", "DeviceGrowth", "Parameterization", "as_model", "check_up",
-    "colour_parameterization", "frames_from_up", "growth_inputs", "parameterize_points",
+    "FREE", "GAP", "PATCH", "CheckedModel", "DeviceGrowth", "Parameterization", "as_model", "check_growth_options",
+    "check_up", "colour_parameterization", "frames_from_up", "growth_inputs", "parameterize_points",
     "parameterize_with_device_arrays", "patch_offsets", "pick_batch", "propagate", "tangent_offsets",
 ]
 
@@ -312,7 +312,9 @@ def pick_batch(cand: np.ndarray, neighbours: np.ndarray, blocked: np.ndarray, li
     return out
 
 
-def _check_growth_options(weights, threshold, unit_scale, max_patch) -> tuple[float, float, float, float]:
+def check_growth_options(weights, threshold, unit_scale, max_patch) -> tuple[float, float, float, float]:
+    """The growth's settings: the distortion weights (w1..w4, as floats), its bound, the
+    texel scale and the largest patch, each refused in one line naming it."""
     w = tuple(float(x) for x in weights)
     if len(w) != 4 or not all(np.isfinite(x) and x >= 0 for x in w):
         raise ValueError(f"weights must be four numbers >= 0 (w1, w2, w3, w4), got {weights!r}.")
@@ -442,7 +444,7 @@ def parameterize_with_device_arrays(
     from geosynth.compute.backend import get_backend
 
     t_start = time.perf_counter()
-    w = _check_growth_options(weights, threshold, unit_scale, max_patch)
+    w = check_growth_options(weights, threshold, unit_scale, max_patch)
     backend = get_backend(device or "auto")
     g = growth_inputs(points, k, unit_scale=unit_scale, up=up, seed=seed, neighbours=neighbours)
     n_pts, k = g["nb"].shape

@@ -23,18 +23,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geosynth.compute.backend import get_backend
+from geosynth.compute.checks import check_bool
+from geosynth.core.options import keyword_defaults, settings_from
 from geosynth.geometry.pointsets import PointSet
 from geosynth.texturing.hierarchy import PointLevel, build_hierarchy
 from geosynth.texturing.matching import DEFAULT_MATCH_BATCH, match_level
 from geosynth.texturing.models import knn_table, spatial_order
 from geosynth.texturing.parameterize import (
-    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_k, check_up, colour_parameterization,
-    frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
+    DEFAULT_THRESHOLD, DEFAULT_WEIGHTS, GAP, CheckedModel, as_model, check_growth_options, check_k, check_up,
+    colour_parameterization, frames_from_up, mean_spacing, parameterize_with_device_arrays, tangent_offsets,
 )
 from geosynth.texturing.texel_search import DEFAULT_M, TexelSearch, pixel_offsets
 from geosynth.texturing.textures import as_texture, texture_pyramid
 
-__all__ = ["METHODS", "TextureReport", "neighbourhood_error", "texture_bytes", "texture_points"]
+__all__ = ["METHODS", "TextureReport", "TexturingOptions", "neighbourhood_error", "texture_bytes", "texture_points"]
 
 METHODS = ("param", "match", "hybrid")
 QUALITY_ROTATIONS = 8  # the quality error takes the best of this many neighbourhood rotations (45 degree steps)
@@ -197,22 +199,15 @@ def _check_scales(p: np.ndarray, unit: float, unit_scale: float, pattern_size, k
                          f"texels of a {w} x {h} texture; the model must span at least a neighbourhood "
                          f"({side:.3g} texels) and a neighbourhood at most the texture: the range that works here is "
                          f"{works}.")
-    if pattern_size is not None and not (isinstance(pattern_size, (int, float, np.integer, np.floating))
-                                         and math.isfinite(pattern_size) and pattern_size >= 0):
-        raise ValueError(f"pattern_size must be a number of texels >= 0 (or None), got {pattern_size!r}.")
     if pattern_size is not None and method == "hybrid" and float(pattern_size) > max(h, w):
         raise ValueError(f"pattern_size {float(pattern_size):g} is larger than the texture ({w} x {h} texels): a "
                          f"pattern is at most the texture; use a pattern_size from 0 to {max(h, w)}.")
 
 
-def _check_options(method, k, levels, m, n_pts, texture, coherent):
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}.")
+def _check_options(method, k, levels, m, n_pts, texture):
+    """The settings against this model and texture (:class:`TexturingOptions` checked them alone):
+    k below the point count, a neighbourhood the coarsest texture holds."""
     k = check_k(k, n_pts)
-    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise ValueError(f"levels must be an integer >= 1, got {levels!r}.")
-    if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 32:
-        raise ValueError(f"m (supersampling) must be an integer in [1, 32], got {m!r}.")
     h, w = texture.shape[:2]
     side = math.ceil(math.sqrt(k + 1))  # a k-neighbourhood spans about sqrt(k) x sqrt(k) texels
     if method != "param" and min(h, w) >> (levels - 1) < side:
@@ -264,6 +259,85 @@ def texture_bytes(n_points: int, height: int, width: int, *, method: str = "hybr
     return max(points_stage, texture_stage + (16 * k + 40) * n) + (512 << 10)
 
 
+@dataclass(frozen=True)
+class TexturingOptions:
+    """M3's settings, declared, checked and documented once (issue 33): :func:`texture_points`
+    takes them as keywords or as ``options=``, and ``geosynth texture`` builds one from its
+    options. Every value is checked when the object is made, before any work (a bad one is a
+    ``ValueError`` or ``TypeError`` naming it); what depends on the model and the texture (k
+    below the point count, a neighbourhood the texture holds, ``unit_scale``'s and
+    ``pattern_size``'s ranges) is checked by :func:`texture_points`.
+
+    Attributes:
+        method: ``"param"`` (point parameterization), ``"match"`` (neighbourhood matching) or
+            ``"hybrid"`` (parameterization, then matching in the gaps).
+        k: neighbours per point (>= 3); 25 or 49 in the paper.
+        levels: multiresolution levels of matching (point hierarchy + texture pyramid), >= 1.
+        coherent: coherent matching (candidates near the neighbours' source texels).
+        m: supersampling factor of the texel search, 1 to 32.
+        unit_scale: one texel = ``unit_scale`` x the mean nearest-neighbour distance (larger:
+            a larger texture on the model), > 0.
+        up: up vector for the texture orientation (a non-zero 3-vector), or None for a random
+            direction.
+        tileable: the texture tiles (unbounded patches, periodic lookups); else patches are
+            capped at ``max_patch`` texels and lookups clamp at the edge.
+        weights, threshold: the distortion measure (w1..w4, each >= 0) and its bound (> 0).
+        max_patch: largest patch extent in texels when not tileable, >= 1 (None: 0.8 x the
+            texture's smaller side).
+        pattern_size: the texture's pattern size in texels, >= 0, for the hybrid's gap widening
+            (None: one widening round).
+        subtexel: refine each matched texel to the best supersampled pixel within half a texel
+            and take that pixel's colour (our addition; False: the texel's own colour, as in
+            the paper).
+        batch: points searched per kernel launch (none in another's k-neighbourhood), >= 1;
+            1 is the paper's sequential order with one :func:`geosynth.score_gather` call per
+            point (same texel choices per query; the order differs a little).
+        quality: compute the quality numbers (mean eq. 5 error of the result, of a random
+            colouring and of the pure parameterization).
+        quality_samples: points whose neighbourhoods the quality numbers average over, >= 1.
+    """
+
+    method: str = "hybrid"
+    k: int = 25
+    levels: int = 1
+    coherent: bool = False
+    m: int = DEFAULT_M
+    unit_scale: float = 1.0
+    up: tuple[float, float, float] | None = (0.0, 1.0, 0.0)
+    tileable: bool = True
+    weights: tuple[float, float, float, float] = DEFAULT_WEIGHTS
+    threshold: float = DEFAULT_THRESHOLD
+    max_patch: float | None = None
+    pattern_size: float | None = None
+    subtexel: bool = True
+    batch: int = DEFAULT_MATCH_BATCH
+    quality: bool = True
+    quality_samples: int = 200
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}.")
+        if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 3:
+            raise ValueError(f"k (neighbours per point) must be an integer >= 3, got {self.k!r}.")
+        levels, m = self.levels, self.m
+        if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
+            raise ValueError(f"levels must be an integer >= 1, got {levels!r}.")
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 32:
+            raise ValueError(f"m (supersampling) must be an integer in [1, 32], got {m!r}.")
+        check_growth_options(self.weights, self.threshold, self.unit_scale, self.max_patch)
+        check_up(self.up)
+        pattern_size = self.pattern_size
+        if pattern_size is not None and not (isinstance(pattern_size, (int, float, np.integer, np.floating))
+                                             and math.isfinite(pattern_size) and pattern_size >= 0):
+            raise ValueError(f"pattern_size must be a number of texels >= 0 (or None), got {pattern_size!r}.")
+        for name in ("coherent", "tileable", "subtexel", "quality"):
+            check_bool(name, getattr(self, name))
+        for name in ("batch", "quality_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}.")
+
+
 def texture_points(
     points: PointSet,
     texture: np.ndarray,
@@ -287,6 +361,7 @@ def texture_points(
     device: str | None = None,
     seed: int = 0,
     progress: bool = False,
+    options: TexturingOptions | None = None,
 ) -> tuple[PointSet, TextureReport]:
     """Colour every point of a point model from a sample texture (M3).
 
@@ -294,34 +369,14 @@ def texture_points(
         points: PointSet with positions and normals (estimate missing normals with
             :func:`geosynth.geometry.pointsets.estimate_normals`).
         texture: (H, W, 3) uint8 RGB texture (grey is converted; RGBA must be opaque).
-        method: ``"param"`` (point parameterization), ``"match"`` (neighbourhood
-            matching) or ``"hybrid"`` (parameterization, then matching in the gaps).
-        k: neighbours per point (>= 3); 25 or 49 in the paper.
-        levels: multiresolution levels of matching (point hierarchy + texture pyramid).
-        coherent: coherent matching (candidates near the neighbours' source texels).
-        m: supersampling factor of the texel search.
-        unit_scale: one texel = ``unit_scale`` x the mean nearest-neighbour distance
-            (larger: a larger texture on the model).
-        up: up vector for the texture orientation, or None for a random direction.
-        tileable: the texture tiles (unbounded patches, periodic lookups); else patches
-            are capped at ``max_patch`` texels and lookups clamp at the edge.
-        weights, threshold: the distortion measure (w1..w4) and its bound.
-        max_patch: largest patch extent in texels when not tileable (default 0.8 x the
-            texture's smaller side).
-        pattern_size: the texture's pattern size in texels, for the hybrid's gap widening
-            (default: one widening round).
-        subtexel: refine each matched texel to the best supersampled pixel within half
-            a texel and take that pixel's colour (our addition; False: the texel's own
-            colour, as in the paper).
-        batch: points searched per kernel launch (none in another's k-neighbourhood);
-            1 is the paper's sequential order with one :func:`geosynth.score_gather` call
-            per point (same texel choices per query; the order differs a little).
-        quality: compute the quality numbers (mean eq. 5 error of the result, of a
-            random colouring and of the pure parameterization).
-        quality_samples: points whose neighbourhoods the quality numbers average over.
+        method, k, levels, coherent, m, unit_scale, up, tileable, weights, threshold, max_patch,
+            pattern_size, subtexel, batch, quality, quality_samples: the settings, each documented
+            and checked once in :class:`TexturingOptions`.
         device: where the texel searches run (a device string; None: "auto").
         seed: seed of every random choice; the same seed gives the same colours on every device.
         progress: show progress bars.
+        options: the settings as one :class:`TexturingOptions` instead of the keywords (then
+            the keywords must keep their defaults).
 
     Returns:
         (the coloured PointSet (positions and normals as given), a :class:`TextureReport`).
@@ -335,7 +390,19 @@ def texture_points(
             available, before anything is allocated: option ``"texture_size"`` when the
             texture search alone is too large, else ``"count"`` (the points).
     """
-    tex, p, nrm, k, levels, m = _checked_inputs(points, texture, method, k, levels, m, coherent, up, batch, quality)
+    given = dict(method=method, k=k, levels=levels, coherent=coherent, m=m, unit_scale=unit_scale, up=up,
+                 tileable=tileable, weights=weights, threshold=threshold, max_patch=max_patch,
+                 pattern_size=pattern_size, subtexel=subtexel, batch=batch, quality=quality,
+                 quality_samples=quality_samples)
+    # every setting checked here, before any work
+    options = settings_from(TexturingOptions, options, given, keyword_defaults(texture_points, given))
+    method, k, levels, coherent, m, unit_scale, up, tileable = (
+        options.method, options.k, options.levels, options.coherent, options.m, options.unit_scale, options.up,
+        options.tileable)
+    weights, threshold, max_patch, pattern_size, quality, quality_samples = (
+        options.weights, options.threshold, options.max_patch, options.pattern_size, options.quality,
+        options.quality_samples)
+    tex, p, nrm, k, levels, m = _checked_inputs(points, texture, method, k, levels, m, quality)
     n_pts = len(p)
     rng = np.random.default_rng(seed)
     h, w = tex.shape[:2]
@@ -354,22 +421,20 @@ def texture_points(
         threshold=threshold, max_patch=None if tileable else max_patch, tileable=tileable, rng=rng,
         neighbours=(dist, nb), device=dev_name, report=report)
 
-    colours = np.zeros((n_pts, 3), np.uint8)
-    coloured = np.zeros(n_pts, bool)
-    source = np.full(n_pts, -1, np.int64)
+    colouring = _Colouring.empty(n_pts)
+    colours = colouring.colours
     param_colours = None
     if method in ("param", "hybrid"):
         param, param_colours, patch_offsets = run_param()
         report.patches, report.gap_fraction = param.patch_count, param.gap_fraction
     if method == "param":
-        colours[:] = param_colours
-        coloured[:] = True
+        colouring.colours[:] = param_colours
+        colouring.coloured[:] = True
     else:
         # frames: the patches' own (hybrid) or from the up vector / a random direction (match)
         if method == "hybrid":
-            s_ax, t_ax = _keep_patches_outside_gaps(param, param_colours, patch_offsets, nrm, nb, tex, k, up,
-                                                    pattern_size, unit_scale, tileable, rng, colours, coloured,
-                                                    source, report)
+            s_ax, t_ax = _keep_patches_outside_gaps(param, param_colours, patch_offsets, nrm, nb, tex, options, rng,
+                                                    colouring, report)
         else:
             s_ax, t_ax = frames_from_up(nrm, up if up is not None else rng.standard_normal(3))
             report.matched_fraction = 1.0
@@ -378,8 +443,7 @@ def texture_points(
         pyramid = texture_pyramid(tex, levels)
         if levels > 1:
             _timed(report, "hierarchy + pyramid", t1, n_pts)
-        colours = _match_hierarchy(hierarchy, pyramid, method, colours, coloured, source, m, tileable, coherent,
-                                   subtexel, batch, rng, dev_name, progress, report)
+        colours = _match_hierarchy(hierarchy, pyramid, options, m, colouring, rng, dev_name, progress, report)
     sec, rates = report.seconds, report.rates
     sec["total"] = sum(v for kk, v in sec.items())
     rates["total"] = n_pts / max(sec["total"], 1e-9)
@@ -395,7 +459,7 @@ def texture_points(
     return out, report
 
 
-def _checked_inputs(points, texture, method, k, levels, m, coherent, up, batch, quality):
+def _checked_inputs(points, texture, method, k, levels, m, quality):
     """texture_points' input checks and its memory refusal, before any allocation.
 
     Returns:
@@ -404,10 +468,7 @@ def _checked_inputs(points, texture, method, k, levels, m, coherent, up, batch, 
     """
     tex = as_texture(texture)
     p, nrm = as_model(points)
-    k, levels, m = _check_options(method, k, levels, m, len(p), tex, coherent)
-    check_up(up)
-    if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
-        raise ValueError(f"batch must be an integer >= 1, got {batch!r}.")
+    k, levels, m = _check_options(method, k, levels, m, len(p), tex)
     if method == "param":
         levels = 1
     _require_texture(len(p), tex.shape[0], tex.shape[1], method, k, levels, m, quality)
@@ -454,19 +515,35 @@ def _parameterize(model: CheckedModel, tex: np.ndarray, k: int, *, unit_scale, u
     return par, cols, offs
 
 
+@dataclass(frozen=True)
+class _Colouring:
+    """The points' colouring as the steps of :func:`texture_points` fill it in place: each
+    point's (N, 3) uint8 colour, whether it has one, and the texel it came from (-1: none)."""
+
+    colours: np.ndarray
+    coloured: np.ndarray
+    source: np.ndarray
+
+    @classmethod
+    def empty(cls, n_points: int) -> _Colouring:
+        """No point coloured yet."""
+        return cls(np.zeros((n_points, 3), np.uint8), np.zeros(n_points, bool), np.full(n_points, -1, np.int64))
+
+
 def _keep_patches_outside_gaps(param, param_colours: np.ndarray, patch_offsets: np.ndarray, nrm: np.ndarray,
-                               nb: np.ndarray, tex: np.ndarray, k: int, up, pattern_size, unit_scale,
-                               tileable: bool, rng: np.random.Generator, colours: np.ndarray, coloured: np.ndarray,
-                               source: np.ndarray, report: TextureReport) -> tuple[np.ndarray, np.ndarray]:
+                               nb: np.ndarray, tex: np.ndarray, options: TexturingOptions, rng: np.random.Generator,
+                               colouring: _Colouring, report: TextureReport) -> tuple[np.ndarray, np.ndarray]:
     """The hybrid's first step (paper Sec. 5): widen the parameterization's gaps toward the
     pattern size (each round about sqrt(k) wider), keep the patch colours and source
-    texels outside them (``colours``, ``coloured``, ``source`` updated in place), and give
-    every gap point (and any point without a frame) the frame of its nearest framed
-    neighbour.
+    texels outside them (``colouring`` updated in place), and give every gap point (and any
+    point without a frame) the frame of its nearest framed neighbour.
 
     Returns:
         (S axes (N, 3), T axes (N, 3)) float64 frames for the matching.
     """
+    k, up, pattern_size, unit_scale, tileable = (options.k, options.up, options.pattern_size, options.unit_scale,
+                                                 options.tileable)
+    colours, coloured, source = colouring.colours, colouring.coloured, colouring.source
     n_pts = len(nrm)
     h, w = tex.shape[:2]
     s_ax, t_ax = param.s_axis.copy(), param.t_axis.copy()
@@ -508,13 +585,13 @@ def _keep_patches_outside_gaps(param, param_colours: np.ndarray, patch_offsets: 
     return s_ax, t_ax
 
 
-def _level_states(hierarchy: list[PointLevel], colours: np.ndarray, coloured: np.ndarray, source: np.ndarray):
-    """Colours, coloured flags and source texels per hierarchy level, finest first: a
-    coarse point is coloured iff all its fine points are (then it takes their rounded
-    mean colour); coarse sources start unknown (-1)."""
-    lv_col = [colours]
-    lv_done = [coloured]
-    lv_src = [source]
+def _level_states(hierarchy: list[PointLevel], colouring: _Colouring):
+    """Colours, coloured flags and source texels per hierarchy level, finest first (the
+    finest: ``colouring``'s own arrays): a coarse point is coloured iff all its fine points
+    are (then it takes their rounded mean colour); coarse sources start unknown (-1)."""
+    lv_col = [colouring.colours]
+    lv_done = [colouring.coloured]
+    lv_src = [colouring.source]
     for lvl in range(1, len(hierarchy)):
         ch = hierarchy[lvl].children
         valid = ch >= 0
@@ -527,20 +604,23 @@ def _level_states(hierarchy: list[PointLevel], colours: np.ndarray, coloured: np
     return lv_col, lv_done, lv_src
 
 
-def _match_hierarchy(hierarchy: list[PointLevel], pyramid: list[np.ndarray], method: str, colours: np.ndarray,
-                     coloured: np.ndarray, source: np.ndarray, m: int, tileable: bool, coherent: bool,
-                     subtexel: bool, batch: int, rng: np.random.Generator, device: str, progress: bool,
+def _match_hierarchy(hierarchy: list[PointLevel], pyramid: list[np.ndarray], options: TexturingOptions, m: int,
+                     colouring: _Colouring, rng: np.random.Generator, device: str, progress: bool,
                      report: TextureReport) -> np.ndarray:
     """Neighbourhood matching (paper Sec. 4) of every uncoloured point, coarsest level
     first, against ``pyramid`` (the texture pyramid, finest first, of the hierarchy's
-    depth); the coarsest level of the pure matching is coloured randomly (Sec. 4.1).
+    depth), with the options' method, tileability, coherence, subtexel refinement and
+    batch, ``m`` the checked supersampling; the coarsest level of the pure matching is
+    coloured randomly (Sec. 4.1).
 
     Returns:
-        (N, 3) uint8 colours of the finest level (``coloured`` and ``source`` of that
-        level are updated in place).
+        (N, 3) uint8 colours of the finest level (``colouring``'s flags and sources are
+        updated in place).
     """
+    method, tileable, coherent, subtexel, batch = (options.method, options.tileable, options.coherent,
+                                                   options.subtexel, options.batch)
     levels = len(hierarchy)
-    lv_col, lv_done, lv_src = _level_states(hierarchy, colours, coloured, source)
+    lv_col, lv_done, lv_src = _level_states(hierarchy, colouring)
 
     t1 = time.perf_counter()
     searchers = []

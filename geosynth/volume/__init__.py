@@ -4,6 +4,7 @@ tree (Sec. 4-5), with Kwatra et al.'s texture optimization (2005) and graph-cut 
 tiled on Dask beyond one process.
 
 - synthesis.py    which larger field looks like the exemplar? synthesize_volume(), synthesize_geometry()
+- options.py      which settings does an M1 synthesis take, and are they valid? VolumeOptions, TileOptions
 - tiled.py        how does a volume beyond one process grow on Dask? synthesize_volume_tiled()
 - tiles.py        how is a volume split into tiles and scheduled so every seam is consistent?
 - examples.py     which example inputs run with no input file? exemplar_mesh(), exemplar_field()

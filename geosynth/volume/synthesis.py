@@ -49,10 +49,13 @@ from geosynth.core.constants import (M1_ACROSS_SHARE, M1_DEFAULT_BLOCK, M1_DEFAU
                                 M1_ELEMENT_MARGIN_SAMPLES, M1_MIN_FEATURE_SAMPLES)
 from geosynth.core.interpolate import lerp_axis, linear_taps
 from geosynth.core.memory import require
+from geosynth.core.options import keyword_defaults
 from geosynth.geometry.field import Field
 from geosynth.volume.blocks import block_offsets, block_shape
 from geosynth.volume.examples import resolve_exemplar_mesh as _exemplar_mesh
 from geosynth.volume.optimize import lattice_positions, level_stride, memory_estimate as optimize_memory
+from geosynth.volume.options import (DEFAULT_METHOD, GEOMETRY_SMOOTH, METHODS, SCALE_RANGE, VolumeOptions,
+                                     check_int, check_scale, is_int, level_blocks, volume_options)
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -76,20 +79,6 @@ __all__ = [
     "synthesize_volume",
 ]
 
-# How each level is made from its matches: "paper" (scan-order copying, already
-# synthesized samples kept), "graphcut" (the same scan, pasted along a minimum-error
-# cut, geosynth.volume.graphcut), "optimize" (texture optimization, geosynth.volume.optimize).
-METHODS = ("paper", "graphcut", "optimize")
-# The default, "auto": the method that scores best on the built-in exemplars' structure
-# metrics for the kind of run (bench/bm_volume.py --part quality; opencl, 64 -> 128, 3
-# levels; the zoo, bench/bm_zoo.py): "graphcut" for a slab (elements: chainmail 0.99 against optimize's 0.74,
-# rings 1.00 against 0.91; domes alike), "optimize" otherwise (balls 0.86 against
-# graphcut's 0.58, fibers 0.48 against 0.43, terrain's debris 0.0% against 0.5% and no
-# overhangs against 10.7%), a slab that is a terrain included (:func:`is_terrain`: the
-# zoo's terrain slab kept its hills' spacing, 1.01 against graphcut's 0.80), and a slab of
-# separate tubes across its footprint (:func:`is_tubes_across`: the zoo's wavy tubes 0.11 of
-# random tiling's block distance against graphcut's 0.25, their height 1.00 against 0.94).
-DEFAULT_METHOD = "auto"
 
 
 def resolve_method(method: str, slab: bool, terrain: bool = False) -> str:
@@ -198,6 +187,23 @@ def max_levels(source_shape, slab: bool | None = None) -> int:
     thin = slab is True or (slab is None and z * SLAB_RATIO <= min(y, x))
     most = max(1, min((y, x) if thin else (z, y, x)).bit_length() - 1)
     return min(most, z.bit_length()) if thin else most
+
+
+def source_levels(source_shape, slab: bool | None = None) -> tuple[int, str]:
+    """The most levels a (Z, Y, X) source allows (:func:`max_levels`) and why, for the
+    levels' message."""
+    return max_levels(source_shape, slab), f" (each level halves the source {tuple(source_shape)})"
+
+
+def source_pyramid(source: np.ndarray, band: float, levels: int) -> list[np.ndarray]:
+    """The exemplar at every level, coarsest first: a float source quantized with ``band``
+    (:func:`quantize_field`), then halved ``levels - 1`` times (:func:`downsample`)."""
+    if source.dtype != np.uint8:
+        source = quantize_field(source, band)
+    sources = [np.ascontiguousarray(source)]
+    for _ in range(levels - 1):
+        sources.insert(0, downsample(sources[0]))
+    return sources
 
 
 def downsample(values: np.ndarray) -> np.ndarray:
@@ -371,73 +377,25 @@ class VolumeResult:
     lattice_text: str = ""
 
 
-SEARCHES = ("cascade", "tree", "linear")
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
-def _check_int(name: str, value, minimum: int, maximum: int | None = None, why: str = "") -> int:
-    """``value`` as an int in [minimum, maximum]; TypeError for a non-integer (floats are
-    not truncated), ValueError out of range. ``why`` ends the range message."""
-    if maximum is None:
-        want = f"an integer >= {minimum}"
-    else:
-        want = f"an integer from {minimum} to {maximum}"
-    if not _is_int(value):
-        raise TypeError(f"{name} must be {want}, got {value!r}.")
-    if value < minimum or (maximum is not None and value > maximum):
-        raise ValueError(f"{name} must be {want}{why}, got {value}.")
-    return int(value)
-
-
-# band and spacing scale float32 fields (distance = value * band * spacing): within these
-# bounds every product stays a normal float32 number.
-_SCALE_RANGE = (1e-15, 1e15)
-
-
-def check_scale(name: str, value, what: str) -> float:
-    """A real number in _SCALE_RANGE (``what`` says what it measures)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number ({what}), got {value!r}.")
-    lo, hi = _SCALE_RANGE
-    if not (math.isfinite(float(value)) and lo <= value <= hi):
-        raise ValueError(f"{name} must be a finite number from {lo:g} to {hi:g} ({what}), got {value!r}.")
-    return float(value)
-
-
 def check_size(size) -> None:
     """One positive integer or three (z, y, x); floats are refused, not truncated."""
     values = [size] if np.ndim(size) == 0 else list(np.asarray(size, dtype=object).reshape(-1))
-    if np.ndim(size) > 1 or len(values) not in (1, 3) or not all(_is_int(v) for v in values):
+    if np.ndim(size) > 1 or len(values) not in (1, 3) or not all(is_int(v) for v in values):
         raise TypeError(f"size must be a positive integer or three of them (z, y, x), got {size!r}.")
     if any(v < 1 for v in values):
         raise ValueError(f"size must be a positive integer or three of them (z, y, x), got {size!r}.")
 
 
-def _check_block(block) -> None:
-    """Integers only (a power-of-two check and the per-level count follow in level_blocks)."""
-    values = [block] if np.ndim(block) == 0 else list(np.asarray(block, dtype=object).reshape(-1))
-    if np.ndim(block) > 1 or not values or not all(_is_int(v) for v in values):
-        raise TypeError(f"block must be an integer (a power of two >= 2) or one per level, got {block!r}.")
-
-
-def check_common(levels, max_levels: int, levels_why: str, block, tileable, seed, device, search,
-                  progress) -> None:
-    """The options synthesize_volume and synthesize_geometry share, checked before any work."""
-    _check_int("levels", levels, 1, max_levels, levels_why)
-    _check_block(block)
-    _checks.check_bool("tileable", tileable)
+def check_run(seed, device, progress) -> None:
+    """The arguments of one run that every M1 entry point takes beside its settings
+    (:class:`~geosynth.volume.options.VolumeOptions`), checked before any work."""
     _checks.check_bool("progress", progress)
     if seed is not None:
-        _check_int("seed", seed, 0)
+        check_int("seed", seed, 0)
     if device is not None:
         from geosynth.compute.backend import parse_device
 
         parse_device(device)  # a malformed string now; absence is found when the search starts
-    if not isinstance(search, str) or search not in SEARCHES:
-        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}.")
 
 
 def _as_shape(name: str, size) -> tuple[int, int, int]:
@@ -447,27 +405,6 @@ def _as_shape(name: str, size) -> tuple[int, int, int]:
     if s.shape != (3,) or s.dtype.kind not in "iu" or (s < 1).any():
         raise ValueError(f"{name} must be a positive integer or three of them (z, y, x), got {size!r}.")
     return tuple(int(v) for v in s)
-
-
-def level_blocks(levels: int, block, slab: bool = False) -> list[int]:
-    if np.ndim(block) == 0:
-        finest = int(block)
-        # Coarser levels: the same block in samples covers twice the space per level;
-        # halve it (not below 4) so the coarsest keeps enough candidates. A slab's
-        # halves it at the coarsest level only: its blocks hold whole columns, and the
-        # finest block across at the levels between keeps more whole pieces (measured,
-        # opencl, 64 -> 128: chainmail elements 0.69 -> 0.74, rings 0.84 -> 0.91, domes
-        # slopes 0.95 -> 0.96).
-        coarse = levels - 1 if not slab else min(1, levels - 1)
-        blocks = [max(4, finest // 2)] * coarse + [finest] * (levels - coarse)
-    else:
-        blocks = [int(b) for b in block]
-        if len(blocks) != levels:
-            raise ValueError(f"block must be one size or one per level ({levels}), got {list(block)}.")
-    for b in blocks:
-        if b < 2 or b & (b - 1):
-            raise ValueError(f"block sizes must be powers of two >= 2, got {b}.")
-    return blocks
 
 
 class Matcher:
@@ -890,19 +827,13 @@ def choose_volume_settings(source_shape, target_shape, levels: int, block, *, sl
         ValueError: blocks that do not fit (:func:`plan_blocks`), an unknown method, bad
             iterations.
     """
-    if slab is not None:
-        _checks.check_bool("slab", slab)
+    VolumeOptions(levels=levels, block=block, slab=slab, method=method, band=band, iterations=iterations)  # checked
     flat = is_slab(source_shape, target_shape) if slab is None else bool(slab)
     blocks = plan_blocks(source_shape, target_shape, levels, block, level_blocks(levels, block, flat), flat)
     shapes = level_block_shapes(target_shape, levels, blocks, flat)
-    if method != "auto" and method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)} or auto, got {method!r}.")
     if iterations is None:
         iterations = ([12] + [6] * (levels - 2) + [3]) if levels > 1 else [6]
     caps = [iterations] * levels if np.ndim(iterations) == 0 else list(iterations)
-    if len(caps) != levels or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 1
-                                  for c in caps):
-        raise ValueError(f"iterations must be a positive integer or one per level ({levels}), got {iterations!r}.")
     return VolumeSettings(flat, slab is None, resolve_method(method, flat, terrain), method == "auto",
                           tuple(int(b) for b in blocks),
                           tuple(shapes), float(blocks[-1] / 2 if band is None else band),
@@ -927,6 +858,7 @@ def synthesize_volume(
     iterations=None,
     slab: bool | None = None,
     lattice: bool | None = None,
+    options: VolumeOptions | None = None,
 ) -> VolumeResult:
     """Synthesize a larger distance field from an exemplar's (multiresolution M1).
 
@@ -935,53 +867,20 @@ def synthesize_volume(
             distances in units of samples (quantized here with ``band``).
         size: target size at the finest level, one int or (z, y, x); each must be a
             multiple of 2^(levels-1) and at least the finest block.
-        levels: resolution levels, >= 1 (3 in the paper).
-        block: the finest level's block size (a power of two; coarser levels use half
-            of it, at least 4, and at most the largest power of two that fits in
-            their source and target; a slab's only at the coarsest level), or one
-            size per level, coarsest first. A slab's is its size across.
-        tileable: make the target periodic (blocks wrap around its faces).
+        levels, block, tileable, search, band, method, iterations, slab, lattice: the settings, each
+            documented and checked once in :class:`~geosynth.volume.options.VolumeOptions`
+            (``block`` None here: 16; ``band`` is used for float sources; ``result.slab`` says
+            whether a slab ran).
         seed: seed of the numpy Generator drawing the random initial samples.
         device: a device string for the matching kernels (None: "auto").
-        search: "cascade" (the default: eq. 2 lower bounds of every block, coarse to
-            fine, on the device, then exact SSDs of the few survivors; see
-            :class:`geosynth.volume.cascade.CascadeSearch`), "tree" (the paper's exact
-            best-first search, :class:`geosynth.volume.tree.BlockSearch`; fast for clean
-            queries, slower for synthesis queries whose random or upsampled samples
-            weaken its bounds) or "linear" (every block scored by the gather kernel).
-            All three return the same block.
-        band: for float sources, the distance mapped to the uint8 range ends
-            (default: half the finest block, in samples).
         spacing: world size of one finest-level sample, for the returned Field.
         progress: show a progress bar per level.
         baseline: tile randomly chosen source blocks instead of matching (the naive
             baseline of the quality numbers; same scan and overwrite rule, whatever
             the method).
-        method: how a level is made from the matches (:data:`METHODS`): "paper" (the
-            scan-order copying above), "graphcut" (the same scan, each block pasted
-            along a minimum-error cut through the overlap,
-            :func:`geosynth.volume.graphcut.min_cut`) or "optimize" (texture optimization,
-            :func:`geosynth.volume.optimize.optimize_level`: the coarsest level starts from
-            random source blocks, every level iterates exact matches of blocks on a
-            stride-N/4 lattice and a robust vote, until under 1% of the matches
-            change or ``iterations``), or "auto" (the default: "graphcut" for a slab,
-            "optimize" otherwise, the ones that score best on the built-in exemplars'
-            structure metrics; :func:`resolve_method`).
-        iterations: the most texture-optimization iterations ("optimize"): one number
-            for every level or one per level, coarsest first; None: 12 at the coarsest
-            level (cheap, and it sets the layout), 6 in between and 3 at the finest
-            (it mostly refines; its searches cost the most); 6 for one level.
-        slab: blocks span each level's full thickness along z, (Z_l, B, B) with B
-            from ``block``, and the synthesis grows across only; None (default):
-            chosen by :func:`is_slab` (a source ``SLAB_RATIO`` times thinner along z
-            than across, a target no thicker). ``result.slab`` says which ran.
-        lattice: restrict a slab's scan ("paper", "graphcut") to source blocks congruent
-            to their target position modulo the exemplar's lattice
-            (:mod:`geosynth.volume.lattice`), so that linked rings close across stitches;
-            None (default): when the exemplar is a network with loops (linked rings: no
-            whole element, :func:`is_network`) and has a lattice; True: whenever it has
-            one; False: never. Levels whose source is smaller than the lattice's cell
-            plus a block match freely. ``result.lattice`` says what ran.
+        options: the settings as one :class:`~geosynth.volume.options.VolumeOptions` instead
+            of the keywords (then the keywords must keep their defaults; its ``tiles`` must
+            be None).
 
     Returns:
         VolumeResult (uint8 and float fields, per-level reports, timings).
@@ -1003,87 +902,42 @@ def synthesize_volume(
     if src.size == 0:
         raise ValueError(f"source is empty (shape {src.shape}).")
     check_size(size)
-    check_common(levels, max_levels(src.shape, slab), f" (each level halves the source {src.shape})", block,
-                 tileable, seed, device, search, progress)
-    if band is not None:
-        check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
-    check_scale("spacing", spacing, "the world size of one sample")
-    _checks.check_bool("baseline", baseline)
-    level_blocks(levels, block)  # the block's own errors before the source's
-    float_source, target_shape = check_source_and_size(src, size, levels)
-    settings = choose_volume_settings(src.shape, target_shape, levels, block, slab=slab, method=method, band=band,
-                                      iterations=iterations, terrain=method == "auto" and optimizes_better(src))
-    slab, method, band, caps = settings.slab, settings.method, settings.band, list(settings.iterations)
-    blocks, shapes = list(settings.blocks), list(settings.block_shapes)
-    optimizing = method == "optimize" and not baseline
-
-    def estimate(shape) -> int:
-        return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, slab), search, float_source,
-                            baseline, method, tileable)
-
-    _require_size(size, target_shape, levels, estimate, "size", blocks)
-
-    if lattice is not None:
-        _checks.check_bool("lattice", lattice)
-    if float_source:
-        src = quantize_field(src, band)
-    found, lattice_line = choose_lattice(src, band, lattice, slab and method in ("paper", "graphcut") and not baseline)
-    sources = [src]
-    for _ in range(levels - 1):
-        sources.insert(0, downsample(sources[0]))
+    given = dict(levels=levels, block=block, tileable=tileable, search=search, band=band, method=method,
+                 iterations=iterations, slab=slab, lattice=lattice)
+    opts = volume_options(options, given, keyword_defaults(synthesize_volume, given),
+                          lambda chosen: source_levels(src.shape, chosen["slab"])).untiled("synthesize_volume")
+    settings, target_shape = _check_volume_run(src, size, opts, seed=seed, device=device, progress=progress,
+                                               spacing=spacing, baseline=baseline)
+    sources = source_pyramid(src, settings.band, opts.levels)
+    src = sources[-1]
+    optimizing = settings.method == "optimize" and not baseline
+    found, lattice_line = choose_lattice(src, settings.band, opts.lattice,
+                                         settings.slab and settings.method in ("paper", "graphcut") and not baseline)
+    run = _VolumeRun(opts.levels, opts.tileable, settings.slab, settings.method, settings.iterations, opts.search,
+                     device, baseline, progress,
+                     relief=bool(HISTOGRAM_MATCH) and optimizing and target_shape[0] == src.shape[0]
+                     and is_height_field(src), lattice=found)
     rng = np.random.default_rng(seed)
     reports: list[LevelReport] = []
     target = None
-    relief = bool(HISTOGRAM_MATCH) and optimizing and target_shape[0] == src.shape[0] and is_height_field(src)
     timings = {"prepare": time.perf_counter() - t_start}
-    for lvl, (s, b, across) in enumerate(zip(sources, shapes, blocks)):
+    for lvl, (s, b, across) in enumerate(zip(sources, settings.block_shapes, settings.blocks)):
         t0 = time.perf_counter()
-        shape = tuple(n // 2 ** (levels - 1 - lvl) for n in target_shape)
-        if target is None and optimizing:  # random source blocks (Kwatra et al. 2005)
-            from geosynth.volume.optimize import random_blocks
-
-            target = random_blocks(s, shape, b, rng, tileable)
-        elif target is None:  # random samples of the source
-            target = s.reshape(-1)[rng.integers(0, s.size, size=int(np.prod(shape)))].reshape(shape)
-        else:
-            target = upsample(target, shape, wrap=(tileable and not slab, tileable, tileable))
-            if relief and HISTOGRAM_MATCH in ("coarse+init", "all"):  # trilinear upsampling lowers it too
-                target = match_histogram(target, s, per_slice=True)
-        matcher = None if baseline else Matcher(s, b, device, search)
+        shape = tuple(n // 2 ** (run.levels - 1 - lvl) for n in target_shape)
+        target = _level_start(run, lvl, s, shape, b, target, rng)
+        matcher = None if baseline else Matcher(s, b, device, run.search)
         t_build = time.perf_counter() - t0
-        label = f"level {lvl + 1}/{levels} ({shape[2]}x{shape[1]}x{shape[0]}, block {block_text(b)})"
-        iters = 1
-        if optimizing:
-            from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
-
-            got = optimize_level(s, target, b, matcher, wrap=tileable, iterations=int(caps[lvl]),
-                                 stride=level_stride(across, lvl == levels - 1), sigma=level_sigma(lvl == levels - 1),
-                                 final=level_final(lvl == levels - 1))
-            count, mean_dist, iters = got["matches"], got["mean_distance"], got["iterations"]
-            if relief and (HISTOGRAM_MATCH == "all" or (HISTOGRAM_MATCH.startswith("coarse") and lvl < levels - 1)):
-                # the vote's averages lower the relief: restore each slice's code histogram (a height
-                # field's height distribution is its inside share per slice)
-                target = match_histogram(target, s, per_slice=True)
-            changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
-        else:
-            vectors = level_lattice(found, levels - 1 - lvl, s.shape, b)
-            count, mean_dist = synthesize_level(s, target, b, matcher, tileable, rng, progress, label, baseline,
-                                                 cut=method == "graphcut" and not baseline, lattice=vectors)
+        target, count, mean_dist, iters, search_text = _synthesize_volume_level(run, lvl, s, target, b, across, matcher, rng)
         seconds = time.perf_counter() - t0
         timings[f"level {lvl + 1} search build"] = t_build
         timings[f"level {lvl + 1}"] = seconds
         reports.append(LevelReport(s.shape, shape, b, count, mean_dist, seconds,
-                                   ("random tiling" if matcher is None else
-                                    "lattice: the best of the congruent source blocks" if not optimizing and
-                                    level_lattice(found, levels - 1 - lvl, s.shape, b) is not None
-                                    else matcher.summary())
-                                   + (f"\ntexture optimization: {iters} iterations, matches changed {changes}"
-                                      if optimizing else ""), iters))
+                                   search_text, iters))
     timings["total"] = time.perf_counter() - t_start
-    distance = dequantize_field(target, band) * np.float32(spacing)
+    distance = dequantize_field(target, settings.band) * np.float32(spacing)
     result_field = Field(distance, np.zeros(3), np.full(3, float(spacing)))
-    return VolumeResult(target, result_field, src, reports, float(band), timings,
-                        "random tiling" if baseline else method, slab, settings, found, lattice_line)
+    return VolumeResult(target, result_field, src, reports, float(settings.band), timings,
+                        "random tiling" if baseline else settings.method, settings.slab, settings, found, lattice_line)
 
 
 def is_network(values: np.ndarray) -> bool:
@@ -1135,6 +989,110 @@ def level_lattice(found, coarser: int, source_shape, block) -> np.ndarray | None
     if (found.extent(factor) > room).any():
         return None
     return found.scaled(factor)
+
+
+def _check_volume_run(src: np.ndarray, size, opts: VolumeOptions, *, seed, device, progress, spacing,
+                      baseline) -> tuple[VolumeSettings, tuple[int, int, int]]:
+    """synthesize_volume's checks beside its settings' (the run's arguments, the source and
+    size) and its choices from the input (:func:`choose_volume_settings`: slab, blocks,
+    method, band, iteration caps), and the memory refusal (:func:`volume_bytes`, option
+    ``"size"``), before anything is allocated. Returns (the choices, the target's shape)."""
+    levels, block = opts.levels, M1_DEFAULT_BLOCK if opts.block is None else opts.block
+    check_run(seed, device, progress)
+    check_scale("spacing", spacing, "the world size of one sample")
+    _checks.check_bool("baseline", baseline)
+    float_source, target_shape = check_source_and_size(src, size, levels)
+    settings = choose_volume_settings(src.shape, target_shape, levels, block, slab=opts.slab, method=opts.method,
+                                      band=opts.band, iterations=opts.iterations,
+                                      terrain=opts.method == "auto" and optimizes_better(src))
+    blocks = list(settings.blocks)
+
+    def estimate(shape) -> int:
+        return volume_bytes(shape, src.shape, level_block_shapes(shape, levels, blocks, settings.slab), opts.search,
+                            float_source, baseline, settings.method, opts.tileable)
+
+    _require_size(size, target_shape, levels, estimate, "size", blocks)
+    return settings, target_shape
+
+
+@dataclass(frozen=True)
+class _VolumeRun:
+    """What every level of one :func:`synthesize_volume` run shares.
+
+    Attributes:
+        levels, tileable, search, device, baseline, progress: as given.
+        slab, method, caps: the choices (:class:`VolumeSettings`: ``method`` resolved,
+            ``caps`` its ``iterations``).
+        relief: a height field's slices keep the exemplar's code histograms
+            (``HISTOGRAM_MATCH``, texture optimization only).
+        lattice: the exemplar's lattice a slab's scan follows (:func:`choose_lattice`), or None.
+    """
+
+    levels: int
+    tileable: bool
+    slab: bool
+    method: str
+    caps: tuple
+    search: str
+    device: str | None
+    baseline: bool
+    progress: bool
+    relief: bool
+    lattice: object = None
+
+    @property
+    def optimizing(self) -> bool:
+        """Texture optimization makes the levels (not the scan, not the random baseline)."""
+        return self.method == "optimize" and not self.baseline
+
+
+def _level_start(run: _VolumeRun, lvl: int, source: np.ndarray, shape, block, coarser: np.ndarray | None,
+                 rng: np.random.Generator) -> np.ndarray:
+    """A level's starting field (the multiresolution synthesis, Sec. 5.2): at the coarsest,
+    random source blocks (texture optimization, Kwatra et al. 2005) or random source samples
+    (the scan); above it, the coarser level's result upsampled, a height field's slices given
+    back the exemplar's code histograms (trilinear upsampling lowers the relief)."""
+    if coarser is None and run.optimizing:
+        from geosynth.volume.optimize import random_blocks
+
+        return random_blocks(source, shape, block, rng, run.tileable)
+    if coarser is None:
+        return source.reshape(-1)[rng.integers(0, source.size, size=int(np.prod(shape)))].reshape(shape)
+    target = upsample(coarser, shape, wrap=(run.tileable and not run.slab, run.tileable, run.tileable))
+    if run.relief and HISTOGRAM_MATCH in ("coarse+init", "all"):
+        target = match_histogram(target, source, per_slice=True)
+    return target
+
+
+def _synthesize_volume_level(run: _VolumeRun, lvl: int, source: np.ndarray, target: np.ndarray, block, across: int,
+                             matcher, rng: np.random.Generator) -> tuple[np.ndarray, int, float, int, str]:
+    """One level made from its matches: texture optimization (:func:`geosynth.volume.optimize.optimize_level`,
+    exact matches of blocks on a lattice and a robust vote, iterated) or the scan in block
+    order (the paper's Sec. 5.3 copying, graphcut pasting, or the random baseline,
+    :func:`synthesize_level`; a slab's following the exemplar's lattice where it has one).
+    Returns (the level's field, matches, mean match distance, iterations, the search's summary)."""
+    last = lvl == run.levels - 1
+    if not run.optimizing:
+        label = (f"level {lvl + 1}/{run.levels} ({target.shape[2]}x{target.shape[1]}x{target.shape[0]}, "
+                 f"block {block_text(block)})")
+        vectors = level_lattice(run.lattice, run.levels - 1 - lvl, source.shape, block)
+        count, mean_dist = synthesize_level(source, target, block, matcher, run.tileable, rng, run.progress, label,
+                                            run.baseline, cut=run.method == "graphcut" and not run.baseline,
+                                            lattice=vectors)
+        summary = ("random tiling" if matcher is None else
+                   "lattice: the best of the congruent source blocks" if vectors is not None else matcher.summary())
+        return target, count, mean_dist, 1, summary
+    from geosynth.volume.optimize import level_final, level_sigma, level_stride, optimize_level
+
+    got = optimize_level(source, target, block, matcher, wrap=run.tileable, iterations=int(run.caps[lvl]),
+                         stride=level_stride(across, last), sigma=level_sigma(last), final=level_final(last))
+    if run.relief and (HISTOGRAM_MATCH == "all" or (HISTOGRAM_MATCH.startswith("coarse") and not last)):
+        # the vote's averages lower the relief: restore each slice's code histogram (a height
+        # field's height distribution is its inside share per slice)
+        target = match_histogram(target, source, per_slice=True)
+    changes = " -> ".join(f"{100 * c:.0f}%" for c in got["changed"]) + f" ({got['stopped']})"
+    return (target, got["matches"], got["mean_distance"], got["iterations"],
+            matcher.summary() + f"\ntexture optimization: {got['iterations']} iterations, matches changed {changes}")
 
 
 def block_text(block) -> str:
@@ -1265,6 +1223,15 @@ def choose_settings(mesh, size, levels: int, source_resolution: int | None = Non
     return Settings(resolution, chosen_block, new_size, float(thickness), text, field if factor == 1 else None)
 
 
+def resolution_levels(source_resolution: int | None) -> tuple[int, str]:
+    """The most levels a mesh exemplar sampled at ``source_resolution`` (None: the default)
+    allows and why, for the levels' message."""
+    resolution = (M1_DEFAULT_RESOLUTION if source_resolution is None
+                  else check_int("source_resolution", source_resolution, 8))
+    return (max(1, resolution.bit_length() - 1),
+            f" (each level halves the source of source_resolution={resolution} samples)")
+
+
 def _largest_block(mesh, resolution: int, size, levels: int) -> int:
     """The largest finest block the synthesis can use: a power of two at most half the
     source across, so that the finest level keeps candidates, and at most the target across
@@ -1339,7 +1306,7 @@ def synthesize_geometry(
     seed: int | None = 0,
     device: str | None = None,
     search: str = "cascade",
-    smooth: int = 10,
+    smooth: int = GEOMETRY_SMOOTH,
     quality_samples: int = 100,
     progress: bool = True,
     drop_degenerate: bool = False,
@@ -1348,6 +1315,7 @@ def synthesize_geometry(
     slab: bool | None = None,
     band: float | None = None,
     lattice: bool | None = None,
+    options: VolumeOptions | None = None,
 ) -> GeometryResult:
     """Exemplar mesh in, larger mesh out: the whole M1 pipeline.
 
@@ -1365,22 +1333,17 @@ def synthesize_geometry(
             (:data:`geosynth.volume.examples.EXEMPLARS`).
         size: the target: one number gives x = y = size samples and the source's
             thickness along z (see :func:`target_size`); three give (z, y, x).
-        levels, block, tileable, seed, device, search, progress, method, iterations, slab, lattice:
-            as in :func:`synthesize_volume` (a slab exemplar, e.g. a plate with relief
-            or one layer of rings, is found by its source grid's shape; the blocks then
+        source_resolution, levels, block, tileable, search, smooth, quality_samples, method, iterations,
+            slab, band, lattice: the settings, each documented and checked once in
+            :class:`~geosynth.volume.options.VolumeOptions` (a slab exemplar, e.g. a plate with
+            relief or one layer of rings, is found by its source grid's shape; the blocks then
             span its full padded thickness: ``result.volume.slab``).
-        source_resolution: samples along the exemplar's longest side (the grid is
-            :func:`exemplar_grid`); None (default): chosen from the exemplar with
-            ``block`` and the size by :func:`choose_settings` (64, or 128 for thin
-            features, the size then doubled to keep its world extent).
-        block: as in :func:`synthesize_volume`; None (default): 16, or 32 where the
-            source resolution was doubled (the same world span), or larger where the
-            exemplar's separate elements need it (:func:`choose_settings`).
-        band: the quantization band in samples (None: half the finest block).
-        smooth: Taubin smoothing iterations of the output mesh (0: none).
-        quality_samples: blocks sampled each way for the quality numbers.
+        seed, device, progress: as in :func:`synthesize_volume`.
         drop_degenerate: drop the exemplar's zero-area faces instead of refusing it
             (:func:`geosynth.geometry.meshes.check_mesh`).
+        options: the settings as one :class:`~geosynth.volume.options.VolumeOptions` instead
+            of the keywords (then the keywords must keep their defaults; its ``tiles`` must
+            be None).
 
     Returns:
         GeometryResult.
@@ -1396,13 +1359,17 @@ def synthesize_geometry(
             size fits at this source resolution, else ``"source_resolution"``.
     """
     check_size(size)
-    resolution = (M1_DEFAULT_RESOLUTION if source_resolution is None
-                  else _check_int("source_resolution", source_resolution, 8))
-    check_common(levels, max(1, resolution.bit_length() - 1),
-                  f" (each level halves the source of source_resolution={resolution} samples)",
-                  M1_DEFAULT_BLOCK if block is None else block, tileable, seed, device, search, progress)
-    _check_int("smooth", smooth, 0)
-    _check_int("quality_samples", quality_samples, 0)
+    given = dict(source_resolution=source_resolution, levels=levels, block=block, tileable=tileable, search=search,
+                 smooth=smooth, quality_samples=quality_samples, method=method, iterations=iterations, slab=slab,
+                 band=band, lattice=lattice)
+    opts = volume_options(options, given, keyword_defaults(synthesize_geometry, given),
+                          lambda chosen: resolution_levels(chosen["source_resolution"])).untiled("synthesize_geometry")
+    source_resolution, levels, block, tileable, search = (opts.source_resolution, opts.levels, opts.block,
+                                                          opts.tileable, opts.search)
+    smooth = GEOMETRY_SMOOTH if opts.smooth is None else opts.smooth
+    quality_samples, method, iterations, slab, band, lattice = (opts.quality_samples, opts.method, opts.iterations,
+                                                                opts.slab, opts.band, opts.lattice)
+    check_run(seed, device, progress)
     from geosynth.geometry.meshes import check_mesh
     from geosynth.geometry.surface import field_to_mesh
     from geosynth.volume.quality import bidirectional_block_distance, exemplar_structure, structure_kind, structure_report
@@ -1672,9 +1639,9 @@ def exemplar_distance(mesh, source_resolution: int, levels: int, *, device: str 
 
     grid = exemplar_grid(mesh, source_resolution, multiple=2 ** (levels - 1))
     spacing = float(grid.spacing[0])
-    if not _SCALE_RANGE[0] <= spacing <= _SCALE_RANGE[1]:
-        raise ValueError(f"the exemplar's samples would lie {spacing:g} apart, outside [{_SCALE_RANGE[0]:g}, "
-                         f"{_SCALE_RANGE[1]:g}] world units; scale the exemplar mesh.")
+    if not SCALE_RANGE[0] <= spacing <= SCALE_RANGE[1]:
+        raise ValueError(f"the exemplar's samples would lie {spacing:g} apart, outside [{SCALE_RANGE[0]:g}, "
+                         f"{SCALE_RANGE[1]:g}] world units; scale the exemplar mesh.")
     if before is not None:
         before(grid.values.shape)
     if field is None:

@@ -55,6 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from geosynth.core.config import TILE_LOCK, TILE_MATCHERS
+from geosynth.core.constants import M1_DEFAULT_BLOCK
+from geosynth.volume.options import TileOptions, VolumeOptions, parse_tiles, volume_options
 from geosynth.volume.tiles import PHASE_A, PHASE_B, PHASE_C, Region, TileGrid, assemble, tile_rng, upsample_window
 
 __all__ = ["TiledResult", "exemplar_source", "parse_tiles", "seam_report", "synthesize_volume_tiled", "tile_bytes", "tile_grid",
@@ -715,22 +717,6 @@ def _settings_and_grid(source_shape, target_shape, tiles, levels: int, block, ma
     return settings, grid
 
 
-def parse_tiles(tiles) -> tuple[int, int]:
-    if isinstance(tiles, str):
-        parts = tiles.lower().split("x")
-        if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-            raise ValueError(f"tiles must be NXxNY (e.g. 4x4), got {tiles!r}.")
-        tiles = tuple(int(p) for p in parts)
-    if np.ndim(tiles) == 0:
-        tiles = (tiles, tiles)
-    tiles = tuple(tiles)
-    if len(tiles) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in tiles):
-        raise TypeError(f"tiles must be one integer or (nx, ny), got {tiles!r}.")
-    if min(tiles) < 1:
-        raise ValueError(f"tiles must be at least 1 x 1, got {tiles[0]} x {tiles[1]}.")
-    return int(tiles[0]), int(tiles[1])
-
-
 def tile_mesh_paths(folder: str | os.PathLike, tiles) -> list[Path]:
     """Every per-tile mesh a run with ``tiles`` ((nx, ny), "NXxNY" or a TileGrid) may write
     in ``folder``: tile_x{ix}_y{iy}.ply, x fastest."""
@@ -826,23 +812,23 @@ def synthesize_volume_tiled(
     resume: bool = False,
     method: str = "auto",
     lattice: bool | None = None,
+    options: VolumeOptions | None = None,
 ) -> TiledResult:
     """Tiled M1 synthesis of a field larger than one process should hold, on Dask; the
     same bits whatever the engine and number of workers.
 
     Args:
-        source, size, levels, block, seed, device, search, band, spacing, iterations, slab, lattice: as
-            :func:`geosynth.volume.synthesis.synthesize_volume`, with the same choices made from the
-            input (:func:`geosynth.volume.synthesis.choose_volume_settings`: ``result.settings``);
-            tileable targets are not tiled (see ``tiles``).
-        method: as synthesize_volume (:data:`geosynth.volume.synthesis.METHODS` or "auto": graphcut
-            for a slab, optimize otherwise). The scans (graphcut, paper) run each phase-B
-            tile and corner window with its neighbours' samples given
-            (``geosynth.volume.synthesis.synthesize_level``'s ``fixed``).
-        tiles: (nx, ny) tiles across x and y, one integer for both, or "NXxNY". Each
-            tiled level's cores must hold its block plus the margin.
-        workers: workers of the LocalCluster started when ``scheduler`` is None (or
-            threads of the threaded scheduler).
+        source, size, seed, device, spacing: as :func:`geosynth.volume.synthesis.synthesize_volume`.
+        levels, block, search, band, iterations, slab, method, lattice, smooth: the settings, each
+            documented and checked once in :class:`~geosynth.volume.options.VolumeOptions`, with
+            the untiled run's choices made from the input
+            (:func:`geosynth.volume.synthesis.choose_volume_settings`: ``result.settings``);
+            tileable targets are not tiled. The scans (graphcut, paper) run each phase-B tile
+            and corner window with its neighbours' samples given
+            (``geosynth.volume.synthesis.synthesize_level``'s ``fixed``). ``smooth``: the merged
+            mesh's.
+        tiles, workers, margin, coarse_whole, phases: the tiling, documented and checked once
+            in :class:`~geosynth.volume.options.TileOptions`.
         scheduler: None (a LocalCluster of ``workers`` one-thread processes, closed at
             the end), "threads" (Dask's threaded scheduler, this process), a
             ``distributed.Client``, or a scheduler address "tcp://host:port" (refused
@@ -860,13 +846,6 @@ def synthesize_volume_tiled(
             written to a temporary folder beside it and moved in when the run succeeds.
             Every tile's file name is checked against ``inputs`` before any work.
         inputs: files the run read (the store, meshes and checkpoint never replace them).
-        margin: samples of margin at every level (default: the largest block).
-        coarse_whole: run the coarse levels that fit in one tile as one task (False:
-            tile every level; for tests of the tiled path).
-        phases: 3 (the checkerboard schedule, then a window on every interior corner
-            point, where two phase-B tiles meet diagonally: :meth:`TileGrid.corners`),
-            2 (the checkerboard only: the B-B corners chosen twice) or 1 (every tile
-            independent: the naive baseline whose seams the schedule removes).
         progress: a progress bar over the tile tasks.
         checkpoint: a folder where each finished tile and corner task's result is saved
             (None: none). Removed when the run succeeds; after an interruption it holds
@@ -876,6 +855,9 @@ def synthesize_volume_tiled(
             same settings (refused for other settings) instead of computing them; the
             result is the uninterrupted run's, bit for bit. No saved checkpoint: the run
             starts from the beginning (``TiledResult.resumed`` is 0).
+        options: the settings as one :class:`~geosynth.volume.options.VolumeOptions` (its
+            ``tiles`` the tiling; None: the defaults) instead of the keywords (then the keywords
+            must keep their defaults).
 
     Returns:
         TiledResult.
@@ -889,40 +871,137 @@ def synthesize_volume_tiled(
             with the smallest square tiling that fits), or the gathered field or merged
             mesh beyond the memory available here.
     """
-    from geosynth.compute import checks as _checks
-    from geosynth.core.memory import MemoryBudgetError, available_memory, format_bytes, require
-    from geosynth.volume.synthesis import (check_common, check_scale, check_size, check_source_and_size, choose_lattice,
-                                           downsample, level_blocks, level_lattice, max_levels, optimizes_better,
-                                           quantize_field)
+    from geosynth.core.options import keyword_defaults
+    from geosynth.volume.synthesis import check_size, choose_lattice, source_levels, source_pyramid
 
     t_start = time.perf_counter()
     src = np.asarray(source)
     if src.ndim != 3 or src.size == 0:
         raise ValueError(f"source must be a non-empty (Z, Y, X) volume, got shape {src.shape}.")
     check_size(size)
-    if slab is not None:
-        _checks.check_bool("slab", slab)
-    check_common(levels, max_levels(src.shape, slab), f" (each level halves the source {src.shape})",
-                 block, False, seed, device, search, progress)
-    _checks.check_bool("mesh", mesh)
-    _checks.check_bool("coarse_whole", coarse_whole)
-    if phases not in (1, 2, 3):
-        raise ValueError(f"phases must be 1, 2 or 3, got {phases!r}.")
-    if band is not None:
-        check_scale("band", band, "the distance mapped to the ends of the uint8 range, in samples")
+    volume_given = dict(levels=levels, block=block, search=search, band=band, iterations=iterations, slab=slab,
+                        method=method, lattice=lattice, smooth=smooth)
+    tile_given = dict(tiles=tiles, workers=workers, margin=margin, coarse_whole=coarse_whole, phases=phases)
+    given = {**volume_given, **tile_given}
+    opts = volume_options(options, given, keyword_defaults(synthesize_volume_tiled, given),
+                          lambda chosen: source_levels(src.shape, chosen["slab"]),
+                          build=lambda: VolumeOptions(**volume_given, tiles=TileOptions(**tile_given)))
+    req = _check_request(src, size, opts, seed=seed, device=device, progress=progress, spacing=spacing, mesh=mesh,
+                         gather=gather, store=store, tile_meshes=tile_meshes, inputs=inputs, checkpoint=checkpoint,
+                         resume=resume)
+    sources = source_pyramid(src, req.settings.band, req.levels)
+    found, lattice_line = choose_lattice(sources[-1], req.settings.band, opts.lattice,
+                                         req.grid.slab and req.settings.method in ("paper", "graphcut"))
+    faces_per_sample = _require_client_memory(req, sources[-1])
+    ex, ckpt = _exemplar_for_workers(req, sources, seed, device, found)
+    estimate = tile_bytes(req.grid, src.shape, req.search, mesh=req.wants_mesh, faces_per_sample=faces_per_sample,
+                          phases=req.tiling.phases)
+    timings = {"prepare": time.perf_counter() - t_start}
+
+    t0 = time.perf_counter()
+    try:
+        engine = _engine(scheduler, req.tiling.workers)  # a silent scheduler is refused here, before anything is written
+    except BaseException:
+        _drop_if_empty(ckpt)
+        raise
+    tmp_store = tmp_meshes = None
+    try:
+        limit = _require_worker_memory(engine, req, estimate, src.shape, faces_per_sample)
+        timings["engine start"] = time.perf_counter() - t0
+        run = uuid.uuid4().hex[:10]
+        moved0 = engine.transfers()
+        ex_ref = engine.scatter(ex)  # held to the end: a lost worker's results are recomputed from it
+        levels_info, finest, held = _run(engine, ex_ref, req.grid, run, progress, req.tiling.phases, ckpt)
+        timings.update({f"level {i + 1}": lv["seconds"] for i, lv in enumerate(levels_info)})
+
+        t0 = time.perf_counter()
+        written = _finest_outputs(engine, req, finest, run, spacing, ex.seed)
+        tmp_store, tmp_meshes = written.store, written.meshes
+        quantized = _gathered_field(engine, req, finest) if req.gather else None
+        merged = _merge(written.pieces, req.smooth) if req.mesh else None
+        timings["outputs"] = time.perf_counter() - t0
+        bytes_moved = engine.transfers() - moved0
+        peak = engine.peak_rss()
+        _publish_outputs(req, written, ckpt)
+        tmp_store = tmp_meshes = None
+    finally:
+        for tmp in (tmp_store, tmp_meshes):
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
+        _drop_if_empty(ckpt)
+        engine.close()
+    timings["total"] = time.perf_counter() - t_start
+    return TiledResult(quantized, req.store, merged, written.tile_paths, sources[-1], req.grid, float(req.settings.band),
+                       float(spacing), levels_info, sum(lv["tasks"] for lv in levels_info), bytes_moved, peak,
+                       estimate, limit, timings, engine.name,
+                       int(req.tiling.workers) if scheduler in (None, "threads") else
+                       len(engine.client.scheduler_info(n_workers=-1)["workers"]),
+                       sum(bool(i.get("resumed")) for lv in levels_info for i in lv["tiles"] + lv["corners"]),
+                       req.settings, found, lattice_line)
+
+
+# ------------------------------------------------------------------ the entry point's steps
+
+
+@dataclass(frozen=True)
+class _TiledRequest:
+    """A tiled run as its checks (:func:`_check_request`) accepted it.
+
+    Attributes:
+        size: the size as given (named in memory refusals); target_shape: its (Z, Y, X).
+        levels, search, block, smooth: the settings (``block`` and ``smooth`` defaults applied).
+        tiling: the :class:`~geosynth.volume.options.TileOptions`.
+        settings: the untiled synthesis's choices (:class:`geosynth.volume.synthesis.VolumeSettings`).
+        grid: the :class:`TileGrid`.
+        mesh, gather: merge one mesh; return the field in memory.
+        store: the zarr store's real path, or None; mesh_dir: the tile meshes' folder, or None.
+        checkpoint, resume, inputs: as given.
+    """
+
+    size: object
+    target_shape: tuple
+    levels: int
+    search: str
+    block: object
+    smooth: int
+    tiling: TileOptions
+    settings: object
+    grid: TileGrid
+    mesh: bool
+    gather: bool
+    store: str | None
+    mesh_dir: Path | None
+    checkpoint: object
+    resume: bool
+    inputs: object
+
+    @property
+    def wants_mesh(self) -> bool:
+        """Whether any mesh is made (merged, or one per tile)."""
+        return self.mesh or self.mesh_dir is not None
+
+
+def _check_request(src: np.ndarray, size, opts: VolumeOptions, *, seed, device, progress, spacing, mesh, gather, store,
+                   tile_meshes, inputs, checkpoint, resume) -> _TiledRequest:
+    """The checks, before any work: the run's arguments, the source and size, the untiled
+    synthesis's choices and the tiling (:func:`_settings_and_grid`), and every output path
+    (store, each tile's mesh, the checkpoint; none an input, none inside another)."""
+    from geosynth.compute.checks import check_bool
+    from geosynth.volume.synthesis import check_run, check_scale, check_source_and_size, optimizes_better
+
+    if opts.tileable:
+        raise ValueError("tileable targets are not tiled yet (the tiles' margins would wrap); use synthesize_volume.")
+    tiling = opts.tiling
+    block = M1_DEFAULT_BLOCK if opts.block is None else opts.block
+    check_run(seed, device, progress)
+    check_bool("mesh", mesh)
     check_scale("spacing", spacing, "the world size of one sample")
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}.")
-    nx, ny = parse_tiles(tiles)
-    level_blocks(levels, block)  # the block's own errors before the source's, as synthesize_volume
-    _, target_shape = check_source_and_size(src, size, levels)
+    _, target_shape = check_source_and_size(src, size, opts.levels)
     # the untiled synthesis's choices (slab, blocks, method, band, iterations), made by the same function
-    settings, grid = _settings_and_grid(src.shape, target_shape, (nx, ny), levels, block, margin, coarse_whole, slab,
-                                        search, method, band, iterations, terrain=method == "auto" and optimizes_better(src))
-    blocks, band, caps = list(grid.blocks), settings.band, list(settings.iterations)
-    if gather is None:
-        gather = store is None
-    _checks.check_bool("resume", resume)
+    settings, grid = _settings_and_grid(src.shape, target_shape, tiling.tiles, opts.levels, block, tiling.margin,
+                                        tiling.coarse_whole, opts.slab, opts.search, opts.method, opts.band,
+                                        opts.iterations, terrain=opts.method == "auto" and optimizes_better(src))
+    check_bool("resume", resume)
     if resume and checkpoint is None:
         raise ValueError("resume needs the checkpoint folder of the interrupted run (checkpoint=...).")
     store_real = _check_store(store, inputs) if store is not None else None
@@ -934,189 +1013,225 @@ def synthesize_volume_tiled(
         for path in tile_mesh_paths(mesh_dir, grid):  # every tile's file, not only the first
             check_tile_mesh_path(path, inputs)
     _check_nesting(store_real, mesh_dir, checkpoint)
+    return _TiledRequest(size, target_shape, opts.levels, opts.search, block, 0 if opts.smooth is None else opts.smooth,
+                         tiling, settings, grid, mesh, store is None if gather is None else gather, store_real,
+                         mesh_dir, checkpoint, resume, inputs)
 
-    if lattice is not None:
-        _checks.check_bool("lattice", lattice)
-    if src.dtype != np.uint8:
-        src = quantize_field(src, band)
-    sources = [np.ascontiguousarray(src)]
-    for _ in range(levels - 1):
-        sources.insert(0, downsample(sources[0]))
-    found, lattice_line = choose_lattice(sources[-1], band, lattice,
-                                         grid.slab and settings.method in ("paper", "graphcut"))
-    lattices = [level_lattice(found, levels - 1 - level, sources[level].shape, grid.block_shape(level))
-                for level in range(levels)]
+
+def _require_client_memory(req: _TiledRequest, finest_source: np.ndarray) -> float:
+    """Refuse, before any worker starts, a gathered field or merged mesh beyond the memory
+    available here; returns the faces per target sample expected of the meshes (0 without)."""
+    from geosynth.core.memory import available_memory, require
+
+    target_shape = req.target_shape
     n_target = int(np.prod(target_shape))
-    faces_per_sample = _faces_per_sample(sources[-1]) if (mesh or mesh_dir is not None) else 0.0
-    # the client's share, refused before any worker starts
+    faces_per_sample = _faces_per_sample(finest_source) if req.wants_mesh else 0.0
+    gather, mesh = req.gather, req.mesh
     client_need = (n_target if gather else 0) + (int(faces_per_sample * n_target * MERGE_FACE_BYTES) if mesh else 0)
     if client_need:
         what = "the gathered field" * bool(gather) + " and " * bool(gather and mesh) + "the merged mesh" * bool(mesh)
-        require(client_need, option="size", value=size, available=available_memory(),
+        require(client_need, option="size", value=req.size, available=available_memory(),
                 what=f"{what} of {target_shape[2]:,} x {target_shape[1]:,} x {target_shape[0]:,} samples (x y z) "
                      "(write a store and tile meshes instead)")
+    return faces_per_sample
+
+
+def _exemplar_for_workers(req: _TiledRequest, sources: list, seed, device, found) -> tuple[_Exemplar, str | None]:
+    """What every worker receives (the exemplar's levels, blocks, iteration caps, search,
+    seed (None: drawn here) and each level's lattice vectors from ``found``, the exemplar's
+    lattice or None), and the checkpoint folder opened for these settings (or None)."""
+    from geosynth.volume.synthesis import level_lattice
+
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2**63))
-    exemplar_bytes = b"".join(s.tobytes() for s in sources)
+    grid, settings, tiling = req.grid, req.settings, req.tiling
+    blocks, caps = list(grid.blocks), list(settings.iterations)
+    lattices = [level_lattice(found, req.levels - 1 - level, sources[level].shape, grid.block_shape(level))
+                for level in range(req.levels)]
     lattice_key = (() if found is None else
                    (tuple(None if v is None else tuple(map(float, v.reshape(-1))) for v in lattices),))
-    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, search, int(seed),
+    exemplar_bytes = b"".join(s.tobytes() for s in sources)
+    digest = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, device, req.search, int(seed),
                                                  settings.method) + lattice_key).encode()).hexdigest()
-    ckpt, resumed_found = None, 0
-    if checkpoint is not None:  # the device is not part of the key: every device gives the same bits
-        key = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, search, int(seed), tuple(target_shape),
-                                                  (nx, ny), margin, coarse_whole, phases)
+    ckpt = None
+    if req.checkpoint is not None:  # the device is not part of the key: every device gives the same bits
+        key = hashlib.sha1(exemplar_bytes + repr((blocks, grid.slab, caps, req.search, int(seed),
+                                                  tuple(req.target_shape), tiling.tiles, tiling.margin,
+                                                  tiling.coarse_whole, tiling.phases)
                                                  + ((settings.method,) if settings.method != "optimize" else ())
                                                  + lattice_key).encode()).hexdigest()
-        ckpt, resumed_found, _ = _open_checkpoint(checkpoint, key, resume, inputs)
-    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(levels)], [int(c) for c in caps], device,
-                   search, int(seed), digest, settings.method, lattices if found is not None else None)
-    estimate = tile_bytes(grid, src.shape, search, mesh=mesh or mesh_dir is not None, faces_per_sample=faces_per_sample,
-                          phases=phases)
-    timings = {"prepare": time.perf_counter() - t_start}
+        ckpt, _, _ = _open_checkpoint(req.checkpoint, key, req.resume, req.inputs)
+    ex = _Exemplar(sources, [grid.block_shape(level) for level in range(req.levels)], [int(c) for c in caps], device,
+                   req.search, int(seed), digest, settings.method, lattices if found is not None else None)
+    return ex, ckpt
 
-    t0 = time.perf_counter()
-    try:
-        engine = _engine(scheduler, workers)  # a silent scheduler is refused here, before anything is written
-    except BaseException:
-        _drop_if_empty(ckpt)
-        raise
+
+def _require_worker_memory(engine, req: _TiledRequest, estimate: int, source_shape, faces_per_sample: float) -> int:
+    """Refuse, before any tile runs, a tile task beyond a worker's memory limit (with its
+    runtime and the results it keeps), naming the smallest square tiling that fits;
+    returns the limit."""
+    from geosynth.core.memory import MemoryBudgetError, format_bytes
+
+    limit = engine.memory_limit()
+    n_workers = engine.worker_count()
+    grid, tiling = req.grid, req.tiling
+    nx, ny = tiling.tiles
+
+    def worker_need(g: TileGrid, tile_estimate: int) -> int:
+        return tile_estimate + engine.runtime_bytes + kept_bytes(g, n_workers)
+
+    need = worker_need(grid, estimate)
+    if need > limit:
+        fits = None
+        for n in range(max(nx, ny) + 1, 257):
+            try:
+                g = TileGrid.make(req.target_shape, (n, n), list(grid.blocks), tiling.margin, tiling.coarse_whole,
+                                  grid.slab)
+            except ValueError:
+                break
+            if worker_need(g, tile_bytes(g, source_shape, req.search, req.wants_mesh, faces_per_sample,
+                                         tiling.phases)) <= limit:
+                fits = (n, n)
+                break
+        fix = (f"use at least {fits[0]}x{fits[1]} tiles" if fits else "no tiling of this size fits; use a "
+               "smaller size or workers with more memory")
+        raise MemoryBudgetError(
+            f"tiles {nx}x{ny}: one tile task needs about {format_bytes(estimate)}, with the worker's runtime "
+            f"({format_bytes(engine.runtime_bytes)}) and kept results ({format_bytes(kept_bytes(grid, n_workers))}) "
+            f"{format_bytes(need)}, more than a worker's {format_bytes(limit)}; {fix}.", option="tiles",
+            largest=fits, estimate=need, available=limit)
+    return limit
+
+
+@dataclass(frozen=True)
+class _FinestOutputs:
+    """What :func:`_finest_outputs` wrote: the store's and the tile meshes' temporary folders
+    (None when not asked), the final paths of the tile meshes that hold a surface, and each
+    tile's mesh piece for the merge (when ``mesh``)."""
+
+    store: str | None
+    meshes: Path | None
+    tile_paths: list
+    pieces: list
+
+
+def _finest_outputs(engine, req: _TiledRequest, finest: dict, run: str, spacing: float, seed: int) -> _FinestOutputs:
+    """The finest level's outputs, written by the workers beside the tiles' results: the
+    zarr store (:func:`_store_tasks`) and the tile meshes (:func:`_mesh_tasks`), into
+    temporary folders (removed again should this fail)."""
+    from geosynth.io.files import remove_stale_temporaries, temporary_path
+
+    graphs, kinds = [], []
     tmp_store = tmp_meshes = None
     try:
-        limit = engine.memory_limit()
-        n_workers = engine.worker_count()
-
-        def worker_need(g: TileGrid, tile_estimate: int) -> int:
-            return tile_estimate + engine.runtime_bytes + kept_bytes(g, n_workers)
-
-        need = worker_need(grid, estimate)
-        if need > limit:  # refused before any tile runs
-            fits = None
-            for n in range(max(nx, ny) + 1, 257):
-                try:
-                    g = TileGrid.make(target_shape, (n, n), blocks, margin, coarse_whole, grid.slab)
-                except ValueError:
-                    break
-                if worker_need(g, tile_bytes(g, src.shape, search, mesh or mesh_dir is not None,
-                                             faces_per_sample, phases)) <= limit:
-                    fits = (n, n)
-                    break
-            fix = (f"use at least {fits[0]}x{fits[1]} tiles" if fits else "no tiling of this size fits; use a "
-                   "smaller size or workers with more memory")
-            raise MemoryBudgetError(
-                f"tiles {nx}x{ny}: one tile task needs about {format_bytes(estimate)}, with the worker's runtime "
-                f"({format_bytes(engine.runtime_bytes)}) and kept results ({format_bytes(kept_bytes(grid, n_workers))}) "
-                f"{format_bytes(need)}, more than a worker's {format_bytes(limit)}; {fix}.", option="tiles",
-                largest=fits, estimate=need, available=limit)
-        timings["engine start"] = time.perf_counter() - t0
-        run = uuid.uuid4().hex[:10]
-        moved0 = engine.transfers()
-        ex_ref = engine.scatter(ex)
-        result = _run(engine, ex_ref, grid, run, progress, phases, ckpt)
-        levels_info, finest, held = result
-        timings.update({f"level {i + 1}": lv["seconds"] for i, lv in enumerate(levels_info)})
-
-        # outputs of the finest level
-        from dask import delayed
-
-        t0 = time.perf_counter()
-        Z, Y, X = target_shape
-        last = grid.levels - 1
-        cores = grid.cores(last)
-        graphs, kinds = [], []
-        from geosynth.io.files import defer, remove_stale_temporaries, temporary_path
-
-        if store_real is not None:
-            import zarr
-
-            os.makedirs(os.path.dirname(store_real), exist_ok=True)
-            remove_stale_temporaries(store_real)
-            tmp_store = str(temporary_path(store_real))
+        if req.store is not None:
+            os.makedirs(os.path.dirname(req.store), exist_ok=True)
+            remove_stale_temporaries(req.store)
+            tmp_store = str(temporary_path(req.store))
             os.mkdir(tmp_store)
-            chunks = (Z, min(Y, grid.core[0]), min(X, grid.core[1]))
-            arr = zarr.open_array(tmp_store, mode="w", shape=target_shape, chunks=chunks, dtype="uint8",
-                                  fill_value=0)
-            arr.attrs.update({"band": float(band), "spacing": float(spacing), "seed": int(seed),
-                              "tiles": [nx, ny], "blocks": list(blocks), "slab": grid.slab, "levels": levels,
-                              "what": "uint8 signed distance codes (geosynth.volume.synthesis.quantize_field), z y x"})
-            for t, c in cores.items():
-                graphs.append(delayed(_write_tile, pure=False)(tmp_store, finest[t], c,
-                                                               dask_key_name=f"write-{run}-{t}"))
-                kinds.append(("write", t))
-        want_mesh = mesh or mesh_dir is not None
-        if want_mesh:
-            if mesh_dir is not None:  # filled by the tasks, moved into mesh_dir at the end
-                mesh_dir.mkdir(parents=True, exist_ok=True)
-                remove_stale_temporaries(mesh_dir / "tiles")
-                tmp_meshes = temporary_path(mesh_dir / "tiles")
+            graphs += _store_tasks(req, finest, run, tmp_store, spacing, seed)
+            kinds += [("write", t) for t in req.grid.cores(req.grid.levels - 1)]
+        if req.wants_mesh:
+            if req.mesh_dir is not None:  # filled by the tasks, moved into mesh_dir at the end
+                req.mesh_dir.mkdir(parents=True, exist_ok=True)
+                remove_stale_temporaries(req.mesh_dir / "tiles")
+                tmp_meshes = temporary_path(req.mesh_dir / "tiles")
                 tmp_meshes.mkdir()
-            for t, c in cores.items():
-                box = Region(c.y0, min(Y, c.y1 + 1), c.x0, min(X, c.x1 + 1))
-                extra = [delayed(_crop, pure=False)(finest[u], grid.core_region(last, u), part,
-                                                    dask_key_name=f"meshcrop-{run}-{t}-{u}")
-                         for u, part in grid.overlapping(last, box) if u != t]
-                ix, iy = grid.position(t)
-                path = None if tmp_meshes is None else str(tmp_meshes / f"tile_x{ix}_y{iy}.ply")
-                graphs.append(delayed(_tile_mesh, pure=False)(finest[t], c, extra, target_shape, spacing, band, path,
-                                                              mesh, dask_key_name=f"mesh-{run}-{t}"))
-                kinds.append(("mesh", t))
+            graphs += _mesh_tasks(req, finest, run, tmp_meshes, spacing)
+            kinds += [("mesh", t) for t in req.grid.cores(req.grid.levels - 1)]
         outputs = engine.gather(engine.compute(graphs)) if graphs else []
-        tile_paths, pieces = [], []
-        for (kind, t), value in zip(kinds, outputs):
-            if kind != "mesh":
-                continue
-            if mesh:
-                pieces.append(value)
-            if mesh_dir is not None and (len(value[1]) if mesh else value):
-                ix, iy = grid.position(t)
-                tile_paths.append(str(mesh_dir / f"tile_x{ix}_y{iy}.ply"))
-        quantized = None
-        if gather:
-            quantized = np.empty(target_shape, np.uint8)
-            for t, value in zip(cores, engine.gather([finest[t] for t in cores])):
-                c = cores[t]
-                quantized[:, c.y0:c.y1, c.x0:c.x1] = value[0]
-        merged = None
-        if mesh:
-            merged = _merge(pieces, smooth)
-        timings["outputs"] = time.perf_counter() - t0
-        bytes_moved = engine.transfers() - moved0
-        peak = engine.peak_rss()
-        # every output is complete: moved into place together (with the command's other
-        # outputs, inside geosynth.io.files.staged_outputs)
-        ready_store, ready_meshes = tmp_store, tmp_meshes
-
-        def publish() -> None:
-            if ready_store is not None:
-                _publish(ready_store, store_real)
-            if ready_meshes is not None:
-                for name in sorted(os.listdir(ready_meshes)):
-                    os.replace(ready_meshes / name, mesh_dir / name)
-                shutil.rmtree(ready_meshes, ignore_errors=True)
-            if ckpt is not None:
-                shutil.rmtree(ckpt, ignore_errors=True)
-
-        def abort() -> None:
-            for tmp in (ready_store, ready_meshes):
-                if tmp is not None:
-                    shutil.rmtree(tmp, ignore_errors=True)
-
-        if not defer(publish, abort):
-            publish()
-        tmp_store = tmp_meshes = None
-    finally:
+    except BaseException:
         for tmp in (tmp_store, tmp_meshes):
             if tmp is not None:
                 shutil.rmtree(tmp, ignore_errors=True)
-        _drop_if_empty(ckpt)
-        engine.close()
-    timings["total"] = time.perf_counter() - t_start
-    return TiledResult(quantized, store_real, merged, tile_paths, sources[-1], grid, float(band), float(spacing),
-                       levels_info, sum(lv["tasks"] for lv in levels_info), bytes_moved, peak, estimate, limit,
-                       timings, engine.name, int(workers) if scheduler in (None, "threads") else
-                       len(engine.client.scheduler_info(n_workers=-1)["workers"]),
-                       sum(bool(i.get("resumed")) for lv in levels_info for i in lv["tiles"] + lv["corners"]),
-                       settings, found, lattice_line)
+        raise
+    tile_paths, pieces = [], []
+    for (kind, t), value in zip(kinds, outputs):
+        if kind != "mesh":
+            continue
+        if req.mesh:
+            pieces.append(value)
+        if req.mesh_dir is not None and (len(value[1]) if req.mesh else value):
+            ix, iy = req.grid.position(t)
+            tile_paths.append(str(req.mesh_dir / f"tile_x{ix}_y{iy}.ply"))
+    return _FinestOutputs(tmp_store, tmp_meshes, tile_paths, pieces)
+
+
+def _store_tasks(req: _TiledRequest, finest: dict, run: str, folder: str, spacing: float, seed: int) -> list:
+    """The zarr store in ``folder``: the finest field's array (one chunk a tile core, the run's
+    settings as attributes) and one task a tile writing its core, in the cores' order."""
+    import zarr
+    from dask import delayed
+
+    grid, target_shape = req.grid, req.target_shape
+    Z, Y, X = target_shape
+    chunks = (Z, min(Y, grid.core[0]), min(X, grid.core[1]))
+    arr = zarr.open_array(folder, mode="w", shape=target_shape, chunks=chunks, dtype="uint8", fill_value=0)
+    arr.attrs.update({"band": float(req.settings.band), "spacing": float(spacing), "seed": int(seed),
+                      "tiles": list(req.tiling.tiles), "blocks": list(grid.blocks), "slab": grid.slab,
+                      "levels": req.levels,
+                      "what": "uint8 signed distance codes (geosynth.volume.synthesis.quantize_field), z y x"})
+    return [delayed(_write_tile, pure=False)(folder, finest[t], c, dask_key_name=f"write-{run}-{t}")
+            for t, c in grid.cores(grid.levels - 1).items()]
+
+
+def _mesh_tasks(req: _TiledRequest, finest: dict, run: str, folder: Path | None, spacing: float) -> list:
+    """One task a tile, in the cores' order: marching cubes over its core and one sample of
+    its +x / +y neighbours (so that neighbouring tiles' vertices coincide), written to
+    ``folder`` when given, its piece returned for the merge when ``req.mesh``."""
+    from dask import delayed
+
+    grid, target_shape = req.grid, req.target_shape
+    _, Y, X = target_shape
+    last = grid.levels - 1
+    tasks = []
+    for t, c in grid.cores(last).items():
+        box = Region(c.y0, min(Y, c.y1 + 1), c.x0, min(X, c.x1 + 1))
+        extra = [delayed(_crop, pure=False)(finest[u], grid.core_region(last, u), part,
+                                            dask_key_name=f"meshcrop-{run}-{t}-{u}")
+                 for u, part in grid.overlapping(last, box) if u != t]
+        ix, iy = grid.position(t)
+        path = None if folder is None else str(folder / f"tile_x{ix}_y{iy}.ply")
+        tasks.append(delayed(_tile_mesh, pure=False)(finest[t], c, extra, target_shape, spacing, req.settings.band,
+                                                     path, req.mesh, dask_key_name=f"mesh-{run}-{t}"))
+    return tasks
+
+
+def _gathered_field(engine, req: _TiledRequest, finest: dict) -> np.ndarray:
+    """The finest level's field in memory, each tile's core in its place."""
+    cores = req.grid.cores(req.grid.levels - 1)
+    quantized = np.empty(req.target_shape, np.uint8)
+    for t, value in zip(cores, engine.gather([finest[t] for t in cores])):
+        c = cores[t]
+        quantized[:, c.y0:c.y1, c.x0:c.x1] = value[0]
+    return quantized
+
+
+def _publish_outputs(req: _TiledRequest, written: _FinestOutputs, ckpt: str | None) -> None:
+    """Every output is complete: move the store and the tile meshes into place together (with
+    the command's other outputs, inside :func:`geosynth.io.files.staged_outputs`) and drop the
+    checkpoint; should the command fail later, its abort removes them."""
+    from geosynth.io.files import defer
+
+    ready_store, ready_meshes = written.store, written.meshes
+
+    def publish() -> None:
+        if ready_store is not None:
+            _publish(ready_store, req.store)
+        if ready_meshes is not None:
+            for name in sorted(os.listdir(ready_meshes)):
+                os.replace(ready_meshes / name, req.mesh_dir / name)
+            shutil.rmtree(ready_meshes, ignore_errors=True)
+        if ckpt is not None:
+            shutil.rmtree(ckpt, ignore_errors=True)
+
+    def abort() -> None:
+        for tmp in (ready_store, ready_meshes):
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    if not defer(publish, abort):
+        publish()
 
 
 def _run(engine, ex_ref, grid: TileGrid, run: str, progress: bool, phases: int, checkpoint: str | None = None):
