@@ -150,9 +150,12 @@ def test_clearance_limits_relief_in_a_narrow_gap():
     b = a.copy()
     b.apply_translation([0, 0, 0.12])
     mesh = trimesh.util.concatenate([a, b])
-    r = geosynth.grow_relief(mesh, "hammered", method="project", depth=0.05, scale=4.0, **FAST)
-    gap = (r.base[:, 2] > 0.049) & (r.base[:, 2] < 0.051)  # the lower plate's top face
+    r = geosynth.grow_relief(mesh, "hammered", method="project", depth=0.05, scale=4.0, resolution=0.02, **FAST)
+    inner = (np.abs(r.base[:, :2]) < 0.49).all(1)  # off the rims (their smoothed normals lean outward)
+    gap = inner & (np.abs(r.base[:, 2] - 0.05) < 1e-9)  # the lower plate's top face
     assert r.heights[gap].max() < 0.01 and r.limited > 0
+    facing = inner & (np.abs(r.base[:, 2] - 0.07) < 1e-9)  # the upper plate's bottom face
+    assert r.vertices[gap, 2].max() < r.vertices[facing, 2].min()
     assert r.heights[r.base[:, 2] > 0.169].max() > 0.04  # the top, facing nothing, keeps its relief
 
 
@@ -249,6 +252,58 @@ def test_cli_synth_with_an_image_and_its_colours(files, tmp_path, capsys):
                "--colour", str(files / "cobbles_rgb.png"),
                "-o", str(out), "--scale", "16", "--search", "coherent", "--refine", "0", "--device", ONE_DEVICE])
     text = capsys.readouterr().out
-    assert rc == 0 and "synthesis: M4's growth" in text and "project: amplitude" in text
+    assert rc == 0 and "M4's growth" in text and "project: amplitude" in text
     v, f, col = read_3mf(out)
     assert trimesh.Trimesh(v, f, process=False).is_watertight and col is not None and len(np.unique(col, axis=0)) > 5
+
+
+# ---------------------------------------------------------------------- coarse to fine (transfer.py)
+
+
+def _plane(n: int, step: float):
+    yy, xx = np.meshgrid(np.arange(n) * step, np.arange(n) * step, indexing="ij")
+    v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    f = np.concatenate([np.stack([a, a + 1, a + n + 1], 1), np.stack([a, a + n + 1, a + n], 1)])
+    return v, f
+
+
+def test_transfer_reproduces_a_coherent_copy_and_is_continuous_across_patches():
+    from geosynth.relief.refine import refine_mesh
+    from geosynth.relief.transfer import sample, transfer, vertex_faces
+
+    ex = load_example("cobbles", size=4.0)  # 128 x 128 cells of 1/128, tiling
+    s_c = 4 * ex.spacing  # the coarse level: 4 example cells an edge
+    vc, fc = _plane(12, s_c)
+    frames = np.tile(np.eye(3), (len(vc), 1, 1))
+    rot = np.zeros(len(vc), np.int64)
+    place = vc[:, :2] / s_c + [3.0, 5.0]  # one coherent copy, in coarse cells
+    v, f, src = refine_mesh(vc, fc, 1.01 * ex.spacing)
+    vface = vertex_faces(f, src, len(v))
+    h, col, where = transfer(ex, vc, fc, frames, place, rot, 1, s_c, v, vface)
+    want, want_col = sample(ex, v[:, :2] / ex.spacing + [12.0, 20.0])
+    np.testing.assert_allclose(h, want, atol=1e-12)  # every fine vertex: the example's own relief
+    assert np.abs(col.astype(np.int64) - want_col).max() <= 0.5 + 1e-9  # rounded (the three weights' sum)
+    # a second patch from an unrelated place on the right half, turned by 180 degrees (R = 2), on a smooth
+    # example (a step at the border would be as large as the relief's range; blended, it stays a slope)
+    from dataclasses import replace
+
+    yy, xx = np.meshgrid(np.arange(128), np.arange(128), indexing="ij")
+    smooth = replace(ex, heights=0.02 + 0.02 * np.sin(2 * np.pi * xx / 16) * np.sin(2 * np.pi * yy / 16), colours=None)
+    right = vc[:, 0] > 5.5 * s_c
+    place2 = place.copy()
+    place2[right] = [5.0, 5.0] - vc[right, :2] / s_c
+    rot2 = np.where(right, 1, 0)
+    h2, col2, _ = transfer(smooth, vc, fc, frames, place2, rot2, 2, s_c, v, vface)
+    assert col2 is None
+    left_says = sample(smooth, v[:, :2] / ex.spacing + [12.0, 20.0])[0]
+    right_says = sample(smooth, (np.array([5.0, 5.0]) - v[:, :2] / s_c) * 4)[0]
+    far = v[:, 0] > 7 * s_c
+    np.testing.assert_allclose(h2[far], right_says[far], atol=1e-12)
+    border = np.abs(v[:, 0] - 5.5 * s_c) < s_c
+    assert np.abs(left_says - right_says)[border].max() > 0.6 * smooth.depth  # a hard switch would step this much
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]]])
+    step = np.abs(h2[e[:, 0]] - h2[e[:, 1]])
+    inside = np.abs(left_says[e[:, 0]] - left_says[e[:, 1]])
+    assert step.max() < 0.5 * smooth.depth and step.max() < 2.5 * inside.max(), (step.max(), inside.max())

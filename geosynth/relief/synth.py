@@ -58,12 +58,17 @@ class SynthResult:
         source: (V,) int64 the example cell (row-major index into the example's grid) each vertex
             copied, -1 where unreached.
         stats: lists, launches, seeds, unreached count, search and its reason.
+        place: (V, 2) float64 each vertex's place in the example (column, row; fractional cells of the
+            example's grid, unpadded), what :func:`geosynth.relief.transfer.transfer` continues.
+        rotation: (V,) int64 the rotation each vertex's copy was matched at (angle 2 pi r / R).
     """
 
     heights: np.ndarray
     colours: np.ndarray | None
     source: np.ndarray
     stats: dict
+    place: np.ndarray | None = None
+    rotation: np.ndarray | None = None
 
 
 def _grid_faces(h: int, w: int) -> np.ndarray:
@@ -487,4 +492,6 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
                          np.asarray(where))
     stats["unreached"] = int((~textured[ne:]).sum())
     src_cells = np.where(picked[ne:] >= 0, ecell.ravel()[np.maximum(picked[ne:], 0)], -1)
-    return SynthResult(heights[ne:].copy(), None if colours is None else colours[ne:].copy(), src_cells, stats)
+    out_place = place[ne:] - (pad if example.periodic else 0)
+    return SynthResult(heights[ne:].copy(), None if colours is None else colours[ne:].copy(), src_cells, stats,
+                       out_place, picked_rot[ne:].copy())
