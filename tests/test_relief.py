@@ -307,3 +307,16 @@ def test_transfer_reproduces_a_coherent_copy_and_is_continuous_across_patches():
     step = np.abs(h2[e[:, 0]] - h2[e[:, 1]])
     inside = np.abs(left_says[e[:, 0]] - left_says[e[:, 1]])
     assert step.max() < 0.5 * smooth.depth and step.max() < 2.5 * inside.max(), (step.max(), inside.max())
+
+
+def test_remesh_makes_a_slivered_closed_mesh_even_and_keeps_it_closed():
+    from geosynth.relief.refine import SLIVER_SHARE, isotropic_remesh, sliver_share
+
+    mesh = _cylinder()  # side faces as tall as the cylinder, 1/24 of the way around wide
+    assert sliver_share(mesh.vertices, mesh.faces, 0.06) > SLIVER_SHARE
+    v, f = isotropic_remesh(mesh.vertices, mesh.faces, 0.05)
+    out = trimesh.Trimesh(v, f, process=False)
+    assert out.is_watertight and out.is_winding_consistent and out.volume > 0
+    assert sliver_share(v, f, 0.06) < 0.02
+    assert abs(out.volume / mesh.volume - 1) < 0.01  # projected back onto the input; the rims kept as features
+    assert sliver_share(_sphere().vertices, _sphere().faces, 0.06) == 0  # an even mesh is left alone ("auto")

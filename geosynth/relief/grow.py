@@ -13,9 +13,10 @@ import numpy as np
 from geosynth.relief.examples import ReliefExample
 from geosynth.relief.quality import QualityReport
 
-__all__ = ["METHODS", "ReliefResult", "grow_relief"]
+__all__ = ["METHODS", "REMESH", "ReliefResult", "grow_relief"]
 
 METHODS = ("synth", "project")
+REMESH = ("auto", "yes", "no")
 # refused above 4 kB a vertex; measured: peak RSS grows ~1 kB a vertex beyond ~100 MB (the vase, synth at
 # 12k-30k vertices, projection at 235k)
 _BYTES_PER_VERTEX = 4096
@@ -139,7 +140,7 @@ def _check_number(name: str, value, *, positive: bool = True) -> float:
 def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0, resolution: float | None = None,
                 method: str = "synth", mask=None, colour=None, field: str = "auto", seed: int = 0,
                 device: str | None = None, progress: bool = True, baseline: bool = True,
-                search: str = "auto", refine: int = 1, coherence: bool = False) -> ReliefResult:
+                search: str = "auto", refine: int = 1, coherence: bool = False, remesh: str = "auto") -> ReliefResult:
     """Grow an example's relief (and colour) over a mesh's surface (issue 34).
 
     Args:
@@ -150,9 +151,11 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         depth: the relief's height range, mesh units (>= 0; default: 1% of the mesh's size for images
             and built-ins, as captured for a patch).
         scale: multiplies the example's lateral size (> 0; an image spans a quarter of the mesh's size).
-        resolution: the refined mesh's longest edge, mesh units (default: 1.4 x the example's spacing,
-            so that the median edge is about the spacing; an example with over 8 cells on its period
-            is first resampled to period / 6, M4's rule).
+        resolution: the output mesh's longest edge, mesh units (default: 1.4 x the example's own spacing,
+            at most 2x finer than the synthesis'). The synthesis runs on a coarser mesh (longest edge 1.4 x
+            the example's spacing, an example with over 8 cells on its period first resampled to period / 6,
+            M4's rule) and each output vertex reads the example at the places it chose
+            (:mod:`geosynth.relief.transfer`); a resolution coarser than that runs the synthesis at it.
         method: "synth" (synthesis on the surface, M4's growth) or "project" (triplanar projection).
         mask: None, (V0,) or (F0,) bools over the input's vertices or faces (True: bare), or an
             (r, g, b) vertex colour of the input marking the bare parts.
@@ -163,6 +166,11 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         progress: a progress bar on stderr.
         baseline: with method "synth", also measure the projection on the same mesh.
         search: FindMatches' search, "auto", "exhaustive" or "coherent".
+        coherence: among the matches within 1.1x the best, prefer one continuing a neighbour's copy
+            (:func:`geosynth.relief.synth.synthesize`).
+        remesh: "auto" (remesh isotropically when over 30% of the area is in long slivers, e.g. a trimesh
+            cylinder's sides), "yes" or "no" (:func:`geosynth.relief.refine.isotropic_remesh`); not with a
+            mask or the mesh's own colours (they are carried by the input's faces).
         refine: re-matching passes after the growth (method "synth"; 0 to 8; default 1: on the vase's
             cobbles the mortar lines ran on instead of breaking into dots, at about 2x the time).
 
@@ -178,8 +186,9 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     from geosynth.relief.orient import tangent_frames
     from geosynth.relief.project import project
     from geosynth.relief.quality import measure
-    from geosynth.relief.refine import (CLEARANCE_SHARE, adjacency, bare_weights, carried_colours, clearance,
-                                        estimated_faces, refine_mesh, smoothed_normals)
+    from geosynth.relief.refine import (CLEARANCE_SHARE, SLIVER_SHARE, adjacency, bare_weights, carried_colours,
+                                        clearance, estimated_faces, isotropic_remesh, refine_mesh, sliver_share,
+                                        smoothed_normals)
     from geosynth.completion.spectrum import relief_spectrum
 
     if method not in METHODS:
@@ -191,6 +200,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         depth = _check_number("depth", depth, positive=False)
     if resolution is not None:
         resolution = _check_number("resolution", resolution)
+    if remesh not in REMESH:
+        raise ValueError(f"remesh must be one of {', '.join(REMESH)}, got {remesh!r}.")
     if not isinstance(refine, (int, np.integer)) or isinstance(refine, bool) or not 0 <= refine <= 8:
         raise ValueError(f"refine must be an integer from 0 to 8, got {refine!r}.")
     timings: dict[str, float] = {}
@@ -244,6 +255,21 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     timings["load"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    remesh_note = None
+    share = sliver_share(v0, f0, coarse)
+    if remesh == "yes" or (remesh == "auto" and share > SLIVER_SHARE):
+        if mask is not None or in_colours is not None:
+            remesh_note = (f"not remeshed ({100 * share:.0f}% of the area in slivers): a mask or the mesh's own "
+                           f"colours are carried by the input's faces")
+        else:
+            u, g = isotropic_remesh(v0, f0, coarse / 1.4)
+            closed = bool(trimesh.Trimesh(u, g, process=False, validate=False).is_watertight)
+            if closed or not watertight:
+                remesh_note = (f"remeshed isotropically ({100 * share:.0f}% of the area in slivers; edges about "
+                               f"{coarse / 1.4:.4g}, Botsch-Kobbelt): {len(v0):,} -> {len(u):,} vertices")
+                v0, f0 = u, g
+            else:
+                remesh_note = "not remeshed: the remesher's output was not closed (the input is)"
     vc, fc, src_c = refine_mesh(v0, f0, coarse)
     adj_c = adjacency(fc, len(vc))
     normals_c = smoothed_normals(vc, fc, adj_c, rings=2)
@@ -252,6 +278,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     settings = [f"example: {ex.note}; x{scale:g}; {ex.shape[1]} x {ex.shape[0]} cells of {ex.spacing:.4g}",
                 f"mesh: {len(v0):,} vertices -> {len(vc):,} at resolution {coarse:.4g} ({c_why if two else r_why}), "
                 f"median edge {med_c:.4g}; normals smoothed over 2 rings"]
+    if remesh_note:
+        settings.append(remesh_note)
 
     t0 = time.perf_counter()
     source = None

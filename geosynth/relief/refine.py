@@ -18,9 +18,11 @@ import math
 
 import numpy as np
 
-__all__ = ["CLEARANCE_SHARE", "adjacency", "bare_weights", "carried_colours", "clearance", "estimated_faces", "refine_mesh",
+__all__ = ["CLEARANCE_SHARE", "SLIVER_ASPECT", "SLIVER_SHARE", "adjacency", "isotropic_remesh", "sliver_share", "bare_weights", "carried_colours", "clearance", "estimated_faces", "refine_mesh",
            "smoothed_normals"]
 
+SLIVER_ASPECT = 10.0  # longest edge^2 / area above this is a sliver (2.31 equilateral; a trimesh cylinder's sides: 23)
+SLIVER_SHARE = 0.3  # remeshed ("auto") when slivers longer than 2 resolutions hold this share of the area
 CLEARANCE_SHARE = 0.45  # a vertex moves at most 0.45 x its clearance: the opposite side may move toward it too
 
 
@@ -65,6 +67,34 @@ def refine_mesh(vertices: np.ndarray, faces: np.ndarray,
     iters = max(1, int(math.ceil(math.log2(max(longest / resolution, 1.0)))) + 2)
     nv, nf, src = subdivide_to_size(v, f, max_edge=resolution, max_iter=iters, return_index=True)
     return np.asarray(nv, np.float64), np.asarray(nf, np.int64), np.asarray(src, np.int64)
+
+
+def sliver_share(vertices: np.ndarray, faces: np.ndarray, resolution: float) -> float:
+    """The share of the surface's area in slivers (longest edge^2 / area > SLIVER_ASPECT) whose longest edge
+    exceeds 2 x ``resolution``: bisection keeps such a face a sliver (a trimesh cylinder's side faces, as
+    tall as the cylinder, refine into rows dense around and sparse along; the synthesized relief streaks)."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    longest = np.maximum(np.maximum(np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1)),
+                         np.linalg.norm(a - c, axis=1))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    total = float(area.sum())
+    bad = (longest * longest > SLIVER_ASPECT * np.maximum(area, 1e-300)) & (longest > 2 * resolution)
+    return float(area[bad].sum()) / total if total > 0 else 0.0
+
+
+def isotropic_remesh(vertices: np.ndarray, faces: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V', 3) float64, faces (F', 3) int64): the surface remeshed to edges of about ``length``
+    (Botsch and Kobbelt's split / collapse / flip / relax, 10 rounds, projected back onto the input:
+    gpytoolbox's ``remesh_botsch``), sharp edges (dihedral over 45 degrees, a cylinder's rims) kept as
+    features. A closed surface stays closed (the caller checks, and keeps the input otherwise)."""
+    import gpytoolbox
+
+    v = np.ascontiguousarray(vertices, np.float64)
+    f = np.ascontiguousarray(faces, np.int32)
+    u, g = gpytoolbox.remesh_botsch(v, f, i=10, h=float(length), project=True, detect_feature_edges=True)
+    return np.asarray(u, np.float64), np.asarray(g, np.int64)
 
 
 def smoothed_normals(vertices: np.ndarray, faces: np.ndarray, adj: tuple[np.ndarray, np.ndarray],
