@@ -1374,7 +1374,7 @@ def _cmd_relief(args: argparse.Namespace) -> int:
     result = grow_relief(mesh, args.example, depth=args.depth, scale=args.scale, resolution=args.resolution,
                          method=args.method, mask=mask, colour=args.colour, field=args.field, seed=args.seed,
                          device=args.device, progress=not args.quiet, search=args.search, refine=args.refine,
-                         coherence=args.coherence, remesh=args.remesh)
+                         coherence=args.coherence == "on", remesh=args.remesh)
     quality = list(result.lines())
     for line in quality:
         say(line)
@@ -1615,8 +1615,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="FindMatches' candidates, as geosynth complete's --search (default auto)")
     p.add_argument("--refine", type=_int_type(0, 8), default=1,
                    help="passes after the growth matching every vertex again with its whole window, 0 to 8 (default 1)")
-    p.add_argument("--coherence", action="store_true",
-                   help="among the matches within 1.1x the best, prefer one continuing a neighbour's copy")
+    p.add_argument("--coherence", choices=["on", "off"], default="on",
+                   help="among the matches within 1.1x the best, prefer one continuing a neighbour's copy (default on)")
     p.add_argument("--remesh", choices=["auto", "yes", "no"], default="auto",
                    help="isotropic remesh before synthesis (default auto: when over 30%% of the area is in long "
                         "slivers, e.g. a trimesh cylinder's sides)")

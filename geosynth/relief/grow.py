@@ -140,7 +140,7 @@ def _check_number(name: str, value, *, positive: bool = True) -> float:
 def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0, resolution: float | None = None,
                 method: str = "synth", mask=None, colour=None, field: str = "auto", seed: int = 0,
                 device: str | None = None, progress: bool = True, baseline: bool = True,
-                search: str = "auto", refine: int = 1, coherence: bool = False, remesh: str = "auto") -> ReliefResult:
+                search: str = "auto", refine: int = 1, coherence: bool = True, remesh: str = "auto") -> ReliefResult:
     """Grow an example's relief (and colour) over a mesh's surface (issue 34).
 
     Args:
@@ -167,7 +167,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         baseline: with method "synth", also measure the projection on the same mesh.
         search: FindMatches' search, "auto", "exhaustive" or "coherent".
         coherence: among the matches within 1.1x the best, prefer one continuing a neighbour's copy
-            (:func:`geosynth.relief.synth.synthesize`).
+            (:func:`geosynth.relief.synth.synthesize`; default on: the output level continues each coarse
+            vertex's place, so coherent places carry the example's features whole).
         remesh: "auto" (remesh isotropically when over 30% of the area is in long slivers, e.g. a trimesh
             cylinder's sides), "yes" or "no" (:func:`geosynth.relief.refine.isotropic_remesh`); not with a
             mask or the mesh's own colours (they are carried by the input's faces).

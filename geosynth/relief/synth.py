@@ -355,7 +355,10 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
         if len(nb) == 0:
             return None
         d = base[t] - base[nb]
-        dx, dy = d @ fr[t, 0], d @ fr[t, 1]
+        # the offset in each neighbour's own frame (its rotation maps that frame to the example's): a line
+        # field's frames (R = 2) may turn by 180 degrees from one vertex to the next, and the offset read in
+        # t's frame then pointed back through the example (the place never advanced)
+        dx, dy = np.einsum("ij,ij->i", d, fr[nb, 0]), np.einsum("ij,ij->i", d, fr[nb, 1])
         r = picked_rot[nb]
         pl = place[nb] + np.stack([(dx * cos_r[r] - dy * sin_r[r]) / s, (dx * sin_r[r] + dy * cos_r[r]) / s], 1)
         col, row = np.rint(pl[:, 0]).astype(np.int64), np.rint(pl[:, 1]).astype(np.int64)
