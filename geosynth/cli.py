@@ -1619,7 +1619,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="among the matches within 1.1x the best, prefer one continuing a neighbour's copy (default on)")
     p.add_argument("--remesh", choices=["auto", "yes", "no"], default="auto",
                    help="isotropic remesh before synthesis (default auto: when over 30%% of the area is in long "
-                        "slivers, e.g. a trimesh cylinder's sides)")
+                        "slivers, e.g. a trimesh cylinder's sides, or the mesh is coarser than the synthesis' spacing)")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture: input, result, close-up; .png or .jpg (default: OUTPUT "

@@ -169,8 +169,9 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         coherence: among the matches within 1.1x the best, prefer one continuing a neighbour's copy
             (:func:`geosynth.relief.synth.synthesize`; default on: the output level continues each coarse
             vertex's place, so coherent places carry the example's features whole).
-        remesh: "auto" (remesh isotropically when over 30% of the area is in long slivers, e.g. a trimesh
-            cylinder's sides), "yes" or "no" (:func:`geosynth.relief.refine.isotropic_remesh`); not with a
+        remesh: "auto" (remesh isotropically to edges of the synthesis' spacing when over 30% of the area is
+            in long slivers, e.g. a trimesh cylinder's sides, or the mesh's median edge is longer than that
+            spacing), "yes" or "no" (:func:`geosynth.relief.refine.isotropic_remesh`); not with a
             mask or the mesh's own colours (they are carried by the input's faces).
         refine: re-matching passes after the growth (method "synth"; 0 to 8; default 1: on the vase's
             cobbles the mortar lines ran on instead of breaking into dots, at about 2x the time).
@@ -258,7 +259,12 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     t0 = time.perf_counter()
     remesh_note = None
     share = sliver_share(v0, f0, coarse)
-    if remesh == "yes" or (remesh == "auto" and share > SLIVER_SHARE):
+    # "auto": slivers, or a mesh coarser than the synthesis' spacing (bisection would refine it anyway, into
+    # rows of edges between half and all of the resolution, longer one way than the other: on the knot the
+    # cobbles' flat tops ran on along the tube; remeshed, every edge is about the spacing); a mesh finer than
+    # that is kept (remeshing would smooth away its own detail)
+    coarser = _median_edge(v0, f0) > coarse / 1.4
+    if remesh == "yes" or (remesh == "auto" and (share > SLIVER_SHARE or coarser)):
         if mask is not None or in_colours is not None:
             remesh_note = (f"not remeshed ({100 * share:.0f}% of the area in slivers): a mask or the mesh's own "
                            f"colours are carried by the input's faces")
@@ -266,7 +272,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
             u, g = isotropic_remesh(v0, f0, coarse / 1.4)
             closed = bool(trimesh.Trimesh(u, g, process=False, validate=False).is_watertight)
             if closed or not watertight:
-                remesh_note = (f"remeshed isotropically ({100 * share:.0f}% of the area in slivers; edges about "
+                remesh_note = (f"remeshed isotropically ({100 * share:.0f}% of the area in slivers, median edge "
+                               f"{_median_edge(v0, f0):.4g}; edges about "
                                f"{coarse / 1.4:.4g}, Botsch-Kobbelt): {len(v0):,} -> {len(u):,} vertices")
                 v0, f0 = u, g
             else:

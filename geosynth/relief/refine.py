@@ -89,7 +89,11 @@ def isotropic_remesh(vertices: np.ndarray, faces: np.ndarray, length: float) -> 
     (Botsch and Kobbelt's split / collapse / flip / relax, 10 rounds, projected back onto the input:
     gpytoolbox's ``remesh_botsch``), sharp edges (dihedral over 45 degrees, a cylinder's rims) kept as
     features. A closed surface stays closed (the caller checks, and keeps the input otherwise)."""
-    import gpytoolbox
+    import warnings
+
+    with warnings.catch_warnings():  # its modules import deprecated SciPy and NumPy names
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import gpytoolbox
 
     v = np.ascontiguousarray(vertices, np.float64)
     f = np.ascontiguousarray(faces, np.int32)
