@@ -20,7 +20,7 @@ REMESH = ("auto", "yes", "no")
 # refused above 4 kB a vertex; measured: peak RSS grows ~1 kB a vertex beyond ~100 MB (the vase, synth at
 # 12k-30k vertices, projection at 235k)
 _BYTES_PER_VERTEX = 4096
-_BYTES_PER_FINE = 1024  # an output vertex beyond the synthesis' (the transfer, normals, quality): measured below
+_BYTES_PER_FINE = 1536  # an output vertex beyond the synthesis' (transfer, normals, quality): 1.49 GB at 1.19M
 _FINE = 8  # an example with more than 8 cells on its period is resampled to period / 6 (M4's rule, from 12)
 
 

@@ -9,9 +9,10 @@
   The share of the surface within the example's statistics: the vertices of regions whose amplitude
   and period are both within 10% of the example's.
 - Seams: the local amplitude (std of the heights within one period of a vertex, at up to 3000
-  seeded vertices, over a seeded subset of about 256 vertices a ball) on border vertices against inside ones, for two kinds of border: the projection's
-  blends (:func:`geosynth.relief.project.blend_share` > 0.15) and the synthesis' patch borders
-  (edges whose two ends copied example cells more than 2 cells apart). A seam that flattens or
+  seeded vertices, over a seeded subset of about 256 vertices a ball) on border vertices against
+  inside ones, for two kinds of border: the projection's blends
+  (:func:`geosynth.relief.project.blend_share` > 0.15) and the synthesis' patch borders (edges whose
+  two ends copied example cells more than 2 cells apart). A seam that flattens or
   doubles the relief shows as a local amplitude below (or above) the inside's.
 """
 

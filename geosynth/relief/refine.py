@@ -18,8 +18,9 @@ import math
 
 import numpy as np
 
-__all__ = ["CLEARANCE_SHARE", "SLIVER_ASPECT", "SLIVER_SHARE", "adjacency", "isotropic_remesh", "sliver_share", "bare_weights", "carried_colours", "clearance", "estimated_faces", "refine_mesh",
-           "smoothed_normals"]
+__all__ = ["CLEARANCE_SHARE", "SLIVER_ASPECT", "SLIVER_SHARE", "adjacency", "bare_weights",
+           "carried_colours", "clearance", "estimated_faces", "isotropic_remesh", "refine_mesh",
+           "sliver_share", "smoothed_normals"]
 
 SLIVER_ASPECT = 10.0  # longest edge^2 / area above this is a sliver (2.31 equilateral; a trimesh cylinder's sides: 23)
 SLIVER_SHARE = 0.3  # remeshed ("auto") when slivers longer than 2 resolutions hold this share of the area
