@@ -322,3 +322,19 @@ def test_remesh_makes_a_slivered_closed_mesh_even_and_keeps_it_closed():
     assert sliver_share(v, f, 0.06) < 0.02
     assert abs(out.volume / mesh.volume - 1) < 0.01  # projected back onto the input; the rims kept as features
     assert sliver_share(_sphere().vertices, _sphere().faces, 0.06) == 0  # an even mesh is left alone ("auto")
+
+
+@pytest.mark.parametrize("make", [_sphere, _cylinder], ids=["icosphere", "cylinder"])
+def test_uniform_subdivision_keeps_a_closed_mesh_closed(make):
+    from geosynth.relief.refine import subdivide_uniform
+
+    mesh = make()
+    v, f, src = subdivide_uniform(mesh.vertices, mesh.faces, 0.1)
+    out = trimesh.Trimesh(v, f, process=False)
+    assert out.is_watertight and out.is_winding_consistent and out.volume == pytest.approx(mesh.volume, rel=1e-9)
+    assert out.edges_unique_length.max() <= 0.1 and len(np.unique(f)) == len(v)
+    np.testing.assert_array_equal(v[:len(mesh.vertices)], mesh.vertices)  # the input's vertices keep their ids
+    # every new face lies in its source face (all three corners on the source face's plane)
+    n = mesh.face_normals[src]
+    d = np.einsum("fkj,fj->fk", v[f] - mesh.vertices[mesh.faces[src, 0]][:, None, :], n)
+    assert np.abs(d).max() < 1e-12

@@ -190,7 +190,7 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     from geosynth.relief.quality import measure
     from geosynth.relief.refine import (CLEARANCE_SHARE, SLIVER_SHARE, adjacency, bare_weights, carried_colours,
                                         clearance, estimated_faces, isotropic_remesh, refine_mesh, sliver_share,
-                                        smoothed_normals)
+                                        smoothed_normals, subdivide_uniform)
     from geosynth.completion.spectrum import relief_spectrum
 
     if method not in METHODS:
@@ -257,7 +257,7 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
     timings["load"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    remesh_note = None
+    remesh_note, remeshed = None, False
     share = sliver_share(v0, f0, coarse)
     # "auto": slivers, or a mesh coarser than the synthesis' spacing (bisection would refine it anyway, into
     # rows of edges between half and all of the resolution, longer one way than the other: on the knot the
@@ -275,7 +275,7 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
                 remesh_note = (f"remeshed isotropically ({100 * share:.0f}% of the area in slivers, median edge "
                                f"{_median_edge(v0, f0):.4g}; edges about "
                                f"{coarse / 1.4:.4g}, Botsch-Kobbelt): {len(v0):,} -> {len(u):,} vertices")
-                v0, f0 = u, g
+                v0, f0, remeshed = u, g, True
             else:
                 remesh_note = "not remeshed: the remesher's output was not closed (the input is)"
     vc, fc, src_c = refine_mesh(v0, f0, coarse)
@@ -315,7 +315,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         from geosynth.relief.transfer import barycentric, transfer, vertex_faces
 
         t0 = time.perf_counter()
-        v, f, src_f = refine_mesh(vc, fc, resolution)
+        # the remeshed synthesis' mesh is even: every face cut k x k (fast, regular); else bisection
+        v, f, src_f = (subdivide_uniform if remeshed else refine_mesh)(vc, fc, resolution)
         src = src_c[src_f]
         vface = vertex_faces(f, src_f, len(v))
         corner = fc[vface]
@@ -331,7 +332,8 @@ def grow_relief(mesh, example, *, depth: float | None = None, scale: float = 1.0
         med = _median_edge(v, f)
         ex_q = ex
         timings["transfer"] = time.perf_counter() - t0
-        settings.append(f"output: {len(vc):,} -> {len(v):,} vertices at resolution {resolution:.4g} ({r_why}), "
+        settings.append(f"output: {len(vc):,} -> {len(v):,} vertices at resolution {resolution:.4g} ({r_why}; "
+                        f"{'each face cut evenly' if remeshed else 'bisection'}), "
                         f"median edge {med:.4g}; each reads the example at its coarse face's corners' places, "
                         f"blended (squared barycentric weights)")
     else:
