@@ -17,7 +17,7 @@ The issue's targets: amplitude and period within 10% everywhere (per region), no
 the issue's ~150,000); ``--quick``: scale 6, the vase only.
 
 The speed target's run (about a million output vertices on the vase; peak RSS printed):
-``python bench/bm_relief.py --devices opencl:0:0 --shapes vase --examples knurl --methods synth --resolution 0.22
+``python bench/bm_relief.py --devices opencl:0:0 --shapes vase --examples knurl --methods synth --resolution 0.2
 --refine 0 --out bench/out/bm_relief_1m.md``.
 
 Usage: python bench/bm_relief.py [--quick] [--devices opencl:0:0] [--scale S] [--shapes ..] [--examples ..]
