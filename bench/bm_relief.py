@@ -16,7 +16,12 @@ The issue's targets: amplitude and period within 10% everywhere (per region), no
 ``--scale`` multiplies the examples' size (default 2.5: about 25,000 vertices on the vase; 1 gives
 the issue's ~150,000); ``--quick``: scale 6, the vase only.
 
-Usage: python bench/bm_relief.py [--quick] [--devices opencl:0:0] [--scale S] [--out FILE]
+The speed target's run (about a million output vertices on the vase; peak RSS printed):
+``python bench/bm_relief.py --devices opencl:0:0 --shapes vase --examples knurl --methods synth --resolution 0.2
+--refine 0 --out bench/out/bm_relief_1m.md``.
+
+Usage: python bench/bm_relief.py [--quick] [--devices opencl:0:0] [--scale S] [--shapes ..] [--examples ..]
+[--methods ..] [--resolution R] [--refine N] [--out FILE]
 """
 
 from __future__ import annotations
@@ -40,6 +45,10 @@ def _options(parser) -> None:
     parser.add_argument("--scale", type=float, default=2.5, help="the examples' size factor (default 2.5)")
     parser.add_argument("--shapes", default="vase,knot", help="comma-separated: vase, knot")
     parser.add_argument("--examples", default="knurl,cobbles", help="comma-separated built-ins")
+    parser.add_argument("--methods", default="synth,project", help="comma-separated: synth, project")
+    parser.add_argument("--resolution", type=float, default=None,
+                        help="the output's longest edge, mesh units (default: grow_relief's)")
+    parser.add_argument("--refine", type=int, default=1, help="refinement passes of the synthesis (default 1)")
 
 
 def options(argv=None):
@@ -74,7 +83,9 @@ def main(argv=None) -> int:
     makers = {"vase": vase, "knot": torus_knot}
     OUT.mkdir(exist_ok=True)
     quick = " --quick" if args.quick else ""
-    lines = [f"Command: `python bench/bm_relief.py{quick} --devices {device} --scale {scale:g}`"
+    extra = "".join(f" --{k} {getattr(args, k)}" for k in ("shapes", "examples", "methods", "resolution", "refine")
+                    if getattr(args, k) is not None)
+    lines = [f"Command: `python bench/bm_relief.py{quick} --devices {device} --scale {scale:g}{extra}`"
              f" ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}); examples at scale {scale:g}, seed 0.", "",
              "Ratios are result / example, per k-means region: median (worst region's deviation); within: the share of "
              "the surface in regions within 10% on both; seams: local amplitude on the border / inside - 1.", "",
@@ -85,18 +96,23 @@ def main(argv=None) -> int:
         mesh = makers[shape]()
         for example in [e for e in args.examples.split(",") if e]:
             pictures = []
-            for method in ("synth", "project"):
+            for method in [m for m in args.methods.split(",") if m]:
                 t0 = time.perf_counter()
                 r = geosynth.grow_relief(mesh, example, scale=scale, method=method, device=device, progress=False,
-                                         baseline=False)
+                                         baseline=False, resolution=args.resolution, refine=args.refine)
                 seconds = time.perf_counter() - t0
                 lines.append(_row(shape, example, method, len(mesh.vertices), r, seconds))
                 print(lines[-1], flush=True)
-                if method == "synth":
-                    print("   " + "\n   ".join(r.lines()[:4]), flush=True)
+                print("   " + "\n   ".join(r.lines()), flush=True)
                 pictures.append(relief_picture((mesh.vertices, mesh.faces), (r.vertices, r.faces), r.colours))
+                del r
             path = write_image(OUT / f"relief_{shape}_{example}.png", np.concatenate(pictures, 0))
-            print(f"picture: {path} (top: synth, bottom: project)", flush=True)
+            print(f"picture: {path} (rows: {args.methods})", flush=True)
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    lines += ["", f"Peak RSS of the run: {peak:,.0f} MB; refinement passes {args.refine}; output resolution "
+              f"{args.resolution if args.resolution is not None else 'default'}."]
     return finish("\n".join(lines), args, title="# bm_relief: relief grown over a mesh against triplanar projection")
 
 

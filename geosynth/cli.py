@@ -1387,7 +1387,8 @@ def _cmd_relief(args: argparse.Namespace) -> int:
         f"device {args.device or 'auto'}")
     result = grow_relief(mesh, args.example, depth=args.depth, scale=args.scale, resolution=args.resolution,
                          method=args.method, mask=mask, colour=args.colour, field=args.field, seed=args.seed,
-                         device=args.device, progress=not args.quiet, search=args.search, refine=args.refine)
+                         device=args.device, progress=not args.quiet, search=args.search, refine=args.refine,
+                         coherence=args.coherence == "on", remesh=args.remesh)
     quality = list(result.lines())
     for line in quality:
         say(line)
@@ -1616,7 +1617,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scale", type=_float_type(0, inclusive=False), default=1.0,
                    help="multiplies the example's size (an image spans a quarter of the mesh's size) (default 1)")
     p.add_argument("--resolution", type=_float_type(0, inclusive=False), default=None,
-                   help="the refined mesh's longest edge, mesh units (default: 1.4 x the example's spacing)")
+                   help="the output mesh's longest edge, mesh units (default: 1.4 x the example's own spacing, at most "
+                        "2x finer than the synthesis' mesh, which has about 6 vertices on the example's period)")
     p.add_argument("--method", choices=["synth", "project"], default="synth",
                    help="synth: grown on the surface (M4's growth, default); project: triplanar projection (the "
                         "baseline)")
@@ -1631,6 +1633,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="FindMatches' candidates, as geosynth complete's --search (default auto)")
     p.add_argument("--refine", type=_int_type(0, 8), default=1,
                    help="passes after the growth matching every vertex again with its whole window, 0 to 8 (default 1)")
+    p.add_argument("--coherence", choices=["on", "off"], default="on",
+                   help="among the matches within 1.1x the best, prefer one continuing a neighbour's copy (default on)")
+    p.add_argument("--remesh", choices=["auto", "yes", "no"], default="auto",
+                   help="isotropic remesh before synthesis (default auto: when over 30%% of the area is in long "
+                        "slivers, e.g. a trimesh cylinder's sides, or the mesh is coarser than the synthesis' spacing)")
     p.add_argument("--device", **device)
     p.add_argument("--seed", **seed)
     p.add_argument("--png", default=None, help="picture: input, result, close-up; .png or .jpg (default: OUTPUT "

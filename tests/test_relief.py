@@ -17,7 +17,7 @@ from geosynth.relief.examples import BUILTINS, builtin_heights, builtin_image, l
 from geosynth.relief.write import read_3mf, write_relief
 
 SPHERE = dict(scale=16.0)  # icosphere(1) of radius 1: about 640 vertices, 5 periods around
-FAST = dict(progress=False, search="coherent", baseline=False, refine=0)
+FAST = dict(progress=False, search="coherent", baseline=False, refine=0, remesh="no")
 
 
 def _sphere():
@@ -91,7 +91,8 @@ def test_closed_input_stays_closed(make, tmp_path, one_device):
     mesh = make()
     assert mesh.is_watertight
     for method in ("project", "synth"):
-        r = geosynth.grow_relief(mesh, "cobbles", method=method, device=one_device, **SPHERE, **FAST)
+        r = geosynth.grow_relief(mesh, "cobbles", method=method, device=one_device, **SPHERE,
+                                 **dict(FAST, remesh="auto"))  # the cylinder's slivers remeshed
         out = r.to_mesh()
         assert out.is_watertight and out.is_winding_consistent, method
         assert len(r.vertices) > 4 * len(mesh.vertices)
@@ -150,9 +151,12 @@ def test_clearance_limits_relief_in_a_narrow_gap():
     b = a.copy()
     b.apply_translation([0, 0, 0.12])
     mesh = trimesh.util.concatenate([a, b])
-    r = geosynth.grow_relief(mesh, "hammered", method="project", depth=0.05, scale=4.0, **FAST)
-    gap = (r.base[:, 2] > 0.049) & (r.base[:, 2] < 0.051)  # the lower plate's top face
+    r = geosynth.grow_relief(mesh, "hammered", method="project", depth=0.05, scale=4.0, resolution=0.02, **FAST)
+    inner = (np.abs(r.base[:, :2]) < 0.49).all(1)  # off the rims (their smoothed normals lean outward)
+    gap = inner & (np.abs(r.base[:, 2] - 0.05) < 1e-9)  # the lower plate's top face
     assert r.heights[gap].max() < 0.01 and r.limited > 0
+    facing = inner & (np.abs(r.base[:, 2] - 0.07) < 1e-9)  # the upper plate's bottom face
+    assert r.vertices[gap, 2].max() < r.vertices[facing, 2].min()
     assert r.heights[r.base[:, 2] > 0.169].max() > 0.04  # the top, facing nothing, keeps its relief
 
 
@@ -230,7 +234,7 @@ def test_same_seed_same_bytes(tmp_path, one_device):
 
 def test_synthesis_is_the_same_on_every_device(device_pair):
     a, b = device_pair
-    fast = dict(FAST, refine=1)  # the growth and a refinement pass
+    fast = dict(FAST, refine=1, remesh="yes")  # the remesh, the growth, a refinement pass and the output level
     ra = geosynth.grow_relief(_sphere(), "cobbles", device=a, **SPHERE, **fast)
     rb = geosynth.grow_relief(_sphere(), "cobbles", device=b, **SPHERE, **fast)
     np.testing.assert_array_equal(ra.vertices, rb.vertices)
@@ -247,8 +251,90 @@ def test_cli_synth_with_an_image_and_its_colours(files, tmp_path, capsys):
     out = tmp_path / "ball.3mf"
     rc = main(["relief", str(files / "sphere.stl"), str(files / "cobbles.png"),
                "--colour", str(files / "cobbles_rgb.png"),
-               "-o", str(out), "--scale", "16", "--search", "coherent", "--refine", "0", "--device", ONE_DEVICE])
+               "-o", str(out), "--scale", "16", "--search", "coherent", "--refine", "0", "--remesh", "no",
+               "--device", ONE_DEVICE])
     text = capsys.readouterr().out
-    assert rc == 0 and "synthesis: M4's growth" in text and "project: amplitude" in text
+    assert rc == 0 and "M4's growth" in text and "project: amplitude" in text
     v, f, col = read_3mf(out)
     assert trimesh.Trimesh(v, f, process=False).is_watertight and col is not None and len(np.unique(col, axis=0)) > 5
+
+
+# ---------------------------------------------------------------------- coarse to fine (transfer.py)
+
+
+def _plane(n: int, step: float):
+    yy, xx = np.meshgrid(np.arange(n) * step, np.arange(n) * step, indexing="ij")
+    v = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], 1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    f = np.concatenate([np.stack([a, a + 1, a + n + 1], 1), np.stack([a, a + n + 1, a + n], 1)])
+    return v, f
+
+
+def test_transfer_reproduces_a_coherent_copy_and_is_continuous_across_patches():
+    from geosynth.relief.refine import refine_mesh
+    from geosynth.relief.transfer import sample, transfer, vertex_faces
+
+    ex = load_example("cobbles", size=4.0)  # 128 x 128 cells of 1/128, tiling
+    s_c = 4 * ex.spacing  # the coarse level: 4 example cells an edge
+    vc, fc = _plane(12, s_c)
+    frames = np.tile(np.eye(3), (len(vc), 1, 1))
+    rot = np.zeros(len(vc), np.int64)
+    place = vc[:, :2] / s_c + [3.0, 5.0]  # one coherent copy, in coarse cells
+    v, f, src = refine_mesh(vc, fc, 1.01 * ex.spacing)
+    vface = vertex_faces(f, src, len(v))
+    h, col, where = transfer(ex, vc, fc, frames, place, rot, 1, s_c, v, vface)
+    want, want_col = sample(ex, v[:, :2] / ex.spacing + [12.0, 20.0])
+    np.testing.assert_allclose(h, want, atol=1e-12)  # every fine vertex: the example's own relief
+    assert np.abs(col.astype(np.int64) - want_col).max() <= 0.5 + 1e-9  # rounded (the three weights' sum)
+    # a second patch from an unrelated place on the right half, turned by 180 degrees (R = 2), on a smooth
+    # example (a step at the border would be as large as the relief's range; blended, it stays a slope)
+    from dataclasses import replace
+
+    yy, xx = np.meshgrid(np.arange(128), np.arange(128), indexing="ij")
+    smooth = replace(ex, heights=0.02 + 0.02 * np.sin(2 * np.pi * xx / 16) * np.sin(2 * np.pi * yy / 16), colours=None)
+    right = vc[:, 0] > 5.5 * s_c
+    place2 = place.copy()
+    place2[right] = [5.0, 5.0] - vc[right, :2] / s_c
+    rot2 = np.where(right, 1, 0)
+    h2, col2, _ = transfer(smooth, vc, fc, frames, place2, rot2, 2, s_c, v, vface)
+    assert col2 is None
+    left_says = sample(smooth, v[:, :2] / ex.spacing + [12.0, 20.0])[0]
+    right_says = sample(smooth, (np.array([5.0, 5.0]) - v[:, :2] / s_c) * 4)[0]
+    far = v[:, 0] > 7 * s_c
+    np.testing.assert_allclose(h2[far], right_says[far], atol=1e-12)
+    border = np.abs(v[:, 0] - 5.5 * s_c) < s_c
+    assert np.abs(left_says - right_says)[border].max() > 0.6 * smooth.depth  # a hard switch would step this much
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]]])
+    step = np.abs(h2[e[:, 0]] - h2[e[:, 1]])
+    inside = np.abs(left_says[e[:, 0]] - left_says[e[:, 1]])
+    assert step.max() < 0.5 * smooth.depth and step.max() < 2.5 * inside.max(), (step.max(), inside.max())
+
+
+def test_remesh_makes_a_slivered_closed_mesh_even_and_keeps_it_closed():
+    from geosynth.relief.refine import SLIVER_SHARE, isotropic_remesh, sliver_share
+
+    mesh = _cylinder()  # side faces as tall as the cylinder, 1/24 of the way around wide
+    assert sliver_share(mesh.vertices, mesh.faces, 0.06) > SLIVER_SHARE
+    v, f = isotropic_remesh(mesh.vertices, mesh.faces, 0.05)
+    out = trimesh.Trimesh(v, f, process=False)
+    assert out.is_watertight and out.is_winding_consistent and out.volume > 0
+    assert sliver_share(v, f, 0.06) < 0.02
+    assert abs(out.volume / mesh.volume - 1) < 0.01  # projected back onto the input; the rims kept as features
+    assert sliver_share(_sphere().vertices, _sphere().faces, 0.06) == 0  # an even mesh is left alone ("auto")
+
+
+@pytest.mark.parametrize("make", [_sphere, _cylinder], ids=["icosphere", "cylinder"])
+def test_uniform_subdivision_keeps_a_closed_mesh_closed(make):
+    from geosynth.relief.refine import subdivide_uniform
+
+    mesh = make()
+    v, f, src = subdivide_uniform(mesh.vertices, mesh.faces, 0.1)
+    out = trimesh.Trimesh(v, f, process=False)
+    assert out.is_watertight and out.is_winding_consistent and out.volume == pytest.approx(mesh.volume, rel=1e-9)
+    assert out.edges_unique_length.max() <= 0.1 and len(np.unique(f)) == len(v)
+    np.testing.assert_array_equal(v[:len(mesh.vertices)], mesh.vertices)  # the input's vertices keep their ids
+    # every new face lies in its source face (all three corners on the source face's plane)
+    n = mesh.face_normals[src]
+    d = np.einsum("fkj,fj->fk", v[f] - mesh.vertices[mesh.faces[src, 0]][:, None, :], n)
+    assert np.abs(d).max() < 1e-12

@@ -9,9 +9,10 @@
   The share of the surface within the example's statistics: the vertices of regions whose amplitude
   and period are both within 10% of the example's.
 - Seams: the local amplitude (std of the heights within one period of a vertex, at up to 3000
-  seeded vertices) on border vertices against inside ones, for two kinds of border: the projection's
-  blends (:func:`geosynth.relief.project.blend_share` > 0.15) and the synthesis' patch borders
-  (edges whose two ends copied example cells more than 2 cells apart). A seam that flattens or
+  seeded vertices, over a seeded subset of about 256 vertices a ball) on border vertices against
+  inside ones, for two kinds of border: the projection's blends
+  (:func:`geosynth.relief.project.blend_share` > 0.15) and the synthesis' patch borders (edges whose
+  two ends copied example cells more than 2 cells apart). A seam that flattens or
   doubles the relief shows as a local amplitude below (or above) the inside's.
 """
 
@@ -113,13 +114,33 @@ def _region_spectrum(p: np.ndarray, n: np.ndarray, h: np.ndarray, spacing: float
     return s.amplitude, s.period
 
 
-def _local_amplitude(p: np.ndarray, h: np.ndarray, at: np.ndarray, radius: float) -> np.ndarray:
+def _local_amplitude(p: np.ndarray, h: np.ndarray, at: np.ndarray, radius: float, seed: int = 0,
+                     per_ball: int = 256) -> np.ndarray:
+    """(len(at),) std of the heights within ``radius`` of each vertex ``at`` (nan with 3 or fewer), over a
+    seeded subset of the vertices holding about ``per_ball`` a ball (all of them when the balls are
+    smaller): one vectorized k-nearest query instead of a Python list a ball (a period's ball on a fine
+    mesh holds thousands)."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(p)
-    out = np.empty(len(at))
-    for k, nb in enumerate(tree.query_ball_point(p[at], radius)):
-        out[k] = np.std(h[nb]) if len(nb) > 3 else np.nan
+    probe = tree.query_ball_point(p[at[:64]], radius, return_length=True)
+    mean = float(np.mean(probe)) if len(probe) else 0.0
+    pts, hs = p, h
+    if mean > per_ball:
+        rng = np.random.default_rng(seed)
+        sub = np.sort(rng.choice(len(p), size=max(8, int(len(p) * per_ball / mean)), replace=False))
+        pts, hs = p[sub], h[sub]
+        tree = cKDTree(pts)
+    k = min(len(pts), 2 * per_ball)
+    d, i = tree.query(p[at], k=k, distance_upper_bound=radius)
+    d, i = d.reshape(len(at), k), i.reshape(len(at), k)
+    ok = np.isfinite(d)
+    vals = np.where(ok, hs[np.minimum(i, len(pts) - 1)], 0.0)
+    n = ok.sum(1)
+    mean_h = vals.sum(1) / np.maximum(n, 1)
+    var = (np.where(ok, (vals - mean_h[:, None]) ** 2, 0.0)).sum(1) / np.maximum(n, 1)
+    out = np.sqrt(var)
+    out[n <= 3] = np.nan
     return out
 
 
@@ -163,7 +184,7 @@ def measure(method: str, example, vertices: np.ndarray, normals: np.ndarray, hei
     rng = np.random.default_rng(seed)
     at = np.sort(rng.choice(ids, size=min(_SAMPLES, len(ids)), replace=False))
     radius = ex.period if math.isfinite(ex.period) else 4 * spacing
-    local = _local_amplitude(v, heights, at, radius)
+    local = _local_amplitude(v, heights, at, radius, seed)
     blend = blend_share(normals)[at] > _BLEND
     seams = []
     borders = [blend]

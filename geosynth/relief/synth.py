@@ -58,12 +58,17 @@ class SynthResult:
         source: (V,) int64 the example cell (row-major index into the example's grid) each vertex
             copied, -1 where unreached.
         stats: lists, launches, seeds, unreached count, search and its reason.
+        place: (V, 2) float64 each vertex's place in the example (column, row; fractional cells of the
+            example's grid, unpadded), what :func:`geosynth.relief.transfer.transfer` continues.
+        rotation: (V,) int64 the rotation each vertex's copy was matched at (angle 2 pi r / R).
     """
 
     heights: np.ndarray
     colours: np.ndarray | None
     source: np.ndarray
     stats: dict
+    place: np.ndarray | None = None
+    rotation: np.ndarray | None = None
 
 
 def _grid_faces(h: int, w: int) -> np.ndarray:
@@ -350,7 +355,10 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
         if len(nb) == 0:
             return None
         d = base[t] - base[nb]
-        dx, dy = d @ fr[t, 0], d @ fr[t, 1]
+        # the offset in each neighbour's own frame (its rotation maps that frame to the example's): a line
+        # field's frames (R = 2) may turn by 180 degrees from one vertex to the next, and the offset read in
+        # t's frame then pointed back through the example (the place never advanced)
+        dx, dy = np.einsum("ij,ij->i", d, fr[nb, 0]), np.einsum("ij,ij->i", d, fr[nb, 1])
         r = picked_rot[nb]
         pl = place[nb] + np.stack([(dx * cos_r[r] - dy * sin_r[r]) / s, (dx * sin_r[r] + dy * cos_r[r]) / s], 1)
         col, row = np.rint(pl[:, 0]).astype(np.int64), np.rint(pl[:, 1]).astype(np.int64)
@@ -487,4 +495,6 @@ def synthesize(example: ReliefExample, vertices: np.ndarray, faces: np.ndarray, 
                          np.asarray(where))
     stats["unreached"] = int((~textured[ne:]).sum())
     src_cells = np.where(picked[ne:] >= 0, ecell.ravel()[np.maximum(picked[ne:], 0)], -1)
-    return SynthResult(heights[ne:].copy(), None if colours is None else colours[ne:].copy(), src_cells, stats)
+    out_place = place[ne:] - (pad if example.periodic else 0)
+    return SynthResult(heights[ne:].copy(), None if colours is None else colours[ne:].copy(), src_cells, stats,
+                       out_place, picked_rot[ne:].copy())
