@@ -183,7 +183,8 @@ def _numpy_groups() -> str:
 
     try:
         spec = find_spec("numpy")
-        text = open(os.path.join(list(spec.submodule_search_locations)[0], "version.py")).read()
+        with open(os.path.join(list(spec.submodule_search_locations)[0], "version.py")) as f:
+            text = f.read()
         major, minor = (int(v) for v in re.search(r'version\s*[:=][^"\']*["\'](\d+)\.(\d+)', text).groups())
     except (AttributeError, ImportError, OSError, TypeError, ValueError, IndexError):
         return NUMPY_AVX512["new"]
@@ -225,7 +226,11 @@ def warn_if_numpy_differs() -> None:
         import numpy as np
 
         features = np.core._multiarray_umath.__cpu_features__
-    active = [k for k in ("X86_V4", "AVX512F", "AVX512_SKX") if features.get(k)]
+    # the hardware's features, not what NumPy dispatches: a group named in the variable (read when
+    # NumPy loaded) is off; NumPy 2.4 dispatches its AVX-512 code as X86_V4, earlier ones by set
+    disabled = set(os.environ.get(ENV_NUMPY_FEATURES, "").split())
+    groups = ("X86_V4",) if "X86_V4" in features else ("AVX512F", "AVX512_SKX")
+    active = [k for k in groups if features.get(k) and k not in disabled]
     if active:
         _numpy_warned = True
         warnings.warn(f"NumPy was imported before geosynth and runs its AVX-512 code ({', '.join(active)}), whose "
