@@ -849,3 +849,21 @@ def test_completion_options_are_checked_once_and_equal_the_keywords():
     assert np.array_equal(a.positions, b.positions) and np.array_equal(a.completed, b.completed)
     with pytest.raises(ValueError, match="either as options= or as keywords"):
         complete_surface(cap, fit="plane", region=WAVE_REGION, window=4, options=opts)
+
+
+def test_spaced_elements_keep_a_window_that_spans_their_period():
+    """The automatic window shrinks until two thirds of the capture hold it whole, except for
+    elements spaced in every direction (bumps) whose window spans their period: 40% is enough
+    there (a window under a period grows bumps into chains, issue 32's zoo 03 and 04)."""
+    from geosynth.completion.spectrum import ReliefSpectrum
+    from geosynth.completion.synthesis import AUTO_WHOLE, AUTO_WHOLE_SPACED, AutoSettings
+
+    fields = {f.name for f in dataclasses.fields(ReliefSpectrum)}
+    spec = ReliefSpectrum(**{name: 0.1 if name == "anisotropy" else 1.0 for name in fields})
+    base = dict(window=5, rotations=4, frames="paper", refine=0, spacing="minimum", coarse=False,
+                capture_spacing=0.04, spectrum=spec, fine=0.0, regular=0.5, reason="", targets_per_period=11.3)
+    bumps = AutoSettings(**base, spaced=True)
+    assert bumps.whole_share(5) == AUTO_WHOLE_SPACED  # 11 targets across ~ 11.3 a period
+    assert bumps.whole_share(4) == AUTO_WHOLE  # 9: under a period, the usual rule
+    assert AutoSettings(**base, spaced=False).whole_share(5) == AUTO_WHOLE  # ridges, a directed relief
+    assert AutoSettings(**{**base, "targets_per_period": math.nan}, spaced=True).whole_share(5) == AUTO_WHOLE

@@ -118,7 +118,9 @@ AUTO_FEATURE_COARSEN = 4.0  # a relief that is not band-limited whose correlatio
 AUTO_PER_FEATURE = 3.0  # ... is resampled to targets at that length / this
 AUTO_WINDOW_PERIODS = 0.75  # window W = round(this x samples a period): (2W + 1) spacings ~ 1.5 periods
 AUTO_WINDOW_RANGE = (3, 5)  # the paper's W = 3 at least; 5 at most (a 5-ring query holds ~91 vertices)
-AUTO_WHOLE = 2 / 3  # ... and no larger than two thirds of the capture's vertices can hold whole (3 at least)
+AUTO_WHOLE = 2 / 3  # ... and no larger than two thirds of the capture's vertices can hold whole (3 at least),
+AUTO_WHOLE_SPACED = 0.4  # ... or, for an isotropic relief whose window spans a period, this share (its elements
+# are spaced by what a window sees of their neighbours: under a period, bumps grow into chains and bare bands)
 AUTO_DIRECTED = 0.2  # anisotropy at or above this: a directed relief, copied unturned in the fit's frames
 AUTO_SLOPE_ORDER = 0.3  # ... and its slopes keep to one direction or two at right angles at least this much
 AUTO_FINE = 0.05  # share of the power below 4 samples a wavelength at or above this: sharp features,
@@ -457,6 +459,17 @@ class AutoSettings:
     regular: float
     reason: str
     latitude: tuple | None = None
+    targets_per_period: float = float("nan")
+    spaced: bool = False
+
+    def whole_share(self, window: int) -> float:
+        """The share of the capture that must hold a whole window of ``window`` rings for it to
+        be kept (:data:`AUTO_WHOLE`; :data:`AUTO_WHOLE_SPACED` for a relief of elements spaced in
+        every direction, neither directed nor stripes (``spaced``), whose window of
+        (2 ``window`` + 1) target spacings spans its period)."""
+        # a window is whole rings: one within 10% of the period spans it (5 rings on 11.3 targets a period)
+        spans = math.isfinite(self.targets_per_period) and 2 * window + 1 >= 0.9 * self.targets_per_period
+        return AUTO_WHOLE_SPACED if self.spaced and spans else AUTO_WHOLE
 
 
 def _relief_grid(fit: SurfaceFit, points: np.ndarray, spacing: float | None = None, cut: float | None = None):
@@ -659,7 +672,8 @@ def choose_settings(capture, fit: SurfaceFit) -> AutoSettings:
               + f"; {why_r}; refine {refine}")
     return AutoSettings(window=window, rotations=rotations, frames=frames, refine=refine, spacing=spacing,
                         coarse=coarse, capture_spacing=s_c, spectrum=spec, fine=fine, regular=regular, reason=reason,
-                        latitude=latitude)
+                        latitude=latitude, targets_per_period=float(per_t),
+                        spaced=bool(math.isfinite(period) and not directed and not stripes))
 
 
 def choose_search(search: str, n_targets: int, n_candidates: int, rotations: int) -> tuple[str, str]:
@@ -1425,11 +1439,15 @@ def _prepared_relief(cap, sf: SurfaceFit, region, options: CompletionOptions,
     window = chosen.window
     if chosen.window_auto:
         w0 = window
-        while window > AUTO_WINDOW_RANGE[0] and float(np.mean(depth >= window)) < AUTO_WHOLE:
+        need = (lambda w: AUTO_WHOLE) if chosen.auto is None else chosen.auto.whole_share
+        while window > AUTO_WINDOW_RANGE[0] and float(np.mean(depth >= window)) < need(window):
             window -= 1
         if window != w0:
             auto_line += (f"; window {w0} -> {window}: {float(np.mean(depth >= w0)):.0%} of the capture holds a "
-                          f"whole window of {w0}, under {AUTO_WHOLE:.0%}")
+                          f"whole window of {w0}, under {need(w0):.0%}")
+        elif chosen.auto is not None and need(w0) < AUTO_WHOLE and float(np.mean(depth >= w0)) < AUTO_WHOLE:
+            auto_line += (f"; window {w0} kept: {float(np.mean(depth >= w0)):.0%} of the capture holds it, at least "
+                          f"{need(w0):.0%} for elements spaced in every direction, whose window spans their period")
     whole = int((depth >= window).sum())
     if whole == 0:
         deepest = float(depth.max()) if len(depth) else 0.0
