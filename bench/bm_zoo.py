@@ -212,6 +212,43 @@ def compare_reliefs(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.nd
     return out
 
 
+def _gap(uv: np.ndarray, h: np.ndarray, region: np.ndarray, threshold: float, period: float) -> float:
+    """95th percentile, over the bare points of ``region``, of the distance to the nearest bump
+    point (height >= ``threshold``) of the whole surface, in periods: how wide its bare patches are."""
+    from scipy.spatial import cKDTree
+
+    bumps = h >= threshold
+    bare = region & ~bumps
+    if bumps.sum() == 0 or bare.sum() == 0:
+        return math.nan
+    d, _ = cKDTree(uv[bumps]).query(uv[bare])
+    return float(np.percentile(d, 95)) / period
+
+
+def bump_gaps(member: Member, uv: np.ndarray, h: np.ndarray, done: np.ndarray, usable: np.ndarray) -> float:
+    """How wide the completed part's bare patches are against the truth's over the same part
+    (:func:`_gap`: 1 = as the generator made them; bumps grown into chains leave wider ones).
+    The truth is the zoo member's whole surface (``zoo.capture_surface(whole=True)``); a bump is
+    a point above the midpoint of the captured heights' 5th and 99.5th percentiles."""
+    from scipy.spatial import cKDTree
+
+    from zoo import capture_surface
+
+    truth = capture_surface(member, whole=True)[0]
+    uv_t, h_t, usable_t = _surface_uv(member, truth)
+    captured = h[~done & usable]
+    lo, hi = np.percentile(captured, [5, 99.5])
+    threshold = 0.5 * (lo + hi)
+    # the truth's points in the completed part: those whose nearest output point was completed
+    _, nearest = cKDTree(uv[usable]).query(uv_t[usable_t])
+    region_t = np.zeros(len(uv_t), bool)
+    region_t[np.flatnonzero(usable_t)] = done[usable][nearest]
+    period = float(member.params["period"])
+    ours = _gap(uv[usable], h[usable], (done & usable)[usable], threshold, period)
+    theirs = _gap(uv_t[usable_t], h_t[usable_t], region_t[usable_t], threshold, period)
+    return ours / theirs if theirs > 0 else math.nan
+
+
 def _points(path: Path) -> np.ndarray:
     from geosynth.geometry.pointsets import read_geometry
 
@@ -285,6 +322,8 @@ def measure_complete(member: Member, output: Path, capture: Path | None = None) 
     out = compare_reliefs(grids[0], grids[1], spacing)
     if member.params["relief"] != "ridges":
         out["angle_diff"] = math.nan
+    if member.params["relief"] == "bumps":
+        out["gaps"] = bump_gaps(member, uv, h, done, usable)
     out["colour_in"] = bool(member.params["coloured"])
     out["colour_out"] = "red" in v.dtype.names
     if out["colour_in"] and out["colour_out"]:
@@ -387,6 +426,8 @@ def verdict(row: dict) -> bool:
         ok &= bool(row.get("colour_out")) and row.get("colour_hist", 0) >= 0.8
     if math.isfinite(row.get("angle_diff", math.nan)):
         ok &= row["angle_diff"] <= 10
+    if math.isfinite(row.get("gaps", math.nan)):  # bumps: bare patches no wider than the truth's
+        ok &= row["gaps"] <= 1 + TOLERANCE
     return bool(ok)
 
 
@@ -428,7 +469,7 @@ def table(method: str, rows: list[dict]) -> list[str]:
     cols = {"volume": ["kind", "size", "height", "thickness", "whole", "spanning", "connected", "loops", "period",
                        "vs_random"],
             "pointtexture": ["size", "height", "base", "angle_diff", "vs_random"],
-            "complete": ["size", "height", "base", "angle_diff", "colour_in", "colour_out", "colour_hist"]}[method]
+            "complete": ["size", "height", "base", "gaps", "angle_diff", "colour_in", "colour_out", "colour_hist"]}[method]
     lines = [f"| member | writer | {' | '.join(cols)} | time s | target met |",
              "|" + "---|" * (len(cols) + 4)]
     for r in rows:
