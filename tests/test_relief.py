@@ -338,3 +338,20 @@ def test_uniform_subdivision_keeps_a_closed_mesh_closed(make):
     n = mesh.face_normals[src]
     d = np.einsum("fkj,fj->fk", v[f] - mesh.vertices[mesh.faces[src, 0]][:, None, :], n)
     assert np.abs(d).max() < 1e-12
+
+
+def test_element_aspect_reads_a_stretch():
+    """The features' distortion measure (issue 34 item 4): an isotropic relief's elements read
+    about 1, the same stretched twice along one axis about 2, and a built-in knurl stretched
+    1.5x about 1.5; a flat grid has none."""
+    from scipy.ndimage import gaussian_filter, zoom
+
+    from geosynth.relief.examples import builtin_heights
+    from geosynth.relief.quality import element_aspect
+
+    noise = np.random.default_rng(0).standard_normal((96, 96))
+    assert 1.0 <= element_aspect(gaussian_filter(noise, 3, mode="wrap")) < 1.25
+    assert 1.7 < element_aspect(gaussian_filter(noise, (3, 6), mode="wrap")) < 2.3
+    knurl, _ = builtin_heights("knurl")
+    assert element_aspect(knurl) < 1.1 and 1.35 < element_aspect(zoom(knurl, (1.0, 1.5), order=1)) < 1.7
+    assert np.isnan(element_aspect(np.zeros((32, 32))))
