@@ -27,6 +27,8 @@ Usage: python bench/bm_completion.py [--quick] [--devices cpu,opencl:0:0] [--sea
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import math
 import sys
 import time

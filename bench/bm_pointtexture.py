@@ -15,6 +15,8 @@ Usage: python bench/bm_pointtexture.py [--quick] [--large] [--devices cpu,opencl
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import sys
 import time
 from pathlib import Path

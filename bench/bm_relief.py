@@ -26,6 +26,8 @@ Usage: python bench/bm_relief.py [--quick] [--devices opencl:0:0] [--scale S] [-
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import sys
 import time
 from pathlib import Path

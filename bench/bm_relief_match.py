@@ -23,6 +23,8 @@ opencl, CPU s for Warp's one-thread cpu). Usage: python bench/bm_relief_match.py
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import argparse
 import sys
 import time

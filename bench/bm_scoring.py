@@ -15,6 +15,8 @@ Usage: python bench/bm_scoring.py [--quick] [--devices cpu,opencl:0:0] [--out FI
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import argparse
 import sys
 from pathlib import Path

@@ -24,6 +24,8 @@ Usage: python bench/bm_texture.py [--quick] [--scale 0.1] [--devices cpu,opencl:
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import argparse
 import sys
 import time

@@ -16,6 +16,8 @@ thickness, untiled as well). --quick: 128 x 128 in 2 x 2 tiles, plus the naive b
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import os
 import sys
 import time

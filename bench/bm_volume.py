@@ -32,6 +32,8 @@ Usage: python bench/bm_volume.py [--quick] [--devices cpu,opencl:0:0] [--out FIL
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import argparse
 import sys
 import time

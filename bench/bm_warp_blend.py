@@ -19,6 +19,8 @@ Usage: python bench/bm_warp_blend.py [--quick] [--out FILE]
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import sys
 from pathlib import Path
 

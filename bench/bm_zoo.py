@@ -26,6 +26,8 @@ Usage: python bench/bm_zoo.py [--quick] [--devices opencl:0:0] [--methods volume
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import json
 import math
 import re

@@ -9,6 +9,8 @@ machine and devices through :func:`start` and writes its report through :func:`f
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import argparse
 import os
 import platform

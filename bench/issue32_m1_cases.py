@@ -5,6 +5,7 @@ concatenated, not unioned): rivets.ply, tori.ply, washers.ply in the folder give
     geosynth volume /tmp/cases/washers.ply -o out.ply --size 96 --device opencl --seed 1 --png out.png
 """
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
 import sys
 from pathlib import Path
 

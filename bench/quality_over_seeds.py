@@ -13,6 +13,8 @@ The results are in bench/RESULTS.md, "Quality claims over seeds".
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import argparse
 import json
 import os

@@ -29,6 +29,8 @@ Families
 
 from __future__ import annotations
 
+import geosynth  # noqa: F401,I001  first: it keeps NumPy off its AVX-512 code (geosynth.core.config)
+
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
