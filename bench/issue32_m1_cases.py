@@ -43,4 +43,6 @@ def main(folder: str) -> None:
 
 
 if __name__ == "__main__":
+    if any(a.startswith("-") for a in sys.argv[1:]):  # not a folder named "--help"
+        sys.exit("usage: python bench/issue32_m1_cases.py [FOLDER]: the cases' meshes in FOLDER (bench/out/issue32_m1)")
     main(sys.argv[1] if len(sys.argv) > 1 else "bench/out/issue32_m1")

@@ -524,6 +524,8 @@ _WRITERS = {"volume": _write_volume, "pointtexture": _write_points, "complete": 
 if __name__ == "__main__":  # write every member's file: python bench/zoo.py [FOLDER] [COUNT]
     import sys
 
+    if any(a.startswith("-") for a in sys.argv[1:]):  # not a folder named "--help"
+        sys.exit("usage: python bench/zoo.py [FOLDER] [COUNT]: every member's file in FOLDER (bench/out/zoo)")
     folder = Path(sys.argv[1] if len(sys.argv) > 1 else "bench/out/zoo")
     count = int(sys.argv[2]) if len(sys.argv) > 2 else 12
     for m in METHODS:
