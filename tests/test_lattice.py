@@ -122,3 +122,9 @@ def test_the_tiled_scan_follows_the_same_lattice_across_its_tiles():
                                   progress=False, lattice=True)
     assert res.lattice is not None and res.lattice_text.startswith("lattice")
     assert _congruent_everywhere(res.source, res.quantized, res.lattice.vectors, step=3)
+
+
+def test_a_lattice_asked_for_where_no_scan_follows_it_is_said_unused():
+    vol = synthesize_volume(_periodic_slab(), (8, 64, 64), levels=1, block=16, seed=3, device=ONE_DEVICE,
+                            progress=False, band=BAND, method="optimize", lattice=True)
+    assert vol.lattice is None and vol.lattice_text.startswith("lattice: not used")

@@ -964,6 +964,9 @@ def choose_lattice(src: np.ndarray, band: float, wanted: bool | None, possible: 
     Returns:
         (:class:`geosynth.volume.lattice.Lattice` or None, the line; "" when none was looked for).
     """
+    if wanted and not possible:  # asked for, but nothing here would follow it: say so
+        return None, ("lattice: not used (it guides a slab's scan, graphcut or paper; this run is "
+                      "not one)")
     if wanted is False or not possible:
         return None, ""
     from geosynth.volume.lattice import find_lattice, lattice_text
