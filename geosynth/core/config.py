@@ -218,14 +218,10 @@ def warn_if_numpy_differs() -> None:
     global _numpy_warned
     if _numpy_warned:
         return
-    try:
-        import numpy as np
+    import numpy as np
 
-        features = np._core._multiarray_umath.__cpu_features__  # NumPy 2
-    except AttributeError:  # pragma: no cover - NumPy 1
-        import numpy as np
-
-        features = np.core._multiarray_umath.__cpu_features__
+    core = getattr(np, "_core", None) or np.core  # NumPy 2, NumPy 1
+    features = core._multiarray_umath.__cpu_features__
     # the hardware's features, not what NumPy dispatches: a group named in the variable (read when
     # NumPy loaded) is off; NumPy 2.4 dispatches its AVX-512 code as X86_V4, earlier ones by set
     disabled = set(os.environ.get(ENV_NUMPY_FEATURES, "").split())

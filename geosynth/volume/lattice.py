@@ -108,6 +108,9 @@ def _halve(a: np.ndarray) -> np.ndarray:
     return (a[:, 0::2, 0::2] + a[:, 1::2, 0::2] + a[:, 0::2, 1::2] + a[:, 1::2, 1::2]) // 4
 
 
+_NEIGHBOURS = [(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+
+
 def _minima(a: np.ndarray) -> list[tuple[float, int, int]]:
     """Deep local minima (difference, dy, dx) of the self-difference over the half plane
     of shifts (dy > 0, or dy == 0 and dx > 0; the other half mirrors it)."""
@@ -124,12 +127,10 @@ def _minima(a: np.ndarray) -> list[tuple[float, int, int]]:
             continue
         if v > LATTICE_DIFFERENCE:
             continue
-        around = [d.get((dy + i, dx + j), math.inf) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
-        if any(w < v for w in around):
+        around = {(dy + i, dx + j): d.get((dy + i, dx + j), math.inf) for i, j in _NEIGHBOURS}
+        # a strict minimum; a flat one counts once, at its first shift
+        if any(w < v or (w == v and s < (dy, dx)) for s, w in around.items()):
             continue
-        if any(w == v and (dy + i, dx + j) < (dy, dx) for (i, j), w in
-               zip([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j], around)):
-            continue  # a flat minimum counts once, at its first shift
         mid = d.get((round(dy / 2), round(dx / 2)), math.inf)
         if mid < v + LATTICE_CONTRAST:
             continue
